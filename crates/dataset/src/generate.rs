@@ -1,0 +1,217 @@
+//! Generates a Blender-format dataset by rendering a ground-truth [`Scene`].
+
+use std::f32::consts::TAU;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Point3, Vector3};
+use nerfsv_scene::{Camera, Intrinsics, RenderSettings, Scene};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::error::DatasetError;
+use crate::image::{DepthImage, Image};
+use crate::writer::{write_split, FrameToWrite};
+use crate::SPLITS;
+
+/// What to render. Defaults follow the paper: 200/150/150 views of 100×100 pixels.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GenerateOptions {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Views per split: train, val, test.
+    pub train: usize,
+    pub val: usize,
+    pub test: usize,
+    /// Horizontal field of view in radians.
+    pub camera_angle_x: f32,
+    /// Seed of the camera placement.
+    pub seed: u64,
+    /// Distance of hemisphere cameras from the look-at point, metres `[min, max]`.
+    pub radius: [f32; 2],
+    /// Elevation of hemisphere cameras above the horizon, degrees `[min, max]`.
+    pub elevation_deg: [f32; 2],
+    /// Fraction of views taken low and close, at drone altitude (0.15–0.5 m) inside the
+    /// scene looking roughly horizontally, instead of from the hemisphere.
+    pub close_up_fraction: f32,
+    /// Anti-aliasing: `n` gives n×n samples per pixel.
+    pub supersample: u32,
+}
+
+impl Default for GenerateOptions {
+    fn default() -> Self {
+        Self {
+            width: 100,
+            height: 100,
+            train: 200,
+            val: 150,
+            test: 150,
+            camera_angle_x: 0.8,
+            seed: 0,
+            radius: [3.5, 5.0],
+            elevation_deg: [15.0, 70.0],
+            close_up_fraction: 0.0,
+            supersample: 2,
+        }
+    }
+}
+
+impl GenerateOptions {
+    /// Rejects sizes that are zero or absurd before any work is done.
+    pub fn validate(&self) -> Result<(), DatasetError> {
+        let bad = |field: &str, msg: String| Err(DatasetError::Invalid(format!("{field}: {msg}")));
+        for (field, v) in [("width", self.width), ("height", self.height)] {
+            if v == 0 || v > 8192 {
+                return bad(field, format!("must be between 1 and 8192 pixels, found {v}"));
+            }
+        }
+        for (field, n) in [("train", self.train), ("val", self.val), ("test", self.test)] {
+            if n == 0 || n > 100_000 {
+                return bad(field, format!("must be between 1 and 100000 views, found {n}"));
+            }
+        }
+        if !(self.camera_angle_x > 0.01 && self.camera_angle_x < 3.1) {
+            return bad("camera_angle_x", format!("must be in (0.01, 3.1) radians, found {}", self.camera_angle_x));
+        }
+        if !(self.radius[0] > 0.0 && self.radius[0] <= self.radius[1] && self.radius[1] < 100.0) {
+            return bad("radius", format!("must satisfy 0 < min <= max < 100 m, found {:?}", self.radius));
+        }
+        let [e0, e1] = self.elevation_deg;
+        if !(-90.0..=90.0).contains(&e0) || !(e0..=90.0).contains(&e1) {
+            return bad(
+                "elevation_deg",
+                format!("must satisfy -90 <= min <= max <= 90, found {:?}", self.elevation_deg),
+            );
+        }
+        if !(0.0..=1.0).contains(&self.close_up_fraction) {
+            return bad("close_up_fraction", format!("must be in [0, 1], found {}", self.close_up_fraction));
+        }
+        if self.supersample == 0 || self.supersample > 8 {
+            return bad("supersample", format!("must be between 1 and 8, found {}", self.supersample));
+        }
+        Ok(())
+    }
+
+    fn count(&self, split: &str) -> usize {
+        match split {
+            "train" => self.train,
+            "val" => self.val,
+            _ => self.test,
+        }
+    }
+}
+
+/// Camera poses of one split; deterministic in `(seed, split)`.
+pub fn sample_cameras(scene: &Scene, opts: &GenerateOptions, split: &str) -> Vec<Camera> {
+    let split_idx = SPLITS.iter().position(|s| *s == split).unwrap_or(0) as u64;
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ split_idx);
+    let k = Intrinsics::from_fov_x(opts.width, opts.height, opts.camera_angle_x);
+    let n = opts.count(split);
+    let n_close = (opts.close_up_fraction * n as f32).round() as usize;
+    (0..n)
+        .map(
+            |i| {
+                if i < n - n_close {
+                    hemisphere_camera(&mut rng, opts, k)
+                } else {
+                    close_up_camera(&mut rng, scene, k)
+                }
+            },
+        )
+        .collect()
+}
+
+fn hemisphere_camera(rng: &mut ChaCha8Rng, opts: &GenerateOptions, k: Intrinsics) -> Camera {
+    let az = rng.random_range(0.0..TAU);
+    // Uniform in solid angle between the two elevations.
+    let (s0, s1) = (opts.elevation_deg[0].to_radians().sin(), opts.elevation_deg[1].to_radians().sin());
+    let el = rng.random_range(s0..=s1).asin();
+    let r = rng.random_range(opts.radius[0]..=opts.radius[1]);
+    let target = Point3::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), rng.random_range(0.1..0.3));
+    let eye = target + Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin()) * r;
+    Camera::look_at(eye, target, Vector3::z(), k)
+}
+
+fn close_up_camera(rng: &mut ChaCha8Rng, scene: &Scene, k: Intrinsics) -> Camera {
+    let eye = loop {
+        let (r, a) = (rng.random_range(0.0f32..1.0).sqrt() * 1.05, rng.random_range(0.0..TAU));
+        let p = Point3::new(r * a.cos(), r * a.sin(), rng.random_range(0.15..0.5));
+        if scene.distance(&p) > 0.15 {
+            break p;
+        }
+    };
+    let yaw = rng.random_range(0.0..TAU);
+    let pitch = rng.random_range(-25.0f32..5.0).to_radians();
+    let dir = Vector3::new(pitch.cos() * yaw.cos(), pitch.cos() * yaw.sin(), pitch.sin());
+    Camera::look_at(eye, eye + dir, Vector3::z(), k)
+}
+
+/// Renders every split of `scene` into the dataset folder `out`.
+///
+/// The dataset is built in a sibling temporary folder and renamed into place when complete,
+/// so a failure or a kill never leaves a half-written dataset at `out`. An existing `out` is
+/// replaced only if it is empty or holds a previous dataset (a `transforms_train.json`).
+/// `progress(done, total)` is called after each rendered view.
+pub fn generate(
+    scene: &Scene,
+    out: &Path,
+    opts: &GenerateOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(), DatasetError> {
+    opts.validate()?;
+    if out.exists() {
+        let is_dataset = out.join("transforms_train.json").exists();
+        let is_empty = std::fs::read_dir(out).map_err(|e| DatasetError::io(out, e))?.next().is_none();
+        if !out.is_dir() || !(is_dataset || is_empty) {
+            return Err(DatasetError::Invalid(format!(
+                "{}: exists and is not a dataset folder; refusing to overwrite it",
+                out.display()
+            )));
+        }
+    }
+    let tmp = partial_dir(out);
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).map_err(|e| DatasetError::io(&tmp, e))?;
+    let result = (|| {
+        let settings = RenderSettings { supersample: opts.supersample, ..RenderSettings::default() };
+        let total = opts.train + opts.val + opts.test;
+        let mut done = 0;
+        for split in SPLITS {
+            let cameras = sample_cameras(scene, opts, split);
+            let frames: Vec<FrameToWrite> = cameras
+                .into_iter()
+                .map(|camera| {
+                    let r = scene.render(&camera, &settings);
+                    done += 1;
+                    progress(done, total);
+                    FrameToWrite {
+                        camera,
+                        image: Image { width: r.width, height: r.height, rgba: r.rgba },
+                        depth: Some(DepthImage { width: r.width, height: r.height, metres: r.depth }),
+                    }
+                })
+                .collect();
+            write_split(&tmp, split, &frames)?;
+        }
+        let meta = serde_json::json!({ "scene": scene.name, "generator": "nerfsv", "options": opts });
+        nerfsv_scene::io::atomic_write(&tmp.join("scene.json"), |w| {
+            serde_json::to_writer_pretty(w, &meta).map_err(std::io::Error::other)
+        })
+        .map_err(|e| DatasetError::io(tmp.join("scene.json"), e))
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    if out.exists() {
+        std::fs::remove_dir_all(out).map_err(|e| DatasetError::io(out, e))?;
+    }
+    std::fs::rename(&tmp, out).map_err(|e| DatasetError::io(out, e))
+}
+
+fn partial_dir(out: &Path) -> PathBuf {
+    let name = out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
+    out.with_file_name(format!(".{name}.partial-{}", std::process::id()))
+}

@@ -1,0 +1,308 @@
+//! `transforms_{split}.json`: the Blender/NeRF-synthetic format, plus the instant-ngp and
+//! nerfstudio variants (`fl_x`, `fl_y`, `cx`, `cy`, `w`, `h` at the top level or per frame,
+//! `aabb_scale`, `depth_file_path`).
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::Matrix4;
+use nerfsv_scene::{Camera, Intrinsics};
+use rayon::prelude::*;
+use serde_json::{Map, Value};
+
+use crate::error::DatasetError;
+use crate::image::{DepthImage, Image};
+
+/// One posed image of a split.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// `file_path` exactly as the transforms file gives it.
+    pub file_path: String,
+    /// The image file it resolves to.
+    pub image_path: PathBuf,
+    pub camera: Camera,
+    pub image: Image,
+    /// Ground-truth depth, when the frame has a `depth_file_path`.
+    pub depth: Option<DepthImage>,
+}
+
+/// The frames of one split (`train`, `val` or `test`).
+#[derive(Clone, Debug)]
+pub struct Split {
+    pub name: String,
+    /// The transforms file the split was read from.
+    pub path: PathBuf,
+    pub frames: Vec<Frame>,
+    /// instant-ngp's `aabb_scale`, when present.
+    pub aabb_scale: Option<f32>,
+}
+
+/// How to read a split.
+#[derive(Clone, Copy, Debug)]
+pub struct LoadOptions {
+    /// Integer downscaling factor applied to images, depths and intrinsics (1 = full size).
+    pub downscale: u32,
+    /// Read ground-truth depth images when frames name them.
+    pub load_depth: bool,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self { downscale: 1, load_depth: true }
+    }
+}
+
+impl Split {
+    /// Total pixel count over all frames.
+    pub fn pixels(&self) -> usize {
+        self.frames.iter().map(|f| f.camera.intrinsics.pixels()).sum()
+    }
+}
+
+/// Reads `dir/transforms_{split}.json` and its images. If that file does not exist but
+/// `dir/transforms.json` does (instant-ngp, nerfstudio), every 8th frame of it forms the `val`
+/// and `test` splits and the rest `train`.
+pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, DatasetError> {
+    if opts.downscale == 0 {
+        return Err(DatasetError::Invalid("downscale must be at least 1".into()));
+    }
+    let mut path = dir.join(format!("transforms_{split}.json"));
+    let mut keep: Option<Box<dyn Fn(usize) -> bool>> = None;
+    if !path.exists() && dir.join("transforms.json").exists() {
+        path = dir.join("transforms.json");
+        keep = Some(if split == "train" { Box::new(|i| i % 8 != 0) } else { Box::new(|i| i % 8 == 0) });
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::io(&path, e))?;
+    let root: Value =
+        serde_json::from_str(&text).map_err(|source| DatasetError::Json { path: path.clone(), source })?;
+    let ctx = Ctx { path: &path, base: path.parent().unwrap_or(Path::new(".")) };
+    let root = root.as_object().ok_or_else(|| ctx.field(None, "(root)", "expected a JSON object"))?;
+    let top = ctx.partial_intrinsics(None, root)?;
+    let depth_scale = ctx.opt_f32(None, root, "depth_unit_scale_factor")?.unwrap_or(1e-3);
+    let aabb_scale = ctx.opt_f32(None, root, "aabb_scale")?;
+    let frames = root
+        .get("frames")
+        .ok_or_else(|| ctx.field(None, "frames", "missing"))?
+        .as_array()
+        .ok_or_else(|| ctx.field(None, "frames", "expected an array"))?;
+    if frames.is_empty() {
+        return Err(ctx.field(None, "frames", "is empty"));
+    }
+    let selected: Vec<(usize, &Value)> =
+        frames.iter().enumerate().filter(|(i, _)| keep.as_ref().is_none_or(|k| k(*i))).collect();
+    let frames =
+        selected.par_iter().map(|&(i, v)| ctx.frame(i, v, &top, depth_scale, opts)).collect::<Result<Vec<_>, _>>()?;
+    Ok(Split { name: split.to_string(), path, frames, aabb_scale })
+}
+
+/// Intrinsics fields as far as one JSON object gives them.
+#[derive(Clone, Copy, Default)]
+struct PartialIntrinsics {
+    w: Option<f32>,
+    h: Option<f32>,
+    fl_x: Option<f32>,
+    fl_y: Option<f32>,
+    cx: Option<f32>,
+    cy: Option<f32>,
+    angle_x: Option<f32>,
+    angle_y: Option<f32>,
+}
+
+impl PartialIntrinsics {
+    fn overridden_by(self, o: PartialIntrinsics) -> Self {
+        Self {
+            w: o.w.or(self.w),
+            h: o.h.or(self.h),
+            fl_x: o.fl_x.or(self.fl_x),
+            fl_y: o.fl_y.or(self.fl_y),
+            cx: o.cx.or(self.cx),
+            cy: o.cy.or(self.cy),
+            angle_x: o.angle_x.or(self.angle_x),
+            angle_y: o.angle_y.or(self.angle_y),
+        }
+    }
+}
+
+struct Ctx<'a> {
+    path: &'a Path,
+    base: &'a Path,
+}
+
+impl Ctx<'_> {
+    fn field(&self, frame: Option<usize>, field: &str, message: impl Into<String>) -> DatasetError {
+        DatasetError::Field { path: self.path.to_path_buf(), frame, field: field.to_string(), message: message.into() }
+    }
+
+    fn opt_f32(&self, frame: Option<usize>, obj: &Map<String, Value>, key: &str) -> Result<Option<f32>, DatasetError> {
+        match obj.get(key) {
+            None | Some(Value::Null) => Ok(None),
+            Some(v) => match v.as_f64() {
+                Some(x) if x.is_finite() => Ok(Some(x as f32)),
+                _ => Err(self.field(frame, key, format!("expected a finite number, found {v}"))),
+            },
+        }
+    }
+
+    fn partial_intrinsics(
+        &self,
+        frame: Option<usize>,
+        obj: &Map<String, Value>,
+    ) -> Result<PartialIntrinsics, DatasetError> {
+        let positive = |key: &str| -> Result<Option<f32>, DatasetError> {
+            match self.opt_f32(frame, obj, key)? {
+                Some(x) if x <= 0.0 => Err(self.field(frame, key, format!("must be positive, found {x}"))),
+                other => Ok(other),
+            }
+        };
+        Ok(PartialIntrinsics {
+            w: positive("w")?,
+            h: positive("h")?,
+            fl_x: positive("fl_x")?,
+            fl_y: positive("fl_y")?,
+            cx: self.opt_f32(frame, obj, "cx")?,
+            cy: self.opt_f32(frame, obj, "cy")?,
+            angle_x: positive("camera_angle_x")?,
+            angle_y: positive("camera_angle_y")?,
+        })
+    }
+
+    fn frame(
+        &self,
+        i: usize,
+        v: &Value,
+        top: &PartialIntrinsics,
+        depth_scale: f32,
+        opts: LoadOptions,
+    ) -> Result<Frame, DatasetError> {
+        let obj = v.as_object().ok_or_else(|| self.field(Some(i), "(frame)", "expected a JSON object"))?;
+        let file_path = obj
+            .get("file_path")
+            .ok_or_else(|| self.field(Some(i), "file_path", "missing"))?
+            .as_str()
+            .ok_or_else(|| self.field(Some(i), "file_path", "expected a string"))?
+            .to_string();
+        let c2w = self.matrix(i, obj)?;
+        let image_path = resolve_image(self.base, &file_path);
+        let image_err = |field: &'static str, file: &Path, message: String| DatasetError::Image {
+            path: self.path.to_path_buf(),
+            frame: i,
+            field,
+            file: file.to_path_buf(),
+            message,
+        };
+        let image = Image::read_png(&image_path).map_err(|m| image_err("file_path", &image_path, m))?;
+        let k = top.overridden_by(self.partial_intrinsics(Some(i), obj)?);
+        let intr = self.intrinsics(i, &k, image.width, image.height)?;
+        if (image.width, image.height) != (intr.width, intr.height) {
+            return Err(image_err(
+                "file_path",
+                &image_path,
+                format!("image is {}×{}, transforms say {}×{}", image.width, image.height, intr.width, intr.height),
+            ));
+        }
+        let depth = match obj.get("depth_file_path").and_then(Value::as_str) {
+            Some(d) if opts.load_depth => {
+                let dpath = self.base.join(d);
+                let depth =
+                    DepthImage::read_png(&dpath, depth_scale).map_err(|m| image_err("depth_file_path", &dpath, m))?;
+                if (depth.width, depth.height) != (intr.width, intr.height) {
+                    return Err(image_err(
+                        "depth_file_path",
+                        &dpath,
+                        format!("depth is {}×{}, image is {}×{}", depth.width, depth.height, intr.width, intr.height),
+                    ));
+                }
+                Some(depth.downscaled(opts.downscale))
+            }
+            _ => None,
+        };
+        let f = opts.downscale;
+        if intr.width / f == 0 || intr.height / f == 0 {
+            return Err(self.field(Some(i), "file_path", format!("downscale {f} leaves an empty image")));
+        }
+        Ok(Frame {
+            file_path,
+            image_path,
+            camera: Camera::new(intr.downscaled(f), c2w),
+            image: image.downscaled(f),
+            depth,
+        })
+    }
+
+    fn matrix(&self, i: usize, obj: &Map<String, Value>) -> Result<Matrix4<f32>, DatasetError> {
+        let field = "transform_matrix";
+        let rows = obj
+            .get(field)
+            .ok_or_else(|| self.field(Some(i), field, "missing"))?
+            .as_array()
+            .ok_or_else(|| self.field(Some(i), field, "expected an array of 4 rows"))?;
+        if rows.len() != 4 {
+            return Err(self.field(Some(i), field, format!("has {} rows, expected 4", rows.len())));
+        }
+        let mut m = Matrix4::zeros();
+        for (r, row) in rows.iter().enumerate() {
+            let row = row.as_array().ok_or_else(|| self.field(Some(i), field, format!("row {r} is not an array")))?;
+            if row.len() != 4 {
+                return Err(self.field(Some(i), field, format!("row {r} has {} columns, expected 4", row.len())));
+            }
+            for (c, x) in row.iter().enumerate() {
+                match x.as_f64() {
+                    Some(x) if x.is_finite() => m[(r, c)] = x as f32,
+                    _ => {
+                        return Err(self.field(
+                            Some(i),
+                            field,
+                            format!("entry [{r}][{c}] is {x}, expected a finite number"),
+                        ))
+                    }
+                }
+            }
+        }
+        let rot = m.fixed_view::<3, 3>(0, 0);
+        let ortho = (rot.transpose() * rot - nalgebra::Matrix3::identity()).abs().max();
+        if ortho > 1e-2 {
+            return Err(self.field(Some(i), field, "rotation part is not orthonormal (scaled or sheared pose)"));
+        }
+        Ok(m)
+    }
+
+    fn intrinsics(&self, i: usize, k: &PartialIntrinsics, img_w: u32, img_h: u32) -> Result<Intrinsics, DatasetError> {
+        let width = k.w.map_or(img_w, |w| w.round() as u32);
+        let height = k.h.map_or(img_h, |h| h.round() as u32);
+        let fx = match (k.fl_x, k.angle_x) {
+            (Some(f), _) => f,
+            (None, Some(a)) => 0.5 * width as f32 / (0.5 * a).tan(),
+            (None, None) => match (k.fl_y, k.angle_y) {
+                (Some(f), _) => f,
+                (None, Some(a)) => 0.5 * height as f32 / (0.5 * a).tan(),
+                (None, None) => return Err(self.field(Some(i), "camera_angle_x", "missing (and no fl_x/fl_y given)")),
+            },
+        };
+        let fy = match (k.fl_y, k.angle_y) {
+            (Some(f), _) => f,
+            (None, Some(a)) => 0.5 * height as f32 / (0.5 * a).tan(),
+            (None, None) => fx,
+        };
+        Ok(Intrinsics {
+            width,
+            height,
+            fx,
+            fy,
+            cx: k.cx.unwrap_or(0.5 * width as f32),
+            cy: k.cy.unwrap_or(0.5 * height as f32),
+        })
+    }
+}
+
+/// Blender writes `./train/r_0` without an extension; instant-ngp and nerfstudio write one.
+fn resolve_image(base: &Path, file_path: &str) -> PathBuf {
+    let p = base.join(file_path);
+    if p.extension().is_some() && p.exists() {
+        return p;
+    }
+    let with_png = base.join(format!("{file_path}.png"));
+    if with_png.exists() || p.extension().is_none() {
+        with_png
+    } else {
+        p
+    }
+}

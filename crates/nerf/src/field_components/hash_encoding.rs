@@ -1,0 +1,205 @@
+//! Multiresolution hash encoding (Müller et al. 2022, torch-ngp's `GridEncoder`).
+//!
+//! Level `l` has scale `s_l = base · b^l − 1` with `b = (finest/base)^(1/(L−1))` and
+//! `r_l = ceil(s_l) + 2` grid vertices per axis. A point `x ∈ [0,1]³` maps to
+//! `p = x·s_l + 0.5`; its cell corners are `floor(p) + {0,1}³` with trilinear weights.
+//! A corner's table index is dense (`i + j·r + k·r²`) when `r³` fits the level's table, else
+//! the spatial hash `i ⊕ j·2654435761 ⊕ k·805459861` (instant-ngp), both modulo the level size.
+//!
+//! Embeddings are one flat table `[n_entries, 2]` (`encoder.embeddings`), level `l` owning rows
+//! `offset_l .. offset_l + size_l`. The encoding of a point is `[n_levels · 2]`, level-major.
+//!
+//! Maths (per level, feature f):
+//!   forward   `y_f = Σ_c w_c · E[idx_c, f]`, `w_c = Π_d (frac_d or 1 − frac_d)`
+//!   backward  `∂L/∂E[idx_c, f] += w_c · ∂L/∂y_f` (no gradient w.r.t. positions is needed).
+
+/// Features per level; fixed at 2 as in instant-ngp/torch-ngp.
+pub const FEATURES: usize = 2;
+
+/// Geometry of one level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Level {
+    pub scale: f32,
+    /// Grid vertices per axis.
+    pub resolution: u32,
+    /// Rows of the embedding table owned by this level.
+    pub size: u32,
+    /// First row of this level in the embedding table.
+    pub offset: u32,
+    pub dense: bool,
+}
+
+/// The level layout of a hash encoding (the parameters live in a flat slice elsewhere).
+#[derive(Clone, Debug, PartialEq)]
+pub struct HashEncoding {
+    pub levels: Vec<Level>,
+    /// Total rows of the embedding table.
+    pub n_entries: usize,
+}
+
+impl HashEncoding {
+    /// `n_levels` levels from `base_resolution` to `finest_resolution`, at most `2^log2_table`
+    /// rows per level (rounded up to a multiple of 8 as torch-ngp does).
+    pub fn new(n_levels: usize, base_resolution: u32, finest_resolution: u32, log2_table: u32) -> Self {
+        let max_size = 1u64 << log2_table;
+        let b = if n_levels > 1 {
+            ((finest_resolution as f64 / base_resolution as f64).ln() / (n_levels - 1) as f64).exp()
+        } else {
+            1.0
+        };
+        let mut levels = Vec::with_capacity(n_levels);
+        let mut offset = 0u64;
+        for l in 0..n_levels {
+            let scale = base_resolution as f64 * b.powi(l as i32) - 1.0;
+            let resolution = scale.ceil() as u64 + 2;
+            let dense_size = resolution.pow(3);
+            let dense = dense_size <= max_size;
+            let size = dense_size.min(max_size).div_ceil(8) * 8;
+            levels.push(Level {
+                scale: scale as f32,
+                resolution: resolution as u32,
+                size: size as u32,
+                offset: offset as u32,
+                dense,
+            });
+            offset += size;
+        }
+        Self { levels, n_entries: offset as usize }
+    }
+
+    /// Output width: `n_levels · 2`.
+    pub fn output_dim(&self) -> usize {
+        self.levels.len() * FEATURES
+    }
+
+    /// Number of parameters: `n_entries · 2`.
+    pub fn n_params(&self) -> usize {
+        self.n_entries * FEATURES
+    }
+
+    /// Encodes one point `x ∈ [0,1]³` into `out: [n_levels · 2]` (all levels).
+    #[inline]
+    pub fn encode(&self, emb: &[f32], x: [f32; 3], out: &mut [f32]) {
+        for (l, lv) in self.levels.iter().enumerate() {
+            let (idx, w) = corners(lv, x);
+            let (mut a, mut b) = (0.0f32, 0.0f32);
+            for c in 0..8 {
+                let k = idx[c] as usize * 2;
+                a += w[c] * emb[k];
+                b += w[c] * emb[k + 1];
+            }
+            out[2 * l] = a;
+            out[2 * l + 1] = b;
+        }
+    }
+
+    /// Backward of one level over many points, accumulating into that level's gradient rows.
+    ///
+    /// positions: `[n, 3]` in `[0,1]`; d_out: `[n, 2]` (∂L/∂y of this level);
+    /// grad_level: `[size_l, 2]`, the level's slice of the embedding gradient.
+    pub fn backward_level(&self, l: usize, positions: &[f32], d_out: &[f32], grad_level: &mut [f32]) {
+        let lv = self.levels[l];
+        let n = d_out.len() / 2;
+        for i in 0..n {
+            let (ga, gb) = (d_out[2 * i], d_out[2 * i + 1]);
+            if ga == 0.0 && gb == 0.0 {
+                continue;
+            }
+            let x = [positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]];
+            let (idx, w) = corners(&lv, x);
+            for c in 0..8 {
+                let k = (idx[c] - lv.offset) as usize * 2;
+                grad_level[k] += w[c] * ga;
+                grad_level[k + 1] += w[c] * gb;
+            }
+        }
+    }
+}
+
+/// The 8 corner rows (absolute, including the level offset) and trilinear weights of `x`.
+#[inline(always)]
+pub fn corners(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 8]) {
+    let mut g = [0u32; 3];
+    let mut f = [0f32; 3];
+    for d in 0..3 {
+        let p = x[d].clamp(0.0, 1.0) * lv.scale + 0.5;
+        let fl = p.floor();
+        g[d] = fl as u32;
+        f[d] = p - fl;
+    }
+    let mut idx = [0u32; 8];
+    let mut w = [0f32; 8];
+    let r = lv.resolution;
+    for c in 0..8 {
+        let (cx, cy, cz) = ((c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32);
+        let (i, j, k) = (g[0] + cx, g[1] + cy, g[2] + cz);
+        let h = if lv.dense {
+            i.wrapping_add(j.wrapping_mul(r)).wrapping_add(k.wrapping_mul(r * r))
+        } else {
+            i ^ j.wrapping_mul(2_654_435_761) ^ k.wrapping_mul(805_459_861)
+        };
+        idx[c] = lv.offset + h % lv.size;
+        let wx = if cx == 1 { f[0] } else { 1.0 - f[0] };
+        let wy = if cy == 1 { f[1] } else { 1.0 - f[1] };
+        let wz = if cz == 1 { f[2] } else { 1.0 - f[2] };
+        w[c] = wx * wy * wz;
+    }
+    (idx, w)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    #[test]
+    fn levels_grow_geometrically_and_coarse_levels_are_dense() {
+        let e = HashEncoding::new(16, 16, 512, 15);
+        assert_eq!(e.levels.len(), 16);
+        assert!(e.levels[0].dense && !e.levels[15].dense);
+        assert!((e.levels[15].scale - 511.0).abs() < 0.5);
+        assert!(e.levels.iter().all(|l| l.size <= 1 << 15 && l.size % 8 == 0));
+    }
+
+    #[test]
+    fn hash_encoding_backward_matches_finite_differences_of_embeddings() {
+        let e = HashEncoding::new(4, 4, 64, 10);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let mut emb: Vec<f32> = (0..e.n_params()).map(|_| rng.random::<f32>() - 0.5).collect();
+        let n = 5;
+        let pos: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>()).collect();
+        let upstream: Vec<f32> = (0..n * e.output_dim()).map(|_| rng.random::<f32>() - 0.5).collect();
+        // L = Σ upstream · y
+        let loss = |emb: &[f32]| -> f64 {
+            let mut out = vec![0.0; e.output_dim()];
+            let mut s = 0.0f64;
+            for i in 0..n {
+                e.encode(emb, [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]], &mut out);
+                for (k, o) in out.iter().enumerate() {
+                    s += (*o as f64) * upstream[i * e.output_dim() + k] as f64;
+                }
+            }
+            s
+        };
+        let mut grad = vec![0.0f32; e.n_params()];
+        for (l, lv) in e.levels.iter().enumerate() {
+            let d: Vec<f32> = (0..n).flat_map(|i| [upstream[i * 8 + 2 * l], upstream[i * 8 + 2 * l + 1]]).collect();
+            let s = lv.offset as usize * 2;
+            e.backward_level(l, &pos, &d, &mut grad[s..s + lv.size as usize * 2]);
+        }
+        let mut checked = 0;
+        for k in (0..e.n_params()).filter(|&k| grad[k] != 0.0).take(40) {
+            let h = 1e-2f32;
+            let old = emb[k];
+            emb[k] = old + h;
+            let lp = loss(&emb);
+            emb[k] = old - h;
+            let lm = loss(&emb);
+            emb[k] = old;
+            let fd = (lp - lm) / (2.0 * h as f64);
+            assert!((fd - grad[k] as f64).abs() < 1e-4 + 1e-3 * fd.abs(), "k={k} fd={fd} an={}", grad[k]);
+            checked += 1;
+        }
+        assert!(checked >= 20);
+    }
+}

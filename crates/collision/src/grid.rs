@@ -313,8 +313,8 @@ impl ScalarGrid {
     }
 
     /// Trilinearly interpolated value at `p`.
-    pub fn value_at(&self, p: &Point3<f32>) -> GridQuery<f32> {
-        self.geometry.trilinear(&self.data, p)
+    pub fn value_at(&self, p: Point3<f32>) -> GridQuery<f32> {
+        self.geometry.trilinear(&self.data, &p)
     }
 }
 
@@ -344,7 +344,7 @@ mod tests {
         let f = |p: Point3<f32>| 0.5 * p.x - 2.0 * p.y + 3.0 * p.z + 1.0;
         let g = ScalarGrid::sample(&b, 20.0, f);
         for p in [Point3::new(0.013, 0.333, 0.07), Point3::new(-0.3, 0.1, -0.2)] {
-            let v = g.value_at(&p).in_grid().unwrap();
+            let v = g.value_at(p).in_grid().unwrap();
             assert!((v - f(p)).abs() < 1e-5, "{v} vs {}", f(p));
             let d = g.geometry.trilinear_gradient(&g.data, &p).in_grid().unwrap();
             assert!((d - Vector3::new(0.5, -2.0, 3.0)).norm() < 1e-3, "{d:?}");
@@ -355,10 +355,10 @@ mod tests {
     fn points_off_the_grid_are_reported_not_clamped() {
         let g = ScalarGrid::sample(&Aabb::cube(0.5), 10.0, |p| p.x);
         let far = g.geometry.bounds().max;
-        assert!(g.value_at(&far).in_grid().is_some());
-        assert!(g.value_at(&(far + Vector3::new(1e-3, 0.0, 0.0))).is_out_of_grid());
-        assert!(g.value_at(&Point3::new(0.0, -0.5001, 0.0)).is_out_of_grid());
-        assert!(g.value_at(&Point3::new(f32::NAN, 0.0, 0.0)).is_out_of_grid());
+        assert!(g.value_at(far).in_grid().is_some());
+        assert!(g.value_at(far + Vector3::new(1e-3, 0.0, 0.0)).is_out_of_grid());
+        assert!(g.value_at(Point3::new(0.0, -0.5001, 0.0)).is_out_of_grid());
+        assert!(g.value_at(Point3::new(f32::NAN, 0.0, 0.0)).is_out_of_grid());
     }
 
     #[test]

@@ -72,8 +72,8 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
         keep = Some(if split == "train" { Box::new(|i| i % 8 != 0) } else { Box::new(|i| i % 8 == 0) });
     }
     let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::io(&path, e))?;
-    let root: Value =
-        serde_json::from_str(&text).map_err(|source| DatasetError::Json { path: path.clone(), source })?;
+    let root: Value = serde_json::from_str(&quote_non_finite(&text))
+        .map_err(|source| DatasetError::Json { path: path.clone(), source })?;
     let ctx = Ctx { path: &path, base: path.parent().unwrap_or(Path::new(".")) };
     let root = root.as_object().ok_or_else(|| ctx.field(None, "(root)", "expected a JSON object"))?;
     let top = ctx.partial_intrinsics(None, root)?;
@@ -86,6 +86,14 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
         .ok_or_else(|| ctx.field(None, "frames", "expected an array"))?;
     if frames.is_empty() {
         return Err(ctx.field(None, "frames", "is empty"));
+    }
+    let mut top = top;
+    if top.w.is_none() || top.h.is_none() {
+        // Blender files give no size: every image must match the first one's.
+        if let Some((w, h)) = frames.first().and_then(|f| first_image_size(&ctx, f)) {
+            top.w = top.w.or(Some(w as f32));
+            top.h = top.h.or(Some(h as f32));
+        }
     }
     let selected: Vec<(usize, &Value)> =
         frames.iter().enumerate().filter(|(i, _)| keep.as_ref().is_none_or(|k| k(*i))).collect();
@@ -293,6 +301,16 @@ impl Ctx<'_> {
     }
 }
 
+/// The size of frame 0's image from its PNG header, if it can be read (errors surface later,
+/// with their frame, when the frame itself is loaded).
+fn first_image_size(ctx: &Ctx, frame: &Value) -> Option<(u32, u32)> {
+    let file_path = frame.get("file_path")?.as_str()?;
+    let file = std::fs::File::open(resolve_image(ctx.base, file_path)).ok()?;
+    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().ok()?;
+    let info = reader.info();
+    Some((info.width, info.height))
+}
+
 /// Blender writes `./train/r_0` without an extension; instant-ngp and nerfstudio write one.
 fn resolve_image(base: &Path, file_path: &str) -> PathBuf {
     let p = base.join(file_path);
@@ -305,4 +323,41 @@ fn resolve_image(base: &Path, file_path: &str) -> PathBuf {
     } else {
         p
     }
+}
+
+/// Python's `json` writes non-finite floats as bare `NaN`, `Infinity` and `-Infinity`, which are
+/// not JSON. Quote them (outside string literals) so the field checks can name the entry.
+fn quote_non_finite(text: &str) -> std::borrow::Cow<'_, str> {
+    if !(text.contains("NaN") || text.contains("Infinity")) {
+        return text.into();
+    }
+    let mut out = String::with_capacity(text.len() + 16);
+    let (mut in_string, mut escaped) = (false, false);
+    let mut rest = text;
+    while let Some(c) = rest.chars().next() {
+        if in_string {
+            out.push(c);
+            rest = &rest[c.len_utf8()..];
+            match (escaped, c) {
+                (true, _) => escaped = false,
+                (false, '\\') => escaped = true,
+                (false, '"') => in_string = false,
+                _ => {}
+            }
+            continue;
+        }
+        if let Some(tok) = ["-Infinity", "Infinity", "NaN"].into_iter().find(|t| rest.starts_with(t)) {
+            out.push('"');
+            out.push_str(tok);
+            out.push('"');
+            rest = &rest[tok.len()..];
+            continue;
+        }
+        if c == '"' {
+            in_string = true;
+        }
+        out.push(c);
+        rest = &rest[c.len_utf8()..];
+    }
+    out.into()
 }

@@ -1,1 +1,64 @@
+//! An Instant-NGP/torch-ngp style NeRF that trains in minutes on a few CPU cores.
+//!
+//! The model ([`Nerf`]) is a multiresolution hash encoding (16 levels × 2 features) feeding
+//! `sigma_net` (32 → 64 → 1 + 15: density through `trunc_exp` and 15 geometry features) and a
+//! colour net (degree-4 SH of the view direction + 15 features → 64 → 64 → RGB sigmoid), with
+//! an occupancy grid for empty-space skipping. Forward and backward are hand-written fused
+//! kernels over flat `f32` buffers ([`fields::ChunkWorkspace`]), parallel with rayon, every
+//! backward checked against finite differences in the tests.
+//!
+//! Modules follow nerfstudio's vocabulary: [`field_components`] (hash/SH encodings, MLP
+//! layers), [`fields`] (`NgpField` and the fused chunk kernels), [`model_components`]
+//! (occupancy grid, ray sampler, volume renderer, losses), [`optim`] (Adam), [`checkpoint`],
+//! [`train`], [`render`], [`metrics`].
+//!
+//! # Parameters and checkpoints
+//! All parameters are one flat vector, the concatenation of torch-ngp's tensors
+//! `encoder.embeddings` `[n_entries, 2]`, `sigma_net.0.weight` `[64, 32]`, `sigma_net.1.weight`
+//! `[16, 64]`, `color_net.0.weight` `[64, 31]`, `color_net.1.weight` `[64, 64]`,
+//! `color_net.2.weight` `[3, 64]` (bias-free, torch `[out, in]` layout). The uncertainty stage's
+//! "`sigma_net` parameters" are the two `sigma_net` weights only ([`Nerf::sigma_net_params`],
+//! 3072 values with the defaults). Checkpoints are safetensors files holding those tensors,
+//! `density_grid` and, for training, the Adam moments; see [`checkpoint`] for names and metadata.
+//!
+//! # Determinism
+//! The same [`TrainConfig::seed`] gives bit-identical weights whatever the rayon thread count,
+//! and a resumed run ends at the same weights as an uninterrupted one (see [`train`]).
+//! Set `MATMUL_NUM_THREADS=1` in the process environment so that `matrixmultiply` does not
+//! start its own threads inside rayon's (results are the same either way; speed is not).
+//!
+//! # Example
+//! ```no_run
+//! use nerfsv_dataset::{load_split, LoadOptions};
+//! use nerfsv_nerf::{evaluate, train, Budget, EvalOptions, NerfConfig, TrainConfig};
+//! let dir = std::path::Path::new("/work/data/stonehenge");
+//! let data = load_split(dir, "train", LoadOptions::default()).unwrap();
+//! let nerf = train(&data, "/tmp/run".as_ref(), Budget::Seconds(120.0), true,
+//!                  NerfConfig::default(), TrainConfig::default(), |p| eprintln!("{} {:.2}", p.step, p.psnr)).unwrap();
+//! let test = load_split(dir, "test", LoadOptions::default()).unwrap();
+//! let report = evaluate(&nerf, &test, EvalOptions::default());
+//! println!("PSNR {:.2} dB", report.psnr);
+//! let view = nerf.render_camera(&test.frames[0].camera, [1.0, 1.0, 1.0]);
+//! let sigma = nerf.density(&[[0.0, 0.0, 0.5]]);
+//! # let _ = (view, sigma);
+//! ```
 
+pub mod checkpoint;
+pub mod config;
+mod error;
+pub mod field_components;
+pub mod fields;
+pub mod metrics;
+pub mod model;
+pub mod model_components;
+pub mod optim;
+pub mod render;
+pub mod train;
+
+pub use config::{BackgroundMode, NerfConfig, TrainConfig};
+pub use error::NerfError;
+pub use fields::RayInput;
+pub use metrics::{evaluate, psnr, ssim, EvalOptions, EvalReport, ImageMetrics};
+pub use model::{Nerf, RayOutputs};
+pub use render::{render_split, RenderedView};
+pub use train::{check_bounds, checkpoint_path, train, Budget, Progress, StepStats, Trainer};

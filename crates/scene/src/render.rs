@@ -62,10 +62,20 @@ impl Scene {
     /// scene bounds. Termination tolerance grows slowly with distance.
     pub fn trace(&self, ray: &Ray, max_steps: u32) -> Option<Hit> {
         let (t0, t1) = self.bounds().expanded(1e-3).intersect(ray)?;
+        let mut buf = [0u16; 64];
+        let all: Vec<u16>;
+        let candidates = match self.ray_candidates(ray, t0, t1, 1e-3, &mut buf) {
+            Some(0) => return None,
+            Some(n) => &buf[..n],
+            None => {
+                all = (0..self.len() as u16).collect();
+                &all[..]
+            }
+        };
         let mut t = t0;
         for _ in 0..max_steps {
             let p = ray.at(t);
-            let (d, i) = self.closest(&p);
+            let (d, i) = self.closest_among(&p, candidates);
             if d < 1e-4 + 1e-4 * t {
                 return Some(Hit { t, point: p, primitive: i });
             }
@@ -77,7 +87,8 @@ impl Scene {
         None
     }
 
-    /// Soft-shadow visibility in [0, 1] of the sun from `p` (iq's penumbra estimate).
+    /// Soft-shadow visibility in [0, 1] of the sun from `p` (iq's penumbra estimate, over the
+    /// primitives whose bounding spheres come within the penumbra margin of the shadow ray).
     fn sun_visibility(&self, p: &Point3<f32>, n: &Vector3<f32>, s: &RenderSettings) -> f32 {
         let origin = p + n * 2e-3;
         let ray = Ray { origin, direction: s.sun };
@@ -85,9 +96,19 @@ impl Scene {
             Some((_, t1)) => t1,
             None => return 1.0,
         };
+        let mut buf = [0u16; 64];
+        let all: Vec<u16>;
+        let candidates = match self.ray_candidates(&ray, 0.0, t1, 0.05, &mut buf) {
+            Some(0) => return 1.0,
+            Some(n) => &buf[..n],
+            None => {
+                all = (0..self.len() as u16).collect();
+                &all[..]
+            }
+        };
         let (mut t, mut vis) = (1e-3f32, 1.0f32);
         for _ in 0..128 {
-            let d = self.distance(&ray.at(t));
+            let d = self.closest_among(&ray.at(t), candidates).0;
             if d < 1e-4 {
                 return 0.0;
             }
@@ -160,5 +181,63 @@ impl Scene {
             },
         );
         RenderedImage { width: w, height: h, rgba, depth }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Plain sphere tracing over the whole scene, for reference.
+    fn naive_trace(scene: &Scene, ray: &Ray) -> Option<f32> {
+        let (t0, t1) = scene.bounds().expanded(1e-3).intersect(ray)?;
+        let mut t = t0;
+        for _ in 0..2048 {
+            let d = scene.distance(&ray.at(t));
+            if d < 1e-4 + 1e-4 * t {
+                return Some(t);
+            }
+            t += d;
+            if t > t1 {
+                return None;
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn culled_trace_finds_the_same_hits_as_naive_sphere_tracing() {
+        let scene = Scene::stonehenge();
+        let mut hits = 0;
+        for k in 0..3000u32 {
+            let h = |m: u32| crate::texture::value_noise(k as f32 * 0.731 + m as f32 * 13.1, 0.5, 0.25 * m as f32);
+            let origin = Point3::new(6.0 * h(1) - 3.0, 6.0 * h(2) - 3.0, 0.2 + 2.5 * h(3));
+            let target = Point3::new(2.0 * h(4) - 1.0, 2.0 * h(5) - 1.0, 0.6 * h(6));
+            let ray = Ray::new(origin, target - origin);
+            let a = scene.trace(&ray, 2048).map(|hit| hit.t);
+            let b = naive_trace(&scene, &ray);
+            match (a, b) {
+                (Some(a), Some(b)) => {
+                    assert!((a - b).abs() < 2e-3, "ray {k}: {a} vs {b}");
+                    hits += 1;
+                }
+                (None, None) => {}
+                other => panic!("ray {k}: {other:?}"),
+            }
+        }
+        assert!(hits > 1000, "only {hits} rays hit");
+    }
+
+    #[test]
+    fn rays_that_miss_everything_are_transparent() {
+        let scene = Scene::monolith();
+        let up = Camera::look_at(
+            Point3::new(0.0, 0.0, 3.0),
+            Point3::new(0.0, 0.0, 10.0),
+            Vector3::y(),
+            crate::Intrinsics::from_fov_x(8, 8, 0.5),
+        );
+        let img = scene.render(&up, &RenderSettings::default());
+        assert!(img.rgba.chunks(4).all(|p| p[3] == 0.0) && img.depth.iter().all(|&d| d == 0.0));
     }
 }

@@ -193,6 +193,58 @@ impl Scene {
         (best, arg)
     }
 
+    /// Signed distance and closest primitive among the `candidates` only (same culling).
+    #[inline]
+    pub(crate) fn closest_among(&self, p: &Point3<f32>, candidates: &[u16]) -> (f32, usize) {
+        let mut best = f32::INFINITY;
+        let mut arg = 0;
+        for &c in candidates {
+            let i = c as usize;
+            let s = &self.spheres[i];
+            let (dx, dy, dz) = (p.x - s[0], p.y - s[1], p.z - s[2]);
+            let lower = (dx * dx + dy * dy + dz * dz).sqrt() - s[3];
+            if lower >= best {
+                continue;
+            }
+            let d = self.shapes[i].distance(p);
+            if d < best {
+                best = d;
+                arg = i;
+            }
+        }
+        (best, arg)
+    }
+
+    /// Writes into `out` the primitives whose bounding sphere (grown by `margin`) meets the ray
+    /// segment `[t0, t1]`, and returns how many. Sphere tracing against these alone is safe:
+    /// the others are never crossed, so the ray cannot step through them. `None` if they do not
+    /// fit in `out`.
+    pub(crate) fn ray_candidates(
+        &self,
+        ray: &crate::Ray,
+        t0: f32,
+        t1: f32,
+        margin: f32,
+        out: &mut [u16],
+    ) -> Option<usize> {
+        let mut n = 0;
+        for (i, s) in self.spheres.iter().enumerate() {
+            let oc = ray.origin - Point3::new(s[0], s[1], s[2]);
+            // Closest approach of the (unit-direction) ray to the centre, clamped to the segment.
+            let t = (-oc.dot(&ray.direction)).clamp(t0, t1);
+            let d2 = (oc + ray.direction * t).norm_squared();
+            let r = s[3] + margin;
+            if d2 <= r * r {
+                if n == out.len() {
+                    return None;
+                }
+                out[n] = i as u16;
+                n += 1;
+            }
+        }
+        Some(n)
+    }
+
     /// The material of primitive `i`.
     pub fn material(&self, i: usize) -> Material {
         self.materials[i]

@@ -1,0 +1,393 @@
+//! Files: atomic writes, grids as safetensors, the SDF as `.npy`.
+//!
+//! A grid file is a safetensors file with one tensor of shape `[nz, ny, nx]` (so numpy/PyTorch
+//! `t[z, y, x]` is node `(x, y, z)`) and this string metadata:
+//!
+//! | key | example | meaning |
+//! |---|---|---|
+//! | `format` | `nerfsv-grid` | file type |
+//! | `format_version` | `1` | layout version |
+//! | `kind` | `sdf` | `field` (F32), `sdf` (F32, metres) or `occupancy` (U8, 0/1) |
+//! | `origin` | `-1.9,-1.9,0` | node (0,0,0), metres |
+//! | `cell` | `0.025` | node spacing, metres |
+//! | `dims` | `153,153,49` | `nx,ny,nz` |
+//!
+//! The tensor is named like the kind. Floats are written in Rust's shortest round-trip form, so
+//! a save/load round trip is bit-identical.
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use nalgebra::Point3;
+use safetensors::tensor::{Dtype, TensorView};
+use safetensors::SafeTensors;
+
+use crate::grid::{GridGeometry, ScalarGrid};
+use crate::occupancy::OccupancyGrid;
+use crate::sdf::SdfGrid;
+use crate::CollisionError;
+
+const FORMAT: &str = "nerfsv-grid";
+const FORMAT_VERSION: &str = "1";
+
+/// Write `path` by writing a temporary file in the same directory, syncing it and renaming it
+/// into place: readers see the old file or the whole new one, never a part.
+pub(crate) fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
+) -> Result<(), CollisionError> {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let io_err = |source| CollisionError::Io { path: path.to_path_buf(), source };
+    let name = path.file_name().ok_or_else(|| {
+        io_err(io::Error::new(io::ErrorKind::InvalidInput, "path has no file name"))
+    })?;
+    let tmp = path.with_file_name(format!(
+        ".{}.tmp-{}-{}",
+        name.to_string_lossy(),
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let result = (|| {
+        let mut w = BufWriter::new(File::create(&tmp)?);
+        write(&mut w)?;
+        let file = w.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io_err(e));
+    }
+    Ok(())
+}
+
+fn f32_bytes(data: &[f32]) -> Vec<u8> {
+    data.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+fn save_grid(
+    path: &Path,
+    kind: &'static str,
+    geometry: &GridGeometry,
+    dtype: Dtype,
+    bytes: &[u8],
+) -> Result<(), CollisionError> {
+    let [nx, ny, nz] = geometry.dims;
+    let o = geometry.origin;
+    let metadata: HashMap<String, String> = [
+        ("format", FORMAT.to_string()),
+        ("format_version", FORMAT_VERSION.to_string()),
+        ("kind", kind.to_string()),
+        ("origin", format!("{},{},{}", o.x, o.y, o.z)),
+        ("cell", format!("{}", geometry.cell)),
+        ("dims", format!("{nx},{ny},{nz}")),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    let view = TensorView::new(dtype, vec![nz, ny, nx], bytes).map_err(|source| {
+        CollisionError::SafeTensors { path: path.to_path_buf(), source }
+    })?;
+    let buffer = safetensors::serialize([(kind, view)], Some(metadata))
+        .map_err(|source| CollisionError::SafeTensors { path: path.to_path_buf(), source })?;
+    write_atomically(path, |w| w.write_all(&buffer))
+}
+
+fn bad(path: &Path, field: &'static str, found: &str, expected: &str) -> CollisionError {
+    CollisionError::BadField {
+        path: path.to_path_buf(),
+        field,
+        found: found.to_string(),
+        expected: expected.to_string(),
+    }
+}
+
+fn parse_list<T: std::str::FromStr>(
+    path: &Path,
+    field: &'static str,
+    value: &str,
+    expected: &str,
+) -> Result<[T; 3], CollisionError> {
+    let parts: Vec<&str> = value.split(',').map(str::trim).collect();
+    let parsed: Option<Vec<T>> = parts.iter().map(|s| s.parse().ok()).collect();
+    match parsed {
+        Some(v) if v.len() == 3 => Ok(v.try_into().unwrap_or_else(|_| unreachable!())),
+        _ => Err(bad(path, field, value, expected)),
+    }
+}
+
+/// Read a grid file of `kind`, check its metadata and tensor, and return its geometry and the
+/// tensor's raw little-endian bytes.
+fn load_grid(
+    path: &Path,
+    kind: &'static str,
+    dtype: Dtype,
+) -> Result<(GridGeometry, Vec<u8>), CollisionError> {
+    let p = || path.to_path_buf();
+    let buffer = std::fs::read(path).map_err(|source| CollisionError::Io { path: p(), source })?;
+    let st = SafeTensors::deserialize(&buffer)
+        .map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
+    let (_, header) = SafeTensors::read_metadata(&buffer)
+        .map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
+    let empty = HashMap::new();
+    let meta = header.metadata().as_ref().unwrap_or(&empty);
+    let field = |name: &'static str| {
+        meta.get(name).map(String::as_str).ok_or(CollisionError::MissingField { path: p(), field: name })
+    };
+    let format = field("format")?;
+    if format != FORMAT {
+        return Err(bad(path, "format", format, &format!("\"{FORMAT}\"")));
+    }
+    let version = field("format_version")?;
+    if version != FORMAT_VERSION {
+        return Err(bad(path, "format_version", version, &format!("\"{FORMAT_VERSION}\"")));
+    }
+    let found_kind = field("kind")?;
+    if found_kind != kind {
+        return Err(bad(path, "kind", found_kind, &format!("\"{kind}\"")));
+    }
+    let origin: [f32; 3] =
+        parse_list(path, "origin", field("origin")?, "three comma-separated numbers")?;
+    let cell_s = field("cell")?;
+    let cell: f32 = cell_s.trim().parse().map_err(|_| bad(path, "cell", cell_s, "a number"))?;
+    let dims: [usize; 3] =
+        parse_list(path, "dims", field("dims")?, "three comma-separated node counts nx,ny,nz")?;
+    let geometry = GridGeometry::new(Point3::from(origin), cell, dims).map_err(|e| {
+        CollisionError::BadField {
+            path: p(),
+            field: "dims/origin/cell",
+            found: format!("origin {origin:?}, cell {cell}, dims {dims:?}"),
+            expected: e.to_string(),
+        }
+    })?;
+    let view = st.tensor(kind).map_err(|_| CollisionError::MissingTensor {
+        path: p(),
+        name: kind,
+        found: st.names().join(", "),
+    })?;
+    let [nx, ny, nz] = dims;
+    if view.dtype() != dtype {
+        return Err(CollisionError::BadTensor {
+            path: p(),
+            name: kind,
+            problem: format!("dtype {:?}, expected {dtype:?}", view.dtype()),
+        });
+    }
+    if view.shape() != [nz, ny, nx] {
+        return Err(CollisionError::BadTensor {
+            path: p(),
+            name: kind,
+            problem: format!(
+                "shape {:?}, expected [nz, ny, nx] = {:?} from metadata dims",
+                view.shape(),
+                [nz, ny, nx]
+            ),
+        });
+    }
+    Ok((geometry, view.data().to_vec()))
+}
+
+fn f32_from_bytes(bytes: &[u8]) -> Vec<f32> {
+    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}
+
+/// Write `data` (x-fastest over `geometry`) as a NumPy v1.0 `.npy` array `<f4`, shape
+/// `(nz, ny, nx)`, atomically.
+fn write_npy(path: &Path, geometry: &GridGeometry, data: &[f32]) -> Result<(), CollisionError> {
+    let [nx, ny, nz] = geometry.dims;
+    let mut header =
+        format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({nz}, {ny}, {nx}), }}");
+    // Magic (6) + version (2) + length (2) + header, padded with spaces to a multiple of 64,
+    // ending in '\n'.
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
+    header.push('\n');
+    let bytes = f32_bytes(data);
+    write_atomically(path, |w| {
+        w.write_all(b"\x93NUMPY\x01\x00")?;
+        w.write_all(&(header.len() as u16).to_le_bytes())?;
+        w.write_all(header.as_bytes())?;
+        w.write_all(&bytes)
+    })
+}
+
+impl ScalarGrid {
+    /// Save as safetensors (tensor `"field"`, F32 `[nz, ny, nx]`; see the [module docs](self)).
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), CollisionError> {
+        save_grid(path.as_ref(), "field", &self.geometry, Dtype::F32, &f32_bytes(&self.data))
+    }
+
+    /// Load a file written by [`ScalarGrid::save`].
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, CollisionError> {
+        let (geometry, bytes) = load_grid(path.as_ref(), "field", Dtype::F32)?;
+        Ok(Self { geometry, data: f32_from_bytes(&bytes) })
+    }
+
+    /// Export as `.npy` (`<f4`, shape `(nz, ny, nx)`).
+    pub fn write_npy(&self, path: impl AsRef<Path>) -> Result<(), CollisionError> {
+        write_npy(path.as_ref(), &self.geometry, &self.data)
+    }
+}
+
+impl SdfGrid {
+    /// Save as safetensors (tensor `"sdf"`, F32 metres `[nz, ny, nx]`; see the
+    /// [module docs](self)).
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), CollisionError> {
+        save_grid(path.as_ref(), "sdf", &self.geometry, Dtype::F32, &f32_bytes(&self.data))
+    }
+
+    /// Load a file written by [`SdfGrid::save`].
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, CollisionError> {
+        let (geometry, bytes) = load_grid(path.as_ref(), "sdf", Dtype::F32)?;
+        Ok(Self { geometry, data: f32_from_bytes(&bytes) })
+    }
+
+    /// Export as `.npy` (`<f4` metres, shape `(nz, ny, nx)`); the geometry is not stored, so
+    /// keep the safetensors file or the summary alongside.
+    pub fn write_npy(&self, path: impl AsRef<Path>) -> Result<(), CollisionError> {
+        write_npy(path.as_ref(), &self.geometry, &self.data)
+    }
+}
+
+impl OccupancyGrid {
+    /// Save as safetensors (tensor `"occupancy"`, U8 0/1 `[nz, ny, nx]`).
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), CollisionError> {
+        let bytes: Vec<u8> = self.data.iter().map(|&o| o as u8).collect();
+        save_grid(path.as_ref(), "occupancy", &self.geometry, Dtype::U8, &bytes)
+    }
+
+    /// Load a file written by [`OccupancyGrid::save`]; any byte other than 0 or 1 is an error.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, CollisionError> {
+        let path = path.as_ref();
+        let (geometry, bytes) = load_grid(path, "occupancy", Dtype::U8)?;
+        if let Some(pos) = bytes.iter().position(|&b| b > 1) {
+            return Err(CollisionError::BadTensor {
+                path: path.to_path_buf(),
+                name: "occupancy",
+                problem: format!("value {} at flat index {pos}, expected 0 or 1", bytes[pos]),
+            });
+        }
+        Ok(Self { geometry, data: bytes.into_iter().map(|b| b == 1).collect() })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nerfsv_scene::Aabb;
+
+    fn sample_sdf() -> SdfGrid {
+        let f = |p: Point3<f32>| (p - Point3::new(0.1, 0.0, 0.2)).norm() - 0.2;
+        let grid = ScalarGrid::sample(
+            &Aabb::new(Point3::new(-0.33, -0.3, 0.0), Point3::new(0.4, 0.3, 0.51)),
+            40.0,
+            f,
+        );
+        SdfGrid::from_field(&grid, 0.0, true)
+    }
+
+    #[test]
+    fn grids_round_trip_bit_identically_through_safetensors() {
+        let dir = tempfile::tempdir().unwrap();
+        let sdf = sample_sdf();
+        sdf.save(dir.path().join("sdf.safetensors")).unwrap();
+        let back = SdfGrid::load(dir.path().join("sdf.safetensors")).unwrap();
+        assert_eq!(back.geometry, sdf.geometry);
+        assert!(back.data.iter().zip(&sdf.data).all(|(a, b)| a.to_bits() == b.to_bits()));
+
+        let field = ScalarGrid { geometry: sdf.geometry, data: sdf.data.clone() };
+        field.save(dir.path().join("f.safetensors")).unwrap();
+        assert_eq!(ScalarGrid::load(dir.path().join("f.safetensors")).unwrap(), field);
+
+        let occ = OccupancyGrid::from_sdf(&sdf);
+        occ.save(dir.path().join("o.safetensors")).unwrap();
+        assert_eq!(OccupancyGrid::load(dir.path().join("o.safetensors")).unwrap(), occ);
+        // Only the three files: no temporaries left behind.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
+    }
+
+    #[test]
+    fn tensor_is_laid_out_z_y_x_for_numpy() {
+        let dir = tempfile::tempdir().unwrap();
+        let sdf = sample_sdf();
+        let path = dir.path().join("sdf.safetensors");
+        sdf.save(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let st = SafeTensors::deserialize(&bytes).unwrap();
+        let t = st.tensor("sdf").unwrap();
+        let [nx, ny, nz] = sdf.dims();
+        assert_eq!(t.shape(), [nz, ny, nx]);
+        let (x, y, z) = (5, 7, 3);
+        let o = 4 * ((z * ny + y) * nx + x);
+        assert_eq!(f32::from_le_bytes(t.data()[o..o + 4].try_into().unwrap()), sdf.get(x, y, z));
+    }
+
+    fn write_with_metadata(path: &Path, drop: &str, replace: Option<(&str, &str)>) {
+        let sdf = sample_sdf();
+        sdf.save(path).unwrap();
+        let bytes = std::fs::read(path).unwrap();
+        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+        let mut meta = header.metadata().clone().unwrap();
+        meta.remove(drop);
+        if let Some((k, v)) = replace {
+            meta.insert(k.to_string(), v.to_string());
+        }
+        let data = f32_bytes(&sdf.data);
+        let [nx, ny, nz] = sdf.dims();
+        let view = TensorView::new(Dtype::F32, vec![nz, ny, nx], &data).unwrap();
+        std::fs::write(path, safetensors::serialize([("sdf", view)], Some(meta)).unwrap()).unwrap();
+    }
+
+    #[test]
+    fn loading_a_file_without_a_metadata_field_names_the_file_and_the_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("grid.safetensors");
+        write_with_metadata(&path, "cell", None);
+        let err = SdfGrid::load(&path).unwrap_err();
+        assert!(matches!(err, CollisionError::MissingField { field: "cell", .. }), "{err:?}");
+        let msg = err.to_string();
+        assert!(msg.ends_with("grid.safetensors: metadata field \"cell\" missing"), "{msg}");
+    }
+
+    #[test]
+    fn loading_rejects_bad_metadata_wrong_kind_and_wrong_shape() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("grid.safetensors");
+        write_with_metadata(&path, "", Some(("dims", "3,x,4")));
+        let msg = SdfGrid::load(&path).unwrap_err().to_string();
+        assert!(msg.contains("metadata field \"dims\" is \"3,x,4\""), "{msg}");
+
+        let [nx, ny, nz] = sample_sdf().dims();
+        write_with_metadata(&path, "", Some(("dims", &format!("{},{ny},{nz}", nx + 1))));
+        let msg = SdfGrid::load(&path).unwrap_err().to_string();
+        assert!(msg.contains("tensor \"sdf\": shape"), "{msg}");
+
+        sample_sdf().save(&path).unwrap();
+        let msg = ScalarGrid::load(&path).unwrap_err().to_string();
+        assert!(msg.contains("metadata field \"kind\" is \"sdf\", expected \"field\""), "{msg}");
+
+        let missing = dir.path().join("nope.safetensors");
+        let msg = SdfGrid::load(&missing).unwrap_err().to_string();
+        assert!(msg.contains("nope.safetensors"), "{msg}");
+    }
+
+    #[test]
+    fn npy_export_has_a_valid_v1_header_and_the_data() {
+        let dir = tempfile::tempdir().unwrap();
+        let sdf = sample_sdf();
+        let path = dir.path().join("sdf.npy");
+        sdf.write_npy(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
+        let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+        assert_eq!((10 + hlen) % 64, 0);
+        let header = std::str::from_utf8(&bytes[10..10 + hlen]).unwrap();
+        let [nx, ny, nz] = sdf.dims();
+        assert!(header.contains(&format!("'shape': ({nz}, {ny}, {nx})")), "{header}");
+        assert!(header.contains("'descr': '<f4'") && header.ends_with('\n'));
+        assert_eq!(f32_from_bytes(&bytes[10 + hlen..]), sdf.data);
+    }
+}

@@ -1,0 +1,401 @@
+//! `NgpField`: hash encoding → `sigma_net` → (density, geometry features); SH(direction) +
+//! geometry features → `color_net` → RGB. All parameters live in one flat `f32` vector whose
+//! blocks are the torch-ngp tensors, in this order:
+//!
+//! | block | shape | maths |
+//! |---|---|---|
+//! | `encoder.embeddings` | `[n_entries, 2]` | hash tables of all levels |
+//! | `sigma_net.0.weight` | `[sigma_hidden, 2·levels]` | `h = relu(W0·enc)` |
+//! | `sigma_net.1.weight` | `[1 + geo, sigma_hidden]` | `o = W1·h`, `σ = trunc_exp(o_0)`, `geo = o_1..` |
+//! | `color_net.0.weight` | `[color_hidden, 16 + geo]` | input `[SH(d), geo]` |
+//! | `color_net.1.weight` | `[color_hidden, color_hidden]` | |
+//! | `color_net.2.weight` | `[3, color_hidden]` | `rgb = sigmoid(W·h)` |
+//!
+//! The "`sigma_net` parameters" of the uncertainty stage are the two `sigma_net` weights
+//! (not the embeddings): [`NgpField::sigma_net_range`], contiguous in the flat vector.
+//! [`ChunkWorkspace`] is the fused forward/backward over a chunk of rays.
+
+use std::ops::Range;
+
+use rand::{RngExt, SeedableRng};
+
+use crate::config::NerfConfig;
+use crate::field_components::hash_encoding::HashEncoding;
+use crate::field_components::mlp::{
+    linear_backward_input, linear_backward_weight, linear_forward, relu, relu_backward, sigmoid, trunc_exp,
+    trunc_exp_grad,
+};
+use crate::field_components::sh_encoding::{sh_encode, SH_DIM};
+use crate::model_components::losses::mse_and_grad;
+use crate::model_components::occupancy_grid::OccupancyGrid;
+use crate::model_components::ray_samplers::march_ray;
+use crate::model_components::renderer::{active_count, composite_backward, composite_forward};
+
+/// Names of the parameter tensors, in flat-vector order.
+pub const TENSOR_NAMES: [&str; 6] = [
+    "encoder.embeddings",
+    "sigma_net.0.weight",
+    "sigma_net.1.weight",
+    "color_net.0.weight",
+    "color_net.1.weight",
+    "color_net.2.weight",
+];
+
+/// The network structure (no parameters).
+#[derive(Clone, Debug)]
+pub struct NgpField {
+    pub encoding: HashEncoding,
+    /// `2 · levels`.
+    pub enc_dim: usize,
+    pub sigma_hidden: usize,
+    pub geo: usize,
+    pub color_hidden: usize,
+    /// Shape and flat range of each tensor of [`TENSOR_NAMES`].
+    pub tensors: Vec<(Vec<usize>, Range<usize>)>,
+    pub n_params: usize,
+    pub aabb_min: [f32; 3],
+    pub aabb_max: [f32; 3],
+}
+
+impl NgpField {
+    pub fn new(cfg: &NerfConfig) -> Self {
+        let encoding =
+            HashEncoding::new(cfg.hash_levels, cfg.base_resolution, cfg.finest_resolution, cfg.log2_hashmap_size);
+        let enc_dim = encoding.output_dim();
+        let (sh, g, ch) = (cfg.sigma_hidden, cfg.geo_features, cfg.color_hidden);
+        let shapes = vec![
+            vec![encoding.n_entries, 2],
+            vec![sh, enc_dim],
+            vec![1 + g, sh],
+            vec![ch, SH_DIM + g],
+            vec![ch, ch],
+            vec![3, ch],
+        ];
+        let mut tensors = Vec::new();
+        let mut off = 0;
+        for s in shapes {
+            let n: usize = s.iter().product();
+            tensors.push((s, off..off + n));
+            off += n;
+        }
+        Self {
+            encoding,
+            enc_dim,
+            sigma_hidden: sh,
+            geo: g,
+            color_hidden: ch,
+            tensors,
+            n_params: off,
+            aabb_min: cfg.aabb_min,
+            aabb_max: cfg.aabb_max,
+        }
+    }
+
+    /// Flat range of the hash table.
+    pub fn embeddings_range(&self) -> Range<usize> {
+        self.tensors[0].1.clone()
+    }
+
+    /// Flat range of the `sigma_net` weights (`sigma_net.0.weight` then `sigma_net.1.weight`).
+    pub fn sigma_net_range(&self) -> Range<usize> {
+        self.tensors[1].1.start..self.tensors[2].1.end
+    }
+
+    /// Flat range of every MLP weight (everything after the embeddings).
+    pub fn mlp_range(&self) -> Range<usize> {
+        self.tensors[1].1.start..self.n_params
+    }
+
+    /// Initial parameters: embeddings `U(−1e-4, 1e-4)` (instant-ngp), weights `U(±1/√fan_in)`
+    /// (torch `nn.Linear`).
+    pub fn init_params(&self, seed: u64) -> Vec<f32> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F_4E4F);
+        let mut p = vec![0.0f32; self.n_params];
+        for (ti, (shape, range)) in self.tensors.iter().enumerate() {
+            let bound = if ti == 0 { 1e-4 } else { 1.0 / (shape[1] as f32).sqrt() };
+            for v in &mut p[range.clone()] {
+                *v = (rng.random::<f32>() * 2.0 - 1.0) * bound;
+            }
+        }
+        p
+    }
+
+    /// World point (metres) → `[0,1]³` box coordinates.
+    #[inline]
+    pub fn normalize(&self, p: [f32; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|d| (p[d] - self.aabb_min[d]) / (self.aabb_max[d] - self.aabb_min[d]))
+    }
+
+    fn w<'a>(&self, params: &'a [f32], t: usize) -> &'a [f32] {
+        &params[self.tensors[t].1.clone()]
+    }
+
+    /// Density σ (1/m) at points. pos01: `[n, 3]` box coordinates in `[0,1]`; out: `[n]`.
+    /// Points outside the box get σ = 0.
+    pub fn density_batch(&self, params: &[f32], pos01: &[f32], ws: &mut DensityWorkspace, out: &mut [f32]) {
+        let n = out.len();
+        let (e, sh, o) = (self.enc_dim, self.sigma_hidden, 1 + self.geo);
+        ws.enc.resize(n * e, 0.0);
+        ws.h.resize(n * sh, 0.0);
+        ws.out.resize(n * o, 0.0);
+        let emb = self.w(params, 0);
+        for i in 0..n {
+            let x = [pos01[3 * i], pos01[3 * i + 1], pos01[3 * i + 2]];
+            self.encoding.encode(emb, x, &mut ws.enc[i * e..(i + 1) * e]);
+        }
+        linear_forward(&ws.enc, self.w(params, 1), &mut ws.h, n, e, sh);
+        relu(&mut ws.h);
+        linear_forward(&ws.h, self.w(params, 2), &mut ws.out, n, sh, o);
+        for i in 0..n {
+            let inside = (0..3).all(|d| (0.0..=1.0).contains(&pos01[3 * i + d]));
+            out[i] = if inside { trunc_exp(ws.out[i * o]) } else { 0.0 };
+        }
+    }
+}
+
+/// Scratch buffers of [`NgpField::density_batch`].
+#[derive(Default, Debug)]
+pub struct DensityWorkspace {
+    enc: Vec<f32>,
+    h: Vec<f32>,
+    out: Vec<f32>,
+}
+
+/// One ray of a chunk: world origin and unit direction, with its background.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RayInput {
+    pub origin: [f32; 3],
+    pub direction: [f32; 3],
+    pub background: [f32; 3],
+    /// Start offset of the marching lattice in steps, `[0, 1)` (0 for rendering).
+    pub jitter: f32,
+}
+
+/// Buffers of the fused forward/backward over a chunk of rays, reused across steps (they only
+/// grow). Shapes use `r` rays, `n` samples, `m` active (pre-termination) samples.
+#[derive(Default, Debug)]
+pub struct ChunkWorkspace {
+    /// `[r + 1]` sample offsets per ray.
+    pub ray_start: Vec<u32>,
+    /// `[r]` active samples per ray.
+    pub ray_active: Vec<u32>,
+    /// `[n]` distances along the ray (m) and steps (m).
+    pub t: Vec<f32>,
+    pub dt: Vec<f32>,
+    /// `[n, 3]` positions in box coordinates `[0,1]`.
+    pub pos: Vec<f32>,
+    enc: Vec<f32>,
+    h0: Vec<f32>,
+    out0: Vec<f32>,
+    /// `[n]` densities (1/m).
+    pub sigma: Vec<f32>,
+    /// `[m]` sample index of each active sample.
+    act: Vec<u32>,
+    /// `[m, 16 + geo]`.
+    cin: Vec<f32>,
+    h1: Vec<f32>,
+    h2: Vec<f32>,
+    /// `[m, 3]` colours after the sigmoid.
+    pub rgb: Vec<f32>,
+    /// `[r, 3]`, `[r]`, `[r]`: composite colour, opacity, `Σ w t` (m).
+    pub color: Vec<f32>,
+    pub opacity: Vec<f32>,
+    pub depth: Vec<f32>,
+    // Backward.
+    d_sigma_act: Vec<f32>,
+    d_rgb: Vec<f32>,
+    d_h2: Vec<f32>,
+    d_h1: Vec<f32>,
+    d_cin: Vec<f32>,
+    d_out0: Vec<f32>,
+    d_h0: Vec<f32>,
+    /// `[n, 2·levels]` ∂L/∂encoding.
+    pub d_enc: Vec<f32>,
+    /// Gradient of the MLP weights (layout of [`NgpField::mlp_range`]).
+    pub grad_mlp: Vec<f32>,
+    /// Σ over rays of the squared error (3 channels).
+    pub sq_err: f64,
+}
+
+impl ChunkWorkspace {
+    /// Number of samples after marching.
+    pub fn n_samples(&self) -> usize {
+        self.t.len()
+    }
+
+    /// Marches `rays` through `grid`, filling `t`, `dt`, `pos` and `ray_start`.
+    pub fn march(&mut self, field: &NgpField, rays: &[RayInput], grid: &OccupancyGrid, step: f32, max_samples: usize) {
+        self.t.clear();
+        self.ray_start.clear();
+        self.ray_start.push(0);
+        for r in rays {
+            march_ray(r.origin, r.direction, grid, step, max_samples, r.jitter, &mut self.t);
+            self.ray_start.push(self.t.len() as u32);
+        }
+        let n = self.t.len();
+        self.dt.clear();
+        self.dt.resize(n, step);
+        self.pos.resize(3 * n, 0.0);
+        for (ri, r) in rays.iter().enumerate() {
+            for s in self.ray_start[ri] as usize..self.ray_start[ri + 1] as usize {
+                let t = self.t[s];
+                let p = [0, 1, 2].map(|d| r.origin[d] + t * r.direction[d]);
+                let q = field.normalize(p);
+                self.pos[3 * s..3 * s + 3].copy_from_slice(&q);
+            }
+        }
+    }
+
+    /// Forward pass after [`march`](Self::march): densities for all samples, colours for the
+    /// samples before early termination, composites per ray.
+    pub fn forward(&mut self, field: &NgpField, params: &[f32], rays: &[RayInput], t_min: f32) {
+        let n = self.n_samples();
+        let (e, sh, o, g, ch) = (field.enc_dim, field.sigma_hidden, 1 + field.geo, field.geo, field.color_hidden);
+        let ci = SH_DIM + g;
+        self.enc.resize(n * e, 0.0);
+        self.h0.resize(n * sh, 0.0);
+        self.out0.resize(n * o, 0.0);
+        self.sigma.resize(n, 0.0);
+        let emb = field.w(params, 0);
+        for s in 0..n {
+            let x = [self.pos[3 * s], self.pos[3 * s + 1], self.pos[3 * s + 2]];
+            field.encoding.encode(emb, x, &mut self.enc[s * e..(s + 1) * e]);
+        }
+        linear_forward(&self.enc, field.w(params, 1), &mut self.h0, n, e, sh);
+        relu(&mut self.h0[..n * sh]);
+        linear_forward(&self.h0, field.w(params, 2), &mut self.out0, n, sh, o);
+        for s in 0..n {
+            self.sigma[s] = trunc_exp(self.out0[s * o]);
+        }
+        // Early termination decides which samples need a colour.
+        self.act.clear();
+        self.ray_active.clear();
+        for ri in 0..rays.len() {
+            let (a, b) = (self.ray_start[ri] as usize, self.ray_start[ri + 1] as usize);
+            let k = active_count(&self.sigma[a..b], &self.dt[a..b], t_min);
+            self.ray_active.push(k as u32);
+            self.act.extend((a..a + k).map(|s| s as u32));
+        }
+        let m = self.act.len();
+        self.cin.resize(m * ci, 0.0);
+        let mut ray = 0;
+        for (j, &s) in self.act.iter().enumerate() {
+            let s = s as usize;
+            while self.ray_start[ray + 1] as usize <= s {
+                ray += 1;
+            }
+            let row = &mut self.cin[j * ci..(j + 1) * ci];
+            sh_encode(rays[ray].direction, &mut row[..SH_DIM]);
+            row[SH_DIM..].copy_from_slice(&self.out0[s * o + 1..(s + 1) * o]);
+        }
+        self.h1.resize(m * ch, 0.0);
+        self.h2.resize(m * ch, 0.0);
+        self.rgb.resize(m * 3, 0.0);
+        linear_forward(&self.cin, field.w(params, 3), &mut self.h1, m, ci, ch);
+        relu(&mut self.h1[..m * ch]);
+        linear_forward(&self.h1, field.w(params, 4), &mut self.h2, m, ch, ch);
+        relu(&mut self.h2[..m * ch]);
+        linear_forward(&self.h2, field.w(params, 5), &mut self.rgb, m, ch, 3);
+        for v in &mut self.rgb[..m * 3] {
+            *v = sigmoid(*v);
+        }
+        // Composite.
+        self.color.resize(rays.len() * 3, 0.0);
+        self.opacity.resize(rays.len(), 0.0);
+        self.depth.resize(rays.len(), 0.0);
+        let mut j0 = 0;
+        for (ri, r) in rays.iter().enumerate() {
+            let a = self.ray_start[ri] as usize;
+            let k = self.ray_active[ri] as usize;
+            let c = composite_forward(
+                &self.sigma[a..a + k],
+                &self.rgb[3 * j0..3 * (j0 + k)],
+                &self.dt[a..a + k],
+                &self.t[a..a + k],
+                r.background,
+            );
+            self.color[3 * ri..3 * ri + 3].copy_from_slice(&c.color);
+            self.opacity[ri] = c.opacity;
+            self.depth[ri] = c.depth;
+            j0 += k;
+        }
+    }
+
+    /// MSE loss against `targets: [r, 3]` (normalised by `n_total` rays) and the backward pass:
+    /// fills `grad_mlp` (overwritten) and `d_enc`, and `sq_err`.
+    pub fn backward(&mut self, field: &NgpField, params: &[f32], targets: &[[f32; 3]], n_total: usize) {
+        let n = self.n_samples();
+        let m = self.act.len();
+        let (e, sh, o, g, ch) = (field.enc_dim, field.sigma_hidden, 1 + field.geo, field.geo, field.color_hidden);
+        let ci = SH_DIM + g;
+        self.d_sigma_act.resize(m, 0.0);
+        self.d_rgb.resize(m * 3, 0.0);
+        self.sq_err = 0.0;
+        let mut j0 = 0;
+        for (ri, tgt) in targets.iter().enumerate() {
+            let a = self.ray_start[ri] as usize;
+            let k = self.ray_active[ri] as usize;
+            let col = [self.color[3 * ri], self.color[3 * ri + 1], self.color[3 * ri + 2]];
+            let (l, dc) = mse_and_grad(col, *tgt, n_total);
+            self.sq_err += l;
+            composite_backward(
+                &self.sigma[a..a + k],
+                &self.rgb[3 * j0..3 * (j0 + k)],
+                &self.dt[a..a + k],
+                col,
+                dc,
+                &mut self.d_sigma_act[j0..j0 + k],
+                &mut self.d_rgb[3 * j0..3 * (j0 + k)],
+            );
+            j0 += k;
+        }
+        // Sigmoid.
+        for (d, &s) in self.d_rgb.iter_mut().zip(&self.rgb[..m * 3]) {
+            *d *= s * (1.0 - s);
+        }
+        let gm = &mut self.grad_mlp;
+        gm.resize(field.n_params - field.mlp_range().start, 0.0);
+        let base = field.mlp_range().start;
+        let gr = |t: usize| field.tensors[t].1.start - base..field.tensors[t].1.end - base;
+        // color_net backward.
+        self.d_h2.resize(m * ch, 0.0);
+        self.d_h1.resize(m * ch, 0.0);
+        self.d_cin.resize(m * ci, 0.0);
+        linear_backward_weight(&self.d_rgb, &self.h2, &mut gm[gr(5)], m, ch, 3, false);
+        linear_backward_input(&self.d_rgb, field.w(params, 5), &mut self.d_h2, m, ch, 3);
+        relu_backward(&self.h2[..m * ch], &mut self.d_h2[..m * ch]);
+        linear_backward_weight(&self.d_h2, &self.h1, &mut gm[gr(4)], m, ch, ch, false);
+        linear_backward_input(&self.d_h2, field.w(params, 4), &mut self.d_h1, m, ch, ch);
+        relu_backward(&self.h1[..m * ch], &mut self.d_h1[..m * ch]);
+        linear_backward_weight(&self.d_h1, &self.cin, &mut gm[gr(3)], m, ci, ch, false);
+        linear_backward_input(&self.d_h1, field.w(params, 3), &mut self.d_cin, m, ci, ch);
+        // Scatter to the sigma_net output: [dσ·trunc_exp', d geo] for active samples, 0 otherwise.
+        self.d_out0.clear();
+        self.d_out0.resize(n * o, 0.0);
+        for (j, &s) in self.act.iter().enumerate() {
+            let s = s as usize;
+            self.d_out0[s * o] = self.d_sigma_act[j] * trunc_exp_grad(self.out0[s * o]);
+            self.d_out0[s * o + 1..(s + 1) * o].copy_from_slice(&self.d_cin[j * ci + SH_DIM..(j + 1) * ci]);
+        }
+        // sigma_net backward.
+        self.d_h0.resize(n * sh, 0.0);
+        self.d_enc.resize(n * e, 0.0);
+        linear_backward_weight(&self.d_out0, &self.h0, &mut gm[gr(2)], n, sh, o, false);
+        linear_backward_input(&self.d_out0, field.w(params, 2), &mut self.d_h0, n, sh, o);
+        relu_backward(&self.h0[..n * sh], &mut self.d_h0[..n * sh]);
+        linear_backward_weight(&self.d_h0, &self.enc, &mut gm[gr(1)], n, e, sh, false);
+        linear_backward_input(&self.d_h0, field.w(params, 1), &mut self.d_enc, n, e, sh);
+    }
+
+    /// Adds this chunk's embedding gradient to `grad_emb` (`[n_entries, 2]`), sample by sample.
+    /// (Training uses the level-parallel scatter in `train`; this is for small checks.)
+    pub fn accumulate_embedding_grad(&self, field: &NgpField, grad_emb: &mut [f32]) {
+        let n = self.n_samples();
+        let e = field.enc_dim;
+        for (l, lv) in field.encoding.levels.iter().enumerate() {
+            let d: Vec<f32> = (0..n).flat_map(|s| [self.d_enc[s * e + 2 * l], self.d_enc[s * e + 2 * l + 1]]).collect();
+            let a = lv.offset as usize * 2;
+            field.encoding.backward_level(l, &self.pos[..3 * n], &d, &mut grad_emb[a..a + lv.size as usize * 2]);
+        }
+    }
+}

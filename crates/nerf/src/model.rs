@@ -1,0 +1,186 @@
+//! [`Nerf`]: configuration, parameters and occupancy grid of a trained (or training) model, and
+//! the batched queries on it: densities at points, and rendering of rays.
+
+use std::sync::Mutex;
+
+use rand::{RngExt, SeedableRng};
+use rayon::prelude::*;
+
+use crate::config::NerfConfig;
+use crate::fields::{ChunkWorkspace, DensityWorkspace, NgpField, RayInput};
+use crate::model_components::occupancy_grid::OccupancyGrid;
+
+/// Points per parallel task of density queries.
+const DENSITY_CHUNK: usize = 4096;
+/// Rays per parallel task of rendering.
+pub(crate) const RENDER_CHUNK: usize = 512;
+
+/// A NeRF: config, the flat parameter vector (see [`crate::fields`] for its blocks) and the
+/// occupancy grid.
+#[derive(Clone, Debug)]
+pub struct Nerf {
+    pub config: NerfConfig,
+    pub field: NgpField,
+    /// `[field.n_params]` all parameters (torch-ngp tensors, concatenated).
+    pub params: Vec<f32>,
+    pub grid: OccupancyGrid,
+}
+
+/// Per-ray outputs of [`Nerf::render_rays`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RayOutputs {
+    /// `[r, 3]` colour composited on each ray's background.
+    pub rgb: Vec<f32>,
+    /// `[r]` accumulated alpha.
+    pub opacity: Vec<f32>,
+    /// `[r]` expected ray distance `Σ w t / Σ w` in metres (0 where opacity is 0).
+    pub distance: Vec<f32>,
+    /// Total samples evaluated (density), and samples coloured (before termination).
+    pub samples: usize,
+}
+
+/// A pool of reusable workspaces (allocation-free after warm-up).
+pub(crate) struct Pool<T>(Mutex<Vec<T>>);
+
+impl<T: Default> Pool<T> {
+    pub(crate) fn new() -> Self {
+        Self(Mutex::new(Vec::new()))
+    }
+    pub(crate) fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        let mut ws = self.0.lock().unwrap().pop().unwrap_or_default();
+        let r = f(&mut ws);
+        self.0.lock().unwrap().push(ws);
+        r
+    }
+}
+
+impl Nerf {
+    /// A fresh model with initial weights from `seed` and an all-occupied grid.
+    pub fn new(config: NerfConfig, seed: u64) -> Result<Self, crate::NerfError> {
+        config.validate().map_err(crate::NerfError::Config)?;
+        let field = NgpField::new(&config);
+        let params = field.init_params(seed);
+        let grid = OccupancyGrid::new(config.grid_resolution, config.aabb_min, config.aabb_max);
+        Ok(Self { config, field, params, grid })
+    }
+
+    /// The `sigma_net` weights (`sigma_net.0.weight` `[64, 32]` then `sigma_net.1.weight`
+    /// `[16, 64]`, row-major), the parameter block of the uncertainty stage.
+    pub fn sigma_net_params(&self) -> &[f32] {
+        &self.params[self.field.sigma_net_range()]
+    }
+
+    /// Mutable view of [`sigma_net_params`](Self::sigma_net_params).
+    pub fn sigma_net_params_mut(&mut self) -> &mut [f32] {
+        let r = self.field.sigma_net_range();
+        &mut self.params[r]
+    }
+
+    /// Density σ in 1/m at world points (metres); 0 outside the scene box. Parallel.
+    pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
+        let mut out = vec![0.0; points.len()];
+        let pool = Pool::<(DensityWorkspace, Vec<f32>)>::new();
+        out.par_chunks_mut(DENSITY_CHUNK).zip(points.par_chunks(DENSITY_CHUNK)).for_each(|(o, p)| {
+            pool.with(|(ws, pos)| {
+                pos.clear();
+                pos.extend(p.iter().flat_map(|q| self.field.normalize(*q)));
+                self.field.density_batch(&self.params, pos, ws, o);
+            })
+        });
+        out
+    }
+
+    /// The step Δt (metres) the occupancy test `σ·Δt > threshold` uses: the marching step.
+    pub fn occupancy_dt(&self) -> f32 {
+        self.config.step_size
+    }
+
+    /// The density σ (1/m) above which a point counts as occupied: the grid threshold on σ·Δt
+    /// divided by Δt (`grid_threshold / step_size`, ≈ 0.74 /m with the defaults).
+    pub fn occupancy_density_threshold(&self) -> f32 {
+        self.config.grid_threshold / self.config.step_size
+    }
+
+    /// Renders rays (unit directions, world frame) without jitter, in parallel chunks.
+    pub fn render_rays(&self, rays: &[RayInput]) -> RayOutputs {
+        let r = rays.len();
+        let mut out =
+            RayOutputs { rgb: vec![0.0; 3 * r], opacity: vec![0.0; r], distance: vec![0.0; r], samples: 0 };
+        let pool = Pool::<ChunkWorkspace>::new();
+        let samples: usize = out
+            .rgb
+            .par_chunks_mut(3 * RENDER_CHUNK)
+            .zip(out.opacity.par_chunks_mut(RENDER_CHUNK))
+            .zip(out.distance.par_chunks_mut(RENDER_CHUNK))
+            .zip(rays.par_chunks(RENDER_CHUNK))
+            .map(|(((rgb, op), dist), rs)| {
+                pool.with(|ws| {
+                    ws.march(&self.field, rs, &self.grid, self.config.step_size, self.config.max_samples_per_ray);
+                    ws.forward(&self.field, &self.params, rs, self.config.early_stop_transmittance);
+                    rgb.copy_from_slice(&ws.color);
+                    op.copy_from_slice(&ws.opacity);
+                    for i in 0..rs.len() {
+                        dist[i] = if ws.opacity[i] > 1e-6 { ws.depth[i] / ws.opacity[i] } else { 0.0 };
+                    }
+                    ws.n_samples()
+                })
+            })
+            .sum();
+        out.samples = samples;
+        out
+    }
+
+    /// One occupancy-grid update (`update_index` = how many came before): evaluates σ·Δt at a
+    /// random point of every cell (warm-up) or of `res³/grid_partial_fraction` random cells plus
+    /// as many random occupied ones, then `d ← max(d·decay, new)` and re-thresholds.
+    /// Deterministic in `(seed, update_index)`.
+    pub fn update_grid(&mut self, seed: u64, update_index: u64) {
+        let res = self.grid.resolution;
+        let n_cells = res.pow(3);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mix(seed, 0x6121D, update_index));
+        let cells: Vec<u32> = if update_index < self.config.grid_warmup_updates {
+            (0..n_cells as u32).collect()
+        } else {
+            let k = n_cells / self.config.grid_partial_fraction;
+            let occ: Vec<u32> = (0..n_cells as u32).filter(|&c| self.grid.occupied[c as usize] != 0).collect();
+            let mut v: Vec<u32> = (0..k).map(|_| rng.random_range(0..n_cells as u32)).collect();
+            if !occ.is_empty() {
+                v.extend((0..k).map(|_| occ[rng.random_range(0..occ.len())]));
+            }
+            v
+        };
+        let jit: Vec<[f32; 3]> = (0..cells.len()).map(|_| [rng.random(), rng.random(), rng.random()]).collect();
+        let mut values = vec![0.0f32; cells.len()];
+        let pool = Pool::<(DensityWorkspace, Vec<f32>)>::new();
+        let field = &self.field;
+        let params = &self.params;
+        let dt = self.config.step_size;
+        values.par_chunks_mut(DENSITY_CHUNK).zip(cells.par_chunks(DENSITY_CHUNK)).zip(jit.par_chunks(DENSITY_CHUNK)).for_each(
+            |((o, c), j)| {
+                pool.with(|(ws, pos)| {
+                    pos.clear();
+                    for (&cell, jj) in c.iter().zip(j) {
+                        let cell = cell as usize;
+                        let ijk = [cell % res, (cell / res) % res, cell / (res * res)];
+                        for d in 0..3 {
+                            pos.push((ijk[d] as f32 + jj[d]) / res as f32);
+                        }
+                    }
+                    field.density_batch(params, pos, ws, o);
+                    for v in o.iter_mut() {
+                        *v *= dt;
+                    }
+                })
+            },
+        );
+        self.grid.apply(&cells, &values, self.config.grid_decay, self.config.grid_threshold);
+    }
+}
+
+/// A 64-bit seed from a run seed, a purpose tag and an index (SplitMix64 finaliser).
+pub(crate) fn mix(seed: u64, tag: u64, index: u64) -> u64 {
+    let mut z = seed ^ tag.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}

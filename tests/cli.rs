@@ -1,0 +1,77 @@
+//! The `nerfsv` binary: bad input stops with a message naming what is wrong, exit code non-zero,
+//! and nothing half-written left behind.
+
+use std::process::Command;
+
+fn nerfsv(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_nerfsv")).args(args).output().expect("run nerfsv");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+#[test]
+fn unknown_scene_is_named_and_fails() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ds");
+    let (ok, _, err) = nerfsv(&["scene", "--scene", "atlantis", "--out", out.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("atlantis") && err.contains("stonehenge"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn zero_or_absurd_sizes_are_rejected_before_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ds");
+    for (flag, value, field) in [("--width", "0", "width"), ("--height", "99999", "height"), ("--test", "0", "test")] {
+        let (ok, _, err) = nerfsv(&["scene", "--out", out.to_str().unwrap(), flag, value]);
+        assert!(!ok, "{flag} {value} must fail");
+        assert!(err.contains(field), "{err}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
+
+#[test]
+fn scene_writes_a_dataset_and_reports_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ds");
+    let (ok, stdout, err) = nerfsv(&[
+        "scene",
+        "--scene",
+        "pillars",
+        "--out",
+        out.to_str().unwrap(),
+        "--width",
+        "12",
+        "--height",
+        "10",
+        "--train",
+        "2",
+        "--val",
+        "1",
+        "--test",
+        "1",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(v["views"], 4);
+    for f in
+        ["transforms_train.json", "transforms_val.json", "transforms_test.json", "train/r_1.png", "test/r_0_depth.png"]
+    {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+}
+
+#[test]
+fn bad_config_names_the_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("run.toml");
+    std::fs::write(&cfg, "scene = \"stonehenge\"\ncells_per_metre = 0.0\n").unwrap();
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", dir.path().join("r").to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("run.toml") && err.contains("cells_per_metre"), "{err}");
+    std::fs::write(&cfg, "[dataset]\nwidht = 10\n").unwrap();
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("run.toml") && err.contains("widht"), "{err}");
+}

@@ -2,6 +2,7 @@
 //!
 //! The binary only parses arguments, reads configuration and calls the stage crates.
 
+mod cache;
 mod commands;
 mod config;
 mod progress;
@@ -28,6 +29,8 @@ enum Command {
     Run(commands::run::RunArgs),
     /// Render a built-in ground-truth scene into a Blender-format dataset.
     Scene(commands::scene::SceneArgs),
+    /// Build a signed collision field (SDF grid at 40 cells/m) and its surface mesh.
+    Collision(commands::collision::CollisionArgs),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +38,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
         Command::Scene(a) => commands::scene::run(a),
+        Command::Collision(a) => commands::collision::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,3 +1,4 @@
+pub mod collision;
 pub mod run;
 pub mod scene;
 

@@ -29,14 +29,7 @@ pub struct LineScratch {
 
 impl LineScratch {
     pub fn new(n: usize) -> Self {
-        Self {
-            f: vec![0.0; n],
-            d: vec![0.0; n],
-            arg: vec![0; n],
-            v: vec![0; n],
-            z: vec![0.0; n + 1],
-            aux: vec![0; n],
-        }
+        Self { f: vec![0.0; n], d: vec![0.0; n], arg: vec![0; n], v: vec![0; n], z: vec![0.0; n + 1], aux: vec![0; n] }
     }
 }
 
@@ -44,13 +37,7 @@ impl LineScratch {
 /// site"): `d[q] = min_p ((q − p)² + f[p])` and `arg[q]` = the minimising `p`, or [`NO_SITE`]
 /// (with `d[q] = ∞`) when every `f[p]` is infinite. `v` and `z` are scratch of length `n` and
 /// `n + 1`.
-pub fn squared_edt_1d(
-    f: &[f32],
-    d: &mut [f32],
-    arg: &mut [u32],
-    v: &mut [u32],
-    z: &mut [f64],
-) {
+pub fn squared_edt_1d(f: &[f32], d: &mut [f32], arg: &mut [u32], v: &mut [u32], z: &mut [f64]) {
     let n = f.len();
     debug_assert!(d.len() >= n && arg.len() >= n && v.len() >= n && z.len() > n);
     // Envelope construction; infinite samples contribute no parabola.
@@ -140,8 +127,7 @@ pub fn feature_transform(sites: &[bool], dims: [usize; 3]) -> FeatureTransform {
                 for z in 0..nz {
                     sq[z * nx + x] = s.d[z];
                     let a = s.arg[z];
-                    near[z * nx + x] =
-                        if a == NO_SITE { NO_SITE } else { (x + nx * (y + ny * a as usize)) as u32 };
+                    near[z * nx + x] = if a == NO_SITE { NO_SITE } else { (x + nx * (y + ny * a as usize)) as u32 };
                 }
             }
         },
@@ -200,19 +186,11 @@ mod tests {
             let mut s = LineScratch::new(n);
             for _ in 0..50 {
                 let f: Vec<f32> = (0..n)
-                    .map(|_| {
-                        if rng.uniform() < 0.6 {
-                            f32::INFINITY
-                        } else {
-                            (rng.uniform() * 40.0).floor()
-                        }
-                    })
+                    .map(|_| if rng.uniform() < 0.6 { f32::INFINITY } else { (rng.uniform() * 40.0).floor() })
                     .collect();
                 squared_edt_1d(&f, &mut s.d, &mut s.arg, &mut s.v, &mut s.z);
                 for q in 0..n {
-                    let brute = (0..n)
-                        .map(|p| ((q as f32 - p as f32).powi(2) + f[p]))
-                        .fold(f32::INFINITY, f32::min);
+                    let brute = (0..n).map(|p| (q as f32 - p as f32).powi(2) + f[p]).fold(f32::INFINITY, f32::min);
                     assert_eq!(s.d[q], brute, "n={n} q={q} f={f:?}");
                     if brute.is_finite() {
                         let p = s.arg[q] as usize;

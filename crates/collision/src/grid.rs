@@ -65,9 +65,7 @@ impl GridGeometry {
             )));
         }
         if !origin.iter().all(|v| v.is_finite()) {
-            return Err(CollisionError::InvalidGeometry(format!(
-                "origin must be finite, found {origin:?}"
-            )));
+            return Err(CollisionError::InvalidGeometry(format!("origin must be finite, found {origin:?}")));
         }
         if dims.iter().any(|&n| n < 2) {
             return Err(CollisionError::InvalidGeometry(format!(
@@ -76,9 +74,7 @@ impl GridGeometry {
         }
         let total = dims.iter().try_fold(1usize, |acc, &n| acc.checked_mul(n));
         if total.is_none_or(|t| t >= u32::MAX as usize) {
-            return Err(CollisionError::InvalidGeometry(format!(
-                "dims {dims:?} give too many nodes (limit 2^32 - 1)"
-            )));
+            return Err(CollisionError::InvalidGeometry(format!("dims {dims:?} give too many nodes (limit 2^32 - 1)")));
         }
         Ok(Self { origin, cell, dims })
     }
@@ -198,21 +194,9 @@ impl GridGeometry {
         let c = self.corners(data, i, j, k);
         let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
         // d/dx: x-differences of the four x-edges, blended in y and z; likewise for y and z.
-        let dx = lerp(
-            lerp(c[1] - c[0], c[3] - c[2], ty),
-            lerp(c[5] - c[4], c[7] - c[6], ty),
-            tz,
-        );
-        let dy = lerp(
-            lerp(c[2] - c[0], c[3] - c[1], tx),
-            lerp(c[6] - c[4], c[7] - c[5], tx),
-            tz,
-        );
-        let dz = lerp(
-            lerp(c[4] - c[0], c[5] - c[1], tx),
-            lerp(c[6] - c[2], c[7] - c[3], tx),
-            ty,
-        );
+        let dx = lerp(lerp(c[1] - c[0], c[3] - c[2], ty), lerp(c[5] - c[4], c[7] - c[6], ty), tz);
+        let dy = lerp(lerp(c[2] - c[0], c[3] - c[1], tx), lerp(c[6] - c[4], c[7] - c[5], tx), tz);
+        let dz = lerp(lerp(c[4] - c[0], c[5] - c[1], tx), lerp(c[6] - c[2], c[7] - c[3], tx), ty);
         GridQuery::InGrid(Vector3::new(dx, dy, dz) / self.cell)
     }
 
@@ -236,11 +220,7 @@ impl GridGeometry {
     }
 
     /// Fill `data` (one value per node) with `f(node position)`, in parallel over z-slices.
-    pub(crate) fn fill_par<T: Send>(
-        &self,
-        data: &mut [T],
-        f: impl Fn(usize, usize, usize) -> T + Sync,
-    ) {
+    pub(crate) fn fill_par<T: Send>(&self, data: &mut [T], f: impl Fn(usize, usize, usize) -> T + Sync) {
         let [nx, ny, _] = self.dims;
         data.par_chunks_mut(nx * ny).enumerate().for_each(|(k, slice)| {
             for j in 0..ny {
@@ -267,21 +247,14 @@ impl ScalarGrid {
     /// (see [`GridGeometry::covering`]), in parallel over z-slices.
     ///
     /// Panics if `cells_per_metre` is not finite and positive.
-    pub fn sample(
-        bounds: &Aabb,
-        cells_per_metre: f32,
-        f: impl Fn(Point3<f32>) -> f32 + Sync,
-    ) -> ScalarGrid {
-        let geometry = GridGeometry::covering(bounds, cells_per_metre)
-            .unwrap_or_else(|e| panic!("ScalarGrid::sample: {e}"));
+    pub fn sample(bounds: &Aabb, cells_per_metre: f32, f: impl Fn(Point3<f32>) -> f32 + Sync) -> ScalarGrid {
+        let geometry =
+            GridGeometry::covering(bounds, cells_per_metre).unwrap_or_else(|e| panic!("ScalarGrid::sample: {e}"));
         Self::sample_geometry(geometry, f)
     }
 
     /// Sample `f` at every node of `geometry`, in parallel over z-slices.
-    pub fn sample_geometry(
-        geometry: GridGeometry,
-        f: impl Fn(Point3<f32>) -> f32 + Sync,
-    ) -> ScalarGrid {
+    pub fn sample_geometry(geometry: GridGeometry, f: impl Fn(Point3<f32>) -> f32 + Sync) -> ScalarGrid {
         let mut data = vec![0f32; geometry.len()];
         geometry.fill_par(&mut data, |i, j, k| f(geometry.position_of(i, j, k)));
         ScalarGrid { geometry, data }

@@ -41,9 +41,8 @@ pub(crate) fn write_atomically(
 ) -> Result<(), CollisionError> {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let io_err = |source| CollisionError::Io { path: path.to_path_buf(), source };
-    let name = path.file_name().ok_or_else(|| {
-        io_err(io::Error::new(io::ErrorKind::InvalidInput, "path has no file name"))
-    })?;
+    let name =
+        path.file_name().ok_or_else(|| io_err(io::Error::new(io::ErrorKind::InvalidInput, "path has no file name")))?;
     let tmp = path.with_file_name(format!(
         ".{}.tmp-{}-{}",
         name.to_string_lossy(),
@@ -88,9 +87,8 @@ fn save_grid(
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
-    let view = TensorView::new(dtype, vec![nz, ny, nx], bytes).map_err(|source| {
-        CollisionError::SafeTensors { path: path.to_path_buf(), source }
-    })?;
+    let view = TensorView::new(dtype, vec![nz, ny, nx], bytes)
+        .map_err(|source| CollisionError::SafeTensors { path: path.to_path_buf(), source })?;
     let buffer = safetensors::serialize([(kind, view)], Some(metadata))
         .map_err(|source| CollisionError::SafeTensors { path: path.to_path_buf(), source })?;
     write_atomically(path, |w| w.write_all(&buffer))
@@ -121,17 +119,12 @@ fn parse_list<T: std::str::FromStr>(
 
 /// Read a grid file of `kind`, check its metadata and tensor, and return its geometry and the
 /// tensor's raw little-endian bytes.
-fn load_grid(
-    path: &Path,
-    kind: &'static str,
-    dtype: Dtype,
-) -> Result<(GridGeometry, Vec<u8>), CollisionError> {
+fn load_grid(path: &Path, kind: &'static str, dtype: Dtype) -> Result<(GridGeometry, Vec<u8>), CollisionError> {
     let p = || path.to_path_buf();
     let buffer = std::fs::read(path).map_err(|source| CollisionError::Io { path: p(), source })?;
-    let st = SafeTensors::deserialize(&buffer)
-        .map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
-    let (_, header) = SafeTensors::read_metadata(&buffer)
-        .map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
+    let st = SafeTensors::deserialize(&buffer).map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
+    let (_, header) =
+        SafeTensors::read_metadata(&buffer).map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
     let empty = HashMap::new();
     let meta = header.metadata().as_ref().unwrap_or(&empty);
     let field = |name: &'static str| {
@@ -149,19 +142,15 @@ fn load_grid(
     if found_kind != kind {
         return Err(bad(path, "kind", found_kind, &format!("\"{kind}\"")));
     }
-    let origin: [f32; 3] =
-        parse_list(path, "origin", field("origin")?, "three comma-separated numbers")?;
+    let origin: [f32; 3] = parse_list(path, "origin", field("origin")?, "three comma-separated numbers")?;
     let cell_s = field("cell")?;
     let cell: f32 = cell_s.trim().parse().map_err(|_| bad(path, "cell", cell_s, "a number"))?;
-    let dims: [usize; 3] =
-        parse_list(path, "dims", field("dims")?, "three comma-separated node counts nx,ny,nz")?;
-    let geometry = GridGeometry::new(Point3::from(origin), cell, dims).map_err(|e| {
-        CollisionError::BadField {
-            path: p(),
-            field: "dims/origin/cell",
-            found: format!("origin {origin:?}, cell {cell}, dims {dims:?}"),
-            expected: e.to_string(),
-        }
+    let dims: [usize; 3] = parse_list(path, "dims", field("dims")?, "three comma-separated node counts nx,ny,nz")?;
+    let geometry = GridGeometry::new(Point3::from(origin), cell, dims).map_err(|e| CollisionError::BadField {
+        path: p(),
+        field: "dims/origin/cell",
+        found: format!("origin {origin:?}, cell {cell}, dims {dims:?}"),
+        expected: e.to_string(),
     })?;
     let view = st.tensor(kind).map_err(|_| CollisionError::MissingTensor {
         path: p(),
@@ -180,11 +169,7 @@ fn load_grid(
         return Err(CollisionError::BadTensor {
             path: p(),
             name: kind,
-            problem: format!(
-                "shape {:?}, expected [nz, ny, nx] = {:?} from metadata dims",
-                view.shape(),
-                [nz, ny, nx]
-            ),
+            problem: format!("shape {:?}, expected [nz, ny, nx] = {:?} from metadata dims", view.shape(), [nz, ny, nx]),
         });
     }
     Ok((geometry, view.data().to_vec()))
@@ -198,8 +183,7 @@ fn f32_from_bytes(bytes: &[u8]) -> Vec<f32> {
 /// `(nz, ny, nx)`, atomically.
 fn write_npy(path: &Path, geometry: &GridGeometry, data: &[f32]) -> Result<(), CollisionError> {
     let [nx, ny, nz] = geometry.dims;
-    let mut header =
-        format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({nz}, {ny}, {nx}), }}");
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({nz}, {ny}, {nx}), }}");
     // Magic (6) + version (2) + length (2) + header, padded with spaces to a multiple of 64,
     // ending in '\n'.
     let unpadded = 10 + header.len() + 1;
@@ -281,11 +265,7 @@ mod tests {
 
     fn sample_sdf() -> SdfGrid {
         let f = |p: Point3<f32>| (p - Point3::new(0.1, 0.0, 0.2)).norm() - 0.2;
-        let grid = ScalarGrid::sample(
-            &Aabb::new(Point3::new(-0.33, -0.3, 0.0), Point3::new(0.4, 0.3, 0.51)),
-            40.0,
-            f,
-        );
+        let grid = ScalarGrid::sample(&Aabb::new(Point3::new(-0.33, -0.3, 0.0), Point3::new(0.4, 0.3, 0.51)), 40.0, f);
         SdfGrid::from_field(&grid, 0.0, true)
     }
 

@@ -103,11 +103,7 @@ pub(crate) mod testutil {
 
         pub fn point_in(&mut self, b: &Aabb) -> Point3<f32> {
             let e = b.extent();
-            Point3::new(
-                b.min.x + e.x * self.uniform(),
-                b.min.y + e.y * self.uniform(),
-                b.min.z + e.z * self.uniform(),
-            )
+            Point3::new(b.min.x + e.x * self.uniform(), b.min.y + e.y * self.uniform(), b.min.z + e.z * self.uniform())
         }
     }
 }

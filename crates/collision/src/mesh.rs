@@ -16,9 +16,9 @@ use crate::CollisionError;
 /// from outside, so `(b − a) × (c − a)` points from inside to outside.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Mesh {
-    /// vertices: [n_vertices] positions, metres.
+    /// vertices: `[n_vertices]` positions, metres.
     pub vertices: Vec<Point3<f32>>,
-    /// triangles: [n_triangles] vertex-index triples.
+    /// triangles: `[n_triangles]` vertex-index triples.
     pub triangles: Vec<[u32; 3]>,
 }
 
@@ -241,9 +241,7 @@ mod tests {
 
     fn sphere_grid(r: f32, cpm: f32) -> ScalarGrid {
         let c = Point3::new(0.1, -0.05, 0.3);
-        ScalarGrid::sample(&Aabb::new(c - Vector3::repeat(0.5), c + Vector3::repeat(0.5)), cpm, |p| {
-            (p - c).norm() - r
-        })
+        ScalarGrid::sample(&Aabb::new(c - Vector3::repeat(0.5), c + Vector3::repeat(0.5)), cpm, |p| (p - c).norm() - r)
     }
 
     #[test]
@@ -306,12 +304,7 @@ mod tests {
         assert_eq!(lines.next(), Some("ply"));
         let format = lines.next().unwrap().split_whitespace().nth(1).unwrap().to_string();
         let count = |name: &str| {
-            header
-                .lines()
-                .find_map(|l| l.strip_prefix(&format!("element {name} ")))
-                .unwrap()
-                .parse::<usize>()
-                .unwrap()
+            header.lines().find_map(|l| l.strip_prefix(&format!("element {name} "))).unwrap().parse::<usize>().unwrap()
         };
         (format, count("vertex"), count("face"), end)
     }

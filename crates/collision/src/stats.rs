@@ -193,12 +193,12 @@ mod tests {
     fn agreement_of_concentric_balls_matches_their_analytic_iou_and_offset() {
         let g = GridGeometry::covering(&Aabb::cube(0.5), 40.0).unwrap();
         let (a, b) = (ball(0.3, g), ball(0.25, g));
-        let ag = agreement(&a, &b, (-0.1, 0.1));
+        let ag = agreement(&a, &b, (-0.11, 0.11));
         let iou = (0.25f64 / 0.3).powi(3);
         assert!((ag.iou - iou).abs() < 0.02, "iou {} vs {iou}", ag.iou);
-        // |sdf_a − sdf_b| = 0.05 m everywhere (both exact distances to concentric spheres).
-        assert!((ag.band_mean_abs_diff.unwrap() - 0.05).abs() < 0.002, "{ag:?}");
-        assert!((ag.band_p95_abs_diff.unwrap() - 0.05).abs() < 0.003, "{ag:?}");
+        // |sdf_a − sdf_b| = 0.05 m exactly; each grid field is within ~0.2 cell of its sphere.
+        assert!((ag.band_mean_abs_diff.unwrap() - 0.05).abs() < 0.0025, "{ag:?}");
+        assert!((ag.band_p95_abs_diff.unwrap() - 0.05).abs() < 0.005, "{ag:?}");
         assert_eq!(ag.band_nodes, 9 * 41 * 41);
         assert_eq!(ag.compared_nodes, g.len());
         let same = agreement(&a, &a, (0.0, 0.1));

@@ -171,8 +171,8 @@ pub fn generate(
             )));
         }
     }
+    remove_stale_partials(out);
     let tmp = partial_dir(out);
-    let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp).map_err(|e| DatasetError::io(&tmp, e))?;
     let result = (|| {
         let settings = RenderSettings { supersample: opts.supersample, ..RenderSettings::default() };
@@ -209,6 +209,20 @@ pub fn generate(
         std::fs::remove_dir_all(out).map_err(|e| DatasetError::io(out, e))?;
     }
     std::fs::rename(&tmp, out).map_err(|e| DatasetError::io(out, e))
+}
+
+/// Removes the temporary folders of earlier generations of `out` that were killed.
+fn remove_stale_partials(out: &Path) {
+    let Some(name) = out.file_name().map(|n| n.to_string_lossy().into_owned()) else { return };
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let prefix = format!(".{name}.partial-");
+    if let Ok(entries) = std::fs::read_dir(parent) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(&prefix) {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
 }
 
 fn partial_dir(out: &Path) -> PathBuf {

@@ -260,3 +260,15 @@ fn refuses_to_overwrite_a_folder_that_is_not_a_dataset() {
     assert!(e.contains("refusing to overwrite"), "{e}");
     assert!(dir.path().join("precious.txt").exists());
 }
+
+#[test]
+fn a_killed_generation_leaves_only_a_hidden_partial_folder_that_the_next_run_removes() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ds");
+    let stale = dir.path().join(".ds.partial-999999");
+    fs::create_dir_all(stale.join("train")).unwrap();
+    generate(&Scene::builtin("monolith").unwrap(), &out, &small_options(), &|_, _| {}).unwrap();
+    assert!(!stale.exists());
+    let names: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names, vec![std::ffi::OsString::from("ds")]);
+}

@@ -82,7 +82,8 @@ pub fn write(path: &Path, nerf: &Nerf, train: Option<(&TrainConfig, &Adam, u64, 
 /// present too.
 pub fn read(path: &Path, need_optimizer: bool) -> Result<Checkpoint, NerfError> {
     let buf = std::fs::read(path).map_err(|e| NerfError::io(path, e))?;
-    let st = SafeTensors::deserialize(&buf).map_err(|e| NerfError::Format { path: path.into(), message: e.to_string() })?;
+    let st =
+        SafeTensors::deserialize(&buf).map_err(|e| NerfError::Format { path: path.into(), message: e.to_string() })?;
     let (_, md) = SafeTensors::read_metadata(&buf)
         .map_err(|e| NerfError::Format { path: path.into(), message: e.to_string() })?;
     let meta = md.metadata().clone().unwrap_or_default();
@@ -96,7 +97,10 @@ pub fn read(path: &Path, need_optimizer: bool) -> Result<Checkpoint, NerfError> 
     let bad = |name: &str, m: String| NerfError::Metadata { path: path.into(), field: name.into(), message: m };
     let fmt = field("format")?;
     if fmt != FORMAT {
-        return Err(NerfError::Format { path: path.into(), message: format!("format is {fmt:?}, expected {FORMAT:?}") });
+        return Err(NerfError::Format {
+            path: path.into(),
+            message: format!("format is {fmt:?}, expected {FORMAT:?}"),
+        });
     }
     let ver = field("format_version")?;
     if ver != FORMAT_VERSION {

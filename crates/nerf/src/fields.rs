@@ -28,7 +28,7 @@ use crate::field_components::mlp::{
 use crate::field_components::sh_encoding::{sh_encode, SH_DIM};
 use crate::model_components::losses::mse_and_grad;
 use crate::model_components::occupancy_grid::OccupancyGrid;
-use crate::model_components::ray_samplers::march_ray;
+use crate::model_components::ray_samplers::{march_segment, ray_aabb};
 use crate::model_components::renderer::{active_count, composite_backward, composite_forward};
 
 /// Names of the parameter tensors, in flat-vector order.
@@ -161,6 +161,9 @@ pub struct DensityWorkspace {
     out: Vec<f32>,
 }
 
+/// Samples marched per live ray between density evaluations.
+pub const ROUND: usize = 16;
+
 /// One ray of a chunk: world origin and unit direction, with its background.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct RayInput {
@@ -175,11 +178,25 @@ pub struct RayInput {
 /// grow). Shapes use `r` rays, `n` samples, `m` active (pre-termination) samples.
 #[derive(Default, Debug)]
 pub struct ChunkWorkspace {
-    /// `[r + 1]` sample offsets per ray.
+    /// `[r + 1]` offsets of each ray's samples in `order`.
     pub ray_start: Vec<u32>,
+    /// `[n]` sample ids ray by ray (increasing t within a ray).
+    pub order: Vec<u32>,
+    /// `[n]` ray of each sample id.
+    pub sample_ray: Vec<u32>,
+    /// `[n]` density and distance in ray-major order.
+    sig_o: Vec<f32>,
+    t_o: Vec<f32>,
+    // Per-ray marching state.
+    live: Vec<u32>,
+    t_next: Vec<f32>,
+    t_far: Vec<f32>,
+    trans: Vec<f32>,
+    count: Vec<u32>,
+    fill: Vec<u32>,
     /// `[r]` active samples per ray.
     pub ray_active: Vec<u32>,
-    /// `[n]` distances along the ray (m) and steps (m).
+    /// `[n]` distances along the ray (m, by sample id) and steps (m).
     pub t: Vec<f32>,
     pub dt: Vec<f32>,
     /// `[n, 3]` positions in box coordinates `[0,1]`.
@@ -218,74 +235,141 @@ pub struct ChunkWorkspace {
 }
 
 impl ChunkWorkspace {
-    /// Number of samples after marching.
+    /// Number of samples evaluated (density) in the last forward pass.
     pub fn n_samples(&self) -> usize {
         self.t.len()
     }
 
-    /// Marches `rays` through `grid`, filling `t`, `dt`, `pos` and `ray_start`.
-    pub fn march(&mut self, field: &NgpField, rays: &[RayInput], grid: &OccupancyGrid, step: f32, max_samples: usize) {
-        self.t.clear();
-        self.ray_start.clear();
-        self.ray_start.push(0);
-        for r in rays {
-            march_ray(r.origin, r.direction, grid, step, max_samples, r.jitter, &mut self.t);
-            self.ray_start.push(self.t.len() as u32);
-        }
-        let n = self.t.len();
-        self.dt.clear();
-        self.dt.resize(n, step);
-        self.pos.resize(3 * n, 0.0);
-        for (ri, r) in rays.iter().enumerate() {
-            for s in self.ray_start[ri] as usize..self.ray_start[ri + 1] as usize {
-                let t = self.t[s];
-                let p = [0, 1, 2].map(|d| r.origin[d] + t * r.direction[d]);
-                let q = field.normalize(p);
-                self.pos[3 * s..3 * s + 3].copy_from_slice(&q);
-            }
-        }
-    }
-
-    /// Forward pass after [`march`](Self::march): densities for all samples, colours for the
-    /// samples before early termination, composites per ray.
-    pub fn forward(&mut self, field: &NgpField, params: &[f32], rays: &[RayInput], t_min: f32) {
-        let n = self.n_samples();
-        let (e, sh, o, g, ch) = (field.enc_dim, field.sigma_hidden, 1 + field.geo, field.geo, field.color_hidden);
-        let ci = SH_DIM + g;
-        self.enc.resize(n * e, 0.0);
-        self.h0.resize(n * sh, 0.0);
-        self.out0.resize(n * o, 0.0);
-        self.sigma.resize(n, 0.0);
+    /// Encoding and `sigma_net` for samples `n0..n1` (already in `pos`).
+    fn density_rows(&mut self, field: &NgpField, params: &[f32], n0: usize, n1: usize) {
+        let (e, sh, o) = (field.enc_dim, field.sigma_hidden, 1 + field.geo);
+        self.enc.resize(n1 * e, 0.0);
+        self.h0.resize(n1 * sh, 0.0);
+        self.out0.resize(n1 * o, 0.0);
+        self.sigma.resize(n1, 0.0);
         let emb = field.w(params, 0);
-        for s in 0..n {
+        for s in n0..n1 {
             let x = [self.pos[3 * s], self.pos[3 * s + 1], self.pos[3 * s + 2]];
             field.encoding.encode(emb, x, &mut self.enc[s * e..(s + 1) * e]);
         }
-        linear_forward(&self.enc, field.w(params, 1), &mut self.h0, n, e, sh);
-        relu(&mut self.h0[..n * sh]);
-        linear_forward(&self.h0, field.w(params, 2), &mut self.out0, n, sh, o);
-        for s in 0..n {
+        let n = n1 - n0;
+        linear_forward(&self.enc[n0 * e..], field.w(params, 1), &mut self.h0[n0 * sh..], n, e, sh);
+        relu(&mut self.h0[n0 * sh..n1 * sh]);
+        linear_forward(&self.h0[n0 * sh..], field.w(params, 2), &mut self.out0[n0 * o..], n, sh, o);
+        for s in n0..n1 {
             self.sigma[s] = trunc_exp(self.out0[s * o]);
         }
+    }
+
+    /// Forward pass over a chunk of rays: marches through `grid` in rounds of [`ROUND`]
+    /// samples per live ray, evaluating densities as it goes so that a ray stops being marched
+    /// once its transmittance falls below `t_min` (or it leaves the box, or has `max_samples`);
+    /// then colours for the samples before termination, and composites per ray.
+    ///
+    /// Samples are stored in evaluation order (`t`, `pos`, `sigma`, … indexed by sample id);
+    /// `order` lists them ray by ray, and `ray_start` indexes `order`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward(
+        &mut self,
+        field: &NgpField,
+        params: &[f32],
+        rays: &[RayInput],
+        grid: &OccupancyGrid,
+        step: f32,
+        max_samples: usize,
+        t_min: f32,
+    ) {
+        let nr = rays.len();
+        self.t.clear();
+        self.sample_ray.clear();
+        self.live.clear();
+        self.t_next.clear();
+        self.t_far.clear();
+        self.trans.clear();
+        self.count.clear();
+        for (i, r) in rays.iter().enumerate() {
+            let (t0, t1) = ray_aabb(r.origin, r.direction, grid.aabb_min, grid.aabb_max).unwrap_or((0.0, -1.0));
+            self.t_next.push(t0 + r.jitter * step);
+            self.t_far.push(t1);
+            self.trans.push(1.0);
+            self.count.push(0);
+            if t1 > t0 {
+                self.live.push(i as u32);
+            }
+        }
+        while !self.live.is_empty() {
+            let n0 = self.t.len();
+            for &ri in &self.live {
+                let ri = ri as usize;
+                let r = &rays[ri];
+                let before = self.t.len();
+                let k = ROUND.min(max_samples - self.count[ri] as usize);
+                self.t_next[ri] =
+                    march_segment(r.origin, r.direction, grid, step, self.t_next[ri], self.t_far[ri], k, &mut self.t);
+                let added = self.t.len() - before;
+                self.count[ri] += added as u32;
+                self.sample_ray.extend(std::iter::repeat_n(ri as u32, added));
+            }
+            let n1 = self.t.len();
+            self.pos.resize(3 * n1, 0.0);
+            for s in n0..n1 {
+                let r = &rays[self.sample_ray[s] as usize];
+                let t = self.t[s];
+                let q = field.normalize([0, 1, 2].map(|d| r.origin[d] + t * r.direction[d]));
+                self.pos[3 * s..3 * s + 3].copy_from_slice(&q);
+            }
+            self.density_rows(field, params, n0, n1);
+            for s in n0..n1 {
+                let ri = self.sample_ray[s] as usize;
+                self.trans[ri] *= (-self.sigma[s] * step).exp();
+            }
+            let (count, trans, t_next, t_far) = (&self.count, &self.trans, &self.t_next, &self.t_far);
+            self.live.retain(|&ri| {
+                let ri = ri as usize;
+                (count[ri] as usize) < max_samples && trans[ri] >= t_min && t_next[ri] < t_far[ri]
+            });
+        }
+        let n = self.t.len();
+        // Ray-major order (counting sort; each ray's samples are already in increasing t).
+        self.ray_start.clear();
+        self.ray_start.push(0);
+        for ri in 0..nr {
+            let last = *self.ray_start.last().unwrap();
+            self.ray_start.push(last + self.count[ri]);
+        }
+        self.order.resize(n, 0);
+        self.fill.clear();
+        self.fill.extend_from_slice(&self.ray_start[..nr]);
+        for s in 0..n {
+            let ri = self.sample_ray[s] as usize;
+            self.order[self.fill[ri] as usize] = s as u32;
+            self.fill[ri] += 1;
+        }
+        self.sig_o.resize(n, 0.0);
+        self.t_o.resize(n, 0.0);
+        self.dt.clear();
+        self.dt.resize(n, step);
+        for (j, &s) in self.order.iter().enumerate() {
+            self.sig_o[j] = self.sigma[s as usize];
+            self.t_o[j] = self.t[s as usize];
+        }
+        let (o, g, ch) = (1 + field.geo, field.geo, field.color_hidden);
+        let ci = SH_DIM + g;
         // Early termination decides which samples need a colour.
         self.act.clear();
         self.ray_active.clear();
-        for ri in 0..rays.len() {
+        for ri in 0..nr {
             let (a, b) = (self.ray_start[ri] as usize, self.ray_start[ri + 1] as usize);
-            let k = active_count(&self.sigma[a..b], &self.dt[a..b], t_min);
+            let k = active_count(&self.sig_o[a..b], &self.dt[a..b], t_min);
             self.ray_active.push(k as u32);
-            self.act.extend((a..a + k).map(|s| s as u32));
+            self.act.extend_from_slice(&self.order[a..a + k]);
         }
         let m = self.act.len();
         self.cin.resize(m * ci, 0.0);
-        let mut ray = 0;
         for (j, &s) in self.act.iter().enumerate() {
             let s = s as usize;
-            while self.ray_start[ray + 1] as usize <= s {
-                ray += 1;
-            }
             let row = &mut self.cin[j * ci..(j + 1) * ci];
-            sh_encode(rays[ray].direction, &mut row[..SH_DIM]);
+            sh_encode(rays[self.sample_ray[s] as usize].direction, &mut row[..SH_DIM]);
             row[SH_DIM..].copy_from_slice(&self.out0[s * o + 1..(s + 1) * o]);
         }
         self.h1.resize(m * ch, 0.0);
@@ -300,18 +384,18 @@ impl ChunkWorkspace {
             *v = sigmoid(*v);
         }
         // Composite.
-        self.color.resize(rays.len() * 3, 0.0);
-        self.opacity.resize(rays.len(), 0.0);
-        self.depth.resize(rays.len(), 0.0);
+        self.color.resize(nr * 3, 0.0);
+        self.opacity.resize(nr, 0.0);
+        self.depth.resize(nr, 0.0);
         let mut j0 = 0;
         for (ri, r) in rays.iter().enumerate() {
             let a = self.ray_start[ri] as usize;
             let k = self.ray_active[ri] as usize;
             let c = composite_forward(
-                &self.sigma[a..a + k],
+                &self.sig_o[a..a + k],
                 &self.rgb[3 * j0..3 * (j0 + k)],
                 &self.dt[a..a + k],
-                &self.t[a..a + k],
+                &self.t_o[a..a + k],
                 r.background,
             );
             self.color[3 * ri..3 * ri + 3].copy_from_slice(&c.color);
@@ -339,7 +423,7 @@ impl ChunkWorkspace {
             let (l, dc) = mse_and_grad(col, *tgt, n_total);
             self.sq_err += l;
             composite_backward(
-                &self.sigma[a..a + k],
+                &self.sig_o[a..a + k],
                 &self.rgb[3 * j0..3 * (j0 + k)],
                 &self.dt[a..a + k],
                 col,
@@ -396,6 +480,78 @@ impl ChunkWorkspace {
             let d: Vec<f32> = (0..n).flat_map(|s| [self.d_enc[s * e + 2 * l], self.d_enc[s * e + 2 * l + 1]]).collect();
             let a = lv.offset as usize * 2;
             field.encoding.backward_level(l, &self.pos[..3 * n], &d, &mut grad_emb[a..a + lv.size as usize * 2]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// End to end: ∂(MSE of composited colours)/∂θ from the fused kernels against central
+    /// differences, for hash-table entries and weights of every layer.
+    #[test]
+    fn loss_gradient_matches_finite_differences_end_to_end() {
+        let cfg = NerfConfig {
+            aabb_min: [-1.0; 3],
+            aabb_max: [1.0; 3],
+            hash_levels: 4,
+            log2_hashmap_size: 10,
+            base_resolution: 4,
+            finest_resolution: 32,
+            step_size: 0.05,
+            grid_resolution: 8,
+            ..NerfConfig::default()
+        };
+        let field = NgpField::new(&cfg);
+        let mut params = field.init_params(9);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        for v in &mut params[field.embeddings_range()] {
+            *v = rng.random::<f32>() - 0.5;
+        }
+        let grid = OccupancyGrid::new(8, cfg.aabb_min, cfg.aabb_max);
+        let rays: Vec<RayInput> = (0..6)
+            .map(|i| {
+                let d = [0.3 * (i as f32 - 2.5), 1.0, -0.2 + 0.05 * i as f32];
+                let nrm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                RayInput {
+                    origin: [0.1, -2.0, 0.1],
+                    direction: d.map(|x| x / nrm),
+                    background: [0.3, 0.5, 0.9],
+                    jitter: 0.3,
+                }
+            })
+            .collect();
+        let targets: Vec<[f32; 3]> = (0..6).map(|i| [0.1 * i as f32, 0.5, 0.9 - 0.1 * i as f32]).collect();
+        let mut ws = ChunkWorkspace::default();
+        let loss = |p: &[f32], ws: &mut ChunkWorkspace| -> f64 {
+            ws.forward(&field, p, &rays, &grid, cfg.step_size, 1000, 0.0);
+            ws.backward(&field, p, &targets, rays.len());
+            ws.sq_err / (3 * rays.len()) as f64
+        };
+        loss(&params, &mut ws);
+        let mut grad = vec![0.0f32; field.n_params];
+        ws.accumulate_embedding_grad(&field, &mut grad[field.embeddings_range()]);
+        let base = field.mlp_range().start;
+        grad[base..].copy_from_slice(&ws.grad_mlp);
+        let mut picks: Vec<usize> =
+            (0..field.embeddings_range().end).filter(|&k| grad[k].abs() > 1e-5).step_by(7).take(8).collect();
+        for t in 1..6 {
+            let r = field.tensors[t].1.clone();
+            picks.extend(r.clone().filter(|&k| grad[k].abs() > 1e-5).step_by(13).take(4));
+        }
+        assert!(picks.len() >= 20, "{}", picks.len());
+        for k in picks {
+            let h = 1e-2f32;
+            let o = params[k];
+            params[k] = o + h;
+            let lp = loss(&params, &mut ws);
+            params[k] = o - h;
+            let lm = loss(&params, &mut ws);
+            params[k] = o;
+            let fd = (lp - lm) / (2.0 * h as f64);
+            let an = grad[k] as f64;
+            assert!((fd - an).abs() < 2e-2 * an.abs().max(fd.abs()) + 1e-6, "param {k}: analytic {an:e} vs fd {fd:e}");
         }
     }
 }

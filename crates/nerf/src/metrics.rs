@@ -157,7 +157,8 @@ mod tests {
         let (w, h) = (24, 20);
         let a: Vec<f32> = (0..w * h * 3).map(|i| ((i * 7919) % 101) as f32 / 100.0).collect();
         assert!((ssim(&a, &a, w, h) - 1.0).abs() < 1e-9);
-        let b: Vec<f32> = a.iter().enumerate().map(|(i, v)| (v + if i % 2 == 0 { 0.1 } else { -0.1 }).clamp(0.0, 1.0)).collect();
+        let b: Vec<f32> =
+            a.iter().enumerate().map(|(i, v)| (v + if i % 2 == 0 { 0.1 } else { -0.1 }).clamp(0.0, 1.0)).collect();
         let s = ssim(&a, &b, w, h);
         assert!(s < 0.99 && s > 0.0, "{s}");
         assert!((psnr(&a, &a) - 200.0).abs() < 1e-6);

@@ -104,8 +104,7 @@ impl Nerf {
     /// Renders rays (unit directions, world frame) without jitter, in parallel chunks.
     pub fn render_rays(&self, rays: &[RayInput]) -> RayOutputs {
         let r = rays.len();
-        let mut out =
-            RayOutputs { rgb: vec![0.0; 3 * r], opacity: vec![0.0; r], distance: vec![0.0; r], samples: 0 };
+        let mut out = RayOutputs { rgb: vec![0.0; 3 * r], opacity: vec![0.0; r], distance: vec![0.0; r], samples: 0 };
         let pool = Pool::<ChunkWorkspace>::new();
         let samples: usize = out
             .rgb
@@ -115,8 +114,16 @@ impl Nerf {
             .zip(rays.par_chunks(RENDER_CHUNK))
             .map(|(((rgb, op), dist), rs)| {
                 pool.with(|ws| {
-                    ws.march(&self.field, rs, &self.grid, self.config.step_size, self.config.max_samples_per_ray);
-                    ws.forward(&self.field, &self.params, rs, self.config.early_stop_transmittance);
+                    let c = &self.config;
+                    ws.forward(
+                        &self.field,
+                        &self.params,
+                        rs,
+                        &self.grid,
+                        c.step_size,
+                        c.max_samples_per_ray,
+                        c.early_stop_transmittance,
+                    );
                     rgb.copy_from_slice(&ws.color);
                     op.copy_from_slice(&ws.opacity);
                     for i in 0..rs.len() {
@@ -132,13 +139,15 @@ impl Nerf {
 
     /// One occupancy-grid update (`update_index` = how many came before): evaluates σ·Δt at a
     /// random point of every cell (warm-up) or of `res³/grid_partial_fraction` random cells plus
-    /// as many random occupied ones, then `d ← max(d·decay, new)` and re-thresholds.
+    /// as many random occupied ones; every cell decays by `grid_decay`, measured cells keep the max
+    /// (warm-up updates replace the grid).
     /// Deterministic in `(seed, update_index)`.
     pub fn update_grid(&mut self, seed: u64, update_index: u64) {
         let res = self.grid.resolution;
         let n_cells = res.pow(3);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mix(seed, 0x6121D, update_index));
-        let cells: Vec<u32> = if update_index < self.config.grid_warmup_updates {
+        let full = update_index < self.config.grid_warmup_updates;
+        let cells: Vec<u32> = if full {
             (0..n_cells as u32).collect()
         } else {
             let k = n_cells / self.config.grid_partial_fraction;
@@ -155,8 +164,11 @@ impl Nerf {
         let field = &self.field;
         let params = &self.params;
         let dt = self.config.step_size;
-        values.par_chunks_mut(DENSITY_CHUNK).zip(cells.par_chunks(DENSITY_CHUNK)).zip(jit.par_chunks(DENSITY_CHUNK)).for_each(
-            |((o, c), j)| {
+        values
+            .par_chunks_mut(DENSITY_CHUNK)
+            .zip(cells.par_chunks(DENSITY_CHUNK))
+            .zip(jit.par_chunks(DENSITY_CHUNK))
+            .for_each(|((o, c), j)| {
                 pool.with(|(ws, pos)| {
                     pos.clear();
                     for (&cell, jj) in c.iter().zip(j) {
@@ -171,9 +183,8 @@ impl Nerf {
                         *v *= dt;
                     }
                 })
-            },
-        );
-        self.grid.apply(&cells, &values, self.config.grid_decay, self.config.grid_threshold);
+            });
+        self.grid.apply(&cells, &values, self.config.grid_decay, self.config.grid_threshold, full);
     }
 }
 

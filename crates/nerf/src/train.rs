@@ -191,13 +191,23 @@ impl Trainer {
             self.ws.push(ChunkWorkspace::default());
         }
         let nerf = &self.nerf;
-        self.ws[..n_chunks].par_iter_mut().zip(self.rays.par_chunks(TRAIN_CHUNK)).zip(self.targets.par_chunks(TRAIN_CHUNK)).for_each(
-            |((ws, rays), tg)| {
-                ws.march(&nerf.field, rays, &nerf.grid, cfg.step_size, cfg.max_samples_per_ray);
-                ws.forward(&nerf.field, &nerf.params, rays, cfg.early_stop_transmittance);
+        self.ws[..n_chunks]
+            .par_iter_mut()
+            .zip(self.rays.par_chunks(TRAIN_CHUNK))
+            .zip(self.targets.par_chunks(TRAIN_CHUNK))
+            .for_each(|((ws, rays), tg)| {
+                let c = &cfg;
+                ws.forward(
+                    &nerf.field,
+                    &nerf.params,
+                    rays,
+                    &nerf.grid,
+                    c.step_size,
+                    c.max_samples_per_ray,
+                    c.early_stop_transmittance,
+                );
                 ws.backward(&nerf.field, &nerf.params, tg, b);
-            },
-        );
+            });
         let ws = &self.ws[..n_chunks];
         let sq: f64 = ws.iter().map(|w| w.sq_err).sum();
         let mse = sq / (3 * b) as f64;

@@ -63,7 +63,15 @@ pub fn linear_backward_input(dy: &[f32], w: &[f32], dx: &mut [f32], n: usize, di
 }
 
 /// `dW[out,in] (+)= dY[n,out]ᵀ · X[n,in]`; `accumulate = false` overwrites.
-pub fn linear_backward_weight(dy: &[f32], x: &[f32], dw: &mut [f32], n: usize, din: usize, dout: usize, accumulate: bool) {
+pub fn linear_backward_weight(
+    dy: &[f32],
+    x: &[f32],
+    dw: &mut [f32],
+    n: usize,
+    din: usize,
+    dout: usize,
+    accumulate: bool,
+) {
     assert!(dy.len() >= n * dout && x.len() >= n * din && dw.len() == dout * din);
     if n == 0 {
         if !accumulate {

@@ -60,12 +60,19 @@ impl OccupancyGrid {
         self.occupied.iter().map(|&o| o as u64).sum::<u64>() as f64 / self.occupied.len() as f64
     }
 
-    /// Applies new measurements `(cell, σ·Δt)`: `d ← max(d·decay, new)` on the measured cells,
-    /// then recomputes the mean, the threshold and the bitfield.
-    pub fn apply(&mut self, cells: &[u32], values: &[f32], decay: f32, threshold: f32) {
+    /// Applies new measurements `(cell, σ·Δt)` as instant-ngp does: every cell decays,
+    /// `d ← d·decay`, measured cells then take `max(d, new)` (a cell measured twice keeps the
+    /// larger value); then recomputes the mean, the threshold and the bitfield.
+    /// With `replace` (a full warm-up update that measured every cell) the grid forgets its
+    /// past: `d ← new`, so the untrained initial density (σ ≈ 1 everywhere) is dropped at once.
+    pub fn apply(&mut self, cells: &[u32], values: &[f32], decay: f32, threshold: f32, replace: bool) {
+        let decay = if replace { 0.0 } else { decay };
+        for d in &mut self.density {
+            *d *= decay;
+        }
         for (&c, &v) in cells.iter().zip(values) {
             let d = &mut self.density[c as usize];
-            *d = (*d * decay).max(v);
+            *d = d.max(v);
         }
         self.refresh(threshold);
     }

@@ -129,7 +129,13 @@ mod tests {
 
     #[test]
     fn opaque_first_sample_hides_the_rest_and_the_background() {
-        let out = composite_forward(&[1e4, 1.0], &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0], &[0.01, 0.01], &[2.0, 2.01], [0.0, 0.0, 1.0]);
+        let out = composite_forward(
+            &[1e4, 1.0],
+            &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            &[0.01, 0.01],
+            &[2.0, 2.01],
+            [0.0, 0.0, 1.0],
+        );
         assert!((out.color[0] - 1.0).abs() < 1e-6 && out.color[2].abs() < 1e-6);
         assert!((out.opacity - 1.0).abs() < 1e-6 && (out.depth - 2.0).abs() < 1e-5);
         assert_eq!(active_count(&[1e4, 1.0], &[0.01, 0.01], 1e-4), 1);

@@ -1,4 +1,5 @@
-//! Foundation benchmarks: ground-truth renderer throughput, dataset writing, signed-field build.
+//! Foundation benchmarks: ground-truth renderer throughput, dataset writing, signed-field build
+//! (sample the SDF → marching cubes → collision map → signed EDT).
 //!
 //! `cargo bench --bench foundation`; figures are recorded in BENCHMARKS.md.
 
@@ -37,5 +38,23 @@ fn dataset(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, renderer, dataset);
+fn collision_field(c: &mut Criterion) {
+    use nerfsv_collision::{marching_cubes, GridGeometry, ScalarGrid, SdfGrid};
+    let scene = Scene::builtin("stonehenge").expect("built-in scene");
+    let mut bounds = scene.bounds().expanded(0.1);
+    bounds.max.z = bounds.max.z.max(1.0);
+    let geometry = GridGeometry::covering(&bounds, 40.0).expect("grid");
+    let mut g = c.benchmark_group("collision");
+    g.sample_size(10);
+    g.bench_function("stonehenge_signed_field_40_cells_per_m", |b| {
+        b.iter(|| {
+            let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
+            let mesh = marching_cubes(&field, 0.0, true);
+            (mesh.triangles.len(), SdfGrid::from_field(&field, 0.0, true))
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, renderer, dataset, collision_field);
 criterion_main!(benches);

@@ -29,16 +29,29 @@ enum Command {
     Run(commands::run::RunArgs),
     /// Render a built-in ground-truth scene into a Blender-format dataset.
     Scene(commands::scene::SceneArgs),
+    /// Train a NeRF on a Blender-format dataset (checkpoints in safetensors; --resume continues).
+    Train(commands::nerf::TrainArgs),
+    /// Report PSNR, SSIM and depth error of a NeRF on a dataset split.
+    Eval(commands::nerf::EvalArgs),
+    /// Render a split's cameras with a NeRF to PNGs (RGB and depth).
+    Render(commands::nerf::RenderArgs),
     /// Build a signed collision field (SDF grid at 40 cells/m) and its surface mesh.
     Collision(commands::collision::CollisionArgs),
 }
 
 fn main() -> ExitCode {
+    // matrixmultiply must not start threads inside rayon's workers (see nerfsv_nerf's docs).
+    if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
+        std::env::set_var("MATMUL_NUM_THREADS", "1");
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
         Command::Scene(a) => commands::scene::run(a),
         Command::Collision(a) => commands::collision::run(a),
+        Command::Train(a) => commands::nerf::run_train(a),
+        Command::Eval(a) => commands::nerf::run_eval(a),
+        Command::Render(a) => commands::nerf::run_render(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

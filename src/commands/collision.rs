@@ -9,9 +9,17 @@ use serde_json::json;
 
 #[derive(Args)]
 pub struct CollisionArgs {
-    /// Built-in ground-truth scene whose signed field to build.
-    #[arg(long, default_value = "stonehenge")]
-    pub scene: String,
+    /// Built-in ground-truth scene: its signed field is built, or, with --model, compared
+    /// against the NeRF's (default stonehenge when no --model is given).
+    #[arg(long)]
+    pub scene: Option<String>,
+    /// NeRF checkpoint: build the field from its density instead of from a scene's SDF.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// With --model: density σ (1/m) above which space is solid. Default ln 2 / cell size, the
+    /// density at which one grid cell of depth absorbs half the light.
+    #[arg(long)]
+    pub density_threshold: Option<f32>,
     /// Output signed distance field (safetensors: tensor `sdf` [nz, ny, nx] + grid metadata).
     #[arg(long)]
     pub out: PathBuf,
@@ -35,14 +43,95 @@ pub fn field_bounds(scene_bounds: &Aabb) -> Aabb {
 }
 
 pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
-    let scene = Scene::builtin(&args.scene)?;
-    let figures = ground_truth_field(&scene, args.cells_per_metre, &args.out, args.mesh.as_deref())?;
+    let figures = match &args.model {
+        None => {
+            let scene = Scene::builtin(args.scene.as_deref().unwrap_or("stonehenge"))?;
+            ground_truth_field(&scene, args.cells_per_metre, &args.out, args.mesh.as_deref())?
+        }
+        Some(model) => {
+            let nerf = crate::commands::nerf::load_model(model)?;
+            let scene = args.scene.as_deref().map(Scene::builtin).transpose()?;
+            nerf_field(
+                &nerf,
+                scene.as_ref(),
+                args.cells_per_metre,
+                args.density_threshold,
+                &args.out,
+                args.mesh.as_deref(),
+            )?
+        }
+    };
     if args.json {
         crate::commands::print_json(&figures)?;
     } else {
         eprintln!("{}", serde_json::to_string_pretty(&figures)?);
     }
     Ok(())
+}
+
+/// The drone's flight altitudes, over which NeRF and ground-truth fields are compared (metres).
+pub const FLIGHT_BAND: (f32, f32) = (0.1, 0.6);
+
+/// The same pipeline on a NeRF: sample its density σ on the grid (over the scene's field
+/// bounds when a ground-truth scene is given, else the model's box), solid where σ exceeds the
+/// threshold, marching cubes, collision map, signed EDT. With a scene, also the agreement with
+/// the ground-truth field on the same grid: occupancy IoU and |SDF difference| in the flight band.
+pub fn nerf_field(
+    nerf: &nerfsv_nerf::Nerf,
+    scene: Option<&Scene>,
+    cells_per_metre: f32,
+    density_threshold: Option<f32>,
+    out: &Path,
+    mesh_out: Option<&Path>,
+) -> anyhow::Result<serde_json::Value> {
+    anyhow::ensure!(
+        (1.0..=400.0).contains(&cells_per_metre),
+        "--cells-per-metre: must be between 1 and 400, found {cells_per_metre}"
+    );
+    let threshold = density_threshold.unwrap_or(std::f32::consts::LN_2 * cells_per_metre);
+    anyhow::ensure!(
+        threshold.is_finite() && threshold > 0.0,
+        "--density-threshold: must be positive, found {threshold}"
+    );
+    let start = Instant::now();
+    let bounds = match scene {
+        Some(s) => field_bounds(&s.bounds()),
+        None => {
+            let c = &nerf.config;
+            Aabb::new(c.aabb_min.into(), c.aabb_max.into())
+        }
+    };
+    let geometry = GridGeometry::covering(&bounds, cells_per_metre)?;
+    let points: Vec<[f32; 3]> = (0..geometry.len())
+        .map(|i| {
+            let [x, y, z] = geometry.coords(i);
+            let p = geometry.position_of(x, y, z);
+            [p.x, p.y, p.z]
+        })
+        .collect();
+    let density = ScalarGrid::from_data(geometry, nerf.density(&points))?;
+    let mesh = marching_cubes(&density, threshold, false);
+    let sdf = SdfGrid::from_field(&density, threshold, false);
+    let build_seconds = start.elapsed().as_secs_f64();
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        crate::cache::ensure_dir(parent)?;
+    }
+    sdf.save(out).with_context(|| format!("writing {}", out.display()))?;
+    if let Some(m) = mesh_out {
+        mesh.write_ply(m, true).with_context(|| format!("writing {}", m.display()))?;
+    }
+    let agreement = scene.map(|s| {
+        let exact = ScalarGrid::sample_geometry(geometry, |p| s.distance(&p));
+        let gt = SdfGrid::from_field(&exact, 0.0, true);
+        nerfsv_collision::agreement(&sdf, &gt, FLIGHT_BAND)
+    });
+    Ok(json!({
+        "out": out,
+        "density_threshold": threshold,
+        "build_seconds": build_seconds,
+        "grid": GridSummary::new(&geometry).with_sdf(&sdf).with_mesh(&mesh),
+        "agreement_with_ground_truth": agreement,
+    }))
 }
 
 /// The paper's pipeline on the ground truth: sample the scene's SDF on the grid, marching

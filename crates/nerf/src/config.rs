@@ -123,9 +123,9 @@ pub struct TrainConfig {
     /// Default 4096.
     pub batch_rays: usize,
     /// Aim for this many samples per step by adapting the ray count (instant-ngp); 0 = fixed
-    /// `batch_rays`. Default 65536.
+    /// `batch_rays`. Default 24576 (small batches, many steps: best on 2 cores).
     pub target_samples_per_step: usize,
-    /// Learning rate `lr · 0.1^min(step / lr_decay_steps, 1)`. Default 6000.
+    /// Learning rate `lr · 0.1^min(step / lr_decay_steps, 1)`. Default 4000.
     pub lr_decay_steps: u64,
     /// Background during training. Default random.
     pub background: BackgroundMode,
@@ -145,8 +145,8 @@ impl Default for TrainConfig {
             eps: 1e-15,
             weight_decay: 1e-6,
             batch_rays: 4096,
-            target_samples_per_step: 65536,
-            lr_decay_steps: 6000,
+            target_samples_per_step: 24576,
+            lr_decay_steps: 4000,
             background: BackgroundMode::Random,
             checkpoint_every_s: 30.0,
             checkpoint_every_steps: 0,

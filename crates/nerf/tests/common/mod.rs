@@ -85,5 +85,5 @@ pub fn tiny_config() -> NerfConfig {
 }
 
 pub fn tiny_train_config(seed: u64) -> TrainConfig {
-    TrainConfig { batch_rays: 512, target_samples_per_step: 0, lr_decay_steps: 400, seed, ..TrainConfig::default() }
+    TrainConfig { batch_rays: 1024, target_samples_per_step: 0, lr_decay_steps: 800, seed, ..TrainConfig::default() }
 }

@@ -55,6 +55,26 @@ impl Stage {
             .with_context(|| format!("writing {}", path.display()))
     }
 
+    /// Starts (or restarts) the stage. Returns `true` when an interrupted run of the same key
+    /// left its partial outputs here to resume from; otherwise the folder is emptied first so
+    /// nothing computed from other inputs can leak into this run.
+    pub fn begin(&self) -> anyhow::Result<bool> {
+        let marker = self.dir.join("started.json");
+        let resumable = std::fs::read_to_string(&marker)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .is_some_and(|v| v["key"] == self.key.as_str());
+        if !resumable && self.dir.exists() {
+            std::fs::remove_dir_all(&self.dir).with_context(|| format!("clearing {}", self.dir.display()))?;
+        }
+        ensure_dir(&self.dir)?;
+        self.invalidate()?;
+        let doc = serde_json::json!({ "key": self.key });
+        nerfsv_scene::io::atomic_write(&marker, |w| serde_json::to_writer(w, &doc).map_err(std::io::Error::other))
+            .with_context(|| format!("writing {}", marker.display()))?;
+        Ok(resumable)
+    }
+
     /// Forgets a previous completion (before recomputing).
     pub fn invalidate(&self) -> anyhow::Result<()> {
         match std::fs::remove_file(self.record()) {
@@ -96,5 +116,19 @@ mod tests {
         assert!(other.cached(&["out.bin"]).is_none());
         std::fs::remove_file(dir.path().join("out.bin")).unwrap();
         assert!(stage.cached(&["out.bin"]).is_none());
+    }
+
+    #[test]
+    fn begin_keeps_partial_outputs_of_the_same_key_only() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("train");
+        let a = Stage::new(dir.clone(), "a".into());
+        assert!(!a.begin().unwrap());
+        std::fs::write(dir.join("checkpoint"), b"partial").unwrap();
+        assert!(a.begin().unwrap(), "same key: resume");
+        assert!(dir.join("checkpoint").exists());
+        let b = Stage::new(dir.clone(), "b".into());
+        assert!(!b.begin().unwrap(), "other key: start afresh");
+        assert!(!dir.join("checkpoint").exists());
     }
 }

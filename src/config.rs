@@ -5,7 +5,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use nerfsv_dataset::GenerateOptions;
+use nerfsv_nerf::{NerfConfig, TrainConfig};
 use serde::{Deserialize, Serialize};
+
+/// Default training length of `nerfsv run`.
+pub const DEFAULT_TRAIN_STEPS: u64 = 1500;
 
 /// Everything `nerfsv run` does, with its defaults.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -19,6 +23,16 @@ pub struct RunConfig {
     pub dataset: GenerateOptions,
     /// Collision field resolution in cells per metre (the paper's 40).
     pub cells_per_metre: f32,
+    /// NeRF model settings (hash grid, networks, occupancy grid, ray marching).
+    pub nerf: NerfConfig,
+    /// NeRF optimiser settings (Adam, batch, background, seed).
+    pub train: TrainConfig,
+    /// Training length in optimiser steps. A step count, not a time budget, so the same config
+    /// and seed give the same model on any machine.
+    pub train_steps: u64,
+    /// Density (1/m) above which the NeRF counts as solid in its collision field; default
+    /// ln 2 / cell size.
+    pub nerf_density_threshold: Option<f32>,
 }
 
 impl Default for RunConfig {
@@ -28,6 +42,10 @@ impl Default for RunConfig {
             out: PathBuf::from("runs/stonehenge"),
             dataset: GenerateOptions::default(),
             cells_per_metre: 40.0,
+            nerf: NerfConfig::default(),
+            train: TrainConfig::default(),
+            train_steps: DEFAULT_TRAIN_STEPS,
+            nerf_density_threshold: None,
         }
     }
 }
@@ -49,6 +67,11 @@ impl RunConfig {
             "cells_per_metre: must be between 1 and 400, found {}",
             self.cells_per_metre
         );
+        self.nerf.validate().map_err(|e| anyhow::anyhow!("nerf: {e}"))?;
+        anyhow::ensure!(self.train_steps >= 1, "train_steps: must be at least 1");
+        if let Some(t) = self.nerf_density_threshold {
+            anyhow::ensure!(t.is_finite() && t > 0.0, "nerf_density_threshold: must be positive, found {t}");
+        }
         Ok(())
     }
 }

@@ -222,3 +222,24 @@ pub fn run_render(args: RenderArgs) -> anyhow::Result<()> {
     eprintln!("rendered {} views into {}", split.frames.len(), args.out.display());
     Ok(())
 }
+
+/// Writes `ground truth | NeRF render` side by side, both composited on white.
+pub fn write_comparison(nerf: &Nerf, frame: &nerfsv_dataset::Frame, path: &Path) -> anyhow::Result<()> {
+    let view = nerf.render_camera(&frame.camera, [1.0, 1.0, 1.0]).to_image();
+    let (w, h) = (frame.image.width, frame.image.height);
+    let mut out = nerfsv_dataset::Image::new(2 * w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let gt = frame.image.pixel(x, y);
+            let nf = view.pixel(x, y);
+            let o = 4 * (y * 2 * w + x) as usize;
+            for c in 0..3 {
+                out.rgba[o + c] = gt[c] * gt[3] + (1.0 - gt[3]);
+                out.rgba[o + 4 * w as usize + c] = nf[c] * nf[3] + (1.0 - nf[3]);
+            }
+            out.rgba[o + 3] = 1.0;
+            out.rgba[o + 4 * w as usize + 3] = 1.0;
+        }
+    }
+    nerfsv_scene::io::atomic_write(path, |w| out.write_png(w)).with_context(|| format!("writing {}", path.display()))
+}

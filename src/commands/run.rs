@@ -82,7 +82,101 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }
     };
 
-    let summary = json!({ "run": cfg.out, "dataset": dataset, "collision": gt });
+    // Stage 3: the NeRF, trained to a step count; an interrupted run resumes its checkpoint.
+    let settings = crate::commands::nerf::NerfSettings { nerf: cfg.nerf.clone(), train: cfg.train.clone() };
+    let train_key = stage_key("train", &(&settings, cfg.train_steps), &[&ds_key])?;
+    let train_stage = Stage::new(cfg.out.join("nerf"), train_key.clone());
+    let checkpoint = nerfsv_nerf::checkpoint_path(&train_stage.dir);
+    let (trained, nerf) = match train_stage.cached(&["checkpoint.safetensors"]) {
+        Some(figures) => {
+            say("nerf: up to date".into());
+            (figures, crate::commands::nerf::load_model(&checkpoint)?)
+        }
+        None => {
+            let resume = train_stage.begin()?;
+            if resume {
+                say("nerf: resuming the interrupted training".into());
+            }
+            let data = crate::commands::nerf::load(&ds_dir, "train", 1)?;
+            let budget = nerfsv_nerf::Budget::Steps(cfg.train_steps);
+            let (nerf, figures) =
+                crate::commands::nerf::train_model(&data, &train_stage.dir, budget, resume, &settings, args.json)?;
+            train_stage.complete(&figures)?;
+            say(format!("nerf: {} steps in {:.0} s", figures["steps"], figures["seconds"].as_f64().unwrap_or(0.0)));
+            (figures, nerf)
+        }
+    };
+
+    // Stage 4: evaluation on the test split, with side-by-side pictures.
+    let eval_stage = Stage::new(cfg.out.join("eval"), stage_key("eval", &(), &[&train_key])?);
+    let eval = match eval_stage.cached(&["metrics.json"]) {
+        Some(figures) => {
+            say("eval: up to date".into());
+            figures
+        }
+        None => {
+            eval_stage.begin()?;
+            let test = crate::commands::nerf::load(&ds_dir, "test", 1)?;
+            let report = nerfsv_nerf::evaluate(&nerf, &test, nerfsv_nerf::EvalOptions::default());
+            let figures = crate::commands::nerf::eval_json(&report, false);
+            let path = eval_stage.dir.join("metrics.json");
+            let all = crate::commands::nerf::eval_json(&report, true);
+            nerfsv_scene::io::atomic_write(&path, |w| {
+                serde_json::to_writer_pretty(w, &all).map_err(std::io::Error::other)
+            })?;
+            for i in 0..test.frames.len().min(4) {
+                let path = eval_stage.dir.join(format!("compare_{i}.png"));
+                crate::commands::nerf::write_comparison(&nerf, &test.frames[i], &path)?;
+            }
+            eval_stage.complete(&figures)?;
+            say(format!(
+                "eval: test PSNR {:.2} dB, SSIM {:.3}, median depth error {:.3} m",
+                report.psnr,
+                report.ssim,
+                report.depth_median_abs_err_m.unwrap_or(f64::NAN)
+            ));
+            figures
+        }
+    };
+
+    // Stage 5: the NeRF's collision field and its agreement with the ground truth.
+    let nc_key = stage_key("nerf_collision", &(cfg.cells_per_metre, cfg.nerf_density_threshold), &[&train_key])?;
+    let nc_stage = Stage::new(cfg.out.join("nerf_collision"), nc_key);
+    let nerf_collision = match nc_stage.cached(&["nerf_sdf.safetensors"]) {
+        Some(figures) => {
+            say("nerf collision: up to date".into());
+            figures
+        }
+        None => {
+            nc_stage.begin()?;
+            let figures = crate::commands::collision::nerf_field(
+                &nerf,
+                Some(&scene),
+                cfg.cells_per_metre,
+                cfg.nerf_density_threshold,
+                &nc_stage.dir.join("nerf_sdf.safetensors"),
+                Some(&nc_stage.dir.join("nerf_mesh.ply")),
+            )?;
+            nc_stage.complete(&figures)?;
+            let a = &figures["agreement_with_ground_truth"];
+            say(format!(
+                "nerf collision: IoU {:.3} with ground truth, |SDF diff| mean {:.3} m / p95 {:.3} m in the flight band",
+                a["iou"].as_f64().unwrap_or(f64::NAN),
+                a["band_mean_abs_diff"].as_f64().unwrap_or(f64::NAN),
+                a["band_p95_abs_diff"].as_f64().unwrap_or(f64::NAN)
+            ));
+            figures
+        }
+    };
+
+    let summary = json!({
+        "run": cfg.out,
+        "dataset": dataset,
+        "collision": gt,
+        "nerf": trained,
+        "eval": eval,
+        "nerf_collision": nerf_collision,
+    });
     let path = cfg.out.join("summary.json");
     nerfsv_scene::io::atomic_write(&path, |w| {
         serde_json::to_writer_pretty(w, &summary).map_err(std::io::Error::other)

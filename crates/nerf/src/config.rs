@@ -75,7 +75,7 @@ impl NerfConfig {
     /// Checks ranges; the message names the field.
     pub fn validate(&self) -> Result<(), String> {
         for i in 0..3 {
-            if !(self.aabb_min[i] < self.aabb_max[i]) {
+            if self.aabb_min[i].partial_cmp(&self.aabb_max[i]) != Some(std::cmp::Ordering::Less) {
                 return Err(format!("aabb_min[{i}] must be below aabb_max[{i}]"));
             }
         }

@@ -109,7 +109,7 @@ impl NgpField {
     /// Initial parameters: embeddings `U(−1e-4, 1e-4)` (instant-ngp), weights `U(±1/√fan_in)`
     /// (torch `nn.Linear`).
     pub fn init_params(&self, seed: u64) -> Vec<f32> {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F_4E4F);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x005E_ED0F_4E4F);
         let mut p = vec![0.0f32; self.n_params];
         for (ti, (shape, range)) in self.tensors.iter().enumerate() {
             let bound = if ti == 0 { 1e-4 } else { 1.0 / (shape[1] as f32).sqrt() };

@@ -126,8 +126,8 @@ impl Nerf {
                     );
                     rgb.copy_from_slice(&ws.color);
                     op.copy_from_slice(&ws.opacity);
-                    for i in 0..rs.len() {
-                        dist[i] = if ws.opacity[i] > 1e-6 { ws.depth[i] / ws.opacity[i] } else { 0.0 };
+                    for ((d, &o), &w) in dist.iter_mut().zip(&ws.opacity).zip(&ws.depth) {
+                        *d = if o > 1e-6 { w / o } else { 0.0 };
                     }
                     ws.n_samples()
                 })

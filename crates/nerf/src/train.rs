@@ -181,7 +181,7 @@ impl Trainer {
     /// the loss or a gradient is NaN or infinite.
     pub fn step(&mut self) -> Result<StepStats, NerfError> {
         let cfg = self.nerf.config.clone();
-        if self.step % cfg.grid_update_interval == 0 {
+        if self.step.is_multiple_of(cfg.grid_update_interval) {
             self.nerf.update_grid(self.config.seed, self.step / cfg.grid_update_interval);
         }
         self.generate_rays();

@@ -104,7 +104,7 @@ mod tests {
         ts.clear();
         let n = march_ray([-3.0, 0.1, 0.2], [1.0, 0.0, 0.0], &g, 0.05, 1000, 0.0, &mut ts);
         // Only the cell [0.25, 0.5] in x is occupied: samples at 3.25, 3.30, ... < 3.5.
-        assert!(n >= 4 && n <= 6, "{n}: {ts:?}");
+        assert!((4..=6).contains(&n), "{n}: {ts:?}");
         assert!(ts.iter().all(|&t| (3.25 - 1e-4..3.5 + 1e-4).contains(&t)));
     }
 }

@@ -9,7 +9,7 @@ use nerfsv_nerf::{NerfConfig, TrainConfig};
 use serde::{Deserialize, Serialize};
 
 /// Default training length of `nerfsv run`.
-pub const DEFAULT_TRAIN_STEPS: u64 = 1500;
+pub const DEFAULT_TRAIN_STEPS: u64 = 2000;
 
 /// Everything `nerfsv run` does, with its defaults.
 #[derive(Clone, Debug, Serialize, Deserialize)]

@@ -17,7 +17,8 @@ fn field(scene: &Scene) -> SdfGrid {
 /// Deterministic points in the scene's flight region.
 fn points(n: u32) -> impl Iterator<Item = Point3<f32>> {
     (0..n).map(|k| {
-        let h = |m: u32| nerfsv_scene::texture::value_noise(k as f32 * 0.917 + 0.3, m as f32 * 7.31 + 0.1, 0.77 * k as f32);
+        let h =
+            |m: u32| nerfsv_scene::texture::value_noise(k as f32 * 0.917 + 0.3, m as f32 * 7.31 + 0.1, 0.77 * k as f32);
         let (r, a) = (1.75 * h(1).sqrt(), std::f32::consts::TAU * h(2));
         Point3::new(r * a.cos(), r * a.sin(), -0.05 + 0.9 * h(3))
     })

@@ -97,8 +97,9 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     }
     let selected: Vec<(usize, &Value)> =
         frames.iter().enumerate().filter(|(i, _)| keep.as_ref().is_none_or(|k| k(*i))).collect();
-    let frames =
-        selected.par_iter().map(|&(i, v)| ctx.frame(i, v, &top, depth_scale, opts)).collect::<Result<Vec<_>, _>>()?;
+    let frames = selected.par_iter().map(|&(i, v)| ctx.frame(i, v, &top, depth_scale, opts)).collect::<Vec<_>>();
+    // Report the first failure in frame order, whichever thread met it first.
+    let frames = frames.into_iter().collect::<Result<Vec<_>, _>>()?;
     Ok(Split { name: split.to_string(), path, frames, aabb_scale })
 }
 

@@ -75,3 +75,84 @@ fn bad_config_names_the_file_and_key() {
     assert!(!ok);
     assert!(err.contains("run.toml") && err.contains("widht"), "{err}");
 }
+
+#[test]
+fn a_file_that_is_not_a_nerf_checkpoint_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let grid = dir.path().join("gt.safetensors");
+    let (ok, _, err) = nerfsv(&["collision", "--scene", "monolith", "--out", grid.to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let ds = dir.path().join("ds");
+    let (ok, _, err) = nerfsv(&[
+        "scene",
+        "--scene",
+        "monolith",
+        "--out",
+        ds.to_str().unwrap(),
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--train",
+        "1",
+        "--val",
+        "1",
+        "--test",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    // A collision grid is a safetensors file too, but not a NeRF checkpoint.
+    let (ok, _, err) = nerfsv(&[
+        "eval",
+        "--model",
+        grid.to_str().unwrap(),
+        "--data",
+        ds.to_str().unwrap(),
+        "--split",
+        "test",
+        "--json",
+    ]);
+    assert!(!ok);
+    assert!(err.contains("gt.safetensors") && err.contains("format"), "{err}");
+    let (ok, _, err) = nerfsv(&[
+        "eval",
+        "--model",
+        dir.path().join("none.safetensors").to_str().unwrap(),
+        "--data",
+        ds.to_str().unwrap(),
+    ]);
+    assert!(!ok);
+    assert!(err.contains("none.safetensors"), "{err}");
+}
+
+#[test]
+fn training_into_an_unwritable_folder_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("ds");
+    let (ok, _, err) = nerfsv(&[
+        "scene",
+        "--scene",
+        "monolith",
+        "--out",
+        ds.to_str().unwrap(),
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--train",
+        "2",
+        "--val",
+        "1",
+        "--test",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    // A regular file where the output folder should be.
+    let blocker = dir.path().join("file");
+    std::fs::write(&blocker, b"x").unwrap();
+    let out = blocker.join("nerf");
+    let (ok, _, err) =
+        nerfsv(&["train", "--data", ds.to_str().unwrap(), "--out", out.to_str().unwrap(), "--steps", "2"]);
+    assert!(!ok);
+    assert!(err.contains("file"), "{err}");
+}

@@ -69,6 +69,31 @@ pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn check_resolution(cells_per_metre: f32) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        (1.0..=400.0).contains(&cells_per_metre),
+        "--cells-per-metre: must be between 1 and 400, found {cells_per_metre}"
+    );
+    Ok(())
+}
+
+/// Writes the signed field (creating its folder) and, if asked, the surface as binary PLY.
+fn write_field(
+    sdf: &SdfGrid,
+    mesh: &nerfsv_collision::Mesh,
+    out: &Path,
+    mesh_out: Option<&Path>,
+) -> anyhow::Result<()> {
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        crate::cache::ensure_dir(parent)?;
+    }
+    sdf.save(out).with_context(|| format!("writing {}", out.display()))?;
+    if let Some(m) = mesh_out {
+        mesh.write_ply(m, true).with_context(|| format!("writing {}", m.display()))?;
+    }
+    Ok(())
+}
+
 /// The drone's flight altitudes, over which NeRF and ground-truth fields are compared (metres).
 pub const FLIGHT_BAND: (f32, f32) = (0.1, 0.6);
 
@@ -84,10 +109,7 @@ pub fn nerf_field(
     out: &Path,
     mesh_out: Option<&Path>,
 ) -> anyhow::Result<serde_json::Value> {
-    anyhow::ensure!(
-        (1.0..=400.0).contains(&cells_per_metre),
-        "--cells-per-metre: must be between 1 and 400, found {cells_per_metre}"
-    );
+    check_resolution(cells_per_metre)?;
     let threshold = density_threshold.unwrap_or(std::f32::consts::LN_2 * cells_per_metre);
     anyhow::ensure!(
         threshold.is_finite() && threshold > 0.0,
@@ -113,13 +135,7 @@ pub fn nerf_field(
     let mesh = marching_cubes(&density, threshold, false);
     let sdf = SdfGrid::from_field(&density, threshold, false);
     let build_seconds = start.elapsed().as_secs_f64();
-    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        crate::cache::ensure_dir(parent)?;
-    }
-    sdf.save(out).with_context(|| format!("writing {}", out.display()))?;
-    if let Some(m) = mesh_out {
-        mesh.write_ply(m, true).with_context(|| format!("writing {}", m.display()))?;
-    }
+    write_field(&sdf, &mesh, out, mesh_out)?;
     let agreement = scene.map(|s| {
         let exact = ScalarGrid::sample_geometry(geometry, |p| s.distance(&p));
         let gt = SdfGrid::from_field(&exact, 0.0, true);
@@ -143,23 +159,14 @@ pub fn ground_truth_field(
     out: &Path,
     mesh_out: Option<&Path>,
 ) -> anyhow::Result<serde_json::Value> {
-    anyhow::ensure!(
-        (1.0..=400.0).contains(&cells_per_metre),
-        "--cells-per-metre: must be between 1 and 400, found {cells_per_metre}"
-    );
+    check_resolution(cells_per_metre)?;
     let start = Instant::now();
     let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), cells_per_metre)?;
     let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
     let mesh = marching_cubes(&field, 0.0, true);
     let sdf = SdfGrid::from_field(&field, 0.0, true);
     let build_seconds = start.elapsed().as_secs_f64();
-    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        crate::cache::ensure_dir(parent)?;
-    }
-    sdf.save(out).with_context(|| format!("writing {}", out.display()))?;
-    if let Some(m) = mesh_out {
-        mesh.write_ply(m, true).with_context(|| format!("writing {}", m.display()))?;
-    }
+    write_field(&sdf, &mesh, out, mesh_out)?;
     // Error of the grid SDF against the analytic one, over nodes within 0.25 m of a surface.
     let mut errs: Vec<f32> = field
         .data

@@ -48,20 +48,37 @@ pub struct TrainArgs {
     pub json: bool,
 }
 
+/// A trained model and the dataset split to use it on.
 #[derive(Args)]
-pub struct EvalArgs {
+pub struct ModelOnData {
     /// Checkpoint written by `nerfsv train`.
     #[arg(long)]
     pub model: PathBuf,
     /// Blender-format dataset folder.
     #[arg(long)]
     pub data: PathBuf,
-    /// Split to evaluate: train, val or test.
+    /// Split: train, val or test.
     #[arg(long, default_value = "test")]
     pub split: String,
     /// Integer image downscaling factor.
     #[arg(long, default_value_t = 1)]
     pub downscale: u32,
+}
+
+impl ModelOnData {
+    /// Loads the model and the split, and checks that the split's cameras see the model's box.
+    fn load(&self) -> anyhow::Result<(Nerf, Split)> {
+        let nerf = load_model(&self.model)?;
+        let split = load(&self.data, &self.split, self.downscale)?;
+        nerfsv_nerf::check_bounds(&nerf.config, &split)?;
+        Ok((nerf, split))
+    }
+}
+
+#[derive(Args)]
+pub struct EvalArgs {
+    #[command(flatten)]
+    pub input: ModelOnData,
     /// Evaluate only the first N images.
     #[arg(long)]
     pub max_images: Option<usize>,
@@ -75,21 +92,11 @@ pub struct EvalArgs {
 
 #[derive(Args)]
 pub struct RenderArgs {
-    /// Checkpoint written by `nerfsv train`.
-    #[arg(long)]
-    pub model: PathBuf,
-    /// Blender-format dataset folder whose cameras to render.
-    #[arg(long)]
-    pub data: PathBuf,
-    /// Split whose cameras to render.
-    #[arg(long, default_value = "test")]
-    pub split: String,
+    #[command(flatten)]
+    pub input: ModelOnData,
     /// Output folder for r_N.png (RGB on white) and r_N_depth.png (16-bit z-depth, mm).
     #[arg(long)]
     pub out: PathBuf,
-    /// Integer image downscaling factor.
-    #[arg(long, default_value_t = 1)]
-    pub downscale: u32,
 }
 
 pub fn load(data: &Path, split: &str, downscale: u32) -> anyhow::Result<Split> {
@@ -195,8 +202,7 @@ pub fn eval_json(report: &EvalReport, per_image: bool) -> serde_json::Value {
 }
 
 pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
-    let nerf = load_model(&args.model)?;
-    let split = load(&args.data, &args.split, args.downscale)?;
+    let (nerf, split) = args.input.load()?;
     let report = evaluate(&nerf, &split, EvalOptions { max_images: args.max_images, ..EvalOptions::default() });
     let v = eval_json(&report, args.per_image);
     if args.json {
@@ -205,7 +211,7 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         eprintln!(
             "{} images of {}: PSNR {:.2} dB, SSIM {:.4}, median depth error {}",
             report.images,
-            args.split,
+            args.input.split,
             report.psnr,
             report.ssim,
             report.depth_median_abs_err_m.map_or("n/a".into(), |d| format!("{:.4} m", d))
@@ -215,8 +221,7 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_render(args: RenderArgs) -> anyhow::Result<()> {
-    let nerf = load_model(&args.model)?;
-    let split = load(&args.data, &args.split, args.downscale)?;
+    let (nerf, split) = args.input.load()?;
     render_split(&nerf, &split, &args.out, [1.0, 1.0, 1.0])
         .with_context(|| format!("rendering into {}", args.out.display()))?;
     eprintln!("rendered {} views into {}", split.frames.len(), args.out.display());

@@ -172,34 +172,25 @@ impl Scene {
         self.closest(p).0
     }
 
-    /// Signed distance and the index of the closest primitive. Primitives whose bounding
-    /// sphere is farther than the best distance so far cannot be closer and are skipped.
+    /// Signed distance and the index of the closest primitive.
     #[inline]
     pub fn closest(&self, p: &Point3<f32>) -> (f32, usize) {
-        let mut best = f32::INFINITY;
-        let mut arg = 0;
-        for (i, s) in self.spheres.iter().enumerate() {
-            let (dx, dy, dz) = (p.x - s[0], p.y - s[1], p.z - s[2]);
-            let lower = (dx * dx + dy * dy + dz * dz).sqrt() - s[3];
-            if lower >= best {
-                continue;
-            }
-            let d = self.shapes[i].distance(p);
-            if d < best {
-                best = d;
-                arg = i;
-            }
-        }
-        (best, arg)
+        self.closest_in(p, 0..self.shapes.len())
     }
 
-    /// Signed distance and closest primitive among the `candidates` only (same culling).
+    /// Signed distance and closest primitive among the `candidates` only.
     #[inline]
     pub(crate) fn closest_among(&self, p: &Point3<f32>, candidates: &[u16]) -> (f32, usize) {
+        self.closest_in(p, candidates.iter().map(|&c| c as usize))
+    }
+
+    /// The minimum over `indices`. A primitive whose bounding sphere is farther than the best
+    /// distance so far cannot be closer and is skipped.
+    #[inline]
+    fn closest_in(&self, p: &Point3<f32>, indices: impl Iterator<Item = usize>) -> (f32, usize) {
         let mut best = f32::INFINITY;
         let mut arg = 0;
-        for &c in candidates {
-            let i = c as usize;
+        for i in indices {
             let s = &self.spheres[i];
             let (dx, dy, dz) = (p.x - s[0], p.y - s[1], p.z - s[2]);
             let lower = (dx * dx + dy * dy + dz * dz).sqrt() - s[3];

@@ -228,22 +228,28 @@ pub fn run_render(args: RenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes `ground truth | NeRF render` side by side, both composited on white.
-pub fn write_comparison(nerf: &Nerf, frame: &nerfsv_dataset::Frame, path: &Path) -> anyhow::Result<()> {
-    let view = nerf.render_camera(&frame.camera, [1.0, 1.0, 1.0]).to_image();
-    let (w, h) = (frame.image.width, frame.image.height);
-    let mut out = nerfsv_dataset::Image::new(2 * w, h);
-    for y in 0..h {
-        for x in 0..w {
-            let gt = frame.image.pixel(x, y);
-            let nf = view.pixel(x, y);
-            let o = 4 * (y * 2 * w + x) as usize;
-            for c in 0..3 {
-                out.rgba[o + c] = gt[c] * gt[3] + (1.0 - gt[3]);
-                out.rgba[o + 4 * w as usize + c] = nf[c] * nf[3] + (1.0 - nf[3]);
+/// Writes one row per frame, `ground truth | NeRF render`, both composited on white and
+/// enlarged `scale`× (nearest neighbour) so that 100-pixel views are easy to look at.
+pub fn write_comparison(nerf: &Nerf, frames: &[nerfsv_dataset::Frame], scale: u32, path: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(!frames.is_empty(), "no frames to compare");
+    let (w, h) = (frames[0].image.width, frames[0].image.height);
+    anyhow::ensure!(frames.iter().all(|f| (f.image.width, f.image.height) == (w, h)), "frames differ in size");
+    let s = scale.max(1);
+    let mut out = nerfsv_dataset::Image::new(2 * w * s, h * s * frames.len() as u32);
+    for (row, frame) in frames.iter().enumerate() {
+        let view = nerf.render_camera(&frame.camera, [1.0, 1.0, 1.0]).to_image();
+        for (col, img) in [&frame.image, &view].into_iter().enumerate() {
+            for y in 0..h * s {
+                for x in 0..w * s {
+                    let p = img.pixel(x / s, y / s);
+                    let (ox, oy) = (col as u32 * w * s + x, row as u32 * h * s + y);
+                    let o = 4 * (oy * out.width + ox) as usize;
+                    for c in 0..3 {
+                        out.rgba[o + c] = p[c] * p[3] + (1.0 - p[3]);
+                    }
+                    out.rgba[o + 3] = 1.0;
+                }
             }
-            out.rgba[o + 3] = 1.0;
-            out.rgba[o + 4 * w as usize + 3] = 1.0;
         }
     }
     nerfsv_scene::io::atomic_write(path, |w| out.write_png(w)).with_context(|| format!("writing {}", path.display()))

@@ -109,7 +109,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
 
     // Stage 4: evaluation on the test split, with side-by-side pictures.
     let eval_stage = Stage::new(cfg.out.join("eval"), stage_key("eval", &(), &[&train_key])?);
-    let eval = match eval_stage.cached(&["metrics.json"]) {
+    let eval = match eval_stage.cached(&["metrics.json", "compare.png"]) {
         Some(figures) => {
             say("eval: up to date".into());
             figures
@@ -124,10 +124,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             nerfsv_scene::io::atomic_write(&path, |w| {
                 serde_json::to_writer_pretty(w, &all).map_err(std::io::Error::other)
             })?;
-            for i in 0..test.frames.len().min(4) {
-                let path = eval_stage.dir.join(format!("compare_{i}.png"));
-                crate::commands::nerf::write_comparison(&nerf, &test.frames[i], &path)?;
-            }
+            let shown = &test.frames[..test.frames.len().min(4)];
+            crate::commands::nerf::write_comparison(&nerf, shown, 2, &eval_stage.dir.join("compare.png"))?;
             eval_stage.complete(&figures)?;
             say(format!(
                 "eval: test PSNR {:.2} dB, SSIM {:.3}, median depth error {:.3} m",

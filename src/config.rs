@@ -68,6 +68,7 @@ impl RunConfig {
             self.cells_per_metre
         );
         self.nerf.validate().map_err(|e| anyhow::anyhow!("nerf: {e}"))?;
+        self.train.validate().map_err(|e| anyhow::anyhow!("train: {e}"))?;
         anyhow::ensure!(self.train_steps >= 1, "train_steps: must be at least 1");
         if let Some(t) = self.nerf_density_threshold {
             anyhow::ensure!(t.is_finite() && t > 0.0, "nerf_density_threshold: must be positive, found {t}");

@@ -8,6 +8,30 @@ fn nerfsv(args: &[&str]) -> (bool, String, String) {
     (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
 
+/// Writes a tiny 8×8 monolith dataset with `train` training views into `dir/ds`.
+fn tiny_dataset(dir: &std::path::Path, train: &str) -> std::path::PathBuf {
+    let ds = dir.join("ds");
+    let (ok, _, err) = nerfsv(&[
+        "scene",
+        "--scene",
+        "monolith",
+        "--out",
+        ds.to_str().unwrap(),
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--train",
+        train,
+        "--val",
+        "1",
+        "--test",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    ds
+}
+
 #[test]
 fn unknown_scene_is_named_and_fails() {
     let dir = tempfile::tempdir().unwrap();
@@ -82,25 +106,7 @@ fn a_file_that_is_not_a_nerf_checkpoint_is_refused_by_name() {
     let grid = dir.path().join("gt.safetensors");
     let (ok, _, err) = nerfsv(&["collision", "--scene", "monolith", "--out", grid.to_str().unwrap(), "--json"]);
     assert!(ok, "{err}");
-    let ds = dir.path().join("ds");
-    let (ok, _, err) = nerfsv(&[
-        "scene",
-        "--scene",
-        "monolith",
-        "--out",
-        ds.to_str().unwrap(),
-        "--width",
-        "8",
-        "--height",
-        "8",
-        "--train",
-        "1",
-        "--val",
-        "1",
-        "--test",
-        "1",
-    ]);
-    assert!(ok, "{err}");
+    let ds = tiny_dataset(dir.path(), "1");
     // A collision grid is a safetensors file too, but not a NeRF checkpoint.
     let (ok, _, err) = nerfsv(&[
         "eval",
@@ -128,25 +134,7 @@ fn a_file_that_is_not_a_nerf_checkpoint_is_refused_by_name() {
 #[test]
 fn training_into_an_unwritable_folder_fails_cleanly() {
     let dir = tempfile::tempdir().unwrap();
-    let ds = dir.path().join("ds");
-    let (ok, _, err) = nerfsv(&[
-        "scene",
-        "--scene",
-        "monolith",
-        "--out",
-        ds.to_str().unwrap(),
-        "--width",
-        "8",
-        "--height",
-        "8",
-        "--train",
-        "2",
-        "--val",
-        "1",
-        "--test",
-        "1",
-    ]);
-    assert!(ok, "{err}");
+    let ds = tiny_dataset(dir.path(), "2");
     // A regular file where the output folder should be.
     let blocker = dir.path().join("file");
     std::fs::write(&blocker, b"x").unwrap();
@@ -155,4 +143,27 @@ fn training_into_an_unwritable_folder_fails_cleanly() {
         nerfsv(&["train", "--data", ds.to_str().unwrap(), "--out", out.to_str().unwrap(), "--steps", "2"]);
     assert!(!ok);
     assert!(err.contains("file"), "{err}");
+}
+
+#[test]
+fn out_of_range_training_settings_name_the_file_and_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = tiny_dataset(dir.path(), "2");
+    let cfg = dir.path().join("nerf.toml");
+    std::fs::write(&cfg, "[train]\nlr = -0.01\n").unwrap();
+    let out = dir.path().join("nerf");
+    let (ok, _, err) = nerfsv(&[
+        "train",
+        "--data",
+        ds.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--steps",
+        "2",
+        "--config",
+        cfg.to_str().unwrap(),
+    ]);
+    assert!(!ok);
+    assert!(err.contains("nerf.toml") && err.contains("[train]") && err.contains("lr"), "{err}");
+    assert!(!out.exists(), "nothing may be written");
 }

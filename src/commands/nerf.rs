@@ -155,6 +155,7 @@ fn settings(path: Option<&Path>) -> anyhow::Result<NerfSettings> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading config {}", path.display()))?;
     let s: NerfSettings = toml::from_str(&text).with_context(|| format!("{}: invalid config", path.display()))?;
     s.nerf.validate().map_err(|e| anyhow::anyhow!("{}: [nerf] {e}", path.display()))?;
+    s.train.validate().map_err(|e| anyhow::anyhow!("{}: [train] {e}", path.display()))?;
     Ok(s)
 }
 

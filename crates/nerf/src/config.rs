@@ -137,6 +137,46 @@ pub struct TrainConfig {
     pub seed: u64,
 }
 
+impl TrainConfig {
+    /// Rejects values no run could use, naming the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} must be a positive number, found {v}"))
+            }
+        };
+        positive("lr", self.lr as f64)?;
+        for (name, b) in [("betas.0", self.betas.0), ("betas.1", self.betas.1)] {
+            if !(0.0..1.0).contains(&b) {
+                return Err(format!("{name} must be in [0, 1), found {b}"));
+            }
+        }
+        for (name, v) in [
+            ("eps", self.eps as f64),
+            ("weight_decay", self.weight_decay as f64),
+            ("checkpoint_every_s", self.checkpoint_every_s),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} must be a non-negative number, found {v}"));
+            }
+        }
+        if self.batch_rays == 0 || self.batch_rays > 1 << 20 {
+            return Err(format!("batch_rays must be between 1 and 2^20, found {}", self.batch_rays));
+        }
+        if self.lr_decay_steps == 0 {
+            return Err("lr_decay_steps must be at least 1".into());
+        }
+        if let BackgroundMode::Fixed(c) = self.background {
+            if c.iter().any(|v| !(0.0..=1.0).contains(v)) {
+                return Err(format!("background colour must be in [0, 1], found {c:?}"));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for TrainConfig {
     fn default() -> Self {
         Self {

@@ -70,6 +70,7 @@ unsafe impl Sync for SendPtr {}
 impl Trainer {
     /// A fresh model from `seed`, checked against the dataset's cameras (see [`check_bounds`]).
     pub fn new(nerf_config: NerfConfig, config: TrainConfig, data: &Split) -> Result<Self, NerfError> {
+        config.validate().map_err(NerfError::Config)?;
         check_bounds(&nerf_config, data)?;
         let nerf = Nerf::new(nerf_config, config.seed)?;
         let n = nerf.field.n_params;

@@ -167,3 +167,48 @@ fn out_of_range_training_settings_name_the_file_and_field() {
     assert!(err.contains("nerf.toml") && err.contains("[train]") && err.contains("lr"), "{err}");
     assert!(!out.exists(), "nothing may be written");
 }
+
+#[test]
+fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let cfg = dir.path().join("run.toml");
+    let write_cfg = |steps: u32| {
+        let text = format!(
+            "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
+             train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n"
+        );
+        std::fs::write(&cfg, text).unwrap();
+    };
+    let run = || {
+        let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        assert!(ok, "{err}");
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+        (err, summary)
+    };
+    write_cfg(3);
+    let (first, summary) = run();
+    assert!(!first.contains("up to date"), "{first}");
+    assert_eq!(summary["nerf"]["steps"], 3);
+
+    let (second, again) = run();
+    for stage in ["dataset", "collision", "nerf", "eval", "nerf collision"] {
+        assert!(second.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{second}");
+    }
+    assert_eq!(summary, again);
+
+    // More training steps: the dataset and the ground-truth field stay, the rest is redone.
+    write_cfg(5);
+    let (third, changed) = run();
+    assert!(third.contains("dataset: up to date") && third.contains("collision: up to date"), "{third}");
+    assert!(!third.contains("nerf: up to date") && !third.contains("eval: up to date"), "{third}");
+    assert_eq!(changed["nerf"]["steps"], 5);
+
+    // A run killed after its last checkpoint but before the stage completed resumes from it.
+    std::fs::remove_file(out.join("nerf/stage.json")).unwrap();
+    let (fourth, resumed) = run();
+    assert!(fourth.contains("resuming the interrupted training"), "{fourth}");
+    assert_eq!(resumed["eval"], changed["eval"], "resuming must end at the same model");
+    assert_eq!(resumed["nerf"]["steps"], 5);
+}

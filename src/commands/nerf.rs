@@ -138,9 +138,13 @@ pub fn train_model(
     })
     .with_context(|| format!("training into {}", out.display()))?;
     pb.finish_and_clear();
+    // A resumed run that had already reached its budget reports no progress: take the step
+    // count from the checkpoint it resumed.
+    let checkpoint = nerfsv_nerf::checkpoint_path(out);
+    let steps = if last.step > 0 { last.step } else { nerfsv_nerf::checkpoint::read(&checkpoint, false)?.step };
     let figures = json!({
-        "checkpoint": nerfsv_nerf::checkpoint_path(out),
-        "steps": last.step,
+        "checkpoint": checkpoint,
+        "steps": steps,
         "seconds": last.elapsed_s,
         "train_batch_psnr": last.psnr,
         "rays_per_second": last.rays_per_s,

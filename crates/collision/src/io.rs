@@ -19,7 +19,6 @@ use std::collections::HashMap;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use nalgebra::Point3;
 use safetensors::tensor::{Dtype, TensorView};
@@ -33,34 +32,13 @@ use crate::CollisionError;
 const FORMAT: &str = "nerfsv-grid";
 const FORMAT_VERSION: &str = "1";
 
-/// Write `path` by writing a temporary file in the same directory, syncing it and renaming it
-/// into place: readers see the old file or the whole new one, never a part.
+/// [`nerfsv_scene::io::atomic_write`] with this crate's error, naming the file.
 pub(crate) fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
 ) -> Result<(), CollisionError> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let io_err = |source| CollisionError::Io { path: path.to_path_buf(), source };
-    let name =
-        path.file_name().ok_or_else(|| io_err(io::Error::new(io::ErrorKind::InvalidInput, "path has no file name")))?;
-    let tmp = path.with_file_name(format!(
-        ".{}.tmp-{}-{}",
-        name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let result = (|| {
-        let mut w = BufWriter::new(File::create(&tmp)?);
-        write(&mut w)?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io_err(e));
-    }
-    Ok(())
+    nerfsv_scene::io::atomic_write(path, write)
+        .map_err(|source| CollisionError::Io { path: path.to_path_buf(), source })
 }
 
 fn f32_bytes(data: &[f32]) -> Vec<u8> {

@@ -4,6 +4,7 @@
 use std::fs;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Writes `path` atomically: `write` fills a buffered temporary file next to `path`, which is
 /// flushed, synced and renamed over `path`. On any error the temporary file is removed.
@@ -32,10 +33,13 @@ pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
     atomic_write(path, |w| w.write_all(bytes))
 }
 
-/// `dir/.name.tmp-<pid>`: hidden, in the same folder (so the rename stays on one file system).
+/// `dir/.name.tmp-<pid>-<n>`: hidden, in the same folder (so the rename stays on one file
+/// system), unique per process and call (so concurrent writers of one path never share it).
 fn temp_path(path: &Path) -> PathBuf {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    path.with_file_name(format!(".{name}.tmp-{}-{n}", std::process::id()))
 }
 
 #[cfg(test)]

@@ -50,10 +50,18 @@ pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
         }
         Some(model) => {
             let nerf = crate::commands::nerf::load_model(model)?;
-            let scene = args.scene.as_deref().map(Scene::builtin).transpose()?;
+            let reference = match args.scene.as_deref() {
+                Some(name) => {
+                    let scene = Scene::builtin(name)?;
+                    check_resolution(args.cells_per_metre)?;
+                    let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), args.cells_per_metre)?;
+                    Some(scene_sdf(&scene, geometry).1)
+                }
+                None => None,
+            };
             nerf_field(
                 &nerf,
-                scene.as_ref(),
+                reference.as_ref(),
                 args.cells_per_metre,
                 args.density_threshold,
                 &args.out,
@@ -97,13 +105,13 @@ fn write_field(
 /// The drone's flight altitudes, over which NeRF and ground-truth fields are compared (metres).
 pub const FLIGHT_BAND: (f32, f32) = (0.1, 0.6);
 
-/// The same pipeline on a NeRF: sample its density σ on the grid (over the scene's field
-/// bounds when a ground-truth scene is given, else the model's box), solid where σ exceeds the
-/// threshold, marching cubes, collision map, signed EDT. With a scene, also the agreement with
-/// the ground-truth field on the same grid: occupancy IoU and |SDF difference| in the flight band.
+/// The same pipeline on a NeRF: sample its density σ on a grid (the ground-truth field's grid
+/// when a `reference` is given, else the model's box), solid where σ exceeds the threshold,
+/// marching cubes, collision map, signed EDT. With a reference, also the agreement with it:
+/// occupancy IoU and |SDF difference| in the flight band.
 pub fn nerf_field(
     nerf: &nerfsv_nerf::Nerf,
-    scene: Option<&Scene>,
+    reference: Option<&SdfGrid>,
     cells_per_metre: f32,
     density_threshold: Option<f32>,
     out: &Path,
@@ -116,14 +124,13 @@ pub fn nerf_field(
         "--density-threshold: must be positive, found {threshold}"
     );
     let start = Instant::now();
-    let bounds = match scene {
-        Some(s) => field_bounds(&s.bounds()),
+    let geometry = match reference {
+        Some(gt) => gt.geometry,
         None => {
             let c = &nerf.config;
-            Aabb::new(c.aabb_min.into(), c.aabb_max.into())
+            GridGeometry::covering(&Aabb::new(c.aabb_min.into(), c.aabb_max.into()), cells_per_metre)?
         }
     };
-    let geometry = GridGeometry::covering(&bounds, cells_per_metre)?;
     let points: Vec<[f32; 3]> = (0..geometry.len())
         .map(|i| {
             let [x, y, z] = geometry.coords(i);
@@ -136,11 +143,7 @@ pub fn nerf_field(
     let sdf = SdfGrid::from_field(&density, threshold, false);
     let build_seconds = start.elapsed().as_secs_f64();
     write_field(&sdf, &mesh, out, mesh_out)?;
-    let agreement = scene.map(|s| {
-        let exact = ScalarGrid::sample_geometry(geometry, |p| s.distance(&p));
-        let gt = SdfGrid::from_field(&exact, 0.0, true);
-        nerfsv_collision::agreement(&sdf, &gt, FLIGHT_BAND)
-    });
+    let agreement = reference.map(|gt| nerfsv_collision::agreement(&sdf, gt, FLIGHT_BAND));
     Ok(json!({
         "out": out,
         "density_threshold": threshold,
@@ -148,6 +151,14 @@ pub fn nerf_field(
         "grid": GridSummary::new(&geometry).with_sdf(&sdf).with_mesh(&mesh),
         "agreement_with_ground_truth": agreement,
     }))
+}
+
+/// The scene's exact SDF sampled at the nodes of `geometry`, and the signed field the collision
+/// pipeline builds from it (collision map from the sampled surface, then the signed EDT).
+pub fn scene_sdf(scene: &Scene, geometry: GridGeometry) -> (ScalarGrid, SdfGrid) {
+    let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
+    let sdf = SdfGrid::from_field(&field, 0.0, true);
+    (field, sdf)
 }
 
 /// The paper's pipeline on the ground truth: sample the scene's SDF on the grid, marching
@@ -162,9 +173,8 @@ pub fn ground_truth_field(
     check_resolution(cells_per_metre)?;
     let start = Instant::now();
     let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), cells_per_metre)?;
-    let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
+    let (field, sdf) = scene_sdf(scene, geometry);
     let mesh = marching_cubes(&field, 0.0, true);
-    let sdf = SdfGrid::from_field(&field, 0.0, true);
     let build_seconds = start.elapsed().as_secs_f64();
     write_field(&sdf, &mesh, out, mesh_out)?;
     // Error of the grid SDF against the analytic one, over nodes within 0.25 m of a surface.

@@ -1,5 +1,6 @@
 use std::path::PathBuf;
 
+use anyhow::Context;
 use clap::Args;
 use nerfsv_scene::Scene;
 use serde_json::json;
@@ -138,7 +139,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     };
 
     // Stage 5: the NeRF's collision field and its agreement with the ground truth.
-    let nc_key = stage_key("nerf_collision", &(cfg.cells_per_metre, cfg.nerf_density_threshold), &[&train_key])?;
+    let nc_key = stage_key("nerf_collision", &cfg.nerf_density_threshold, &[&train_key, &gt_stage.key])?;
     let nc_stage = Stage::new(cfg.out.join("nerf_collision"), nc_key);
     let nerf_collision = match nc_stage.cached(&["nerf_sdf.safetensors"]) {
         Some(figures) => {
@@ -147,9 +148,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         None => {
             nc_stage.begin()?;
+            // Compared on the ground-truth field's own grid, read back from stage 2.
+            let gt_path = gt_stage.dir.join("gt_sdf.safetensors");
+            let reference =
+                nerfsv_collision::SdfGrid::load(&gt_path).with_context(|| format!("reading {}", gt_path.display()))?;
             let figures = crate::commands::collision::nerf_field(
                 &nerf,
-                Some(&scene),
+                Some(&reference),
                 cfg.cells_per_metre,
                 cfg.nerf_density_threshold,
                 &nc_stage.dir.join("nerf_sdf.safetensors"),

@@ -90,7 +90,6 @@ pub fn write_dataset(
     opts: &GenerateOptions,
     quiet: bool,
 ) -> anyhow::Result<serde_json::Value> {
-    opts.validate()?;
     let total = opts.train + opts.val + opts.test;
     let pb = bar(total as u64, "rendering", quiet);
     let start = Instant::now();

@@ -20,9 +20,11 @@ pub mod render;
 pub mod scenes;
 pub mod sdf;
 pub mod texture;
+pub mod validate;
 
 pub use camera::{Camera, Intrinsics};
 pub use geometry::{Aabb, Ray};
 pub use render::{Hit, RenderSettings, RenderedImage};
 pub use scenes::{Scene, SceneError, BUILTIN_SCENES};
 pub use sdf::{Material, Shape};
+pub use validate::{InvalidValue, MemoryBudget};

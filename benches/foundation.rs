@@ -39,19 +39,11 @@ fn dataset(c: &mut Criterion) {
 }
 
 fn collision_field(c: &mut Criterion) {
-    use nerfsv_collision::{marching_cubes, GridGeometry, ScalarGrid, SdfGrid};
     let scene = Scene::builtin("stonehenge").expect("built-in scene");
-    let mut bounds = scene.bounds().expanded(0.1);
-    bounds.max.z = bounds.max.z.max(1.0);
-    let geometry = GridGeometry::covering(&bounds, 40.0).expect("grid");
     let mut g = c.benchmark_group("collision");
     g.sample_size(10);
     g.bench_function("stonehenge_signed_field_40_cells_per_m", |b| {
-        b.iter(|| {
-            let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
-            let mesh = marching_cubes(&field, 0.0, true);
-            (mesh.triangles.len(), SdfGrid::from_field(&field, 0.0, true))
-        })
+        b.iter(|| nerfsv_collision::ground_truth_field(&scene, 40.0).expect("field"))
     });
     g.finish();
 }

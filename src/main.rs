@@ -2,9 +2,7 @@
 //!
 //! The binary only parses arguments, reads configuration and calls the stage crates.
 
-mod cache;
 mod commands;
-mod config;
 mod progress;
 
 use std::process::ExitCode;
@@ -13,9 +11,10 @@ use clap::{Parser, Subcommand};
 
 /// Safety validation of a vision-based quadcopter flying through a Neural Radiance Field.
 ///
-/// Start with `nerfsv run`: it builds the default Stonehenge scene, renders its dataset and
-/// computes the ground-truth collision field into `runs/stonehenge/`. The other subcommands run
-/// one stage each, for your own datasets and checkpoints.
+/// Start with `nerfsv run`: on the default Stonehenge scene it renders the dataset, builds the
+/// ground-truth collision field, trains and evaluates the NeRF and builds the NeRF's collision
+/// field, into `runs/stonehenge/` (figures in `summary.json`). The other subcommands run one
+/// stage each, for your own datasets and checkpoints.
 #[derive(Parser)]
 #[command(name = "nerfsv", version, about, long_about)]
 struct Cli {

@@ -1,18 +1,102 @@
-//! Progress bars on stderr (hidden when stderr is not a terminal or `--json` is given).
+//! Progress on stderr: bars on a terminal, a plain line every few seconds in a log, nothing
+//! with `--json`.
+
+use std::io::IsTerminal;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
+use nerfsv_pipeline::Observer;
 
-/// A bar of `total` units labelled `what`.
-pub fn bar(total: u64, what: &str, quiet: bool) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
+/// How often a log (stderr not a terminal) gets a progress line.
+const LOG_EVERY: Duration = Duration::from_secs(5);
+
+/// Shows what stages report.
+pub struct Reporter {
+    quiet: bool,
+    terminal: bool,
+    state: Mutex<State>,
+}
+
+#[derive(Default)]
+struct State {
+    /// The stage whose bar is shown, and the bar.
+    bar: Option<(String, ProgressBar)>,
+    /// When the current stage's progress started and was last logged.
+    started: Option<Instant>,
+    last_logged: Option<Instant>,
+}
+
+impl Reporter {
+    /// `quiet`: print nothing (the command prints JSON).
+    pub fn new(quiet: bool) -> Self {
+        Self { quiet, terminal: std::io::stderr().is_terminal(), state: Mutex::new(State::default()) }
     }
-    let pb = ProgressBar::new(total);
-    pb.set_style(
-        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}")
-            .expect("static template")
-            .progress_chars("=> "),
-    );
-    pb.set_message(what.to_string());
-    pb
+
+    fn bar(total: u64, stage: &str) -> ProgressBar {
+        let pb = ProgressBar::new(total);
+        pb.set_style(
+            ProgressStyle::with_template("{prefix:>14} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}")
+                .expect("static template")
+                .progress_chars("=> "),
+        );
+        pb.set_prefix(stage.to_string());
+        pb
+    }
+}
+
+impl Observer for Reporter {
+    fn progress(&self, stage: &str, done: u64, total: u64, status: &str) {
+        if self.quiet {
+            return;
+        }
+        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        if s.bar.as_ref().is_none_or(|(name, _)| name != stage) {
+            if let Some((_, old)) = s.bar.take() {
+                old.finish_and_clear();
+            }
+            let pb = if self.terminal { Self::bar(total, stage) } else { ProgressBar::hidden() };
+            s.bar = Some((stage.to_string(), pb));
+            s.started = Some(Instant::now());
+            s.last_logged = None;
+        }
+        if let Some((_, pb)) = &s.bar {
+            pb.set_length(total);
+            pb.set_position(done);
+            pb.set_message(status.to_string());
+        }
+        if !self.terminal {
+            let now = Instant::now();
+            let due = s.last_logged.is_none_or(|t| now - t >= LOG_EVERY) || done >= total;
+            if due {
+                let elapsed = s.started.map_or(0.0, |t| (now - t).as_secs_f64());
+                let eta = if done > 0 && done < total {
+                    format!(", about {:.0} s left", elapsed * (total - done) as f64 / done as f64)
+                } else {
+                    String::new()
+                };
+                let pct = 100.0 * done as f64 / total.max(1) as f64;
+                eprintln!("{stage}: {done}/{total} ({pct:.0} %) after {elapsed:.0} s{eta}  {status}");
+                s.last_logged = Some(now);
+            }
+        }
+    }
+
+    fn note(&self, stage: &str, message: &str) {
+        if self.quiet {
+            return;
+        }
+        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((name, pb)) = s.bar.take() {
+            if name == stage {
+                pb.finish_and_clear();
+            } else {
+                s.bar = Some((name, pb));
+            }
+        }
+        match &s.bar {
+            Some((_, pb)) => pb.suspend(|| eprintln!("{stage}: {message}")),
+            None => eprintln!("{stage}: {message}"),
+        }
+    }
 }

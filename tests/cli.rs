@@ -164,7 +164,7 @@ fn out_of_range_training_settings_name_the_file_and_field() {
         cfg.to_str().unwrap(),
     ]);
     assert!(!ok);
-    assert!(err.contains("nerf.toml") && err.contains("[train]") && err.contains("lr"), "{err}");
+    assert!(err.contains("nerf.toml") && err.contains("train.lr") && err.contains("-0.01"), "{err}");
     assert!(!out.exists(), "nothing may be written");
 }
 
@@ -193,7 +193,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert_eq!(summary["nerf"]["steps"], 3);
 
     let (second, again) = run();
-    for stage in ["dataset", "collision", "nerf", "eval", "nerf collision"] {
+    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision"] {
         assert!(second.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{second}");
     }
     assert_eq!(summary, again);
@@ -208,7 +208,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     // A run killed after its last checkpoint but before the stage completed resumes from it.
     std::fs::remove_file(out.join("nerf/stage.json")).unwrap();
     let (fourth, resumed) = run();
-    assert!(fourth.contains("resuming the interrupted training"), "{fourth}");
+    assert!(fourth.contains("nerf: resuming the interrupted run"), "{fourth}");
     assert_eq!(resumed["eval"], changed["eval"], "resuming must end at the same model");
     assert_eq!(resumed["nerf"]["steps"], 5);
 }

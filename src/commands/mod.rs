@@ -3,8 +3,14 @@ pub mod nerf;
 pub mod run;
 pub mod scene;
 
-/// Prints `value` as one JSON object on stdout.
-pub fn print_json(value: &serde_json::Value) -> anyhow::Result<()> {
-    println!("{}", serde_json::to_string(value)?);
+use serde::Serialize;
+
+/// Prints a command's figures: one JSON object on stdout with `--json`, else `human` on stderr.
+pub fn report(json: bool, figures: &impl Serialize, human: impl FnOnce() -> String) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(figures)?);
+    } else {
+        eprintln!("{}", human());
+    }
     Ok(())
 }

@@ -1,13 +1,12 @@
 use std::path::PathBuf;
-use std::time::Instant;
 
-use anyhow::Context;
 use clap::Args;
-use nerfsv_dataset::{generate, GenerateOptions};
+use nerfsv_dataset::GenerateOptions;
+use nerfsv_pipeline::stages::render_dataset;
+use nerfsv_pipeline::Observer;
 use nerfsv_scene::Scene;
-use serde_json::json;
 
-use crate::progress::bar;
+use crate::progress::Reporter;
 
 #[derive(Args)]
 pub struct SceneArgs {
@@ -68,43 +67,11 @@ impl SceneArgs {
 
 pub fn run(args: SceneArgs) -> anyhow::Result<()> {
     let scene = Scene::builtin(&args.scene)?;
-    let opts = args.options();
-    let stats = write_dataset(&scene, &args.out, &opts, args.json)?;
-    if args.json {
-        crate::commands::print_json(&stats)?;
-    } else {
-        eprintln!(
-            "wrote {} ({} views) in {:.1} s",
-            args.out.display(),
-            stats["views"],
-            stats["seconds"].as_f64().unwrap_or(0.0)
-        );
-    }
-    Ok(())
-}
-
-/// Renders the dataset with a progress bar and returns its figures.
-pub fn write_dataset(
-    scene: &Scene,
-    out: &std::path::Path,
-    opts: &GenerateOptions,
-    quiet: bool,
-) -> anyhow::Result<serde_json::Value> {
-    let total = opts.train + opts.val + opts.test;
-    let pb = bar(total as u64, "rendering", quiet);
-    let start = Instant::now();
-    generate(scene, out, opts, &|done, _| pb.set_position(done as u64))
-        .with_context(|| format!("writing dataset {}", out.display()))?;
-    pb.finish_and_clear();
-    let secs = start.elapsed().as_secs_f64();
-    let rays = total as f64 * (opts.width * opts.height) as f64 * (opts.supersample * opts.supersample) as f64;
-    Ok(json!({
-        "scene": scene.name,
-        "out": out,
-        "views": total,
-        "width": opts.width,
-        "height": opts.height,
-        "seconds": secs,
-        "primary_rays_per_second": rays / secs,
-    }))
+    let reporter = Reporter::new(args.json);
+    let figures = render_dataset(&scene, &args.out, &args.options(), &|done, total| {
+        reporter.progress("scene", done as u64, total as u64, "views rendered")
+    })?;
+    crate::commands::report(args.json, &figures, || {
+        format!("wrote {} ({} views) in {:.1} s", args.out.display(), figures.views, figures.seconds)
+    })
 }

@@ -1,4 +1,4 @@
-//! Files: atomic writes, grids as safetensors, the SDF as `.npy`.
+//! Files: grids as safetensors, the SDF as `.npy` (written atomically).
 //!
 //! A grid file is a safetensors file with one tensor of shape `[nz, ny, nx]` (so numpy/PyTorch
 //! `t[z, y, x]` is node `(x, y, z)`) and this string metadata:
@@ -15,15 +15,16 @@
 //! The tensor is named like the kind. Floats are written in Rust's shortest round-trip form, so
 //! a save/load round trip is bit-identical.
 
-use std::collections::HashMap;
-use std::fs::File;
-use std::io::{self, BufWriter, Write};
+use std::collections::{BTreeMap, HashMap};
+use std::io::Write;
 use std::path::Path;
 
 use nalgebra::Point3;
-use safetensors::tensor::{Dtype, TensorView};
+use nerfsv_scene::io::TensorBytes;
+use safetensors::tensor::Dtype;
 use safetensors::SafeTensors;
 
+use crate::atomic::write_atomically;
 use crate::grid::{GridGeometry, ScalarGrid};
 use crate::occupancy::OccupancyGrid;
 use crate::sdf::SdfGrid;
@@ -31,15 +32,6 @@ use crate::CollisionError;
 
 const FORMAT: &str = "nerfsv-grid";
 const FORMAT_VERSION: &str = "1";
-
-/// [`nerfsv_scene::io::atomic_write`] with this crate's error, naming the file.
-pub(crate) fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
-) -> Result<(), CollisionError> {
-    nerfsv_scene::io::atomic_write(path, write)
-        .map_err(|source| CollisionError::Io { path: path.to_path_buf(), source })
-}
 
 fn f32_bytes(data: &[f32]) -> Vec<u8> {
     data.iter().flat_map(|v| v.to_le_bytes()).collect()
@@ -54,7 +46,7 @@ fn save_grid(
 ) -> Result<(), CollisionError> {
     let [nx, ny, nz] = geometry.dims;
     let o = geometry.origin;
-    let metadata: HashMap<String, String> = [
+    let metadata: BTreeMap<String, String> = [
         ("format", FORMAT.to_string()),
         ("format_version", FORMAT_VERSION.to_string()),
         ("kind", kind.to_string()),
@@ -65,10 +57,13 @@ fn save_grid(
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
-    let view = TensorView::new(dtype, vec![nz, ny, nx], bytes)
-        .map_err(|source| CollisionError::SafeTensors { path: path.to_path_buf(), source })?;
-    let buffer = safetensors::serialize([(kind, view)], Some(metadata))
-        .map_err(|source| CollisionError::SafeTensors { path: path.to_path_buf(), source })?;
+    let dtype = match dtype {
+        Dtype::U8 => "U8",
+        _ => "F32",
+    };
+    let tensor = TensorBytes { name: kind, dtype, shape: vec![nz, ny, nx], data: bytes };
+    // Sorted header: the same grid always gives the same bytes.
+    let buffer = nerfsv_scene::io::safetensors_bytes(&[tensor], &metadata);
     write_atomically(path, |w| w.write_all(&buffer))
 }
 
@@ -99,10 +94,10 @@ fn parse_list<T: std::str::FromStr>(
 /// tensor's raw little-endian bytes.
 fn load_grid(path: &Path, kind: &'static str, dtype: Dtype) -> Result<(GridGeometry, Vec<u8>), CollisionError> {
     let p = || path.to_path_buf();
-    let buffer = std::fs::read(path).map_err(|source| CollisionError::Io { path: p(), source })?;
-    let st = SafeTensors::deserialize(&buffer).map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
+    let buffer = std::fs::read(path).map_err(|error| CollisionError::Io { path: p(), error })?;
+    let st = SafeTensors::deserialize(&buffer).map_err(|error| CollisionError::SafeTensors { path: p(), error })?;
     let (_, header) =
-        SafeTensors::read_metadata(&buffer).map_err(|source| CollisionError::SafeTensors { path: p(), source })?;
+        SafeTensors::read_metadata(&buffer).map_err(|error| CollisionError::SafeTensors { path: p(), error })?;
     let empty = HashMap::new();
     let meta = header.metadata().as_ref().unwrap_or(&empty);
     let field = |name: &'static str| {
@@ -295,7 +290,7 @@ mod tests {
         }
         let data = f32_bytes(&sdf.data);
         let [nx, ny, nz] = sdf.dims();
-        let view = TensorView::new(Dtype::F32, vec![nz, ny, nx], &data).unwrap();
+        let view = safetensors::tensor::TensorView::new(Dtype::F32, vec![nz, ny, nx], &data).unwrap();
         std::fs::write(path, safetensors::serialize([("sdf", view)], Some(meta)).unwrap()).unwrap();
     }
 

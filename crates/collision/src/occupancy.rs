@@ -1,8 +1,7 @@
 //! The collision map: which grid nodes are on or inside the surface.
 
+use crate::classify::{axis_crossings, classify_nodes};
 use crate::grid::{check_len, GridGeometry, ScalarGrid};
-use crate::mesh::is_inside;
-use crate::sdf::{axis_crossings, SdfGrid};
 use crate::CollisionError;
 
 /// One flag per grid node (same layout as [`ScalarGrid`]): `true` = occupied (in collision).
@@ -15,30 +14,20 @@ pub struct OccupancyGrid {
 
 impl OccupancyGrid {
     /// The collision map of the `iso` level set of `grid` (see [`crate::marching_cubes`] for
-    /// `inside_is_below`): a node is occupied when it is **inside** (strictly below/above `iso`),
-    /// or when it is **touched** by the surface: along one of its six grid edges to an inside
-    /// neighbour, the marching-cubes vertex (linear interpolation of the crossing) lies within half
-    /// a cell of it. So the map is the solid dilated by at most half a cell along the grid axes:
+    /// `inside_is_below`): a node is occupied when it is **inside** (by
+    /// [`classify_nodes`]: strictly below/above `iso`, exactly at `iso` with no strictly outside
+    /// neighbour, or in an enclosed void), or when it is **touched** by the surface: along one of
+    /// its six grid edges to an inside neighbour, the marching-cubes vertex lies within half a
+    /// cell of it. So the map is the solid dilated by at most half a cell along the grid axes:
     /// every marching-cubes vertex is within half a cell of an occupied node, and no node farther
     /// than half a cell (along an axis) from the surface is marked.
     pub fn from_field(grid: &ScalarGrid, iso: f32, inside_is_below: bool) -> Self {
         let g = grid.geometry;
+        let inside = classify_nodes(grid, iso, inside_is_below);
         let mut data = vec![false; g.len()];
         g.fill_par(&mut data, |i, j, k| {
-            let idx = g.index(i, j, k);
-            if is_inside(grid.data[idx], iso, inside_is_below) {
-                return true;
-            }
-            axis_crossings(grid, iso, inside_is_below, [i, j, k]).iter().any(|&(t, _)| t <= 0.5)
+            inside[g.index(i, j, k)] || axis_crossings(grid, &inside, iso, [i, j, k]).iter().any(|&(t, _)| t <= 0.5)
         });
-        Self { geometry: g, data }
-    }
-
-    /// Nodes where the signed distance is ≤ 0.
-    pub fn from_sdf(sdf: &SdfGrid) -> Self {
-        let g = sdf.geometry;
-        let mut data = vec![false; g.len()];
-        g.fill_par(&mut data, |i, j, k| sdf.data[g.index(i, j, k)] <= 0.0);
         Self { geometry: g, data }
     }
 

@@ -3,9 +3,9 @@
 use nalgebra::{Point3, Rotation3, Vector3};
 use rayon::prelude::*;
 
+use crate::classify::{axis_crossings, classify_nodes};
 use crate::edt::{feature_transform, NO_SITE};
 use crate::grid::{check_len, GridGeometry, GridQuery, ScalarGrid};
-use crate::mesh::is_inside;
 use crate::occupancy::OccupancyGrid;
 use crate::CollisionError;
 
@@ -15,38 +15,6 @@ pub const DRONE_BODY_SIZE: [f32; 3] = [0.1, 0.1, 0.04];
 /// Half extents of the default drone body box, metres.
 pub fn drone_half_extents() -> Vector3<f32> {
     Vector3::from(DRONE_BODY_SIZE) * 0.5
-}
-
-/// Per axis, the distance in cells from node `ijk` to the nearest surface crossing on its two
-/// grid edges along that axis (`∞` if neither crosses) and the direction (±1) to it. A crossing
-/// is where the classification of the node and its neighbour differ, placed by linear
-/// interpolation exactly as marching cubes places its vertex.
-pub(crate) fn axis_crossings(grid: &ScalarGrid, iso: f32, inside_is_below: bool, ijk: [usize; 3]) -> [(f32, f32); 3] {
-    let g = &grid.geometry;
-    let idx = g.index(ijk[0], ijk[1], ijk[2]);
-    let v0 = grid.data[idx];
-    let in0 = is_inside(v0, iso, inside_is_below);
-    let strides = [1, g.dims[0], g.dims[0] * g.dims[1]];
-    let mut out = [(f32::INFINITY, 0.0); 3];
-    for a in 0..3 {
-        let mut consider = |nb: usize, dir: f32| {
-            let v1 = grid.data[nb];
-            if is_inside(v1, iso, inside_is_below) != in0 {
-                let t = (iso - v0) / (v1 - v0);
-                let t = if t.is_nan() { 0.5 } else { t.clamp(0.0, 1.0) };
-                if t < out[a].0 {
-                    out[a] = (t, dir);
-                }
-            }
-        };
-        if ijk[a] > 0 {
-            consider(idx - strides[a], -1.0);
-        }
-        if ijk[a] + 1 < g.dims[a] {
-            consider(idx + strides[a], 1.0);
-        }
-    }
-    out
 }
 
 /// Offset, in cells, from a node to its local surface estimate: the foot of the plane through
@@ -134,6 +102,16 @@ fn refine_nearest(g: &GridGeometry, surface: &[Patch], nearest: &[u32], r: f32) 
     out
 }
 
+impl OccupancyGrid {
+    /// Nodes where the signed distance is ≤ 0.
+    pub fn from_sdf(sdf: &SdfGrid) -> Self {
+        let g = sdf.geometry;
+        let mut data = vec![false; g.len()];
+        g.fill_par(&mut data, |i, j, k| sdf.data[g.index(i, j, k)] <= 0.0);
+        Self { geometry: g, data }
+    }
+}
+
 /// Called per face tile with its centre (lattice coordinates), radius (metres) and index ranges.
 type TileVisitor<'a> = dyn FnMut([f32; 3], f32, [(usize, usize); 3]) -> Option<()> + 'a;
 
@@ -176,7 +154,8 @@ impl SdfGrid {
     /// The signed distance to the `iso` level set of `grid`, whose zero level coincides with the
     /// marching-cubes surface of the same field.
     ///
-    /// Nodes are classified inside/outside as in [`crate::marching_cubes`]. *Band* nodes (a grid
+    /// Nodes are classified inside/outside by [`classify_nodes`], as in [`crate::marching_cubes`]
+    /// (exact-iso nodes between two solids and enclosed voids are inside). *Band* nodes (a grid
     /// edge of theirs crosses the surface) get a piece of surface: the local plane through the
     /// linearly interpolated crossings, as a disc of radius 0.35 cell around the foot of the node.
     /// An exact Euclidean feature transform ([`crate::edt`]) gives every node its nearest band
@@ -189,9 +168,13 @@ impl SdfGrid {
     ///
     /// If the field has no surface in the grid, every node gets ± the grid diagonal.
     pub fn from_field(grid: &ScalarGrid, iso: f32, inside_is_below: bool) -> Self {
+        Self::from_classified(grid, iso, &classify_nodes(grid, iso, inside_is_below))
+    }
+
+    /// [`SdfGrid::from_field`] with the node classification (from [`classify_nodes`]) at hand.
+    pub(crate) fn from_classified(grid: &ScalarGrid, iso: f32, inside: &[bool]) -> Self {
         let g = grid.geometry;
         let [nx, ny, _] = g.dims;
-        let inside: Vec<bool> = grid.data.par_iter().map(|&v| is_inside(v, iso, inside_is_below)).collect();
         let mut band = vec![false; g.len()];
         g.fill_par(&mut band, |i, j, k| {
             let idx = g.index(i, j, k);
@@ -210,8 +193,7 @@ impl SdfGrid {
             if !band[g.index(i, j, k)] {
                 return Patch::default();
             }
-            let o = surface_offset(&axis_crossings(grid, iso, inside_is_below, [i, j, k]))
-                .expect("band nodes have a crossing");
+            let o = surface_offset(&axis_crossings(grid, inside, iso, [i, j, k])).expect("band nodes have a crossing");
             let n = o.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
             Patch { s: [i as f32 + o.x, j as f32 + o.y, k as f32 + o.z], n: n.into() }
         });
@@ -551,6 +533,24 @@ mod tests {
                 assert_eq!(got > 0.0, exact > 0.0);
             }
         }
+    }
+
+    #[test]
+    fn contact_plane_between_two_touching_boxes_reads_inside() {
+        let grid = crate::testutil::touching_boxes();
+        let sdf = SdfGrid::from_field(&grid, 0.0, true);
+        let occ = OccupancyGrid::from_field(&grid, 0.0, true);
+        for (i, j) in [(3, 3), (3, 4), (4, 3), (4, 4)] {
+            // 1 cell from the boxes' sides; the rim's 0/0 crossings sit half a cell out, in two
+            // directions, so the local surface is a plane √½ cell away.
+            let d = sdf.get(i, j, 4);
+            assert!((-1.0..=-0.35).contains(&d), "contact node ({i}, {j}, 4) reads {d}");
+            assert!(occ.get(i, j, 4));
+        }
+        // The outer faces are the zero level.
+        assert_eq!(sdf.get(2, 3, 3), 0.0);
+        assert_eq!(sdf.get(3, 3, 1), 0.0);
+        assert!(sdf.get(1, 3, 3) > 0.0);
     }
 
     #[test]

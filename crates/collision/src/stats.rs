@@ -9,7 +9,7 @@ use crate::sdf::SdfGrid;
 
 /// What a collision stage produced, for printing as JSON. Start from [`GridSummary::new`] and add
 /// the parts at hand; absent parts are left out of the JSON.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GridSummary {
     /// Node counts `[nx, ny, nz]`.
     pub dims: [usize; 3],
@@ -19,21 +19,21 @@ pub struct GridSummary {
     /// Node (0, 0, 0) and the last node, metres.
     pub origin: [f32; 3],
     pub max_corner: [f32; 3],
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub occupied_fraction: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sdf_min: Option<f32>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sdf_max: Option<f32>,
     /// Fraction of nodes with signed distance ≤ 0.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sdf_inside_fraction: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh_vertices: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh_triangles: Option<usize>,
     /// Mesh surface area, m².
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh_area: Option<f64>,
 }
 
@@ -79,7 +79,7 @@ impl GridSummary {
 }
 
 /// How well field `b` agrees with reference field `a` (e.g. NeRF-derived against ground truth).
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Agreement {
     /// Nodes of `a` that were compared (those inside `b`'s grid).
     pub compared_nodes: usize,
@@ -216,5 +216,10 @@ mod tests {
         let json = serde_json::to_string(&GridSummary::new(&g).with_sdf(&ball(0.3, g))).unwrap();
         assert!(json.contains("\"dims\":[41,41,41]") && json.contains("sdf_min"), "{json}");
         assert!(!json.contains("mesh_triangles"));
+        // Stored figures read back, absent parts included.
+        let back: GridSummary = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, GridSummary::new(&g).with_sdf(&ball(0.3, g)));
+        let back: Agreement = serde_json::from_str(&serde_json::to_string(&ag).unwrap()).unwrap();
+        assert_eq!(back, ag);
     }
 }

@@ -1,17 +1,18 @@
 //! The collision pipeline on the default Stonehenge scene against its analytic SDF.
 
+use std::collections::HashMap;
+
 use nalgebra::{Point3, Rotation3, Vector3};
-use nerfsv_collision::{drone_half_extents, BoxQuery, GridGeometry, ScalarGrid, SdfGrid};
+use nerfsv_collision::{
+    drone_half_extents, field_bounds, ground_truth_field, scene_field, BoxQuery, GridGeometry, SdfGrid,
+};
 use nerfsv_scene::Scene;
 
 const CELL: f32 = 0.025;
 
 fn field(scene: &Scene) -> SdfGrid {
-    let mut bounds = scene.bounds().expanded(0.1);
-    bounds.max.z = 1.0;
-    let geometry = GridGeometry::covering(&bounds, 40.0).unwrap();
-    let samples = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
-    SdfGrid::from_field(&samples, 0.0, true)
+    let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), 40.0).unwrap();
+    scene_field(scene, geometry).1
 }
 
 /// Deterministic points in the scene's flight region.
@@ -80,4 +81,65 @@ fn drone_box_clearance_matches_brute_force_on_the_analytic_scene() {
         }
     }
     assert!(near > 30, "only {near} boxes near geometry");
+}
+
+#[test]
+fn nodes_inside_the_solid_read_negative_including_where_stones_stand_on_the_ground() {
+    // Stones stand on the ground: a stone's bottom face and the ground's top face coincide at
+    // z = 0, where the analytic SDF of the union is exactly 0 although there is solid above and
+    // below. A node is inside the solid when it and its 26 neighbour nodes lie in the closed
+    // solid (analytic distance ≤ 0); every such node must read a negative signed distance.
+    let scene = Scene::stonehenge();
+    let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), 40.0).unwrap();
+    let (exact, sdf) = scene_field(&scene, geometry);
+    let [nx, ny, nz] = geometry.dims;
+    let (mut inside, mut on_contact_plane, mut wrong) = (0, 0, Vec::new());
+    for k in 1..nz - 1 {
+        for j in 1..ny - 1 {
+            for i in 1..nx - 1 {
+                let solid = (0..27).all(|n| {
+                    let (di, dj, dk) = (n % 3, (n / 3) % 3, n / 9);
+                    exact.get(i + di - 1, j + dj - 1, k + dk - 1) <= 0.0
+                });
+                if !solid {
+                    continue;
+                }
+                inside += 1;
+                on_contact_plane += (exact.get(i, j, k) == 0.0) as usize;
+                if sdf.get(i, j, k) >= 0.0 {
+                    wrong.push(([i, j, k], sdf.get(i, j, k)));
+                }
+            }
+        }
+    }
+    assert!(inside > 50_000 && on_contact_plane > 150, "inside {inside}, on the contact plane {on_contact_plane}");
+    assert!(
+        wrong.is_empty(),
+        "{} of {inside} inside nodes read ≥ 0, e.g. {:?}",
+        wrong.len(),
+        &wrong[..wrong.len().min(5)]
+    );
+}
+
+#[test]
+fn ground_truth_mesh_is_closed_without_degenerate_or_doubled_faces() {
+    let (built, errors) = ground_truth_field(&Scene::stonehenge(), 40.0).unwrap();
+    let m = &built.mesh;
+    assert!(m.triangles.len() > 50_000);
+    assert!(m.is_closed(), "the ground-truth surface must be closed and consistently wound");
+    let key = |i: u32| m.vertices[i as usize].coords.map(f32::to_bits);
+    let mut faces: HashMap<[[u32; 3]; 3], usize> = HashMap::new();
+    for t in &m.triangles {
+        assert!(t[0] != t[1] && t[1] != t[2] && t[0] != t[2], "triangle with a repeated vertex {t:?}");
+        let [a, b, c] = t.map(|i| m.vertices[i as usize].coords.cast::<f64>());
+        assert!((b - a).cross(&(c - a)).norm() > 0.0, "zero-area triangle {t:?}");
+        // Faces by vertex position, so that coincident faces with distinct vertices count too.
+        let mut f = t.map(|i| key(i).into());
+        f.sort_unstable();
+        *faces.entry(f).or_default() += 1;
+    }
+    let doubled = faces.values().filter(|&&n| n > 1).count();
+    assert_eq!(doubled, 0, "{doubled} faces occur more than once (coincident opposite faces)");
+    // The grid field against the analytic SDF near surfaces: a fraction of a cell.
+    assert!(errors.nodes > 100_000 && errors.mean < 0.1 * CELL as f64 && errors.p95 < 0.5 * CELL, "{errors:?}");
 }

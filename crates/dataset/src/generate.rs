@@ -4,6 +4,7 @@ use std::f32::consts::TAU;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Point3, Vector3};
+use nerfsv_scene::validate::{bytes_for, in_range, InvalidValue, MemoryBudget};
 use nerfsv_scene::{Camera, Intrinsics, RenderSettings, Scene};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -12,6 +13,9 @@ use crate::error::DatasetError;
 use crate::image::{DepthImage, Image};
 use crate::writer::{write_split, FrameToWrite};
 use crate::SPLITS;
+
+/// Bytes per held pixel: RGBA (4 × f32) and depth (f32).
+const BYTES_PER_PIXEL: u64 = 16 + 4;
 
 /// What to render. Defaults follow the paper: 200/150/150 views of 100×100 pixels.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -59,39 +63,59 @@ impl Default for GenerateOptions {
 }
 
 impl GenerateOptions {
-    /// Rejects sizes that are zero or absurd before any work is done.
-    pub fn validate(&self) -> Result<(), DatasetError> {
-        let bad = |field: &str, msg: String| Err(DatasetError::Invalid(format!("{field}: {msg}")));
-        for (field, v) in [("width", self.width), ("height", self.height)] {
-            if v == 0 || v > 8192 {
-                return bad(field, format!("must be between 1 and 8192 pixels, found {v}"));
-            }
+    /// Rejects every value no generation could use, and a split whose images would not fit
+    /// the memory budget, before any work is done. The error names the field and the value.
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("width", self.width, 1, 8192)?;
+        in_range("height", self.height, 1, 8192)?;
+        in_range("train", self.train, 1, 100_000)?;
+        in_range("val", self.val, 1, 100_000)?;
+        in_range("test", self.test, 1, 100_000)?;
+        let a = self.camera_angle_x;
+        if !(a > 0.01 && a < 3.1) {
+            return Err(InvalidValue::new("camera_angle_x", "must be strictly between 0.01 and 3.1 radians", a));
         }
-        for (field, n) in [("train", self.train), ("val", self.val), ("test", self.test)] {
-            if n == 0 || n > 100_000 {
-                return bad(field, format!("must be between 1 and 100000 views, found {n}"));
-            }
+        let [r0, r1] = self.radius;
+        if !(r0 > 0.0 && r0 < 100.0) {
+            return Err(InvalidValue::new("radius[0]", "must be strictly between 0 and 100 m", r0));
         }
-        if !(self.camera_angle_x > 0.01 && self.camera_angle_x < 3.1) {
-            return bad("camera_angle_x", format!("must be in (0.01, 3.1) radians, found {}", self.camera_angle_x));
-        }
-        if !(self.radius[0] > 0.0 && self.radius[0] <= self.radius[1] && self.radius[1] < 100.0) {
-            return bad("radius", format!("must satisfy 0 < min <= max < 100 m, found {:?}", self.radius));
+        if !(r1 >= r0 && r1 < 100.0) {
+            return Err(InvalidValue::new(
+                "radius[1]",
+                format!("must be at least radius[0] = {r0} and below 100 m"),
+                r1,
+            ));
         }
         let [e0, e1] = self.elevation_deg;
-        if !(-90.0..=90.0).contains(&e0) || !(e0..=90.0).contains(&e1) {
-            return bad(
-                "elevation_deg",
-                format!("must satisfy -90 <= min <= max <= 90, found {:?}", self.elevation_deg),
-            );
+        in_range("elevation_deg[0]", e0, -90.0, 90.0)?;
+        in_range("elevation_deg[1]", e1, e0, 90.0)?;
+        in_range("close_up_fraction", self.close_up_fraction, 0.0, 1.0)?;
+        in_range("supersample", self.supersample, 1, 8)?;
+        // seed: every u64 is meaningful.
+        let budget = MemoryBudget::current();
+        let bytes = self.held_bytes();
+        if bytes <= budget.bytes {
+            return Ok(());
         }
-        if !(0.0..=1.0).contains(&self.close_up_fraction) {
-            return bad("close_up_fraction", format!("must be in [0, 1], found {}", self.close_up_fraction));
-        }
-        if self.supersample == 0 || self.supersample > 8 {
-            return bad("supersample", format!("must be between 1 and 8, found {}", self.supersample));
-        }
-        Ok(())
+        // Name the key whose excess over its default costs the most.
+        let d = GenerateOptions::default();
+        let lowered = [
+            ("width", GenerateOptions { width: self.width.min(d.width), ..self.clone() }),
+            ("height", GenerateOptions { height: self.height.min(d.height), ..self.clone() }),
+            ("train", GenerateOptions { train: self.train.min(d.train), ..self.clone() }),
+            ("val", GenerateOptions { val: self.val.min(d.val), ..self.clone() }),
+            ("test", GenerateOptions { test: self.test.min(d.test), ..self.clone() }),
+        ];
+        let key = lowered.iter().map(|(k, o)| (*k, o.held_bytes())).min_by_key(|&(_, b)| b).map_or("width", |(k, _)| k);
+        budget.check(key, bytes)
+    }
+
+    /// Bytes the generator holds at once: every rendered view of the largest split (RGBA and
+    /// depth, `f32`) until the split is written.
+    pub fn held_bytes(&self) -> u64 {
+        let views = self.train.max(self.val).max(self.test) as u64;
+        let pixels = self.width as u64 * self.height as u64;
+        bytes_for(views.saturating_mul(pixels), BYTES_PER_PIXEL)
     }
 
     fn count(&self, split: &str) -> usize {
@@ -165,10 +189,7 @@ pub fn generate(
         let is_dataset = out.join("transforms_train.json").exists();
         let is_empty = std::fs::read_dir(out).map_err(|e| DatasetError::io(out, e))?.next().is_none();
         if !out.is_dir() || !(is_dataset || is_empty) {
-            return Err(DatasetError::Invalid(format!(
-                "{}: exists and is not a dataset folder; refusing to overwrite it",
-                out.display()
-            )));
+            return Err(DatasetError::NotADataset { path: out.to_path_buf() });
         }
     }
     remove_stale_partials(out);

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Matrix4;
+use nerfsv_scene::validate::InvalidValue;
 use nerfsv_scene::{Camera, Intrinsics};
 use rayon::prelude::*;
 use serde_json::{Map, Value};
@@ -63,7 +64,7 @@ impl Split {
 /// and `test` splits and the rest `train`.
 pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, DatasetError> {
     if opts.downscale == 0 {
-        return Err(DatasetError::Invalid("downscale must be at least 1".into()));
+        return Err(InvalidValue::new("downscale", "must be at least 1", 0).into());
     }
     let mut path = dir.join(format!("transforms_{split}.json"));
     let mut keep: Option<Box<dyn Fn(usize) -> bool>> = None;
@@ -73,7 +74,7 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     }
     let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::io(&path, e))?;
     let root: Value = serde_json::from_str(&quote_non_finite(&text))
-        .map_err(|source| DatasetError::Json { path: path.clone(), source })?;
+        .map_err(|error| DatasetError::Json { path: path.clone(), error })?;
     let ctx = Ctx { path: &path, base: path.parent().unwrap_or(Path::new(".")) };
     let root = root.as_object().ok_or_else(|| ctx.field(None, "(root)", "expected a JSON object"))?;
     let top = ctx.partial_intrinsics(None, root)?;

@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use nerfsv_scene::io::atomic_write;
+use nerfsv_scene::validate::InvalidValue;
 use nerfsv_scene::Camera;
 use rayon::prelude::*;
 use serde_json::json;
@@ -25,10 +26,17 @@ pub struct FrameToWrite {
 /// intrinsics of the first. The JSON is written last, so a dataset whose transforms file
 /// exists is complete.
 pub fn write_split(dir: &Path, split: &str, frames: &[FrameToWrite]) -> Result<(), DatasetError> {
-    let first = frames.first().ok_or_else(|| DatasetError::Invalid(format!("split {split} has no frames")))?;
+    let first = frames
+        .first()
+        .ok_or_else(|| InvalidValue::new(format!("split {split}"), "must hold at least one frame", "none"))?;
     let k = first.camera.intrinsics;
-    if frames.iter().any(|f| f.camera.intrinsics != k) {
-        return Err(DatasetError::Invalid(format!("split {split}: frames must share one set of intrinsics")));
+    if let Some(i) = frames.iter().position(|f| f.camera.intrinsics != k) {
+        return Err(InvalidValue::new(
+            format!("split {split}: frame {i}: intrinsics"),
+            format!("must equal frame 0's (one set per split): {k:?}"),
+            format!("{:?}", frames[i].camera.intrinsics),
+        )
+        .into());
     }
     let img_dir = dir.join(split);
     std::fs::create_dir_all(&img_dir).map_err(|e| DatasetError::io(&img_dir, e))?;

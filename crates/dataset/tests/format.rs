@@ -272,3 +272,51 @@ fn a_killed_generation_leaves_only_a_hidden_partial_folder_that_the_next_run_rem
     let names: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(names, vec![std::ffi::OsString::from("ds")]);
 }
+
+#[test]
+fn generate_options_refuse_nan_and_infinity_in_every_float_naming_the_field() {
+    type Set = fn(&mut GenerateOptions, f32);
+    let floats: [(&str, Set); 6] = [
+        ("camera_angle_x", |o, v| o.camera_angle_x = v),
+        ("radius[0]", |o, v| o.radius[0] = v),
+        ("radius[1]", |o, v| o.radius[1] = v),
+        ("elevation_deg[0]", |o, v| o.elevation_deg[0] = v),
+        ("elevation_deg[1]", |o, v| o.elevation_deg[1] = v),
+        ("close_up_fraction", |o, v| o.close_up_fraction = v),
+    ];
+    small_options().validate().unwrap();
+    for v in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        for (name, set) in floats {
+            let mut o = small_options();
+            set(&mut o, v);
+            let e = o.validate().expect_err(name);
+            assert_eq!((e.field.as_str(), e.found.as_str()), (name, v.to_string().as_str()), "{e}");
+        }
+    }
+    let e = GenerateOptions { supersample: 9, ..small_options() }.validate().unwrap_err();
+    assert_eq!(e.to_string(), "supersample: must be between 1 and 8, found 9");
+    let e = GenerateOptions { radius: [4.0, 3.0], ..small_options() }.validate().unwrap_err();
+    assert_eq!(e.field, "radius[1]");
+}
+
+#[test]
+fn generate_options_whose_images_cannot_fit_in_memory_are_refused_naming_the_key() {
+    // 100000 views of 8192² pixels: each value in range, together ~125 TiB held at once.
+    let o = GenerateOptions { width: 8192, height: 8192, train: 100_000, ..small_options() };
+    assert!(o.held_bytes() > 100 << 40);
+    let e = o.validate().unwrap_err();
+    assert_eq!(e.field, "train", "{e}");
+    assert!(e.expected.contains("memory budget") && e.found.contains("TiB"), "{e}");
+    // Through `generate` it is a typed DatasetError naming the key, and nothing is written.
+    let dir = tempfile::tempdir().unwrap();
+    let err = generate(&Scene::builtin("monolith").unwrap(), &dir.path().join("ds"), &o, &|_, _| {}).unwrap_err();
+    assert!(matches!(&err, nerfsv_dataset::DatasetError::Invalid(e) if e.field == "train"), "{err}");
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+#[test]
+fn a_zero_downscale_is_a_typed_error_naming_downscale() {
+    let dir = tempfile::tempdir().unwrap();
+    let err = load_split(dir.path(), "train", LoadOptions { downscale: 0, load_depth: true }).unwrap_err();
+    assert_eq!(err.to_string(), "downscale: must be at least 1, found 0");
+}

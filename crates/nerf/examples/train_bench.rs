@@ -56,7 +56,8 @@ fn main() {
                 next += 1;
             }
             let e0 = Instant::now();
-            let rep = evaluate(t.nerf(), &test, EvalOptions { max_images: n_test, ..Default::default() });
+            let rep =
+                evaluate(t.nerf(), &test, EvalOptions { max_images: n_test, ..Default::default() }).expect("evaluate");
             let ev = e0.elapsed().as_secs_f64();
             println!(
                 "[{trained:6.1} s, step {}] test PSNR {:.2} dB  SSIM {:.4}  depth err {:.4} m  ({} images)  | train {:.0} samples/s {:.0} rays/s | eval {:.0} rays/s",

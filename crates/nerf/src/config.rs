@@ -1,5 +1,6 @@
 //! Model and training hyper-parameters. Every field has a default (see `Default`).
 
+use nerfsv_scene::validate::{finite, in_open_range, in_range, non_negative, positive, InvalidValue, MemoryBudget};
 use serde::{Deserialize, Serialize};
 
 /// The model: scene box, hash grid, MLP widths, sampling and occupancy grid.
@@ -72,29 +73,217 @@ impl Default for NerfConfig {
 }
 
 impl NerfConfig {
-    /// Checks ranges; the message names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks every field, then that the model fits the memory budget (see
+    /// [`NerfConfig::estimated_bytes`]). The error names the field (without the `nerf.` table
+    /// prefix: add it with [`InvalidValue::within`]) and the value found.
+    pub fn validate(&self) -> Result<(), InvalidValue> {
         for i in 0..3 {
-            if self.aabb_min[i].partial_cmp(&self.aabb_max[i]) != Some(std::cmp::Ordering::Less) {
-                return Err(format!("aabb_min[{i}] must be below aabb_max[{i}]"));
+            finite_f32(&format!("aabb_min[{i}]"), self.aabb_min[i])?;
+            finite_f32(&format!("aabb_max[{i}]"), self.aabb_max[i])?;
+            if self.aabb_min[i] >= self.aabb_max[i] {
+                return Err(InvalidValue::new(
+                    format!("aabb_max[{i}]"),
+                    format!("must be greater than aabb_min[{i}] = {}", self.aabb_min[i]),
+                    self.aabb_max[i],
+                ));
             }
         }
-        let checks: [(&str, bool); 9] = [
-            ("hash_levels", (1..=32).contains(&self.hash_levels)),
-            ("log2_hashmap_size", (8..=24).contains(&self.log2_hashmap_size)),
-            ("base_resolution", self.base_resolution >= 2),
-            ("finest_resolution", self.finest_resolution >= self.base_resolution),
-            ("sigma_hidden", self.sigma_hidden >= 1 && self.color_hidden >= 1),
-            ("geo_features", self.geo_features >= 1),
-            ("step_size", self.step_size > 0.0 && self.max_samples_per_ray >= 1),
-            ("grid_resolution", (2..=1024).contains(&self.grid_resolution)),
-            ("grid_update_interval", self.grid_update_interval >= 1 && self.grid_partial_fraction >= 1),
-        ];
-        match checks.iter().find(|c| !c.1) {
-            Some((name, _)) => Err(format!("{name} out of range")),
-            None => Ok(()),
+        in_range("hash_levels", self.hash_levels, 1, 32)?;
+        in_range("log2_hashmap_size", self.log2_hashmap_size, 8, 24)?;
+        in_range("base_resolution", self.base_resolution, 2, MAX_RESOLUTION)?;
+        in_range("finest_resolution", self.finest_resolution, self.base_resolution, MAX_RESOLUTION)?;
+        in_range("sigma_hidden", self.sigma_hidden, 1, 4096)?;
+        in_range("geo_features", self.geo_features, 1, 1024)?;
+        in_range("color_hidden", self.color_hidden, 1, 4096)?;
+        f32_value(positive("step_size", self.step_size as f64), self.step_size)?;
+        in_range("max_samples_per_ray", self.max_samples_per_ray, 1, 65536)?;
+        f32_value(
+            in_open_range("early_stop_transmittance", self.early_stop_transmittance as f64, 0.0, 1.0),
+            self.early_stop_transmittance,
+        )?;
+        in_range("grid_resolution", self.grid_resolution, 2, 1024)?;
+        f32_value(positive("grid_threshold", self.grid_threshold as f64), self.grid_threshold)?;
+        if !(self.grid_decay > 0.0 && self.grid_decay <= 1.0) {
+            return Err(InvalidValue::new("grid_decay", "must be in (0, 1]", self.grid_decay));
+        }
+        in_range("grid_update_interval", self.grid_update_interval, 1, 1 << 20)?;
+        // grid_warmup_updates: every u64 is meaningful (0 = no warm-up, huge = always full).
+        in_range("grid_partial_fraction", self.grid_partial_fraction, 1, 1024)?;
+        check_budget(self.estimated_bytes(), || dominant_key(self, None).trim_start_matches("nerf."))
+    }
+
+    /// Estimated bytes of a model of this config: parameters with their gradient and Adam
+    /// moments (4 × 4 bytes each), the occupancy grid with its update buffers, and the sample
+    /// workspaces of rendering (one chunk of rays per rayon thread, every ray at its largest
+    /// sample count). Saturating: absurd values (a width or table size beyond its range
+    /// included) give `u64::MAX`, never a wrapped small size.
+    pub fn estimated_bytes(&self) -> u64 {
+        estimate(self, None).total()
+    }
+}
+
+/// Bytes of training `nerf` with `train`: [`NerfConfig::estimated_bytes`]'s parameters and grid,
+/// plus the workspaces of one step (`batch_rays` rays at their largest sample count, or
+/// `target_samples_per_step` samples, whichever is larger).
+pub fn training_memory_bytes(nerf: &NerfConfig, train: &TrainConfig) -> u64 {
+    estimate(nerf, Some((train, train.batch_rays as u64))).total()
+}
+
+/// Refuses a training run that would not fit [`MemoryBudget::current`], before anything is
+/// allocated. The error names the key whose excess costs the most, with its table
+/// (`nerf.color_hidden`, `train.batch_rays`).
+pub fn check_training_memory(nerf: &NerfConfig, train: &TrainConfig) -> Result<(), InvalidValue> {
+    check_training_memory_with_rays(nerf, train, train.batch_rays as u64)
+}
+
+/// [`check_training_memory`] for a step of `rays` rays (a resumed run's adapted count, named
+/// `n_rays` when it is the larger).
+pub(crate) fn check_training_memory_with_rays(
+    nerf: &NerfConfig,
+    train: &TrainConfig,
+    rays: u64,
+) -> Result<(), InvalidValue> {
+    let bytes = estimate(nerf, Some((train, rays))).total();
+    check_budget(bytes, || dominant_key(nerf, Some((train, rays))))
+}
+
+/// [`MemoryBudget::check`], naming the key only when refusing (finding it costs estimates).
+fn check_budget<'a>(bytes: u64, key: impl FnOnce() -> &'a str) -> Result<(), InvalidValue> {
+    let budget = MemoryBudget::current();
+    if bytes <= budget.bytes {
+        Ok(())
+    } else {
+        budget.check(key(), bytes)
+    }
+}
+
+/// The finest hash-grid resolution accepted (per axis, over the whole box).
+pub const MAX_RESOLUTION: u32 = 1 << 20;
+
+/// Bytes per occupancy-grid cell: density (f32) and bitfield (u8), plus a full update's cell
+/// index (u32), jitter (3 × f32) and value (f32), and a partial update's occupied list (u32).
+const GRID_BYTES_PER_CELL: u64 = 4 + 1 + 4 + 12 + 4 + 4;
+
+/// Bytes per ray of a training step besides its samples: `RayInput` and target colour.
+const TRAIN_BYTES_PER_RAY: u64 = std::mem::size_of::<crate::fields::RayInput>() as u64 + 12;
+
+/// The parts of a memory estimate, in bytes.
+#[derive(Clone, Copy, Debug, Default)]
+struct Estimate {
+    params: u64,
+    grid: u64,
+    workspace: u64,
+}
+
+impl Estimate {
+    fn total(&self) -> u64 {
+        self.params.saturating_add(self.grid).saturating_add(self.workspace)
+    }
+}
+
+/// Samples one ray can take: `max_samples_per_ray`, or fewer when the box diagonal is shorter.
+fn samples_per_ray(c: &NerfConfig) -> u64 {
+    let diag = (0..3).map(|d| ((c.aabb_max[d] - c.aabb_min[d]) as f64).powi(2)).sum::<f64>().sqrt();
+    let steps = (diag / c.step_size as f64).ceil() + 1.0;
+    let steps = if steps.is_finite() && steps < u64::MAX as f64 { steps as u64 } else { u64::MAX };
+    (c.max_samples_per_ray as u64).min(steps)
+}
+
+fn estimate(c: &NerfConfig, train: Option<(&TrainConfig, u64)>) -> Estimate {
+    use nerfsv_scene::validate::bytes_for;
+    // Beyond these ranges the network's shapes would overflow: no such model can be built.
+    let buildable = c.hash_levels <= 32
+        && c.log2_hashmap_size <= 24
+        && c.base_resolution <= MAX_RESOLUTION
+        && c.finest_resolution <= MAX_RESOLUTION
+        && c.sigma_hidden <= 4096
+        && c.geo_features <= 1024
+        && c.color_hidden <= 4096;
+    if !buildable {
+        return Estimate { params: u64::MAX, ..Estimate::default() };
+    }
+    let field = crate::fields::NgpField::new(c);
+    let params = bytes_for(field.n_params as u64, 4 * 4);
+    let cells = (c.grid_resolution as u64).saturating_pow(3);
+    let grid = bytes_for(cells, GRID_BYTES_PER_CELL);
+    let spr = samples_per_ray(c);
+    let workspace = match train {
+        None => {
+            let rays = (rayon::current_num_threads() * crate::model::RENDER_CHUNK) as u64;
+            bytes_for(rays.saturating_mul(spr), 4 * field.workspace_floats_per_sample(false))
+        }
+        Some((t, rays)) => {
+            let samples = rays.saturating_mul(spr).max(t.target_samples_per_step as u64);
+            let chunks = rays.div_ceil(crate::train::TRAIN_CHUNK as u64);
+            bytes_for(samples, 4 * field.workspace_floats_per_sample(true))
+                .saturating_add(bytes_for(rays, TRAIN_BYTES_PER_RAY))
+                .saturating_add(bytes_for(chunks, 4 * field.mlp_range().len() as u64))
+        }
+    };
+    Estimate { params, grid, workspace }
+}
+
+/// The key whose excess over its default costs the most memory (the estimate drops most when
+/// it alone is brought down to its default); else the key of the largest part of the estimate.
+fn dominant_key(c: &NerfConfig, train: Option<(&TrainConfig, u64)>) -> &'static str {
+    let (d, td) = (NerfConfig::default(), TrainConfig::default());
+    type NerfKnob = (&'static str, fn(&mut NerfConfig, &NerfConfig));
+    let nerf_knobs: [NerfKnob; 7] = [
+        ("nerf.hash_levels", |c, d| c.hash_levels = c.hash_levels.min(d.hash_levels)),
+        ("nerf.log2_hashmap_size", |c, d| c.log2_hashmap_size = c.log2_hashmap_size.min(d.log2_hashmap_size)),
+        ("nerf.sigma_hidden", |c, d| c.sigma_hidden = c.sigma_hidden.min(d.sigma_hidden)),
+        ("nerf.geo_features", |c, d| c.geo_features = c.geo_features.min(d.geo_features)),
+        ("nerf.color_hidden", |c, d| c.color_hidden = c.color_hidden.min(d.color_hidden)),
+        ("nerf.max_samples_per_ray", |c, d| c.max_samples_per_ray = c.max_samples_per_ray.min(d.max_samples_per_ray)),
+        ("nerf.grid_resolution", |c, d| c.grid_resolution = c.grid_resolution.min(d.grid_resolution)),
+    ];
+    let mut best: (&'static str, u64) = ("", estimate(c, train).total());
+    for (key, lower) in nerf_knobs {
+        let mut c2 = c.clone();
+        lower(&mut c2, &d);
+        let e = estimate(&c2, train).total();
+        if e < best.1 {
+            best = (key, e);
         }
     }
+    if let Some((t, rays)) = train {
+        let rays_key = if rays > t.batch_rays as u64 { "n_rays" } else { "train.batch_rays" };
+        let target = t.target_samples_per_step.min(td.target_samples_per_step);
+        let candidates = [
+            (rays_key, t.clone(), rays.min(td.batch_rays as u64)),
+            ("train.target_samples_per_step", TrainConfig { target_samples_per_step: target, ..t.clone() }, rays),
+        ];
+        for (key, t2, r2) in candidates {
+            let e = estimate(c, Some((&t2, r2))).total();
+            if e < best.1 {
+                best = (key, e);
+            }
+        }
+    }
+    if !best.0.is_empty() {
+        return best.0;
+    }
+    let e = estimate(c, train);
+    if e.workspace >= e.params && e.workspace >= e.grid {
+        if train.is_some() {
+            "train.batch_rays"
+        } else {
+            "nerf.max_samples_per_ray"
+        }
+    } else if e.params >= e.grid {
+        "nerf.log2_hashmap_size"
+    } else {
+        "nerf.grid_resolution"
+    }
+}
+
+/// `check` on an `f32` value, reporting the value as written (`1.1`, not `1.100000023841858`).
+fn f32_value(check: Result<(), InvalidValue>, v: f32) -> Result<(), InvalidValue> {
+    check.map_err(|e| InvalidValue { found: v.to_string(), ..e })
+}
+
+fn finite_f32(field: &str, v: f32) -> Result<(), InvalidValue> {
+    f32_value(finite(field, v as f64), v)
 }
 
 /// How the background behind the scene is chosen during training.
@@ -138,44 +327,38 @@ pub struct TrainConfig {
 }
 
 impl TrainConfig {
-    /// Rejects values no run could use, naming the field.
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!("{name} must be a positive number, found {v}"))
-            }
-        };
-        positive("lr", self.lr as f64)?;
+    /// Checks every field; the error names the field (without the `train.` table prefix: add it
+    /// with [`InvalidValue::within`]) and the value found. The memory a run needs depends on the
+    /// model too: see [`check_training_memory`].
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        f32_value(positive("lr", self.lr as f64), self.lr)?;
         for (name, b) in [("betas.0", self.betas.0), ("betas.1", self.betas.1)] {
             if !(0.0..1.0).contains(&b) {
-                return Err(format!("{name} must be in [0, 1), found {b}"));
+                return Err(InvalidValue::new(name, "must be in [0, 1)", b));
             }
         }
-        for (name, v) in [
-            ("eps", self.eps as f64),
-            ("weight_decay", self.weight_decay as f64),
-            ("checkpoint_every_s", self.checkpoint_every_s),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{name} must be a non-negative number, found {v}"));
-            }
-        }
-        if self.batch_rays == 0 || self.batch_rays > 1 << 20 {
-            return Err(format!("batch_rays must be between 1 and 2^20, found {}", self.batch_rays));
-        }
-        if self.lr_decay_steps == 0 {
-            return Err("lr_decay_steps must be at least 1".into());
-        }
+        // ε = 0 would divide 0 by 0 for parameters that never had a gradient.
+        f32_value(positive("eps", self.eps as f64), self.eps)?;
+        f32_value(non_negative("weight_decay", self.weight_decay as f64), self.weight_decay)?;
+        in_range("batch_rays", self.batch_rays, 1, MAX_BATCH_RAYS)?;
+        in_range("target_samples_per_step", self.target_samples_per_step, 0, 1 << 24)?;
+        in_range("lr_decay_steps", self.lr_decay_steps, 1, MAX_STEPS)?;
         if let BackgroundMode::Fixed(c) = self.background {
-            if c.iter().any(|v| !(0.0..=1.0).contains(v)) {
-                return Err(format!("background colour must be in [0, 1], found {c:?}"));
+            for (i, v) in c.into_iter().enumerate() {
+                f32_value(in_range(&format!("background.fixed[{i}]"), v as f64, 0.0, 1.0), v)?;
             }
         }
+        non_negative("checkpoint_every_s", self.checkpoint_every_s)?;
+        // checkpoint_every_steps (0 = never) and seed: every u64 is meaningful.
         Ok(())
     }
 }
+
+/// The most rays one training step may use (`batch_rays`, and a checkpoint's `n_rays`).
+pub const MAX_BATCH_RAYS: usize = 1 << 20;
+
+/// The most steps a run may count: Adam's bias correction raises β to the step as an `i32`.
+pub const MAX_STEPS: u64 = i32::MAX as u64;
 
 impl Default for TrainConfig {
     fn default() -> Self {
@@ -191,6 +374,140 @@ impl Default for TrainConfig {
             checkpoint_every_s: 30.0,
             checkpoint_every_steps: 0,
             seed: 0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn nerf_err(c: NerfConfig) -> InvalidValue {
+        c.validate().expect_err("must be refused")
+    }
+
+    #[test]
+    fn defaults_are_valid_and_fit_the_budget() {
+        NerfConfig::default().validate().unwrap();
+        TrainConfig::default().validate().unwrap();
+        check_training_memory(&NerfConfig::default(), &TrainConfig::default()).unwrap();
+    }
+
+    #[test]
+    fn a_bad_color_hidden_is_named_color_hidden_with_its_value() {
+        let e = nerf_err(NerfConfig { color_hidden: 0, ..NerfConfig::default() });
+        assert_eq!(e.to_string(), "color_hidden: must be between 1 and 4096, found 0");
+        let e = nerf_err(NerfConfig { color_hidden: 100_000_000, ..NerfConfig::default() }).within("nerf");
+        assert_eq!(e.to_string(), "nerf.color_hidden: must be between 1 and 4096, found 100000000");
+        let e = nerf_err(NerfConfig { sigma_hidden: 4_000_000_000, ..NerfConfig::default() });
+        assert_eq!(e.to_string(), "sigma_hidden: must be between 1 and 4096, found 4000000000");
+    }
+
+    #[test]
+    fn a_bad_max_samples_per_ray_is_named_max_samples_per_ray_with_its_value() {
+        let e = nerf_err(NerfConfig { max_samples_per_ray: 0, ..NerfConfig::default() });
+        assert_eq!(e.field, "max_samples_per_ray");
+        assert_eq!(e.found, "0");
+        let e = nerf_err(NerfConfig { max_samples_per_ray: 100_000, ..NerfConfig::default() });
+        assert_eq!(e.to_string(), "max_samples_per_ray: must be between 1 and 65536, found 100000");
+    }
+
+    #[test]
+    fn a_bad_grid_partial_fraction_is_named_grid_partial_fraction_with_its_value() {
+        let e = nerf_err(NerfConfig { grid_partial_fraction: 0, ..NerfConfig::default() });
+        assert_eq!(e.to_string(), "grid_partial_fraction: must be between 1 and 1024, found 0");
+    }
+
+    #[test]
+    fn every_float_of_both_configs_refuses_nan_and_infinities() {
+        type Set<C> = fn(&mut C, f32);
+        let nerf: [(&str, Set<NerfConfig>); 7] = [
+            ("aabb_min[1]", |c, v| c.aabb_min[1] = v),
+            ("aabb_max[2]", |c, v| c.aabb_max[2] = v),
+            ("step_size", |c, v| c.step_size = v),
+            ("early_stop_transmittance", |c, v| c.early_stop_transmittance = v),
+            ("grid_threshold", |c, v| c.grid_threshold = v),
+            ("grid_decay", |c, v| c.grid_decay = v),
+            ("aabb_min[0]", |c, v| c.aabb_min[0] = v),
+        ];
+        let train: [(&str, Set<TrainConfig>); 7] = [
+            ("lr", |c, v| c.lr = v),
+            ("betas.0", |c, v| c.betas.0 = v),
+            ("betas.1", |c, v| c.betas.1 = v),
+            ("eps", |c, v| c.eps = v),
+            ("weight_decay", |c, v| c.weight_decay = v),
+            ("checkpoint_every_s", |c, v| c.checkpoint_every_s = v as f64),
+            ("background.fixed[1]", |c, v| c.background = BackgroundMode::Fixed([0.5, v, 0.5])),
+        ];
+        for v in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            for (name, set) in nerf {
+                let mut c = NerfConfig::default();
+                set(&mut c, v);
+                let e = c.validate().expect_err(name);
+                // aabb_max = -inf is finite-checked before the ordering check.
+                assert_eq!(e.field, name, "{v}: {e}");
+                assert_eq!(e.found, v.to_string(), "{e}");
+            }
+            for (name, set) in train {
+                let mut c = TrainConfig::default();
+                set(&mut c, v);
+                let e = c.validate().expect_err(name);
+                assert_eq!(e.field, name, "{v}: {e}");
+                assert_eq!(e.found, v.to_string(), "{e}");
+            }
+        }
+        let e = nerf_err(NerfConfig { step_size: f32::INFINITY, ..NerfConfig::default() });
+        assert_eq!(e.to_string(), "step_size: must be a positive number, found inf");
+    }
+
+    #[test]
+    fn out_of_range_values_name_their_own_field() {
+        let cases: [(NerfConfig, &str); 6] = [
+            (NerfConfig { aabb_max: [2.0, -3.0, 2.0], ..NerfConfig::default() }, "aabb_max[1]"),
+            (NerfConfig { grid_decay: 0.0, ..NerfConfig::default() }, "grid_decay"),
+            (NerfConfig { early_stop_transmittance: 1.0, ..NerfConfig::default() }, "early_stop_transmittance"),
+            (NerfConfig { finest_resolution: 8, ..NerfConfig::default() }, "finest_resolution"),
+            (NerfConfig { geo_features: 2000, ..NerfConfig::default() }, "geo_features"),
+            (NerfConfig { grid_resolution: 1, ..NerfConfig::default() }, "grid_resolution"),
+        ];
+        for (c, name) in cases {
+            assert_eq!(nerf_err(c).field, name);
+        }
+        let grid_decay = nerf_err(NerfConfig { grid_decay: 1.1, ..NerfConfig::default() });
+        assert_eq!(grid_decay.to_string(), "grid_decay: must be in (0, 1], found 1.1");
+        let t = |c: TrainConfig| c.validate().unwrap_err().to_string();
+        assert_eq!(
+            t(TrainConfig { batch_rays: 0, ..TrainConfig::default() }),
+            "batch_rays: must be between 1 and 1048576, found 0"
+        );
+        assert!(t(TrainConfig { target_samples_per_step: 1 << 25, ..TrainConfig::default() })
+            .starts_with("target_samples_per_step"));
+        assert!(t(TrainConfig { lr_decay_steps: 0, ..TrainConfig::default() }).starts_with("lr_decay_steps"));
+        assert!(t(TrainConfig { betas: (0.9, 1.0), ..TrainConfig::default() })
+            .starts_with("betas.1: must be in [0, 1), found 1"));
+    }
+
+    #[test]
+    fn a_model_over_the_memory_budget_is_refused_naming_the_key_that_dominates() {
+        // Every value in range, but 65536 samples per ray of 4096-wide layers on every thread
+        // needs terabytes.
+        let c = NerfConfig { max_samples_per_ray: 65536, step_size: 1e-4, color_hidden: 4096, ..NerfConfig::default() };
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.field, "max_samples_per_ray", "{e}");
+        assert!(e.found.contains("TiB"), "{e}");
+        // A training batch of 2^20 rays at 256 samples each: hundreds of GiB.
+        let t = TrainConfig { batch_rays: 1 << 20, ..TrainConfig::default() };
+        t.validate().unwrap();
+        let e = check_training_memory(&NerfConfig::default(), &t).unwrap_err();
+        assert_eq!(e.field, "train.batch_rays", "{e}");
+        assert!(training_memory_bytes(&NerfConfig::default(), &t) > 200 << 30);
+        // Saturating, never wrapping.
+        for huge in [
+            NerfConfig { grid_resolution: usize::MAX, ..NerfConfig::default() },
+            NerfConfig { color_hidden: usize::MAX, ..NerfConfig::default() },
+            NerfConfig { hash_levels: usize::MAX, ..NerfConfig::default() },
+        ] {
+            assert_eq!(huge.estimated_bytes(), u64::MAX);
         }
     }
 }

@@ -91,6 +91,18 @@ impl NgpField {
         }
     }
 
+    /// `f32`-sized values [`ChunkWorkspace`] holds per sample (for the memory estimate): the
+    /// forward's `order`, `sample_ray`, `sig_o`, `t_o`, `t`, `dt`, `pos` (3), `sigma`, `enc`,
+    /// `h0`, `out0`, `act`, `cin`, `h1`, `h2`, `rgb` (3); with `backward` also `d_sigma_act`,
+    /// `d_rgb` (3), `d_h2`, `d_h1`, `d_cin`, `d_out0`, `d_h0`, `d_enc`, and the trainer's
+    /// gathered `pos_all` (3) and `denc_all`.
+    pub fn workspace_floats_per_sample(&self, backward: bool) -> u64 {
+        let (e, sh, o, ch, ci) = (self.enc_dim, self.sigma_hidden, 1 + self.geo, self.color_hidden, SH_DIM + self.geo);
+        let forward = 10 + e + sh + o + 1 + ci + 2 * ch + 3;
+        let backward = if backward { 1 + 3 + 2 * ch + ci + o + sh + e + 3 + e } else { 0 };
+        (forward + backward) as u64
+    }
+
     /// Flat range of the hash table.
     pub fn embeddings_range(&self) -> Range<usize> {
         self.tensors[0].1.clone()

@@ -10,7 +10,7 @@
 //! Modules follow nerfstudio's vocabulary: [`field_components`] (hash/SH encodings, MLP
 //! layers), [`fields`] (`NgpField` and the fused chunk kernels), [`model_components`]
 //! (occupancy grid, ray sampler, volume renderer, losses), [`optim`] (Adam), [`checkpoint`],
-//! [`train`], [`render`], [`metrics`].
+//! [`train`](mod@train), [`render`], [`metrics`].
 //!
 //! # Parameters and checkpoints
 //! All parameters are one flat vector, the concatenation of torch-ngp's tensors
@@ -23,7 +23,7 @@
 //!
 //! # Determinism
 //! The same [`TrainConfig::seed`] gives bit-identical weights whatever the rayon thread count,
-//! and a resumed run ends at the same weights as an uninterrupted one (see [`train`]).
+//! and a resumed run ends at the same weights as an uninterrupted one (see [`train()`]).
 //! Set `MATMUL_NUM_THREADS=1` in the process environment so that `matrixmultiply` does not
 //! start its own threads inside rayon's (results are the same either way; speed is not).
 //!
@@ -33,10 +33,11 @@
 //! use nerfsv_nerf::{evaluate, train, Budget, EvalOptions, NerfConfig, TrainConfig};
 //! let dir = std::path::Path::new("/work/data/stonehenge");
 //! let data = load_split(dir, "train", LoadOptions::default()).unwrap();
-//! let nerf = train(&data, "/tmp/run".as_ref(), Budget::Seconds(120.0), true,
+//! let (nerf, stats) = train(&data, "/tmp/run".as_ref(), Budget::Seconds(120.0), true,
 //!                  NerfConfig::default(), TrainConfig::default(), |p| eprintln!("{} {:.2}", p.step, p.psnr)).unwrap();
+//! println!("{} steps in {:.0} s", stats.steps, stats.seconds);
 //! let test = load_split(dir, "test", LoadOptions::default()).unwrap();
-//! let report = evaluate(&nerf, &test, EvalOptions::default());
+//! let report = evaluate(&nerf, &test, EvalOptions::default()).unwrap();
 //! println!("PSNR {:.2} dB", report.psnr);
 //! let view = nerf.render_camera(&test.frames[0].camera, [1.0, 1.0, 1.0]);
 //! let sigma = nerf.density(&[[0.0, 0.0, 0.5]]);
@@ -55,10 +56,12 @@ pub mod optim;
 pub mod render;
 pub mod train;
 
-pub use config::{BackgroundMode, NerfConfig, TrainConfig};
+pub use config::{check_training_memory, training_memory_bytes, BackgroundMode, NerfConfig, TrainConfig};
 pub use error::NerfError;
 pub use fields::RayInput;
 pub use metrics::{evaluate, psnr, ssim, EvalOptions, EvalReport, ImageMetrics};
 pub use model::{Nerf, RayOutputs};
-pub use render::{render_split, RenderedView};
-pub use train::{check_bounds, checkpoint_path, train, Budget, Progress, StepStats, Trainer};
+pub use render::{comparison_image, render_split, RenderedView};
+pub use train::{
+    check_bounds, checkpoint_path, train, train_stats_path, Budget, Progress, StepStats, TrainStats, Trainer,
+};

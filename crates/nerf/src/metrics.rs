@@ -5,9 +5,11 @@
 //! z-depth error in metres over pixels where ground-truth depth > 0 and predicted opacity > 0.5.
 
 use nerfsv_dataset::Split;
-use serde::Serialize;
+use nerfsv_scene::validate::InvalidValue;
+use serde::{Deserialize, Serialize};
 
 use crate::model::Nerf;
+use crate::NerfError;
 
 /// PSNR (dB) between two `[0, 1]` arrays of equal length.
 pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
@@ -15,10 +17,14 @@ pub fn psnr(a: &[f32], b: &[f32]) -> f64 {
     crate::model_components::losses::psnr_from_mse(mse)
 }
 
+/// Half-width of SSIM's Gaussian window (11×11).
+const SSIM_RADIUS: usize = 5;
+
 /// SSIM (Wang et al. 2004): 11×11 Gaussian window σ = 1.5, K1 = 0.01, K2 = 0.03, data range 1,
 /// over "valid" windows, averaged over windows and the 3 channels. a, b: `[h, w, 3]`.
+/// NaN when the image is smaller than the window (≤ 10 pixels wide or high).
 pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize) -> f64 {
-    const R: usize = 5;
+    const R: usize = SSIM_RADIUS;
     let g: Vec<f64> = {
         let v: Vec<f64> = (0..=2 * R).map(|i| (-((i as f64 - R as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp()).collect();
         let s: f64 = v.iter().sum();
@@ -67,7 +73,7 @@ pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize) -> f64 {
 }
 
 /// Metrics of one image.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ImageMetrics {
     pub index: usize,
     pub file_path: String,
@@ -78,7 +84,7 @@ pub struct ImageMetrics {
 }
 
 /// Averages over a split (depth averaged over images that have a depth error).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     pub psnr: f64,
     pub ssim: f64,
@@ -104,9 +110,28 @@ impl Default for EvalOptions {
     }
 }
 
-/// Renders every frame of `split` and compares it with the ground truth.
-pub fn evaluate(nerf: &Nerf, split: &Split, opts: EvalOptions) -> EvalReport {
+/// Renders every frame of `split` (or the first `max_images`) and compares it with the ground
+/// truth. An empty split ([`NerfError::EmptySplit`]), `max_images = Some(0)` or an image smaller
+/// than SSIM's 11×11 window ([`NerfError::Invalid`]) is refused rather than reported as NaN.
+pub fn evaluate(nerf: &Nerf, split: &Split, opts: EvalOptions) -> Result<EvalReport, NerfError> {
+    if opts.max_images == Some(0) {
+        return Err(InvalidValue::new("max_images", "must be at least 1", 0).into());
+    }
+    if split.frames.is_empty() {
+        return Err(NerfError::EmptySplit { path: split.path.clone() });
+    }
     let n = opts.max_images.unwrap_or(usize::MAX).min(split.frames.len());
+    for (i, f) in split.frames.iter().take(n).enumerate() {
+        let (w, h) = (f.camera.intrinsics.width, f.camera.intrinsics.height);
+        if w <= 2 * SSIM_RADIUS as u32 || h <= 2 * SSIM_RADIUS as u32 {
+            return Err(InvalidValue::new(
+                format!("{}: frame {i} ({})", split.path.display(), f.file_path),
+                "must be at least 11×11 pixels (SSIM's window)",
+                format!("{w}×{h}"),
+            )
+            .into());
+        }
+    }
     let bg = opts.background;
     let mut per_image = Vec::with_capacity(n);
     for (i, f) in split.frames.iter().take(n).enumerate() {
@@ -138,14 +163,14 @@ pub fn evaluate(nerf: &Nerf, split: &Split, opts: EvalOptions) -> EvalReport {
         });
     }
     let mean = |it: Vec<f64>| if it.is_empty() { None } else { Some(it.iter().sum::<f64>() / it.len() as f64) };
-    EvalReport {
-        psnr: mean(per_image.iter().map(|m| m.psnr).collect()).unwrap_or(f64::NAN),
-        ssim: mean(per_image.iter().map(|m| m.ssim).collect()).unwrap_or(f64::NAN),
+    Ok(EvalReport {
+        psnr: mean(per_image.iter().map(|m| m.psnr).collect()).expect("at least one image"),
+        ssim: mean(per_image.iter().map(|m| m.ssim).collect()).expect("at least one image"),
         depth_median_abs_err_m: mean(per_image.iter().filter_map(|m| m.depth_median_abs_err_m).collect()),
         images: n,
         background: bg,
         per_image,
-    }
+    })
 }
 
 #[cfg(test)]

@@ -24,6 +24,10 @@ pub struct Nerf {
     /// `[field.n_params]` all parameters (torch-ngp tensors, concatenated).
     pub params: Vec<f32>,
     pub grid: OccupancyGrid,
+    /// Training steps taken to reach these weights (0 for a fresh model).
+    pub step: u64,
+    /// Seed of the initial weights and of every random choice of training.
+    pub seed: u64,
 }
 
 /// Per-ray outputs of [`Nerf::render_rays`].
@@ -55,13 +59,14 @@ impl<T: Default> Pool<T> {
 }
 
 impl Nerf {
-    /// A fresh model with initial weights from `seed` and an all-occupied grid.
+    /// A fresh model with initial weights from `seed` and an all-occupied grid. The config is
+    /// validated (and its memory estimate checked) first; the error's field is prefixed `nerf.`.
     pub fn new(config: NerfConfig, seed: u64) -> Result<Self, crate::NerfError> {
-        config.validate().map_err(crate::NerfError::Config)?;
+        config.validate().map_err(|e| e.within("nerf"))?;
         let field = NgpField::new(&config);
         let params = field.init_params(seed);
         let grid = OccupancyGrid::new(config.grid_resolution, config.aabb_min, config.aabb_max);
-        Ok(Self { config, field, params, grid })
+        Ok(Self { config, field, params, grid, step: 0, seed })
     }
 
     /// The `sigma_net` weights (`sigma_net.0.weight` `[64, 32]` then `sigma_net.1.weight`
@@ -93,12 +98,6 @@ impl Nerf {
     /// The step Δt (metres) the occupancy test `σ·Δt > threshold` uses: the marching step.
     pub fn occupancy_dt(&self) -> f32 {
         self.config.step_size
-    }
-
-    /// The density σ (1/m) above which a point counts as occupied: the grid threshold on σ·Δt
-    /// divided by Δt (`grid_threshold / step_size`, ≈ 0.74 /m with the defaults).
-    pub fn occupancy_density_threshold(&self) -> f32 {
-        self.config.grid_threshold / self.config.step_size
     }
 
     /// Renders rays (unit directions, world frame) without jitter, in parallel chunks.

@@ -2,7 +2,8 @@
 
 use std::path::Path;
 
-use nerfsv_dataset::{DepthImage, Image, Split};
+use nerfsv_dataset::{DepthImage, Frame, Image, Split};
+use nerfsv_scene::validate::{bytes_for, InvalidValue, MemoryBudget};
 use nerfsv_scene::Camera;
 
 use crate::fields::RayInput;
@@ -95,4 +96,50 @@ pub fn render_split(nerf: &Nerf, split: &Split, out_dir: &Path, background: [f32
         nerfsv_scene::io::atomic_write(&p, |w| v.depth_image().write_png_mm(w)).map_err(|e| NerfError::io(&p, e))?;
     }
     Ok(())
+}
+
+/// One row per frame, `ground truth | NeRF render`, both composited on white and enlarged
+/// `scale`× (nearest neighbour; 0 counts as 1). The frames must share one size, which must be
+/// their cameras' size; the output (`2·w·scale` × `h·scale·frames`, RGBA f32) must fit the
+/// memory budget.
+pub fn comparison_image(nerf: &Nerf, frames: &[Frame], scale: u32) -> Result<Image, NerfError> {
+    let first = frames.first().ok_or_else(|| InvalidValue::new("frames", "must hold at least one frame", "none"))?;
+    let (w, h) = (first.image.width, first.image.height);
+    for (i, f) in frames.iter().enumerate() {
+        let k = f.camera.intrinsics;
+        if (f.image.width, f.image.height) != (w, h) || (k.width, k.height) != (w, h) {
+            return Err(InvalidValue::new(
+                format!("frames[{i}] ({})", f.file_path),
+                format!("must be {w}×{h} pixels like frames[0], image and camera alike"),
+                format!("an image of {}×{} and a camera of {}×{}", f.image.width, f.image.height, k.width, k.height),
+            )
+            .into());
+        }
+    }
+    let s = scale.max(1) as u64;
+    let (out_w, out_h) = (2 * w as u64 * s, h as u64 * s * frames.len() as u64);
+    MemoryBudget::current().check("scale", bytes_for(out_w.saturating_mul(out_h), 16))?;
+    let (Ok(out_w), Ok(out_h)) = (u32::try_from(out_w), u32::try_from(out_h)) else {
+        return Err(InvalidValue::new("scale", "must keep the image under 2^32 pixels a side", scale).into());
+    };
+    let s = s as u32;
+    let mut out = Image::new(out_w, out_h);
+    for (row, frame) in frames.iter().enumerate() {
+        let view = nerf.render_camera(&frame.camera, [1.0, 1.0, 1.0]).to_image();
+        for (col, img) in [&frame.image, &view].into_iter().enumerate() {
+            for y in 0..h * s {
+                for x in 0..w * s {
+                    let p = img.pixel(x / s, y / s);
+                    let (ox, oy) = (col * (w * s) as usize + x as usize, row * (h * s) as usize + y as usize);
+                    let o = 4 * (oy * out_w as usize + ox);
+                    // Straight alpha on white: rgb·a + (1 − a); renders are opaque already.
+                    for c in 0..3 {
+                        out.rgba[o + c] = p[c] * p[3] + (1.0 - p[3]);
+                    }
+                    out.rgba[o + 3] = 1.0;
+                }
+            }
+        }
+    }
+    Ok(out)
 }

@@ -12,10 +12,13 @@ use std::time::Instant;
 
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use nerfsv_dataset::Split;
+use nerfsv_scene::validate::{finite, in_range, non_negative, InvalidValue};
 
-use crate::config::{BackgroundMode, NerfConfig, TrainConfig};
+use crate::checkpoint::TrainingState;
+use crate::config::{check_training_memory, BackgroundMode, NerfConfig, TrainConfig};
 use crate::fields::{ChunkWorkspace, RayInput};
 use crate::model::{mix, Nerf};
 use crate::model_components::losses::psnr_from_mse;
@@ -35,6 +38,48 @@ pub struct StepStats {
     pub samples: usize,
 }
 
+/// Figures of a training run, cumulative over every session of it, saved at every checkpoint
+/// and restored on resume, so a resumed run whose budget was already reached still reports its
+/// real figures. The checkpoint's metadata `train_stats` holds the deterministic ones (see
+/// [`TrainStats::without_timing`]); the wall-clock ones go beside it in
+/// [`train_stats_path`] (`train_stats.json`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainStats {
+    /// Steps completed.
+    pub steps: u64,
+    /// Seconds spent in [`Trainer::step`], summed over all sessions.
+    pub seconds: f64,
+    /// PSNR (dB) of the last step's batch, on its random backgrounds (0 before any step).
+    pub train_batch_psnr: f64,
+    /// Rays per second of step time, over all sessions.
+    pub rays_per_second: f64,
+    /// Samples (density evaluations) per second of step time, over all sessions.
+    pub samples_per_second: f64,
+    /// Fraction of occupied occupancy-grid cells, `[0, 1]`.
+    pub occupancy: f64,
+}
+
+impl TrainStats {
+    /// The figures that identical runs share: the wall-clock ones (`seconds`, rays and samples
+    /// per second) zeroed. This is what a checkpoint holds, so that it is byte-identical.
+    pub fn without_timing(&self) -> Self {
+        Self { seconds: 0.0, rays_per_second: 0.0, samples_per_second: 0.0, ..self.clone() }
+    }
+
+    /// Checks figures read back from a checkpoint whose step is `step`.
+    pub(crate) fn validate(&self, step: u64) -> Result<(), InvalidValue> {
+        if self.steps != step {
+            return Err(InvalidValue::new("steps", format!("must equal the checkpoint's step {step}"), self.steps));
+        }
+        non_negative("seconds", self.seconds)?;
+        finite("train_batch_psnr", self.train_batch_psnr)?;
+        non_negative("rays_per_second", self.rays_per_second)?;
+        non_negative("samples_per_second", self.samples_per_second)?;
+        in_range("occupancy", self.occupancy, 0.0, 1.0)
+    }
+}
+
 /// Training pixels in one flat table.
 struct Pixels {
     cameras: Vec<nerfsv_scene::Camera>,
@@ -49,9 +94,13 @@ pub struct Trainer {
     nerf: Nerf,
     config: TrainConfig,
     adam: Adam,
-    step: u64,
     /// Rays of the next step (adapts to `target_samples_per_step`).
     n_rays: usize,
+    /// Figures so far (`occupancy` is filled in by [`Trainer::stats`]).
+    stats: TrainStats,
+    /// Rays and samples of every step so far (all sessions).
+    rays_total: f64,
+    samples_total: f64,
     pixels: Pixels,
     ws: Vec<ChunkWorkspace>,
     grad: Vec<f32>,
@@ -69,12 +118,17 @@ unsafe impl Sync for SendPtr {}
 
 impl Trainer {
     /// A fresh model from `seed`, checked against the dataset's cameras (see [`check_bounds`]).
+    /// Both configs are validated, and a step's memory checked against the budget, before
+    /// anything is allocated; errors name the key with its table (`train.batch_rays`).
     pub fn new(nerf_config: NerfConfig, config: TrainConfig, data: &Split) -> Result<Self, NerfError> {
-        config.validate().map_err(NerfError::Config)?;
+        nerf_config.validate().map_err(|e| e.within("nerf"))?;
+        config.validate().map_err(|e| e.within("train"))?;
+        check_training_memory(&nerf_config, &config)?;
         check_bounds(&nerf_config, data)?;
         let nerf = Nerf::new(nerf_config, config.seed)?;
         let n = nerf.field.n_params;
-        Ok(Self::assemble(nerf, config.clone(), Adam::new(n), 0, config.batch_rays, data))
+        let n_rays = config.batch_rays;
+        Ok(Self::assemble(nerf, config, Adam::new(n), n_rays, TrainStats::default(), data))
     }
 
     /// Continues the run saved by [`save_checkpoint`](Self::save_checkpoint).
@@ -87,10 +141,25 @@ impl Trainer {
             message: "missing: not a training checkpoint".into(),
         })?;
         let adam = ck.adam.expect("read(.., true) returns optimiser state");
-        Ok(Self::assemble(ck.nerf, tc, adam, ck.step, ck.n_rays, data))
+        // Checkpoints written before `train_stats` existed know only their step.
+        let mut stats = ck.train_stats.unwrap_or(TrainStats { steps: ck.step, ..TrainStats::default() });
+        // The wall-clock figures of the same step, if the file beside the checkpoint has them.
+        let timing = std::fs::read_to_string(train_stats_path(path))
+            .ok()
+            .and_then(|t| serde_json::from_str::<TrainStats>(&t).ok())
+            .filter(|t| t.steps == ck.step && t.validate(ck.step).is_ok());
+        if let Some(t) = timing {
+            stats = TrainStats {
+                seconds: t.seconds,
+                rays_per_second: t.rays_per_second,
+                samples_per_second: t.samples_per_second,
+                ..stats
+            };
+        }
+        Ok(Self::assemble(ck.nerf, tc, adam, ck.n_rays, stats, data))
     }
 
-    fn assemble(nerf: Nerf, config: TrainConfig, adam: Adam, step: u64, n_rays: usize, data: &Split) -> Self {
+    fn assemble(nerf: Nerf, config: TrainConfig, adam: Adam, n_rays: usize, stats: TrainStats, data: &Split) -> Self {
         let mut start = vec![0];
         let mut rgba = Vec::with_capacity(data.pixels() * 4);
         for f in &data.frames {
@@ -103,8 +172,10 @@ impl Trainer {
             nerf,
             config,
             adam,
-            step,
             n_rays,
+            rays_total: stats.rays_per_second * stats.seconds,
+            samples_total: stats.samples_per_second * stats.seconds,
+            stats,
             pixels,
             ws: Vec::new(),
             grad: vec![0.0; n],
@@ -129,7 +200,12 @@ impl Trainer {
 
     /// Steps completed.
     pub fn step_count(&self) -> u64 {
-        self.step
+        self.nerf.step
+    }
+
+    /// Figures of the run so far, over every session (see [`TrainStats`]).
+    pub fn stats(&self) -> TrainStats {
+        TrainStats { occupancy: self.nerf.grid.occupancy(), ..self.stats.clone() }
     }
 
     /// Learning rate of the next step: `lr · 0.1^min(step / lr_decay_steps, 1)`.
@@ -137,19 +213,27 @@ impl Trainer {
         let f = if self.config.lr_decay_steps == 0 {
             0.0
         } else {
-            (self.step as f64 / self.config.lr_decay_steps as f64).min(1.0)
+            (self.nerf.step as f64 / self.config.lr_decay_steps as f64).min(1.0)
         };
         (self.config.lr as f64 * 0.1f64.powf(f)) as f32
     }
 
-    /// Writes model, optimiser state and step atomically (see [`crate::checkpoint`]).
+    /// Writes model, optimiser state, step and [`TrainStats`] atomically (see
+    /// [`crate::checkpoint`]).
     pub fn save_checkpoint(&self, path: &Path) -> Result<(), NerfError> {
-        crate::checkpoint::write(path, &self.nerf, Some((&self.config, &self.adam, self.step, self.n_rays)))
+        let stats = self.stats();
+        let state = TrainingState { config: &self.config, adam: &self.adam, n_rays: self.n_rays, stats: &stats };
+        crate::checkpoint::write(path, &self.nerf, Some(state))?;
+        let timing = train_stats_path(path);
+        nerfsv_scene::io::atomic_write(&timing, |w| {
+            serde_json::to_writer_pretty(w, &stats).map_err(std::io::Error::other)
+        })
+        .map_err(|e| NerfError::io(&timing, e))
     }
 
     fn generate_rays(&mut self) {
         let b = self.n_rays;
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mix(self.config.seed, 0xBA7C4, self.step));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mix(self.config.seed, 0xBA7C4, self.nerf.step));
         let total = *self.pixels.start.last().unwrap();
         self.rays.clear();
         self.targets.clear();
@@ -181,9 +265,11 @@ impl Trainer {
     /// One optimisation step. Errors with [`NerfError::NonFinite`] (parameters untouched) if
     /// the loss or a gradient is NaN or infinite.
     pub fn step(&mut self) -> Result<StepStats, NerfError> {
+        let started = Instant::now();
         let cfg = self.nerf.config.clone();
-        if self.step.is_multiple_of(cfg.grid_update_interval) {
-            self.nerf.update_grid(self.config.seed, self.step / cfg.grid_update_interval);
+        let step = self.nerf.step;
+        if step.is_multiple_of(cfg.grid_update_interval) {
+            self.nerf.update_grid(self.config.seed, step / cfg.grid_update_interval);
         }
         self.generate_rays();
         let b = self.rays.len();
@@ -213,7 +299,7 @@ impl Trainer {
         let sq: f64 = ws.iter().map(|w| w.sq_err).sum();
         let mse = sq / (3 * b) as f64;
         if !mse.is_finite() {
-            return Err(NerfError::NonFinite { step: self.step, what: "loss".into() });
+            return Err(NerfError::NonFinite { step, what: "loss".into() });
         }
         // MLP gradients in chunk order.
         let field = &self.nerf.field;
@@ -228,7 +314,7 @@ impl Trainer {
                 }
             }
             if g.iter().any(|v| !v.is_finite()) {
-                return Err(NerfError::NonFinite { step: self.step, what: "MLP gradient".into() });
+                return Err(NerfError::NonFinite { step, what: "MLP gradient".into() });
             }
         }
         // Gather positions [N, 3] and ∂L/∂enc level-major [levels][N][2].
@@ -276,7 +362,7 @@ impl Trainer {
             });
         }
         if self.denc_all.iter().any(|v| !v.is_finite()) {
-            return Err(NerfError::NonFinite { step: self.step, what: "encoding gradient".into() });
+            return Err(NerfError::NonFinite { step, what: "encoding gradient".into() });
         }
         let h = AdamParams {
             lr: self.learning_rate(),
@@ -286,13 +372,22 @@ impl Trainer {
             weight_decay: self.config.weight_decay,
         };
         self.adam.step(&mut self.nerf.params, &self.grad, h, mlp);
-        self.step += 1;
+        self.nerf.step += 1;
         if self.config.target_samples_per_step > 0 {
             let spr = (n_total as f64 / b as f64).max(1.0);
             let want = (self.config.target_samples_per_step as f64 / spr) as usize;
             self.n_rays = want.clamp(TRAIN_CHUNK, 1 << 16) / TRAIN_CHUNK * TRAIN_CHUNK;
         }
-        Ok(StepStats { loss: mse, psnr: psnr_from_mse(mse), rays: b, samples: n_total })
+        let psnr = psnr_from_mse(mse);
+        self.rays_total += b as f64;
+        self.samples_total += n_total as f64;
+        let s = &mut self.stats;
+        s.steps = self.nerf.step;
+        s.seconds += started.elapsed().as_secs_f64();
+        s.train_batch_psnr = psnr;
+        s.rays_per_second = self.rays_total / s.seconds.max(1e-9);
+        s.samples_per_second = self.samples_total / s.seconds.max(1e-9);
+        Ok(StepStats { loss: mse, psnr, rays: b, samples: n_total })
     }
 }
 
@@ -300,7 +395,7 @@ impl Trainer {
 /// half of the frames must cross the box. Errors name the first frame that misses.
 pub fn check_bounds(cfg: &NerfConfig, data: &Split) -> Result<(), NerfError> {
     if data.frames.is_empty() {
-        return Err(NerfError::Invalid(format!("{}: split has no frames", data.path.display())));
+        return Err(NerfError::EmptySplit { path: data.path.clone() });
     }
     let mut misses = Vec::new();
     for (i, f) in data.frames.iter().enumerate() {
@@ -362,6 +457,11 @@ pub struct Progress {
     pub checkpointed: bool,
 }
 
+/// The file beside a checkpoint with its run's [`TrainStats`], wall-clock figures included.
+pub fn train_stats_path(checkpoint: &Path) -> PathBuf {
+    checkpoint.with_file_name("train_stats.json")
+}
+
 /// The checkpoint file [`train`] keeps in its output folder.
 pub fn checkpoint_path(out_dir: &Path) -> PathBuf {
     out_dir.join("checkpoint.safetensors")
@@ -372,6 +472,9 @@ pub fn checkpoint_path(out_dir: &Path) -> PathBuf {
 /// end). With `resume` and an existing checkpoint, continues it (the configs passed are then
 /// ignored in favour of the checkpoint's). On a NaN the error is returned and the last
 /// checkpoint is left as it was.
+///
+/// Returns the model and the run's [`TrainStats`] (cumulative over every session, restored from
+/// the checkpoint, so they are real figures even when the budget was already reached).
 pub fn train(
     data: &Split,
     out_dir: &Path,
@@ -380,7 +483,7 @@ pub fn train(
     nerf_config: NerfConfig,
     train_config: TrainConfig,
     mut on_progress: impl FnMut(&Progress),
-) -> Result<Nerf, NerfError> {
+) -> Result<(Nerf, TrainStats), NerfError> {
     std::fs::create_dir_all(out_dir).map_err(|e| NerfError::io(out_dir, e))?;
     let ck = checkpoint_path(out_dir);
     let mut trainer = if resume && ck.exists() {
@@ -430,5 +533,6 @@ pub fn train(
         });
     }
     trainer.save_checkpoint(&ck)?;
-    Ok(trainer.into_nerf())
+    let stats = trainer.stats();
+    Ok((trainer.into_nerf(), stats))
 }

@@ -15,8 +15,8 @@ fn eight_hundred_steps_fit_the_tiny_scene_to_30_db_on_its_views_and_18_db_held_o
     let mut t = Trainer::new(tiny_config(), tiny_train_config(1), &data).unwrap();
     train_steps(&mut t, 800);
     let test = tiny_split(4, 32, 0.5);
-    let rep = evaluate(t.nerf(), &test, EvalOptions::default());
-    let tr = evaluate(t.nerf(), &data, EvalOptions { max_images: Some(4), ..Default::default() });
+    let rep = evaluate(t.nerf(), &test, EvalOptions::default()).unwrap();
+    let tr = evaluate(t.nerf(), &data, EvalOptions { max_images: Some(4), ..Default::default() }).unwrap();
     eprintln!("tiny scene, training views: PSNR {:.2} dB", tr.psnr);
     eprintln!("tiny scene: PSNR {:.2} dB, SSIM {:.3}, depth {:?} m", rep.psnr, rep.ssim, rep.depth_median_abs_err_m);
     // 48 views of 32×32 pixels fit well but generalise modestly (floaters show on white).

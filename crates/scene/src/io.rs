@@ -1,9 +1,9 @@
 //! Atomic file output: every file nerfsv writes goes to a temporary name in the destination
 //! folder and is renamed into place, so a killed process never leaves a half-written artifact.
 
+use std::collections::BTreeMap;
 use std::fs;
 use std::io::{self, BufWriter, Write};
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -75,7 +75,8 @@ pub fn safetensors_bytes(tensors: &[TensorBytes], metadata: &BTreeMap<String, St
     entries.sort_by(|a, b| a.0.cmp(b.0));
     let mut header = String::from("{");
     if !metadata.is_empty() {
-        let fields: Vec<String> = metadata.iter().map(|(k, v)| format!("{}:{}", json_string(k), json_string(v))).collect();
+        let fields: Vec<String> =
+            metadata.iter().map(|(k, v)| format!("{}:{}", json_string(k), json_string(v))).collect();
         header.push_str(&format!("\"__metadata__\":{{{}}}", fields.join(",")));
     }
     for (name, entry) in &entries {
@@ -185,8 +186,9 @@ mod tests {
     fn safetensors_bytes_are_read_by_the_safetensors_crate_and_do_not_depend_on_insertion_order() {
         let a: Vec<u8> = [1.5f32, -2.0, 3.25].iter().flat_map(|v| v.to_le_bytes()).collect();
         let b = [7u8, 8, 9, 10, 11];
-        let meta: BTreeMap<String, String> =
-            [("zeta", "1"), ("alpha", "quote \" and \\ backslash"), ("mid", "x")].map(|(k, v)| (k.into(), v.into())).into();
+        let meta: BTreeMap<String, String> = [("zeta", "1"), ("alpha", "quote \" and \\ backslash"), ("mid", "x")]
+            .map(|(k, v)| (k.into(), v.into()))
+            .into();
         let tensors = [
             TensorBytes { name: "w", dtype: "F32", shape: vec![3], data: &a },
             TensorBytes { name: "grid", dtype: "U8", shape: vec![5, 1], data: &b },

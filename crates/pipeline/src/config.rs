@@ -1,0 +1,155 @@
+//! The run configuration: a TOML file whose every key has a default. `nerfsv run` with no file
+//! uses [`RunConfig::default`], the embedded Stonehenge setup.
+
+use std::path::{Path, PathBuf};
+
+use nerfsv_dataset::GenerateOptions;
+use nerfsv_nerf::{NerfConfig, TrainConfig};
+use nerfsv_scene::validate::{in_range, positive};
+use nerfsv_scene::InvalidValue;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::PipelineError;
+
+/// Default training length of `nerfsv run`.
+pub const DEFAULT_TRAIN_STEPS: u64 = 2000;
+/// Longest training `nerfsv run` accepts, in steps (about a week on two cores).
+pub const MAX_TRAIN_STEPS: u64 = 10_000_000;
+
+/// A configuration that can check its own values.
+pub trait Validate {
+    /// The first value out of range, naming its key (dotted for nested tables).
+    fn validate(&self) -> Result<(), InvalidValue>;
+}
+
+/// Reads a TOML file into `T`: unknown keys, malformed values and out-of-range values are
+/// errors that name the file and the key.
+pub fn load_toml<T: DeserializeOwned + Validate>(path: &Path) -> Result<T, PipelineError> {
+    let text = std::fs::read_to_string(path).map_err(|e| PipelineError::io(path, e))?;
+    let value: T = toml::from_str(&text).map_err(|e| PipelineError::Toml { path: path.into(), error: e })?;
+    value.validate().map_err(|e| PipelineError::InvalidConfig { path: path.into(), error: e })?;
+    Ok(value)
+}
+
+/// Model and optimiser settings, the `[nerf]` and `[train]` tables of a TOML file.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NerfSettings {
+    pub nerf: NerfConfig,
+    pub train: TrainConfig,
+}
+
+impl Validate for NerfSettings {
+    fn validate(&self) -> Result<(), InvalidValue> {
+        self.nerf.validate().map_err(|e| e.within("nerf"))?;
+        self.train.validate().map_err(|e| e.within("train"))
+    }
+}
+
+/// Everything `nerfsv run` does, with its defaults.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RunConfig {
+    /// Built-in scene: stonehenge, monolith or pillars.
+    pub scene: String,
+    /// Run folder; every artifact goes below it.
+    pub out: PathBuf,
+    /// Dataset rendering (views, size, field of view, seed).
+    pub dataset: GenerateOptions,
+    /// Collision field resolution in cells per metre (the paper's 40).
+    pub cells_per_metre: f32,
+    /// NeRF model settings (hash grid, networks, occupancy grid, ray marching).
+    pub nerf: NerfConfig,
+    /// NeRF optimiser settings (Adam, batch, background, seed).
+    pub train: TrainConfig,
+    /// Training length in optimiser steps. A step count, not a time budget, so the same config
+    /// and seed give the same model on any machine.
+    pub train_steps: u64,
+    /// Density (1/m) above which the NeRF counts as solid in its collision field; default
+    /// ln 2 / cell size.
+    pub nerf_density_threshold: Option<f32>,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self {
+            scene: "stonehenge".into(),
+            out: PathBuf::from("runs/stonehenge"),
+            dataset: GenerateOptions::default(),
+            cells_per_metre: 40.0,
+            nerf: NerfConfig::default(),
+            train: TrainConfig::default(),
+            train_steps: DEFAULT_TRAIN_STEPS,
+            nerf_density_threshold: None,
+        }
+    }
+}
+
+impl RunConfig {
+    /// Reads a TOML config (see [`load_toml`]).
+    pub fn load(path: &Path) -> Result<Self, PipelineError> {
+        load_toml(path)
+    }
+
+    /// The `[nerf]` and `[train]` tables.
+    pub fn nerf_settings(&self) -> NerfSettings {
+        NerfSettings { nerf: self.nerf.clone(), train: self.train.clone() }
+    }
+}
+
+impl Validate for RunConfig {
+    fn validate(&self) -> Result<(), InvalidValue> {
+        if !nerfsv_scene::BUILTIN_SCENES.contains(&self.scene.as_str()) {
+            return Err(InvalidValue::new(
+                "scene",
+                format!("must be one of {}", nerfsv_scene::BUILTIN_SCENES.join(", ")),
+                &self.scene,
+            ));
+        }
+        self.dataset.validate().map_err(|e| e.within("dataset"))?;
+        nerfsv_collision::check_cells_per_metre("cells_per_metre", self.cells_per_metre)?;
+        self.nerf_settings().validate()?;
+        in_range("train_steps", self.train_steps, 1, MAX_TRAIN_STEPS)?;
+        if let Some(t) = self.nerf_density_threshold {
+            positive("nerf_density_threshold", t as f64)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_config_is_valid_and_survives_a_toml_round_trip() {
+        let cfg = RunConfig::default();
+        cfg.validate().unwrap();
+        let text = toml::to_string(&cfg).unwrap();
+        let back: RunConfig = toml::from_str(&text).unwrap();
+        assert_eq!(serde_json::to_value(&back).unwrap(), serde_json::to_value(&cfg).unwrap());
+    }
+
+    #[test]
+    fn bad_values_name_the_key_and_the_value() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.toml");
+        for (text, key, value) in [
+            ("train_steps = 0", "train_steps", "0"),
+            ("train_steps = 1000000000000", "train_steps", "1000000000000"),
+            ("cells_per_metre = 0.5", "cells_per_metre", "0.5"),
+            ("scene = \"atlantis\"", "scene", "atlantis"),
+            ("nerf_density_threshold = -1.0", "nerf_density_threshold", "-1"),
+            ("[nerf]\ncolor_hidden = 0", "nerf.color_hidden", "0"),
+            ("[train]\nlr = -0.5", "train.lr", "-0.5"),
+        ] {
+            std::fs::write(&path, text).unwrap();
+            let e = RunConfig::load(&path).unwrap_err().to_string();
+            assert!(e.contains("run.toml") && e.contains(key) && e.contains(value), "{text}: {e}");
+        }
+        std::fs::write(&path, "[dataset]\nwidht = 3").unwrap();
+        let e = RunConfig::load(&path).unwrap_err().to_string();
+        assert!(e.contains("run.toml") && e.contains("widht"), "{e}");
+    }
+}

@@ -1,0 +1,194 @@
+//! The nerfsv study as a list of stages: what `nerfsv run` does, as library code.
+//!
+//! Each stage is a [`Stage`]: a name (its folder under the run folder), a code version, the
+//! slice of the [`RunConfig`] it depends on, the stages it reads, the files it writes, whether
+//! a killed run resumes it, and a typed figures struct kept in its record and in
+//! `summary.json`. The [`Runner`] keys each stage by all of that, skips it when its record and
+//! outputs are current, and otherwise runs it into an empty (or, if resumable, its partial)
+//! folder. [`run`] is the list.
+//!
+//! # Adding a stage
+//! One `impl Stage` that calls its library function, and one line in [`run`]:
+//!
+//! ```
+//! use nerfsv_pipeline::{PipelineError, Runner, Silent, Stage, StageContext};
+//! use serde::Serialize;
+//!
+//! /// Counts the views of the dataset stage's test split.
+//! struct CountTestViews;
+//!
+//! impl Stage for CountTestViews {
+//!     const NAME: &'static str = "count";
+//!     const VERSION: u32 = 1;
+//!     const OUTPUTS: &'static [&'static str] = &["count.txt"];
+//!     const INPUTS: &'static [&'static str] = &["dataset"];
+//!     type Figures = usize;
+//!
+//!     fn config(&self) -> impl Serialize {}
+//!
+//!     fn run(&self, cx: &StageContext) -> Result<usize, PipelineError> {
+//!         let test = nerfsv_pipeline::stages::load_dataset_split(&cx.input_dir("dataset"), "test", 1)?;
+//!         let n = test.frames.len();
+//!         std::fs::write(cx.dir.join("count.txt"), n.to_string()).map_err(|e| PipelineError::io(&cx.dir, e))?;
+//!         Ok(n)
+//!     }
+//!
+//!     fn describe(n: &usize) -> String {
+//!         format!("{n} test views")
+//!     }
+//! }
+//!
+//! # let root = tempfile::tempdir().unwrap();
+//! # let scene = nerfsv_scene::Scene::builtin("monolith").unwrap();
+//! # let options = nerfsv_dataset::GenerateOptions { width: 4, height: 4, train: 1, val: 1, test: 2,
+//! #     supersample: 1, ..Default::default() };
+//! let mut runner = Runner::new(root.path(), &Silent)?;
+//! runner.run(&nerfsv_pipeline::stages::Dataset { scene: &scene, options: &options })?;
+//! assert_eq!(runner.run(&CountTestViews)?, 2); // the new item
+//! # Ok::<(), PipelineError>(())
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+pub mod config;
+pub mod stage;
+pub mod stages;
+
+pub use config::{load_toml, NerfSettings, RunConfig, Validate};
+pub use stage::{Observer, Outcome, Runner, Silent, Stage, StageContext};
+
+/// Everything that can stop a stage; each variant names the file, stage or key involved.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("{}: {error}", .path.display())]
+    Io { path: PathBuf, error: std::io::Error },
+    #[error("{}: invalid config: {error}", .path.display())]
+    Toml { path: PathBuf, error: toml::de::Error },
+    #[error("{}: invalid config: {error}", .path.display())]
+    InvalidConfig { path: PathBuf, error: nerfsv_scene::InvalidValue },
+    #[error(transparent)]
+    Invalid(#[from] nerfsv_scene::InvalidValue),
+    #[error(transparent)]
+    Scene(#[from] nerfsv_scene::SceneError),
+    #[error("{context}: {error}")]
+    Dataset { context: String, error: nerfsv_dataset::DatasetError },
+    #[error(transparent)]
+    Nerf(#[from] nerfsv_nerf::NerfError),
+    #[error(transparent)]
+    Collision(#[from] nerfsv_collision::CollisionError),
+    #[error("stage {stage} reads stage {input}, which has not run before it")]
+    MissingInput { stage: &'static str, input: &'static str },
+    #[error("{}: is inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
+    OutputInsideInput { output: PathBuf, option: String, input: PathBuf },
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl PipelineError {
+    pub fn io(path: impl Into<PathBuf>, error: std::io::Error) -> Self {
+        Self::Io { path: path.into(), error }
+    }
+}
+
+/// Refuses an output path that lies inside (or is) one of a command's inputs, so that no
+/// command can overwrite what it reads: `inputs` are (option name, path) pairs.
+pub fn refuse_output_inside(output: &Path, inputs: &[(&str, &Path)]) -> Result<(), PipelineError> {
+    let out = resolve(output);
+    for (option, input) in inputs {
+        let input = resolve(input);
+        if out.starts_with(&input) {
+            return Err(PipelineError::OutputInsideInput {
+                output: output.to_path_buf(),
+                option: option.to_string(),
+                input: input.clone(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// `path` made absolute with symbolic links resolved, as far as it exists (the rest appended).
+fn resolve(path: &Path) -> PathBuf {
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut existing = absolute.as_path();
+    let mut rest = Vec::new();
+    loop {
+        if let Ok(real) = existing.canonicalize() {
+            return rest.iter().rev().fold(real, |p, c| p.join(c));
+        }
+        match (existing.parent(), existing.file_name()) {
+            (Some(parent), Some(name)) => {
+                rest.push(name.to_os_string());
+                existing = parent;
+            }
+            _ => return absolute,
+        }
+    }
+}
+
+/// The file `run` writes with every stage's figures.
+pub const SUMMARY: &str = "summary.json";
+
+/// What `summary.json` holds: the run folder, then each stage's figures under its name, in
+/// the order the stages ran.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub run: PathBuf,
+    #[serde(flatten)]
+    pub stages: StageFigures,
+}
+
+/// Stage figures in run order, serialised as one JSON object.
+#[derive(Clone, Debug, Default)]
+pub struct StageFigures(pub Vec<(&'static str, serde_json::Value)>);
+
+impl Serialize for StageFigures {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_map(self.0.iter().map(|(k, v)| (k, v)))
+    }
+}
+
+/// Runs the whole pipeline of `cfg` into `cfg.out` and writes `summary.json`.
+pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, PipelineError> {
+    cfg.validate()?;
+    let scene = stages::scene_of(cfg)?;
+    let settings = cfg.nerf_settings();
+    let mut r = Runner::new(&cfg.out, observer)?;
+    r.run(&stages::Dataset { scene: &scene, options: &cfg.dataset })?;
+    r.run(&stages::GroundTruthField { scene: &scene, cells_per_metre: cfg.cells_per_metre })?;
+    r.run(&stages::Train { settings: &settings, steps: cfg.train_steps })?;
+    r.run(&stages::Eval)?;
+    r.run(&stages::NerfField { density_threshold: cfg.nerf_density_threshold })?;
+    let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
+    stages::write_json(&summary_path(&cfg.out), &summary)?;
+    Ok(summary)
+}
+
+/// `summary.json` of run folder `root`.
+pub fn summary_path(root: &Path) -> PathBuf {
+    root.join(SUMMARY)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_output_inside_an_input_is_refused_however_it_is_spelled() {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        std::fs::create_dir_all(data.join("test")).unwrap();
+        let model = root.path().join("model.safetensors");
+        std::fs::write(&model, b"x").unwrap();
+        let inputs = [("--data", data.as_path()), ("--model", model.as_path())];
+        for out in [data.join("test"), data.join("new/deeper"), data.join("test/../test"), data.clone(), model.clone()]
+        {
+            let e = refuse_output_inside(&out, &inputs).unwrap_err().to_string();
+            assert!(e.contains("refusing to write over an input"), "{e}");
+        }
+        assert!(refuse_output_inside(&root.path().join("renders"), &inputs).is_ok());
+        assert!(refuse_output_inside(&root.path().join("data2"), &inputs).is_ok());
+    }
+}

@@ -1,0 +1,433 @@
+//! The stage abstraction: a [`Stage`] says what it is computed from and what it writes; the
+//! [`Runner`] decides whether it is up to date, runs it if not, and records its typed figures.
+//!
+//! A stage's folder `RUN/NAME/` holds its outputs and `stage.json`, the record
+//! `{"key": …, "figures": …}` written (atomically) after every output. The key hashes the
+//! stage's name, its code version ([`Stage::VERSION`] and this crate's version), its config
+//! slice and the keys of the stages it reads, so changing any of them redoes this stage and
+//! everything downstream, and nothing else.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::PipelineError;
+
+/// The record a completed stage leaves in its folder.
+pub const RECORD: &str = "stage.json";
+/// The marker a resumable stage leaves in its folder: whatever is there (partial or complete)
+/// was computed for this key, so a run that finds no record may continue from it.
+const STARTED: &str = "started.json";
+
+/// One step of the pipeline.
+///
+/// Adding a stage is one `impl Stage` (calling its library function) and one
+/// `runner.run(&MyStage { … })?` line in [`crate::run`]; see the crate docs for an example.
+pub trait Stage {
+    /// The stage's folder under the run folder, and its name in `summary.json` and messages.
+    const NAME: &'static str;
+    /// The stage's code version. Bump it when a change to the stage or the library code it
+    /// calls changes what it computes: outputs recorded under an older version are recomputed.
+    const VERSION: u32;
+    /// Files (relative to the stage folder) that must exist for a recorded result to count.
+    const OUTPUTS: &'static [&'static str];
+    /// Whether an interrupted run continues from what it left in its folder (a training's
+    /// checkpoint) instead of starting from an empty folder.
+    const RESUMABLE: bool = false;
+    /// Names of the stages whose outputs this one reads; they must run before it.
+    const INPUTS: &'static [&'static str] = &[];
+
+    /// The figures the stage reports, kept in its record and in `summary.json`.
+    type Figures: Serialize + DeserializeOwned;
+
+    /// The part of the run's configuration the stage's outputs depend on.
+    fn config(&self) -> impl Serialize;
+
+    /// Computes the stage's outputs into `cx.dir` and returns its figures.
+    fn run(&self, cx: &StageContext) -> Result<Self::Figures, PipelineError>;
+
+    /// One line for the user once the stage has run.
+    fn describe(figures: &Self::Figures) -> String;
+}
+
+/// What a running stage sees.
+pub struct StageContext<'a> {
+    /// The run folder.
+    pub root: &'a Path,
+    /// This stage's folder (exists; empty unless `resume`).
+    pub dir: PathBuf,
+    /// An interrupted run of the same key left its partial outputs in `dir`.
+    pub resume: bool,
+    pub observer: &'a dyn Observer,
+    pub(crate) name: &'static str,
+}
+
+impl StageContext<'_> {
+    /// Reports progress of this stage: `done` of `total` units, with a short status.
+    pub fn progress(&self, done: u64, total: u64, status: &str) {
+        self.observer.progress(self.name, done, total, status);
+    }
+
+    /// A message about this stage.
+    pub fn note(&self, message: &str) {
+        self.observer.note(self.name, message);
+    }
+
+    /// The folder of an upstream stage.
+    pub fn input_dir(&self, stage: &str) -> PathBuf {
+        self.root.join(stage)
+    }
+}
+
+/// Receives what the stages report (the binary shows it as progress bars and lines).
+pub trait Observer: Sync {
+    /// `stage` has done `done` of `total` units.
+    fn progress(&self, stage: &str, done: u64, total: u64, status: &str);
+    /// A line about `stage` (up to date, resumed, finished with its figures).
+    fn note(&self, stage: &str, message: &str);
+}
+
+/// An observer that drops everything.
+pub struct Silent;
+
+impl Observer for Silent {
+    fn progress(&self, _: &str, _: u64, _: u64, _: &str) {}
+    fn note(&self, _: &str, _: &str) {}
+}
+
+/// FNV-1a, 64 bit: stable across platforms and Rust versions, unlike `DefaultHasher`.
+pub fn fnv1a(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// Salt shared by every stage key: outputs of another release are recomputed.
+const CODE_SALT: &str = concat!("nerfsv-pipeline ", env!("CARGO_PKG_VERSION"));
+
+/// The key of a stage from its name, version, config slice and its inputs' keys.
+pub fn stage_key(name: &str, version: u32, config: &impl Serialize, inputs: &[&str]) -> Result<String, PipelineError> {
+    let text = serde_json::to_string(&(CODE_SALT, name, version, config, inputs))
+        .map_err(|e| PipelineError::Internal(format!("stage {name}: config is not serialisable: {e}")))?;
+    Ok(format!("{:016x}", fnv1a(text.as_bytes())))
+}
+
+#[derive(Serialize, Deserialize)]
+struct Record<F> {
+    key: String,
+    /// Wall-clock seconds of the run that produced the outputs.
+    seconds: f64,
+    figures: F,
+}
+
+/// How a stage ended in this run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// Its record matched: nothing was recomputed.
+    UpToDate,
+    /// It ran from an empty folder.
+    Computed,
+    /// It continued an interrupted run of the same key.
+    Resumed,
+}
+
+/// Runs stages in order into one run folder, and collects their figures for `summary.json`.
+pub struct Runner<'a> {
+    root: PathBuf,
+    observer: &'a dyn Observer,
+    keys: BTreeMap<&'static str, String>,
+    figures: Vec<(&'static str, serde_json::Value)>,
+    outcomes: Vec<(&'static str, Outcome)>,
+}
+
+impl<'a> Runner<'a> {
+    pub fn new(root: impl Into<PathBuf>, observer: &'a dyn Observer) -> Result<Self, PipelineError> {
+        let root = root.into();
+        std::fs::create_dir_all(&root).map_err(|e| PipelineError::io(&root, e))?;
+        nerfsv_scene::io::remove_stale_temporaries_in(&root);
+        Ok(Self { root, observer, keys: BTreeMap::new(), figures: Vec::new(), outcomes: Vec::new() })
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// Brings `stage` up to date and returns its figures: the recorded ones if its key and
+    /// outputs are unchanged, else those of a fresh (or resumed) run.
+    pub fn run<S: Stage>(&mut self, stage: &S) -> Result<S::Figures, PipelineError> {
+        let inputs = S::INPUTS
+            .iter()
+            .map(|&input| {
+                self.keys.get(input).map(String::as_str).ok_or(PipelineError::MissingInput { stage: S::NAME, input })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let key = stage_key(S::NAME, S::VERSION, &stage.config(), &inputs)?;
+        let dir = self.root.join(S::NAME);
+        // What a killed writer left half-written is never an output, cached or not.
+        nerfsv_scene::io::remove_stale_temporaries_in(&dir);
+        let (figures, outcome) = match cached::<S::Figures>(&dir, &key, S::OUTPUTS) {
+            Some(figures) => {
+                self.observer.note(S::NAME, "up to date");
+                (figures, Outcome::UpToDate)
+            }
+            None => {
+                let resume = begin(&dir, &key, S::RESUMABLE)?;
+                if resume {
+                    self.observer.note(S::NAME, "resuming the interrupted run");
+                }
+                let cx =
+                    StageContext { root: &self.root, dir: dir.clone(), resume, observer: self.observer, name: S::NAME };
+                let start = Instant::now();
+                let figures = match stage.run(&cx) {
+                    Ok(f) => f,
+                    Err(e) => {
+                        // A resumable stage keeps what it reached; any other leaves nothing.
+                        if !S::RESUMABLE {
+                            let _ = std::fs::remove_dir_all(&dir);
+                        }
+                        return Err(e);
+                    }
+                };
+                let record = Record { key: key.clone(), seconds: start.elapsed().as_secs_f64(), figures };
+                let path = dir.join(RECORD);
+                nerfsv_scene::io::atomic_write(&path, |w| {
+                    serde_json::to_writer_pretty(w, &record).map_err(std::io::Error::other)
+                })
+                .map_err(|e| PipelineError::io(&path, e))?;
+                self.observer.note(S::NAME, &S::describe(&record.figures));
+                (record.figures, if resume { Outcome::Resumed } else { Outcome::Computed })
+            }
+        };
+        let value = serde_json::to_value(&figures)
+            .map_err(|e| PipelineError::Internal(format!("stage {}: figures: {e}", S::NAME)))?;
+        self.keys.insert(S::NAME, key);
+        self.figures.push((S::NAME, value));
+        self.outcomes.push((S::NAME, outcome));
+        Ok(figures)
+    }
+
+    /// Every stage's figures so far, in the order the stages ran.
+    pub fn figures(&self) -> &[(&'static str, serde_json::Value)] {
+        &self.figures
+    }
+
+    /// How each stage ended in this run, in order.
+    pub fn outcomes(&self) -> &[(&'static str, Outcome)] {
+        &self.outcomes
+    }
+
+    /// The key stage `name` ran with in this run, if it ran.
+    pub fn key(&self, name: &str) -> Option<&str> {
+        self.keys.get(name).map(String::as_str)
+    }
+}
+
+/// The recorded figures, if the record in `dir` has `key` and every output exists.
+fn cached<F: DeserializeOwned>(dir: &Path, key: &str, outputs: &[&str]) -> Option<F> {
+    let text = std::fs::read_to_string(dir.join(RECORD)).ok()?;
+    let record: Record<F> = serde_json::from_str(&text).ok()?;
+    (record.key == key && outputs.iter().all(|o| dir.join(o).exists())).then_some(record.figures)
+}
+
+/// Prepares `dir` for a run of `key`. Returns `true` when a resumable stage finds the partial
+/// outputs of an interrupted run of the same key; otherwise the folder is emptied so nothing
+/// computed from other inputs can leak into this run.
+fn begin(dir: &Path, key: &str, resumable: bool) -> Result<bool, PipelineError> {
+    let marker = dir.join(STARTED);
+    let resume = resumable
+        && std::fs::read_to_string(&marker)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .is_some_and(|v| v["key"] == key);
+    if !resume && dir.exists() {
+        std::fs::remove_dir_all(dir).map_err(|e| PipelineError::io(dir, e))?;
+    }
+    std::fs::create_dir_all(dir).map_err(|e| PipelineError::io(dir, e))?;
+    remove_if_present(&dir.join(RECORD))?;
+    if resumable {
+        let doc = serde_json::json!({ "key": key });
+        nerfsv_scene::io::atomic_write(&marker, |w| serde_json::to_writer(w, &doc).map_err(std::io::Error::other))
+            .map_err(|e| PipelineError::io(&marker, e))?;
+    }
+    Ok(resume)
+}
+
+fn remove_if_present(path: &Path) -> Result<(), PipelineError> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(PipelineError::io(path, e)),
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    use super::*;
+
+    #[test]
+    fn fnv1a_matches_reference_values() {
+        // Published FNV-1a 64 test vectors.
+        assert_eq!(fnv1a(b""), 0xcbf29ce484222325);
+        assert_eq!(fnv1a(b"a"), 0xaf63dc4c8601ec8c);
+        assert_eq!(fnv1a(b"foobar"), 0x85944171f73967e8);
+    }
+
+    /// Writes `value` into `out.txt` and counts its runs; fails on demand.
+    struct Writer<'a> {
+        value: u32,
+        runs: &'a AtomicUsize,
+        fail: bool,
+    }
+
+    #[derive(Serialize, Deserialize, Debug, PartialEq)]
+    struct Written {
+        value: u32,
+        half: f64,
+    }
+
+    impl Stage for Writer<'_> {
+        const NAME: &'static str = "writer";
+        const VERSION: u32 = 1;
+        const OUTPUTS: &'static [&'static str] = &["out.txt"];
+        type Figures = Written;
+
+        fn config(&self) -> impl Serialize {
+            self.value
+        }
+
+        fn run(&self, cx: &StageContext) -> Result<Written, PipelineError> {
+            self.runs.fetch_add(1, Ordering::SeqCst);
+            std::fs::write(cx.dir.join("out.txt"), self.value.to_string()).unwrap();
+            if self.fail {
+                return Err(PipelineError::Internal("boom".into()));
+            }
+            Ok(Written { value: self.value, half: self.value as f64 / 3.0 })
+        }
+
+        fn describe(f: &Written) -> String {
+            format!("wrote {}", f.value)
+        }
+    }
+
+    /// Reads the writer's output.
+    struct Reader;
+
+    impl Stage for Reader {
+        const NAME: &'static str = "reader";
+        const VERSION: u32 = 1;
+        const OUTPUTS: &'static [&'static str] = &[];
+        const INPUTS: &'static [&'static str] = &["writer"];
+        type Figures = String;
+
+        fn config(&self) -> impl Serialize {}
+
+        fn run(&self, cx: &StageContext) -> Result<String, PipelineError> {
+            Ok(std::fs::read_to_string(cx.input_dir("writer").join("out.txt")).unwrap())
+        }
+
+        fn describe(f: &String) -> String {
+            f.clone()
+        }
+    }
+
+    #[test]
+    fn a_stage_reruns_only_when_its_key_or_outputs_change_and_figures_read_back_typed() {
+        let root = tempfile::tempdir().unwrap();
+        let runs = AtomicUsize::new(0);
+        let run = |value: u32| {
+            let mut r = Runner::new(root.path(), &Silent).unwrap();
+            let f = r.run(&Writer { value, runs: &runs, fail: false }).unwrap();
+            let read = r.run(&Reader).unwrap();
+            (f, read, r.outcomes().to_vec())
+        };
+        let (first, read, outcomes) = run(7);
+        assert_eq!(first, Written { value: 7, half: 7.0 / 3.0 });
+        assert_eq!(read, "7");
+        assert_eq!(outcomes, [("writer", Outcome::Computed), ("reader", Outcome::Computed)]);
+        let (again, _, outcomes) = run(7);
+        assert_eq!(again, first, "figures must read back bit-identical");
+        assert_eq!(outcomes, [("writer", Outcome::UpToDate), ("reader", Outcome::UpToDate)]);
+        assert_eq!(runs.load(Ordering::SeqCst), 1);
+        // A changed config redoes the stage and, through the key, everything reading it.
+        let (_, read, outcomes) = run(8);
+        assert_eq!(read, "8");
+        assert_eq!(outcomes, [("writer", Outcome::Computed), ("reader", Outcome::Computed)]);
+        // A missing output redoes the stage.
+        std::fs::remove_file(root.path().join("writer/out.txt")).unwrap();
+        let (_, _, outcomes) = run(8);
+        assert_eq!(outcomes[0], ("writer", Outcome::Computed));
+        assert_eq!(runs.load(Ordering::SeqCst), 3);
+    }
+
+    #[test]
+    fn the_code_version_is_part_of_the_key() {
+        let a = stage_key("train", 1, &5u32, &["k"]).unwrap();
+        assert_ne!(a, stage_key("train", 2, &5u32, &["k"]).unwrap());
+        assert_ne!(a, stage_key("train", 1, &6u32, &["k"]).unwrap());
+        assert_ne!(a, stage_key("train", 1, &5u32, &["j"]).unwrap());
+        assert_eq!(a, stage_key("train", 1, &5u32, &["k"]).unwrap());
+    }
+
+    #[test]
+    fn a_failed_stage_leaves_no_folder_and_a_stage_without_its_input_is_refused() {
+        let root = tempfile::tempdir().unwrap();
+        let runs = AtomicUsize::new(0);
+        let mut r = Runner::new(root.path(), &Silent).unwrap();
+        assert!(matches!(r.run(&Reader), Err(PipelineError::MissingInput { stage: "reader", input: "writer" })));
+        assert!(r.run(&Writer { value: 1, runs: &runs, fail: true }).is_err());
+        assert!(!root.path().join("writer").exists());
+    }
+
+    /// A resumable stage that counts how far it got across interruptions.
+    struct Counter {
+        stop_at: Option<u32>,
+    }
+
+    impl Stage for Counter {
+        const NAME: &'static str = "counter";
+        const VERSION: u32 = 1;
+        const OUTPUTS: &'static [&'static str] = &["count"];
+        const RESUMABLE: bool = true;
+        type Figures = (u32, bool);
+
+        fn config(&self) -> impl Serialize {
+            "count to 5"
+        }
+
+        fn run(&self, cx: &StageContext) -> Result<(u32, bool), PipelineError> {
+            let path = cx.dir.join("count");
+            let mut n: u32 = std::fs::read_to_string(&path).map(|t| t.parse().unwrap()).unwrap_or(0);
+            while n < 5 {
+                if Some(n) == self.stop_at {
+                    return Err(PipelineError::Internal("killed".into()));
+                }
+                n += 1;
+                std::fs::write(&path, n.to_string()).unwrap();
+            }
+            Ok((n, cx.resume))
+        }
+
+        fn describe(f: &(u32, bool)) -> String {
+            format!("{f:?}")
+        }
+    }
+
+    #[test]
+    fn a_resumable_stage_continues_an_interrupted_run_of_the_same_key() {
+        let root = tempfile::tempdir().unwrap();
+        let mut r = Runner::new(root.path(), &Silent).unwrap();
+        assert!(r.run(&Counter { stop_at: Some(3) }).is_err());
+        assert_eq!(std::fs::read_to_string(root.path().join("counter/count")).unwrap(), "3");
+        let mut r = Runner::new(root.path(), &Silent).unwrap();
+        assert_eq!(r.run(&Counter { stop_at: None }).unwrap(), (5, true));
+        assert_eq!(r.outcomes()[0].1, Outcome::Resumed);
+    }
+}

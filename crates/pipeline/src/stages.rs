@@ -1,0 +1,423 @@
+//! The stages of `nerfsv run`, each a thin [`Stage`] around its library function.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nerfsv_collision::{BuiltField, ErrorStats, GridSummary, SdfGrid};
+use nerfsv_dataset::{load_split, GenerateOptions, LoadOptions, Split};
+use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
+use nerfsv_scene::Scene;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{NerfSettings, RunConfig};
+use crate::stage::{Stage, StageContext};
+use crate::PipelineError;
+
+/// Loads a split of a dataset folder, naming the folder in the error.
+pub fn load_dataset_split(dir: &Path, split: &str, downscale: u32) -> Result<Split, PipelineError> {
+    load_split(dir, split, LoadOptions { downscale, load_depth: true }).map_err(|e| PipelineError::Dataset {
+        context: format!("loading the {split} split of {}", dir.display()),
+        error: e,
+    })
+}
+
+/// Loads a NeRF checkpoint.
+pub fn load_model(path: &Path) -> Result<Nerf, PipelineError> {
+    Ok(Nerf::load(path)?)
+}
+
+/// Writes a collision field and, if asked, its mesh: both or neither (each file atomically,
+/// creating their folders; the mesh is removed again if the field cannot be written).
+pub fn write_field(field: &BuiltField, sdf_path: &Path, mesh_path: Option<&Path>) -> Result<(), PipelineError> {
+    for path in std::iter::once(sdf_path).chain(mesh_path) {
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(|e| PipelineError::io(parent, e))?;
+        }
+        nerfsv_scene::io::remove_stale_temporaries(path);
+    }
+    if let Some(m) = mesh_path {
+        field.mesh.write_ply(m, true)?;
+    }
+    if let Err(e) = field.sdf.save(sdf_path) {
+        if let Some(m) = mesh_path {
+            let _ = std::fs::remove_file(m);
+        }
+        return Err(e.into());
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// 1. The dataset.
+
+/// Renders the scene's Blender-format dataset into `RUN/dataset/`.
+pub struct Dataset<'a> {
+    pub scene: &'a Scene,
+    pub options: &'a GenerateOptions,
+}
+
+/// What the dataset stage reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetFigures {
+    pub scene: String,
+    pub views: usize,
+    pub width: u32,
+    pub height: u32,
+    pub seconds: f64,
+    pub primary_rays_per_second: f64,
+}
+
+impl Dataset<'_> {
+    /// The dataset folder of run `root`.
+    pub fn dir(root: &Path) -> PathBuf {
+        root.join(Self::NAME)
+    }
+}
+
+/// Renders `scene` into the dataset folder `out`, reporting progress per view.
+pub fn render_dataset(
+    scene: &Scene,
+    out: &Path,
+    opts: &GenerateOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<DatasetFigures, PipelineError> {
+    let start = Instant::now();
+    nerfsv_dataset::generate(scene, out, opts, progress)
+        .map_err(|e| PipelineError::Dataset { context: format!("writing dataset {}", out.display()), error: e })?;
+    let seconds = start.elapsed().as_secs_f64();
+    let views = opts.train + opts.val + opts.test;
+    let rays = views as f64 * (opts.width * opts.height) as f64 * (opts.supersample * opts.supersample) as f64;
+    Ok(DatasetFigures {
+        scene: scene.name.clone(),
+        views,
+        width: opts.width,
+        height: opts.height,
+        seconds,
+        primary_rays_per_second: rays / seconds.max(1e-9),
+    })
+}
+
+impl Stage for Dataset<'_> {
+    const NAME: &'static str = "dataset";
+    const VERSION: u32 = 1;
+    const OUTPUTS: &'static [&'static str] = &["transforms_train.json", "transforms_val.json", "transforms_test.json"];
+    type Figures = DatasetFigures;
+
+    fn config(&self) -> impl Serialize {
+        (&self.scene.name, self.options)
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<DatasetFigures, PipelineError> {
+        // The generator builds the dataset beside the (empty) stage folder and renames it over.
+        render_dataset(self.scene, &cx.dir, self.options, &|done, total| {
+            cx.progress(done as u64, total as u64, "views rendered")
+        })
+    }
+
+    fn describe(f: &DatasetFigures) -> String {
+        format!("{} views of {}×{} in {:.1} s", f.views, f.width, f.height, f.seconds)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 2. The ground-truth collision field.
+
+/// The scene's signed collision field and surface: `RUN/collision/gt_sdf.safetensors`,
+/// `gt_mesh.ply`.
+pub struct GroundTruthField<'a> {
+    pub scene: &'a Scene,
+    pub cells_per_metre: f32,
+}
+
+/// What a ground-truth field reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GroundTruthFigures {
+    pub scene: String,
+    pub build_seconds: f64,
+    pub grid: GridSummary,
+    /// The grid field against the analytic SDF at nodes within 0.25 m of a surface, metres.
+    pub error_vs_analytic_m: ErrorStats,
+}
+
+impl GroundTruthField<'_> {
+    pub const SDF: &'static str = "gt_sdf.safetensors";
+    pub const MESH: &'static str = "gt_mesh.ply";
+
+    /// The ground-truth signed field of run `root`.
+    pub fn sdf_path(root: &Path) -> PathBuf {
+        root.join(Self::NAME).join(Self::SDF)
+    }
+}
+
+/// Builds the ground-truth field of `scene`, writes it (and the mesh) and returns its figures.
+pub fn build_ground_truth(
+    scene: &Scene,
+    cells_per_metre: f32,
+    sdf_path: &Path,
+    mesh_path: Option<&Path>,
+) -> Result<GroundTruthFigures, PipelineError> {
+    let (field, error) = nerfsv_collision::ground_truth_field(scene, cells_per_metre)?;
+    write_field(&field, sdf_path, mesh_path)?;
+    Ok(GroundTruthFigures {
+        scene: scene.name.clone(),
+        build_seconds: field.build_seconds,
+        grid: GridSummary::new(&field.sdf.geometry).with_sdf(&field.sdf).with_mesh(&field.mesh),
+        error_vs_analytic_m: error,
+    })
+}
+
+impl Stage for GroundTruthField<'_> {
+    const NAME: &'static str = "collision";
+    const VERSION: u32 = 2;
+    const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];
+    type Figures = GroundTruthFigures;
+
+    fn config(&self) -> impl Serialize {
+        (&self.scene.name, self.cells_per_metre)
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<GroundTruthFigures, PipelineError> {
+        build_ground_truth(self.scene, self.cells_per_metre, &cx.dir.join(Self::SDF), Some(&cx.dir.join(Self::MESH)))
+    }
+
+    fn describe(f: &GroundTruthFigures) -> String {
+        let [nx, ny, nz] = f.grid.dims;
+        format!("{nx}×{ny}×{nz} grid in {:.2} s", f.build_seconds)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 3. The NeRF.
+
+/// Trains the NeRF on the dataset's train split to a step count: `RUN/nerf/checkpoint.safetensors`.
+/// Resumable: a killed run continues from its last checkpoint and ends at the same weights.
+pub struct Train<'a> {
+    pub settings: &'a NerfSettings,
+    pub steps: u64,
+}
+
+impl Train<'_> {
+    pub const CHECKPOINT: &'static str = "checkpoint.safetensors";
+
+    /// The trained model's checkpoint in run `root`.
+    pub fn checkpoint(root: &Path) -> PathBuf {
+        root.join(Self::NAME).join(Self::CHECKPOINT)
+    }
+}
+
+/// Trains on `data` into `out` (see [`nerfsv_nerf::train`]), reporting progress to `progress`
+/// (`step`, fraction of the budget, status line).
+pub fn train_model(
+    data: &Split,
+    out: &Path,
+    budget: Budget,
+    resume: bool,
+    settings: &NerfSettings,
+    progress: &mut dyn FnMut(&nerfsv_nerf::Progress),
+) -> Result<(Nerf, TrainStats), PipelineError> {
+    Ok(nerfsv_nerf::train(data, out, budget, resume, settings.nerf.clone(), settings.train.clone(), progress)?)
+}
+
+/// The status line of a training step, as the progress bars show it.
+pub fn train_status(p: &nerfsv_nerf::Progress) -> String {
+    format!(
+        "step {:>5} loss {:.5} psnr {:5.2} dB {:>6.0} rays/s {:>4.1} spr{}",
+        p.step,
+        p.loss,
+        p.psnr,
+        p.rays_per_s,
+        p.samples_per_ray,
+        if p.checkpointed { " [saved]" } else { "" }
+    )
+}
+
+impl Stage for Train<'_> {
+    const NAME: &'static str = "nerf";
+    const VERSION: u32 = 1;
+    const OUTPUTS: &'static [&'static str] = &[Self::CHECKPOINT];
+    const RESUMABLE: bool = true;
+    const INPUTS: &'static [&'static str] = &[Dataset::NAME];
+    type Figures = TrainStats;
+
+    fn config(&self) -> impl Serialize {
+        (self.settings, self.steps)
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<TrainStats, PipelineError> {
+        let data = load_dataset_split(&cx.input_dir(Dataset::NAME), "train", 1)?;
+        let steps = self.steps;
+        let mut report = |p: &nerfsv_nerf::Progress| cx.progress(p.step, steps, &train_status(p));
+        let (_, stats) = train_model(&data, &cx.dir, Budget::Steps(steps), cx.resume, self.settings, &mut report)?;
+        Ok(stats)
+    }
+
+    fn describe(f: &TrainStats) -> String {
+        format!("{} steps in {:.0} s (last batch PSNR {:.2} dB)", f.steps, f.seconds, f.train_batch_psnr)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 4. Evaluation.
+
+/// Evaluates the NeRF on the test split: `RUN/eval/metrics.json` (overall and per image) and
+/// `compare.png` (ground truth | NeRF for the first four test views).
+pub struct Eval;
+
+/// What an evaluation reports (the per-image figures are in `metrics.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalFigures {
+    pub psnr: f64,
+    pub ssim: f64,
+    pub depth_median_abs_err_m: Option<f64>,
+    pub images: usize,
+    pub background: [f32; 3],
+}
+
+impl From<&nerfsv_nerf::EvalReport> for EvalFigures {
+    fn from(r: &nerfsv_nerf::EvalReport) -> Self {
+        Self {
+            psnr: r.psnr,
+            ssim: r.ssim,
+            depth_median_abs_err_m: r.depth_median_abs_err_m,
+            images: r.images,
+            background: r.background,
+        }
+    }
+}
+
+impl Eval {
+    pub const METRICS: &'static str = "metrics.json";
+    pub const COMPARE: &'static str = "compare.png";
+    /// Test views shown in `compare.png`, and their enlargement.
+    const SHOWN: usize = 4;
+    const SCALE: u32 = 2;
+}
+
+impl Stage for Eval {
+    const NAME: &'static str = "eval";
+    const VERSION: u32 = 1;
+    const OUTPUTS: &'static [&'static str] = &[Self::METRICS, Self::COMPARE];
+    const INPUTS: &'static [&'static str] = &[Dataset::NAME, Train::NAME];
+    type Figures = EvalFigures;
+
+    fn config(&self) -> impl Serialize {}
+
+    fn run(&self, cx: &StageContext) -> Result<EvalFigures, PipelineError> {
+        let nerf = load_model(&Train::checkpoint(cx.root))?;
+        let test = load_dataset_split(&cx.input_dir(Dataset::NAME), "test", 1)?;
+        let report = nerfsv_nerf::evaluate(&nerf, &test, EvalOptions::default())?;
+        write_json(&cx.dir.join(Self::METRICS), &report)?;
+        let shown = &test.frames[..test.frames.len().min(Self::SHOWN)];
+        let image = nerfsv_nerf::comparison_image(&nerf, shown, Self::SCALE)?;
+        let path = cx.dir.join(Self::COMPARE);
+        nerfsv_scene::io::atomic_write(&path, |w| image.write_png(w)).map_err(|e| PipelineError::io(&path, e))?;
+        Ok(EvalFigures::from(&report))
+    }
+
+    fn describe(f: &EvalFigures) -> String {
+        format!(
+            "test PSNR {:.2} dB, SSIM {:.3}, median depth error {}",
+            f.psnr,
+            f.ssim,
+            f.depth_median_abs_err_m.map_or("n/a".into(), |d| format!("{d:.3} m"))
+        )
+    }
+}
+
+/// Writes `value` as pretty JSON, atomically.
+pub fn write_json(path: &Path, value: &impl Serialize) -> Result<(), PipelineError> {
+    nerfsv_scene::io::atomic_write(path, |w| serde_json::to_writer_pretty(w, value).map_err(std::io::Error::other))
+        .map_err(|e| PipelineError::io(path, e))
+}
+
+// ---------------------------------------------------------------------------------------------
+// 5. The NeRF's collision field.
+
+/// The NeRF's signed collision field on the ground-truth field's grid, and its agreement with
+/// it: `RUN/nerf_collision/nerf_sdf.safetensors`, `nerf_mesh.ply`.
+pub struct NerfField {
+    /// Density (1/m) above which the NeRF is solid; `None`: ln 2 / cell.
+    pub density_threshold: Option<f32>,
+}
+
+/// What a NeRF collision field reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NerfFieldFigures {
+    pub density_threshold: f32,
+    pub build_seconds: f64,
+    pub grid: GridSummary,
+    /// Occupancy IoU and |SDF difference| against the ground truth (in the flight band too).
+    pub agreement_with_ground_truth: Option<nerfsv_collision::Agreement>,
+}
+
+impl NerfField {
+    pub const SDF: &'static str = "nerf_sdf.safetensors";
+    pub const MESH: &'static str = "nerf_mesh.ply";
+}
+
+/// The NeRF's collision field on `geometry` (density > threshold is solid), with its agreement
+/// with `reference` when given; written to `sdf_path` (and the mesh to `mesh_path`).
+pub fn build_nerf_field(
+    nerf: &Nerf,
+    geometry: nerfsv_collision::GridGeometry,
+    density_threshold: Option<f32>,
+    reference: Option<&SdfGrid>,
+    sdf_path: &Path,
+    mesh_path: Option<&Path>,
+) -> Result<NerfFieldFigures, PipelineError> {
+    let threshold =
+        density_threshold.unwrap_or_else(|| nerfsv_collision::default_density_threshold(1.0 / geometry.cell));
+    let field =
+        nerfsv_collision::density_field(geometry, threshold, |points, out| out.copy_from_slice(&nerf.density(points)))?;
+    write_field(&field, sdf_path, mesh_path)?;
+    Ok(NerfFieldFigures {
+        density_threshold: threshold,
+        build_seconds: field.build_seconds,
+        grid: GridSummary::new(&geometry).with_sdf(&field.sdf).with_mesh(&field.mesh),
+        agreement_with_ground_truth: reference
+            .map(|gt| nerfsv_collision::agreement(&field.sdf, gt, nerfsv_collision::FLIGHT_BAND)),
+    })
+}
+
+impl Stage for NerfField {
+    const NAME: &'static str = "nerf_collision";
+    const VERSION: u32 = 2;
+    const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];
+    const INPUTS: &'static [&'static str] = &[Train::NAME, GroundTruthField::NAME];
+    type Figures = NerfFieldFigures;
+
+    fn config(&self) -> impl Serialize {
+        self.density_threshold
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<NerfFieldFigures, PipelineError> {
+        let nerf = load_model(&Train::checkpoint(cx.root))?;
+        // Compared on the ground-truth field's own grid, read back from its stage.
+        let reference = SdfGrid::load(GroundTruthField::sdf_path(cx.root))?;
+        build_nerf_field(
+            &nerf,
+            reference.geometry,
+            self.density_threshold,
+            Some(&reference),
+            &cx.dir.join(Self::SDF),
+            Some(&cx.dir.join(Self::MESH)),
+        )
+    }
+
+    fn describe(f: &NerfFieldFigures) -> String {
+        match &f.agreement_with_ground_truth {
+            Some(a) => format!(
+                "against ground truth in the flight band: IoU {:.3}, |SDF diff| mean {} m / p95 {} m",
+                a.band_iou,
+                a.band_mean_abs_diff.map_or("n/a".into(), |d| format!("{d:.3}")),
+                a.band_p95_abs_diff.map_or("n/a".into(), |d| format!("{d:.3}")),
+            ),
+            None => format!("built in {:.2} s", f.build_seconds),
+        }
+    }
+}
+
+/// Checks that the run's config is usable and turns it into the stages' inputs.
+pub fn scene_of(cfg: &RunConfig) -> Result<Scene, PipelineError> {
+    Ok(Scene::builtin(&cfg.scene)?)
+}

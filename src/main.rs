@@ -20,6 +20,10 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Most memory (GiB) one grid, network or batch may need; larger settings are refused
+    /// before anything is allocated. Default: NERFSV_MEMORY_BUDGET_GIB, else half the RAM.
+    #[arg(long, global = true, value_name = "GIB")]
+    memory_budget_gib: Option<f64>,
 }
 
 #[derive(Subcommand)]
@@ -44,6 +48,13 @@ fn main() -> ExitCode {
         std::env::set_var("MATMUL_NUM_THREADS", "1");
     }
     let cli = Cli::parse();
+    if let Some(gib) = cli.memory_budget_gib {
+        if let Err(e) = nerfsv_scene::validate::positive("--memory-budget-gib", gib) {
+            eprintln!("error: {e}");
+            return ExitCode::FAILURE;
+        }
+        nerfsv_scene::MemoryBudget::set((gib * (1u64 << 30) as f64) as u64);
+    }
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
         Command::Scene(a) => commands::scene::run(a),

@@ -168,7 +168,12 @@ fn values_that_would_exhaust_memory_are_refused_by_name() {
         &[("NERFSV_MEMORY_BUDGET_GIB", "2")],
     );
     assert!(!ok);
-    assert!(err.contains("cells-per-metre") && err.contains("memory budget"), "{err}");
+    assert!(err.contains("cells-per-metre") && err.contains("memory budget of 2.0 GiB"), "{err}");
+    assert!(!field.exists());
+    // The budget is the user's to set: 100 cells/m (≈ 1.3 GiB) fits 2 GiB but not 0.5 GiB.
+    let args = ["collision", "--scene", "monolith", "--cells-per-metre", "100", "--out", s(&field)];
+    let (ok, _, err) = nerfsv(&[&args[..], &["--memory-budget-gib", "0.5"]].concat());
+    assert!(!ok && err.contains("memory budget of 512.0 MiB"), "{err}");
     assert!(!field.exists());
 }
 

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use nerfsv_dataset::Split;
-use nerfsv_nerf::{evaluate, render_split, Budget, EvalOptions, Nerf};
+use nerfsv_nerf::{evaluate_with_progress, render_split, Budget, EvalOptions, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::{load_dataset_split, load_model, train_model, train_status, EvalFigures};
 use nerfsv_pipeline::{load_toml, refuse_output_inside, NerfSettings, Observer};
@@ -145,7 +145,11 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
 
 pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
     let (nerf, split) = args.input.load()?;
-    let report = evaluate(&nerf, &split, EvalOptions { max_images: args.max_images, ..EvalOptions::default() })?;
+    let reporter = Reporter::new(args.json);
+    let options = EvalOptions { max_images: args.max_images, ..EvalOptions::default() };
+    let report = evaluate_with_progress(&nerf, &split, options, &|done, total| {
+        reporter.progress("eval", done as u64, total as u64, "views evaluated")
+    })?;
     let human = || {
         format!(
             "{} images of {}: PSNR {:.2} dB, SSIM {:.4}, median depth error {}",

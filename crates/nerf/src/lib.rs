@@ -59,7 +59,7 @@ pub mod train;
 pub use config::{check_training_memory, training_memory_bytes, BackgroundMode, NerfConfig, TrainConfig};
 pub use error::NerfError;
 pub use fields::RayInput;
-pub use metrics::{evaluate, psnr, ssim, EvalOptions, EvalReport, ImageMetrics};
+pub use metrics::{evaluate, evaluate_with_progress, psnr, ssim, EvalOptions, EvalReport, ImageMetrics};
 pub use model::{Nerf, RayOutputs};
 pub use render::{comparison_image, render_split, RenderedView};
 pub use train::{

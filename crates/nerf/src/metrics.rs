@@ -114,6 +114,16 @@ impl Default for EvalOptions {
 /// truth. An empty split ([`NerfError::EmptySplit`]), `max_images = Some(0)` or an image smaller
 /// than SSIM's 11×11 window ([`NerfError::Invalid`]) is refused rather than reported as NaN.
 pub fn evaluate(nerf: &Nerf, split: &Split, opts: EvalOptions) -> Result<EvalReport, NerfError> {
+    evaluate_with_progress(nerf, split, opts, &|_, _| {})
+}
+
+/// [`evaluate`], calling `progress(done, total)` after each image.
+pub fn evaluate_with_progress(
+    nerf: &Nerf,
+    split: &Split,
+    opts: EvalOptions,
+    progress: &dyn Fn(usize, usize),
+) -> Result<EvalReport, NerfError> {
     if opts.max_images == Some(0) {
         return Err(InvalidValue::new("max_images", "must be at least 1", 0).into());
     }
@@ -161,6 +171,7 @@ pub fn evaluate(nerf: &Nerf, split: &Split, opts: EvalOptions) -> Result<EvalRep
             ssim: ssim(&v.rgb, &gt, v.width as usize, v.height as usize),
             depth_median_abs_err_m: depth_err,
         });
+        progress(i + 1, n);
     }
     let mean = |it: Vec<f64>| if it.is_empty() { None } else { Some(it.iter().sum::<f64>() / it.len() as f64) };
     Ok(EvalReport {

@@ -14,8 +14,8 @@ use crate::PipelineError;
 
 /// Default training length of `nerfsv run`.
 pub const DEFAULT_TRAIN_STEPS: u64 = 2000;
-/// Longest training `nerfsv run` accepts, in steps (about a week on two cores).
-pub const MAX_TRAIN_STEPS: u64 = 10_000_000;
+/// Longest training nerfsv accepts, in steps.
+pub use nerfsv_nerf::config::MAX_STEPS as MAX_TRAIN_STEPS;
 
 /// A configuration that can check its own values.
 pub trait Validate {

@@ -305,7 +305,9 @@ impl Stage for Eval {
     fn run(&self, cx: &StageContext) -> Result<EvalFigures, PipelineError> {
         let nerf = load_model(&Train::checkpoint(cx.root))?;
         let test = load_dataset_split(&cx.input_dir(Dataset::NAME), "test", 1)?;
-        let report = nerfsv_nerf::evaluate(&nerf, &test, EvalOptions::default())?;
+        let report = nerfsv_nerf::evaluate_with_progress(&nerf, &test, EvalOptions::default(), &|done, total| {
+            cx.progress(done as u64, total as u64, "test views evaluated")
+        })?;
         write_json(&cx.dir.join(Self::METRICS), &report)?;
         let shown = &test.frames[..test.frames.len().min(Self::SHOWN)];
         let image = nerfsv_nerf::comparison_image(&nerf, shown, Self::SCALE)?;

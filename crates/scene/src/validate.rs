@@ -117,7 +117,7 @@ impl MemoryBudget {
     /// Assumed physical memory where it cannot be read (`/proc/meminfo`).
     const FALLBACK_TOTAL: u64 = 8 << 30;
 
-    /// The budget in force: set by [`MemoryBudget::set`] (the `memory_budget_gib` config key),
+    /// The budget in force: set by [`MemoryBudget::set`] (the binary's `--memory-budget-gib`),
     /// else `NERFSV_MEMORY_BUDGET_GIB` from the environment, else half the physical memory.
     pub fn current() -> Self {
         let set = BUDGET.load(Ordering::Relaxed);
@@ -145,7 +145,7 @@ impl MemoryBudget {
             Err(InvalidValue::new(
                 field,
                 format!(
-                    "must fit the memory budget of {} (memory_budget_gib or NERFSV_MEMORY_BUDGET_GIB)",
+                    "must fit the memory budget of {} (set with --memory-budget-gib or NERFSV_MEMORY_BUDGET_GIB)",
                     human_bytes(self.bytes)
                 ),
                 format!("a value that needs about {}", human_bytes(bytes)),

@@ -1,35 +1,13 @@
 //! The `nerfsv` binary: bad input stops with a message naming what is wrong, exit code non-zero,
 //! and nothing half-written left behind.
 
-use std::process::Command;
+mod common;
 
-fn nerfsv(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_nerfsv")).args(args).output().expect("run nerfsv");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
-}
+use common::nerfsv;
 
-/// Writes a tiny 8×8 monolith dataset with `train` training views into `dir/ds`.
+/// A tiny dataset with `train` training views.
 fn tiny_dataset(dir: &std::path::Path, train: &str) -> std::path::PathBuf {
-    let ds = dir.join("ds");
-    let (ok, _, err) = nerfsv(&[
-        "scene",
-        "--scene",
-        "monolith",
-        "--out",
-        ds.to_str().unwrap(),
-        "--width",
-        "8",
-        "--height",
-        "8",
-        "--train",
-        train,
-        "--val",
-        "1",
-        "--test",
-        "1",
-    ]);
-    assert!(ok, "{err}");
-    ds
+    common::tiny_dataset(dir, train, "1")
 }
 
 #[test]

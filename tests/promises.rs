@@ -2,26 +2,12 @@
 //! files at any thread count, killed or not; nothing half-written survives; every bad value
 //! is refused by name; no command writes over its inputs.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-fn nerfsv_with(args: &[&str], env: &[(&str, &str)]) -> (bool, String, String) {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_nerfsv"));
-    cmd.args(args);
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let out = cmd.output().expect("run nerfsv");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
-}
-
-fn nerfsv(args: &[&str]) -> (bool, String, String) {
-    nerfsv_with(args, &[])
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf-8 path")
-}
+use common::{nerfsv, nerfsv_with, s};
 
 /// A tiny run config: 16×16 monolith, a few training steps, a coarse field.
 fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
@@ -179,27 +165,7 @@ fn values_that_would_exhaust_memory_are_refused_by_name() {
 
 /// An 8×8 monolith dataset and a 2-step model trained on it.
 fn tiny_model(dir: &Path) -> (PathBuf, PathBuf) {
-    let ds = dir.join("ds");
-    let (ok, _, err) = nerfsv(&[
-        "scene",
-        "--scene",
-        "monolith",
-        "--out",
-        s(&ds),
-        "--width",
-        "8",
-        "--height",
-        "8",
-        "--train",
-        "2",
-        "--val",
-        "1",
-        "--test",
-        "2",
-        "--supersample",
-        "1",
-    ]);
-    assert!(ok, "{err}");
+    let ds = common::tiny_dataset(dir, "2", "2");
     let nerf = dir.join("nerf");
     let (ok, _, err) = nerfsv(&["train", "--data", s(&ds), "--out", s(&nerf), "--steps", "2"]);
     assert!(ok, "{err}");

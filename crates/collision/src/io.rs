@@ -7,7 +7,7 @@
 //! |---|---|---|
 //! | `format` | `nerfsv-grid` | file type |
 //! | `format_version` | `1` | layout version |
-//! | `kind` | `sdf` | `field` (F32), `sdf` (F32, metres) or `occupancy` (U8, 0/1) |
+//! | `kind` | `sdf` | `field` (F32), `sdf` (F32, metres, finite) or `occupancy` (U8, 0/1) |
 //! | `origin` | `-1.9,-1.9,0` | node (0,0,0), metres |
 //! | `cell` | `0.025` | node spacing, metres |
 //! | `dims` | `153,153,49` | `nx,ny,nz` |
@@ -119,12 +119,18 @@ fn load_grid(path: &Path, kind: &'static str, dtype: Dtype) -> Result<(GridGeome
     let cell_s = field("cell")?;
     let cell: f32 = cell_s.trim().parse().map_err(|_| bad(path, "cell", cell_s, "a number"))?;
     let dims: [usize; 3] = parse_list(path, "dims", field("dims")?, "three comma-separated node counts nx,ny,nz")?;
-    let geometry = GridGeometry::new(Point3::from(origin), cell, dims).map_err(|e| CollisionError::BadField {
+    let geometry_error = |expected: String| CollisionError::BadField {
         path: p(),
         field: "dims/origin/cell",
         found: format!("origin {origin:?}, cell {cell}, dims {dims:?}"),
-        expected: e.to_string(),
-    })?;
+        expected,
+    };
+    let geometry = GridGeometry::new(Point3::from(origin), cell, dims).map_err(|e| geometry_error(e.to_string()))?;
+    // Each value may be finite while the far corner or the diagonal is not (cell 3e38 or 2e19
+    // over 4 nodes): queries would meet infinite coordinates, distances an infinite default.
+    if !geometry.diagonal().is_finite() {
+        return Err(geometry_error("a grid whose far corner origin + cell·(dims − 1) and diagonal are finite".into()));
+    }
     let view = st.tensor(kind).map_err(|_| CollisionError::MissingTensor {
         path: p(),
         name: kind,
@@ -196,10 +202,20 @@ impl SdfGrid {
         save_grid(path.as_ref(), "sdf", &self.geometry, Dtype::F32, &f32_bytes(&self.data))
     }
 
-    /// Load a file written by [`SdfGrid::save`].
+    /// Load a file written by [`SdfGrid::save`]; a NaN or infinite distance is an error.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, CollisionError> {
-        let (geometry, bytes) = load_grid(path.as_ref(), "sdf", Dtype::F32)?;
-        Ok(Self { geometry, data: f32_from_bytes(&bytes) })
+        let path = path.as_ref();
+        let (geometry, bytes) = load_grid(path, "sdf", Dtype::F32)?;
+        let data = f32_from_bytes(&bytes);
+        // Every query interpolates these: one NaN would silently poison a whole cell's answers.
+        if let Some(pos) = data.iter().position(|v| !v.is_finite()) {
+            return Err(CollisionError::BadTensor {
+                path: path.to_path_buf(),
+                name: "sdf",
+                problem: format!("value {} at flat index {pos}, expected a finite distance in metres", data[pos]),
+            });
+        }
+        Ok(Self { geometry, data })
     }
 
     /// Export as `.npy` (`<f4` metres, shape `(nz, ny, nx)`); the geometry is not stored, so
@@ -325,6 +341,37 @@ mod tests {
         let missing = dir.path().join("nope.safetensors");
         let msg = SdfGrid::load(&missing).unwrap_err().to_string();
         assert!(msg.contains("nope.safetensors"), "{msg}");
+    }
+
+    #[test]
+    fn loading_refuses_a_geometry_whose_far_corner_or_diagonal_is_infinite() {
+        // Found by the property tests (tests/fuzz.rs): each value is finite, the grid is not.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("grid.safetensors");
+        for cell in ["3e38", "18446744073709551615"] {
+            write_with_metadata(&path, "", Some(("cell", cell)));
+            let msg = SdfGrid::load(&path).unwrap_err().to_string();
+            assert!(msg.contains("grid.safetensors: metadata field \"dims/origin/cell\""), "{msg}");
+            assert!(msg.contains("diagonal are finite"), "{msg}");
+        }
+        write_with_metadata(&path, "", Some(("dims", "100000,100000,100000")));
+        let msg = SdfGrid::load(&path).unwrap_err().to_string();
+        assert!(msg.contains("grid.safetensors") && msg.contains("fewer than 2^32 - 1 nodes"), "{msg}");
+    }
+
+    #[test]
+    fn loading_an_sdf_refuses_a_non_finite_distance_naming_its_index() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sdf.safetensors");
+        let mut sdf = sample_sdf();
+        sdf.data[7] = f32::NAN;
+        sdf.save(&path).unwrap();
+        let msg = SdfGrid::load(&path).unwrap_err().to_string();
+        assert!(msg.contains("sdf.safetensors: tensor \"sdf\": value NaN at flat index 7"), "{msg}");
+        // A field may hold any float (a density can overflow): it loads.
+        let field = ScalarGrid { geometry: sdf.geometry, data: sdf.data.clone() };
+        field.save(&path).unwrap();
+        assert!(ScalarGrid::load(&path).unwrap().data[7].is_nan());
     }
 
     #[test]

@@ -3,6 +3,8 @@
 use std::io::{BufReader, Write};
 use std::path::Path;
 
+use nerfsv_scene::validate::{bytes_for, MemoryBudget};
+
 /// A straight (not premultiplied) RGBA image, `rgba: [height, width, 4]` in `[0, 1]`,
 /// row-major from the top row.
 #[derive(Clone, Debug, PartialEq)]
@@ -37,7 +39,9 @@ impl Image {
         let mut decoder = png::Decoder::new(BufReader::new(file));
         decoder.set_transformations(png::Transformations::EXPAND);
         let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
-        let mut buf = vec![0; reader.output_buffer_size().ok_or("image too large")?];
+        let size = reader.output_buffer_size().ok_or("image too large")?;
+        check_decoded_size(reader.info(), size, 16)?;
+        let mut buf = vec![0; size];
         let info = reader.next_frame(&mut buf).map_err(|e| format!("cannot decode PNG: {e}"))?;
         let (w, h) = (info.width, info.height);
         let channels = info.color_type.samples();
@@ -109,7 +113,9 @@ impl DepthImage {
         let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
         let decoder = png::Decoder::new(BufReader::new(file));
         let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
-        let mut buf = vec![0; reader.output_buffer_size().ok_or("image too large")?];
+        let size = reader.output_buffer_size().ok_or("image too large")?;
+        check_decoded_size(reader.info(), size, 4)?;
+        let mut buf = vec![0; size];
         let info = reader.next_frame(&mut buf).map_err(|e| format!("cannot decode PNG: {e}"))?;
         if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
             return Err(format!(
@@ -158,6 +164,17 @@ impl DepthImage {
         }
         Self { width: w, height: h, metres }
     }
+}
+
+/// Refuses a PNG whose decoded samples (`buffer` bytes) and result (`per_pixel` bytes a pixel)
+/// would not fit the memory budget, before either is allocated: the header's size is the
+/// file's claim, and a few KiB of deflate can claim gigabytes.
+fn check_decoded_size(info: &png::Info, buffer: usize, per_pixel: u64) -> Result<(), String> {
+    let pixels = info.width as u64 * info.height as u64;
+    let bytes = (buffer as u64).saturating_add(bytes_for(pixels, per_pixel));
+    MemoryBudget::current()
+        .check(&format!("image of {}×{} pixels", info.width, info.height), bytes)
+        .map_err(|e| e.to_string())
 }
 
 fn write_png_bytes<W: Write>(

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Matrix4;
-use nerfsv_scene::validate::InvalidValue;
+use nerfsv_scene::validate::{bytes_for, InvalidValue, MemoryBudget};
 use nerfsv_scene::{Camera, Intrinsics};
 use rayon::prelude::*;
 use serde_json::{Map, Value};
@@ -78,7 +78,12 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     let ctx = Ctx { path: &path, base: path.parent().unwrap_or(Path::new(".")) };
     let root = root.as_object().ok_or_else(|| ctx.field(None, "(root)", "expected a JSON object"))?;
     let top = ctx.partial_intrinsics(None, root)?;
-    let depth_scale = ctx.opt_f32(None, root, "depth_unit_scale_factor")?.unwrap_or(1e-3);
+    let depth_scale = match ctx.opt_f32(None, root, "depth_unit_scale_factor")? {
+        Some(x) if x <= 0.0 => {
+            return Err(ctx.field(None, "depth_unit_scale_factor", format!("must be positive, found {x}")))
+        }
+        other => other.unwrap_or(1e-3),
+    };
     let aabb_scale = ctx.opt_f32(None, root, "aabb_scale")?;
     let frames = root
         .get("frames")
@@ -98,6 +103,7 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     }
     let selected: Vec<(usize, &Value)> =
         frames.iter().enumerate().filter(|(i, _)| keep.as_ref().is_none_or(|k| k(*i))).collect();
+    ctx.check_held_bytes(&selected, opts)?;
     let frames = selected.par_iter().map(|&(i, v)| ctx.frame(i, v, &top, depth_scale, opts)).collect::<Vec<_>>();
     // Report the first failure in frame order, whichever thread met it first.
     let frames = frames.into_iter().collect::<Result<Vec<_>, _>>()?;
@@ -145,9 +151,10 @@ impl Ctx<'_> {
     fn opt_f32(&self, frame: Option<usize>, obj: &Map<String, Value>, key: &str) -> Result<Option<f32>, DatasetError> {
         match obj.get(key) {
             None | Some(Value::Null) => Ok(None),
-            Some(v) => match v.as_f64() {
-                Some(x) if x.is_finite() => Ok(Some(x as f32)),
-                _ => Err(self.field(frame, key, format!("expected a finite number, found {v}"))),
+            // Finite as an f32: 1e300 is a finite f64 but an infinite f32.
+            Some(v) => match v.as_f64().map(|x| x as f32) {
+                Some(x) if x.is_finite() => Ok(Some(x)),
+                _ => Err(self.field(frame, key, format!("expected a finite 32-bit number, found {v}"))),
             },
         }
     }
@@ -163,6 +170,14 @@ impl Ctx<'_> {
                 other => Ok(other),
             }
         };
+        let angle = |key: &str| -> Result<Option<f32>, DatasetError> {
+            match positive(key)? {
+                Some(a) if a >= std::f32::consts::PI => {
+                    Err(self.field(frame, key, format!("must be below π radians, found {a}")))
+                }
+                other => Ok(other),
+            }
+        };
         Ok(PartialIntrinsics {
             w: positive("w")?,
             h: positive("h")?,
@@ -170,8 +185,8 @@ impl Ctx<'_> {
             fl_y: positive("fl_y")?,
             cx: self.opt_f32(frame, obj, "cx")?,
             cy: self.opt_f32(frame, obj, "cy")?,
-            angle_x: positive("camera_angle_x")?,
-            angle_y: positive("camera_angle_y")?,
+            angle_x: angle("camera_angle_x")?,
+            angle_y: angle("camera_angle_y")?,
         })
     }
 
@@ -255,13 +270,13 @@ impl Ctx<'_> {
                 return Err(self.field(Some(i), field, format!("row {r} has {} columns, expected 4", row.len())));
             }
             for (c, x) in row.iter().enumerate() {
-                match x.as_f64() {
-                    Some(x) if x.is_finite() => m[(r, c)] = x as f32,
+                match x.as_f64().map(|x| x as f32) {
+                    Some(x) if x.is_finite() => m[(r, c)] = x,
                     _ => {
                         return Err(self.field(
                             Some(i),
                             field,
-                            format!("entry [{r}][{c}] is {x}, expected a finite number"),
+                            format!("entry [{r}][{c}] is {x}, expected a finite 32-bit number"),
                         ))
                     }
                 }
@@ -269,7 +284,8 @@ impl Ctx<'_> {
         }
         let rot = m.fixed_view::<3, 3>(0, 0);
         let ortho = (rot.transpose() * rot - nalgebra::Matrix3::identity()).abs().max();
-        if ortho > 1e-2 {
+        // A NaN (from overflowing products) is refused too.
+        if ortho.is_nan() || ortho > 1e-2 {
             return Err(self.field(Some(i), field, "rotation part is not orthonormal (scaled or sheared pose)"));
         }
         Ok(m)
@@ -278,36 +294,74 @@ impl Ctx<'_> {
     fn intrinsics(&self, i: usize, k: &PartialIntrinsics, img_w: u32, img_h: u32) -> Result<Intrinsics, DatasetError> {
         let width = k.w.map_or(img_w, |w| w.round() as u32);
         let height = k.h.map_or(img_h, |h| h.round() as u32);
-        let fx = match (k.fl_x, k.angle_x) {
-            (Some(f), _) => f,
-            (None, Some(a)) => 0.5 * width as f32 / (0.5 * a).tan(),
+        // Each focal length with the key it came from, for the error.
+        let (fx, fx_key) = match (k.fl_x, k.angle_x) {
+            (Some(f), _) => (f, "fl_x"),
+            (None, Some(a)) => (0.5 * width as f32 / (0.5 * a).tan(), "camera_angle_x"),
             (None, None) => match (k.fl_y, k.angle_y) {
-                (Some(f), _) => f,
-                (None, Some(a)) => 0.5 * height as f32 / (0.5 * a).tan(),
+                (Some(f), _) => (f, "fl_y"),
+                (None, Some(a)) => (0.5 * height as f32 / (0.5 * a).tan(), "camera_angle_y"),
                 (None, None) => return Err(self.field(Some(i), "camera_angle_x", "missing (and no fl_x/fl_y given)")),
             },
         };
-        let fy = match (k.fl_y, k.angle_y) {
-            (Some(f), _) => f,
-            (None, Some(a)) => 0.5 * height as f32 / (0.5 * a).tan(),
-            (None, None) => fx,
+        let (fy, fy_key) = match (k.fl_y, k.angle_y) {
+            (Some(f), _) => (f, "fl_y"),
+            (None, Some(a)) => (0.5 * height as f32 / (0.5 * a).tan(), "camera_angle_y"),
+            (None, None) => (fx, fx_key),
         };
-        Ok(Intrinsics {
-            width,
-            height,
-            fx,
-            fy,
-            cx: k.cx.unwrap_or(0.5 * width as f32),
-            cy: k.cy.unwrap_or(0.5 * height as f32),
-        })
+        let (cx, cy) = (k.cx.unwrap_or(0.5 * width as f32), k.cy.unwrap_or(0.5 * height as f32));
+        // Every pixel ray must be a finite direction: the image edges at most 10^6 focal
+        // lengths off the optical axis (89.99994°).
+        for (key, f, c_key, c, size) in [(fx_key, fx, "cx", cx, width), (fy_key, fy, "cy", cy, height)] {
+            if !(f.is_finite() && f > 0.0) {
+                return Err(self.field(
+                    Some(i),
+                    key,
+                    format!("gives a focal length of {f} pixels, expected a positive number"),
+                ));
+            }
+            let off_axis = c.abs().max((size as f32 - c).abs()) / f;
+            if off_axis.is_nan() || off_axis > 1e6 {
+                return Err(self.field(
+                    Some(i),
+                    &format!("{key}/{c_key}"),
+                    format!(
+                        "gives a focal length of {f} pixels with the principal point at {c}: the image edge lies \
+                         {off_axis:e} focal lengths off the optical axis, expected at most 1e6"
+                    ),
+                ));
+            }
+        }
+        Ok(Intrinsics { width, height, fx, fy, cx, cy })
+    }
+
+    /// Refuses a split whose decoded images (RGBA `f32`, plus `f32` depth where read) would
+    /// not fit the memory budget, from the PNG headers, before any image is decoded: each
+    /// image alone may fit while all of them, held at once, do not.
+    fn check_held_bytes(&self, frames: &[(usize, &Value)], opts: LoadOptions) -> Result<(), DatasetError> {
+        let held = frames
+            .iter()
+            .filter_map(|(_, v)| {
+                let (w, h) = png_size(&resolve_image(self.base, v.get("file_path")?.as_str()?))?;
+                let depth = opts.load_depth && v.get("depth_file_path").and_then(Value::as_str).is_some();
+                Some(bytes_for(w as u64 * h as u64, if depth { 20 } else { 16 }))
+            })
+            .fold(0, u64::saturating_add);
+        MemoryBudget::current()
+            .check("frames", held)
+            .map_err(|e| self.field(None, "frames", format!("decoded images {}, found {}", e.expected, e.found)))
     }
 }
 
 /// The size of frame 0's image from its PNG header, if it can be read (errors surface later,
 /// with their frame, when the frame itself is loaded).
 fn first_image_size(ctx: &Ctx, frame: &Value) -> Option<(u32, u32)> {
-    let file_path = frame.get("file_path")?.as_str()?;
-    let file = std::fs::File::open(resolve_image(ctx.base, file_path)).ok()?;
+    png_size(&resolve_image(ctx.base, frame.get("file_path")?.as_str()?))
+}
+
+/// Width and height from a PNG's header, if it can be read.
+fn png_size(path: &Path) -> Option<(u32, u32)> {
+    let file = std::fs::File::open(path).ok()?;
     let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().ok()?;
     let info = reader.info();
     Some((info.width, info.height))

@@ -15,21 +15,10 @@ use std::sync::OnceLock;
 use nerfsv_dataset::{generate, load_split, DatasetError, DepthImage, GenerateOptions, Image, LoadOptions, Split};
 use nerfsv_scene::validate::MemoryBudget;
 use nerfsv_scene::Scene;
+use nerfsv_testkit::{config, flip, flips, garbage, truncate};
 use proptest::prelude::*;
 use proptest::sample::Index;
-use proptest::test_runner::RngSeed;
 use serde_json::Value;
-
-/// A fixed-seed config that writes no failure-persistence files into the repository.
-fn config(cases: u32) -> ProptestConfig {
-    ProptestConfig {
-        cases,
-        failure_persistence: None,
-        rng_seed: RngSeed::Fixed(0x6e65_7266_7376),
-        max_shrink_iters: 512,
-        ..ProptestConfig::default()
-    }
-}
 
 /// A budget far below any machine's, so that a crafted size is refused the same way everywhere
 /// (the valid tiny dataset needs a few KiB).
@@ -212,9 +201,9 @@ enum ByteEdit {
 fn byte_edit() -> impl Strategy<Value = ByteEdit> {
     prop_oneof![
         any::<Index>().prop_map(ByteEdit::Truncate),
-        proptest::collection::vec((any::<Index>(), 1..=255u8), 1..8).prop_map(ByteEdit::Flip),
+        flips(8).prop_map(ByteEdit::Flip),
         (any::<Index>(), proptest::collection::vec(any::<u8>(), 1..16)).prop_map(|(i, b)| ByteEdit::Splice(i, b)),
-        proptest::collection::vec(any::<u8>(), 0..64).prop_map(ByteEdit::Garbage),
+        garbage().prop_map(ByteEdit::Garbage),
         Just(ByteEdit::Delete),
     ]
 }
@@ -387,15 +376,8 @@ fn apply_json(text: &[u8], edits: &[JsonEdit]) -> Vec<u8> {
 fn apply_bytes(bytes: &[u8], edit: &ByteEdit) -> Option<Vec<u8>> {
     let mut b = bytes.to_vec();
     match edit {
-        ByteEdit::Truncate(i) => b.truncate(i.index(b.len().max(1))),
-        ByteEdit::Flip(flips) => {
-            for (i, mask) in flips {
-                if !b.is_empty() {
-                    let k = i.index(b.len());
-                    b[k] ^= mask;
-                }
-            }
-        }
+        ByteEdit::Truncate(i) => truncate(&mut b, i),
+        ByteEdit::Flip(f) => flip(&mut b, f),
         ByteEdit::Splice(i, new) => {
             let at = i.index(b.len().max(1));
             for (k, &x) in new.iter().enumerate() {

@@ -11,31 +11,21 @@
 //!
 //! Deterministic: a fixed seed, no persistence files.
 
-use std::collections::HashMap;
-use std::path::Path;
 use std::sync::OnceLock;
 
 use nerfsv_nerf::checkpoint::{self, read, TrainingState};
 use nerfsv_nerf::config::{MAX_BATCH_RAYS, MAX_STEPS};
 use nerfsv_nerf::fields::{NgpField, TENSOR_NAMES};
 use nerfsv_nerf::optim::Adam;
-use nerfsv_nerf::{Nerf, NerfConfig, NerfError, TrainConfig, TrainStats};
+use nerfsv_nerf::{Nerf, NerfConfig, TrainConfig, TrainStats};
 use nerfsv_scene::validate::MemoryBudget;
+use nerfsv_testkit::{
+    check_error_names_file, config, f32_bits, mutated, mutation, retype, set_meta, HeaderEdit, Mutation, Parts,
+};
 use proptest::prelude::*;
 use proptest::sample::Index;
-use proptest::test_runner::RngSeed;
-use safetensors::tensor::{Dtype, TensorView};
+use safetensors::tensor::Dtype;
 use serde_json::Value;
-
-fn config(cases: u32) -> ProptestConfig {
-    ProptestConfig {
-        cases,
-        failure_persistence: None,
-        rng_seed: RngSeed::Fixed(0x6e65_7266_7376),
-        max_shrink_iters: 512,
-        ..ProptestConfig::default()
-    }
-}
 
 /// Far below any machine's memory, so that a crafted size is refused the same way everywhere
 /// (the tiny model needs well under 1 MiB).
@@ -269,18 +259,7 @@ enum Edit {
 }
 
 fn edit() -> impl Strategy<Value = Edit> {
-    let bits = prop_oneof![
-        proptest::sample::select(vec![
-            f32::NAN.to_bits(),
-            f32::INFINITY.to_bits(),
-            f32::NEG_INFINITY.to_bits(),
-            f32::MAX.to_bits(),
-            1,
-            0x7fc0_0001,
-            0xffff_ffff,
-        ]),
-        any::<u32>(),
-    ];
+    let bits = f32_bits(&[1, 0x7fc0_0001, 0xffff_ffff]);
     prop_oneof![
         3 => (meta_key(), meta_value()).prop_map(|(k, v)| Edit::SetMeta(k, v)),
         1 => meta_key().prop_map(Edit::RemoveMeta),
@@ -299,15 +278,6 @@ fn edit() -> impl Strategy<Value = Edit> {
         )
             .prop_map(|(k, v)| Edit::Regrow(k, v)),
     ]
-}
-
-#[derive(Clone, Debug)]
-enum HeaderEdit {
-    /// Sets a tensor's `dtype`, `shape` or `data_offsets` (or the header length prefix) to raw
-    /// JSON, without touching the data.
-    SetTensorField(Index, &'static str, String),
-    /// A new header length prefix.
-    Length(u64),
 }
 
 fn header_edit() -> impl Strategy<Value = HeaderEdit> {
@@ -335,75 +305,20 @@ fn header_edit() -> impl Strategy<Value = HeaderEdit> {
         raw_json(),
     ];
     prop_oneof![
-        8 => (any::<Index>(), field, value).prop_map(|(t, f, v)| HeaderEdit::SetTensorField(t, f, v)),
+        8 => (any::<Index>(), field, value).prop_map(|(t, f, v)| HeaderEdit::SetTensorField(Some(t), f, v)),
         1 => prop_oneof![0..200_000u64, any::<u64>()].prop_map(HeaderEdit::Length),
     ]
 }
 
-#[derive(Clone, Debug)]
-enum ByteEdit {
-    Truncate(Index),
-    Flip(Vec<(Index, u8)>),
-    Garbage(Vec<u8>),
-}
-
-fn byte_edit() -> impl Strategy<Value = ByteEdit> {
-    prop_oneof![
-        any::<Index>().prop_map(ByteEdit::Truncate),
-        proptest::collection::vec((any::<Index>(), 1..=255u8), 1..8).prop_map(ByteEdit::Flip),
-        proptest::collection::vec(any::<u8>(), 0..64).prop_map(ByteEdit::Garbage),
-    ]
-}
-
-#[derive(Clone, Debug)]
-enum Mutation {
-    Consistent(Vec<Edit>),
-    Header(Vec<HeaderEdit>),
-    Bytes(ByteEdit),
-}
-
-fn mutation() -> impl Strategy<Value = Mutation> {
-    prop_oneof![
-        7 => proptest::collection::vec(edit(), 1..4).prop_map(Mutation::Consistent),
-        2 => proptest::collection::vec(header_edit(), 1..3).prop_map(Mutation::Header),
-        1 => byte_edit().prop_map(Mutation::Bytes),
-    ]
-}
-
-/// A safetensors file as editable parts.
-struct Parts {
-    meta: Vec<(String, String)>,
-    tensors: Vec<(String, Dtype, Vec<usize>, Vec<u8>)>,
-}
-
-fn parts(bytes: &[u8]) -> Parts {
-    let st = safetensors::SafeTensors::deserialize(bytes).unwrap();
-    let (_, md) = safetensors::SafeTensors::read_metadata(bytes).unwrap();
-    let mut meta: Vec<(String, String)> = md.metadata().clone().unwrap().into_iter().collect();
-    meta.sort();
-    let mut tensors: Vec<_> =
-        st.tensors().into_iter().map(|(n, v)| (n, v.dtype(), v.shape().to_vec(), v.data().to_vec())).collect();
-    tensors.sort_by(|a, b| a.0.cmp(&b.0));
-    Parts { meta, tensors }
-}
-
-fn serialize(p: &Parts) -> Vec<u8> {
-    let views: Vec<(String, TensorView)> = p
-        .tensors
-        .iter()
-        .map(|(n, d, s, b)| (n.clone(), TensorView::new(*d, s.clone(), b).expect("consistent tensor")))
-        .collect();
-    let meta: HashMap<String, String> = p.meta.iter().cloned().collect();
-    safetensors::serialize(views, Some(meta)).unwrap()
+/// Mostly consistent edits, header edits more often than bytes.
+fn checkpoint_mutation() -> impl Strategy<Value = Mutation<Edit>> {
+    mutation([7, 2, 1], edit(), header_edit())
 }
 
 fn apply_edit(p: &mut Parts, e: &Edit) {
     let n_tensors = p.tensors.len();
     match e {
-        Edit::SetMeta(k, v) => match p.meta.iter_mut().find(|(key, _)| key == k) {
-            Some(slot) => slot.1 = v.clone(),
-            None => p.meta.push((k.to_string(), v.clone())),
-        },
+        Edit::SetMeta(k, v) => set_meta(p, k, v.clone()),
         Edit::RemoveMeta(k) => p.meta.retain(|(key, _)| key != k),
         Edit::SetJsonField((entry, field), raw) => {
             let Some(slot) = p.meta.iter_mut().find(|(key, _)| key == entry).map(|(_, v)| v) else { return };
@@ -433,14 +348,7 @@ fn apply_edit(p: &mut Parts, e: &Edit) {
                 p.tensors.remove(b);
             }
         }
-        Edit::Retype(t, d) => {
-            let (_, dtype, shape, bytes) = &mut p.tensors[t.index(n_tensors)];
-            let size = d.bitsize() / 8;
-            if size > 0 && bytes.len().is_multiple_of(size) {
-                *dtype = *d;
-                *shape = vec![bytes.len() / size];
-            }
-        }
+        Edit::Retype(t, d) => retype(&mut p.tensors[t.index(n_tensors)], *d),
         Edit::Reshape(t, s) => {
             let (_, dtype, shape, bytes) = &mut p.tensors[t.index(n_tensors)];
             let n: usize = s.iter().product();
@@ -487,67 +395,6 @@ fn apply_edit(p: &mut Parts, e: &Edit) {
     }
 }
 
-fn apply_header(bytes: &[u8], edits: &[HeaderEdit]) -> Vec<u8> {
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-    let mut header: serde_json::Map<String, Value> = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
-    let data = &bytes[8 + n..];
-    let mut length = None;
-    let mut raws = Vec::new();
-    for e in edits {
-        match e {
-            HeaderEdit::SetTensorField(t, field, raw) => {
-                let names: Vec<String> = header.keys().filter(|k| *k != "__metadata__").cloned().collect();
-                let name = t.get(&names);
-                header[name][*field] = Value::String(format!("\u{1}RAW{}", raws.len()));
-                raws.push(raw.clone());
-            }
-            HeaderEdit::Length(l) => length = Some(*l),
-        }
-    }
-    let mut text = serde_json::to_string(&header).unwrap();
-    for (k, raw) in raws.iter().enumerate() {
-        text = text.replace(&format!("\"\\u0001RAW{k}\""), raw);
-    }
-    let mut out = length.unwrap_or(text.len() as u64).to_le_bytes().to_vec();
-    out.extend_from_slice(text.as_bytes());
-    out.extend_from_slice(data);
-    out
-}
-
-fn apply_bytes(bytes: &[u8], e: &ByteEdit) -> Vec<u8> {
-    let mut b = bytes.to_vec();
-    if b.is_empty() {
-        return b;
-    }
-    match e {
-        ByteEdit::Truncate(i) => b.truncate(i.index(b.len())),
-        ByteEdit::Flip(flips) => {
-            for (i, mask) in flips {
-                let k = i.index(b.len());
-                b[k] ^= mask;
-            }
-        }
-        ByteEdit::Garbage(g) => b = g.clone(),
-    }
-    b
-}
-
-fn mutated(original: &[u8], m: &Mutation) -> Vec<u8> {
-    match m {
-        Mutation::Consistent(edits) => {
-            let mut p = parts(original);
-            for e in edits {
-                if !p.tensors.is_empty() {
-                    apply_edit(&mut p, e);
-                }
-            }
-            serialize(&p)
-        }
-        Mutation::Header(edits) => apply_header(original, edits),
-        Mutation::Bytes(e) => apply_bytes(original, e),
-    }
-}
-
 // ---------------------------------------------------------------- properties
 
 /// A loaded model is usable: its config valid, every array of the size the config gives and
@@ -580,13 +427,6 @@ fn check_checkpoint(c: &checkpoint::Checkpoint, need_optimizer: bool) -> Result<
     Ok(())
 }
 
-fn check_error(e: &NerfError, path: &Path) -> Result<(), TestCaseError> {
-    let msg = e.to_string();
-    prop_assert!(!msg.trim().is_empty());
-    prop_assert!(msg.contains(&*path.to_string_lossy()), "the error names no file: {msg}");
-    Ok(())
-}
-
 /// Reads `bytes` every way a checkpoint is read.
 fn check_all_readers(bytes: &[u8]) -> Result<(), TestCaseError> {
     MemoryBudget::set(BUDGET);
@@ -596,12 +436,12 @@ fn check_all_readers(bytes: &[u8]) -> Result<(), TestCaseError> {
     for need_optimizer in [false, true] {
         match read(&path, need_optimizer) {
             Ok(c) => check_checkpoint(&c, need_optimizer)?,
-            Err(e) => check_error(&e, &path)?,
+            Err(e) => check_error_names_file(&e, &path)?,
         }
     }
     match Nerf::load(&path) {
         Ok(n) => prop_assert!(n.config.validate().is_ok() && n.params.len() == n.field.n_params),
-        Err(e) => check_error(&e, &path)?,
+        Err(e) => check_error_names_file(&e, &path)?,
     }
     Ok(())
 }
@@ -625,16 +465,8 @@ proptest! {
     #[test]
     fn mutated_checkpoints_err_naming_the_file_or_load_valid(
         training in any::<bool>(),
-        mutations in proptest::collection::vec(mutation(), 1..3),
+        mutations in proptest::collection::vec(checkpoint_mutation(), 1..3),
     ) {
-        let mut bytes = fixtures()[training as usize].clone();
-        for m in &mutations {
-            // Edits after the first apply to a still-parseable file only.
-            if safetensors::SafeTensors::deserialize(&bytes).is_err() && !matches!(m, Mutation::Bytes(_)) {
-                continue;
-            }
-            bytes = mutated(&bytes, m);
-        }
-        check_all_readers(&bytes)?;
+        check_all_readers(&mutated(&fixtures()[training as usize], &mutations, apply_edit))?;
     }
 }

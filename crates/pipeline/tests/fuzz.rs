@@ -9,26 +9,14 @@
 //!
 //! Deterministic: a fixed seed, no persistence files.
 
-use std::path::Path;
-
-use nerfsv_pipeline::{load_toml, NerfSettings, PipelineError, RunConfig, Validate};
+use nerfsv_pipeline::{load_toml, NerfSettings, RunConfig, Validate};
 use nerfsv_scene::validate::MemoryBudget;
+use nerfsv_testkit::{check_error_names_file, config, flip, flips, garbage, truncate};
 use proptest::prelude::*;
 use proptest::sample::Index;
-use proptest::test_runner::RngSeed;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 use toml::Value;
-
-fn config(cases: u32) -> ProptestConfig {
-    ProptestConfig {
-        cases,
-        failure_persistence: None,
-        rng_seed: RngSeed::Fixed(0x6e65_7266_7376),
-        max_shrink_iters: 512,
-        ..ProptestConfig::default()
-    }
-}
 
 /// The same budget on every machine (the defaults need well under it).
 const BUDGET: u64 = 4 << 30;
@@ -177,9 +165,9 @@ fn byte_edit() -> impl Strategy<Value = ByteEdit> {
     ];
     prop_oneof![
         any::<Index>().prop_map(ByteEdit::Truncate),
-        proptest::collection::vec((any::<Index>(), 1..=255u8), 1..6).prop_map(ByteEdit::Flip),
+        flips(6).prop_map(ByteEdit::Flip),
         (any::<Index>(), snippet).prop_map(|(i, s)| ByteEdit::Splice(i, s)),
-        proptest::collection::vec(any::<u8>(), 0..64).prop_map(ByteEdit::Garbage),
+        garbage().prop_map(ByteEdit::Garbage),
     ]
 }
 
@@ -284,15 +272,8 @@ fn apply_tree(text: &str, edits: &[Edit]) -> String {
 fn apply_bytes(text: &[u8], e: &ByteEdit) -> Vec<u8> {
     let mut b = text.to_vec();
     match e {
-        ByteEdit::Truncate(i) => b.truncate(i.index(b.len().max(1))),
-        ByteEdit::Flip(flips) => {
-            for (i, mask) in flips {
-                if !b.is_empty() {
-                    let k = i.index(b.len());
-                    b[k] ^= mask;
-                }
-            }
-        }
+        ByteEdit::Truncate(i) => truncate(&mut b, i),
+        ByteEdit::Flip(f) => flip(&mut b, f),
         ByteEdit::Splice(i, s) => {
             let at = i.index(b.len().max(1)).min(b.len());
             b.splice(at..(at + s.len()).min(b.len()), s.bytes());
@@ -311,13 +292,6 @@ fn mutated(original: &str, m: &Mutation) -> Vec<u8> {
 }
 
 // ---------------------------------------------------------------- properties
-
-fn check_error(e: &PipelineError, path: &Path) -> Result<(), TestCaseError> {
-    let msg = e.to_string();
-    prop_assert!(!msg.trim().is_empty());
-    prop_assert!(msg.contains(&*path.to_string_lossy()), "the error names no file: {msg}");
-    Ok(())
-}
 
 /// Loads `bytes` as a `T` config: an error naming the file, or a valid config that saves to
 /// TOML and loads back the same.
@@ -338,7 +312,7 @@ where
             let back = load_toml::<T>(&again).map_err(|e| TestCaseError::fail(format!("{e}\n{text}")))?;
             prop_assert_eq!(serde_json::to_value(&back).unwrap(), serde_json::to_value(&cfg).unwrap());
         }
-        Err(e) => check_error(&e, &path)?,
+        Err(e) => check_error_names_file(&e, &path)?,
     }
     Ok(())
 }

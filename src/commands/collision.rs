@@ -2,8 +2,9 @@ use std::path::PathBuf;
 
 use clap::Args;
 use nerfsv_collision::{check_cells_per_metre, check_grid_memory, field_bounds, scene_field, GridGeometry};
+use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::refuse_output_inside;
-use nerfsv_pipeline::stages::{build_ground_truth, build_nerf_field, load_model};
+use nerfsv_pipeline::stages::{build_ground_truth, build_nerf_field};
 use nerfsv_scene::{Aabb, Scene};
 
 #[derive(Args)]
@@ -47,25 +48,16 @@ pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
             for out in std::iter::once(args.out.as_path()).chain(mesh) {
                 refuse_output_inside(out, &[("--model", model)])?;
             }
-            let nerf = load_model(model)?;
+            let nerf = Nerf::load(model)?;
             // With a scene: on the ground truth's grid, compared with it; else over the model's box.
-            let reference = match args.scene.as_deref() {
-                Some(name) => {
-                    let scene = Scene::builtin(name)?;
-                    let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), args.cells_per_metre)?;
-                    check_grid_memory("--cells-per-metre", &geometry)?;
-                    Some(scene_field(&scene, geometry).1)
-                }
-                None => None,
+            let scene = args.scene.as_deref().map(Scene::builtin).transpose()?;
+            let bounds = match &scene {
+                Some(scene) => field_bounds(&scene.bounds()),
+                None => Aabb::new(nerf.config.aabb_min.into(), nerf.config.aabb_max.into()),
             };
-            let geometry = match &reference {
-                Some(gt) => gt.geometry,
-                None => {
-                    let c = &nerf.config;
-                    GridGeometry::covering(&Aabb::new(c.aabb_min.into(), c.aabb_max.into()), args.cells_per_metre)?
-                }
-            };
+            let geometry = GridGeometry::covering(&bounds, args.cells_per_metre)?;
             check_grid_memory("--cells-per-metre", &geometry)?;
+            let reference = scene.map(|scene| scene_field(&scene, geometry).1);
             let figures =
                 build_nerf_field(&nerf, geometry, args.density_threshold, reference.as_ref(), &args.out, mesh)?;
             serde_json::to_value(figures)?

@@ -7,7 +7,7 @@ use clap::Args;
 use nerfsv_dataset::Split;
 use nerfsv_nerf::{evaluate_with_progress, render_split, Budget, EvalOptions, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
-use nerfsv_pipeline::stages::{load_dataset_split, load_model, train_model, train_status, EvalFigures};
+use nerfsv_pipeline::stages::{load_dataset_split, train_status, EvalFigures};
 use nerfsv_pipeline::{load_toml, refuse_output_inside, NerfSettings, Observer};
 use nerfsv_scene::validate::{in_range, positive};
 
@@ -64,7 +64,7 @@ pub struct ModelOnData {
 impl ModelOnData {
     /// Loads the model and the split, and checks that the split's cameras see the model's box.
     fn load(&self) -> anyhow::Result<(Nerf, Split)> {
-        let nerf = load_model(&self.model)?;
+        let nerf = Nerf::load(&self.model)?;
         let split = load_dataset_split(&self.data, &self.split, self.downscale)?;
         nerfsv_nerf::check_bounds(&nerf.config, &split)?;
         Ok((nerf, split))
@@ -126,7 +126,7 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         };
         reporter.progress("training", done, total, &train_status(p));
     };
-    let trained = train_model(&data, &args.out, budget, args.resume, &s, &mut show);
+    let trained = nerfsv_nerf::train(&data, &args.out, budget, args.resume, s.nerf, s.train, &mut show);
     if trained.is_err() && created {
         // Nothing of a failed training is kept in a folder it created (a divergence keeps the
         // checkpoint it had written, so the folder is removed only if it holds nothing else).

@@ -147,7 +147,7 @@ impl Trainer {
         let timing = std::fs::read_to_string(train_stats_path(path))
             .ok()
             .and_then(|t| serde_json::from_str::<TrainStats>(&t).ok())
-            .filter(|t| t.steps == ck.step && t.validate(ck.step).is_ok());
+            .filter(|t| t.validate(ck.step).is_ok());
         if let Some(t) = timing {
             stats = TrainStats {
                 seconds: t.seconds,

@@ -153,7 +153,7 @@ impl Serialize for StageFigures {
 /// Runs the whole pipeline of `cfg` into `cfg.out` and writes `summary.json`.
 pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, PipelineError> {
     cfg.validate()?;
-    let scene = stages::scene_of(cfg)?;
+    let scene = nerfsv_scene::Scene::builtin(&cfg.scene)?;
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(&cfg.out, observer)?;
     r.run(&stages::Dataset { scene: &scene, options: &cfg.dataset })?;
@@ -162,7 +162,7 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     r.run(&stages::Eval)?;
     r.run(&stages::NerfField { density_threshold: cfg.nerf_density_threshold })?;
     let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
-    stages::write_json(&summary_path(&cfg.out), &summary)?;
+    stage::write_json(&summary_path(&cfg.out), &summary)?;
     Ok(summary)
 }
 

@@ -71,11 +71,6 @@ impl StageContext<'_> {
         self.observer.progress(self.name, done, total, status);
     }
 
-    /// A message about this stage.
-    pub fn note(&self, message: &str) {
-        self.observer.note(self.name, message);
-    }
-
     /// The folder of an upstream stage.
     pub fn input_dir(&self, stage: &str) -> PathBuf {
         self.root.join(stage)
@@ -155,10 +150,6 @@ impl<'a> Runner<'a> {
         Ok(Self { root, observer, keys: BTreeMap::new(), figures: Vec::new(), outcomes: Vec::new() })
     }
 
-    pub fn root(&self) -> &Path {
-        &self.root
-    }
-
     /// Brings `stage` up to date and returns its figures: the recorded ones if its key and
     /// outputs are unchanged, else those of a fresh (or resumed) run.
     pub fn run<S: Stage>(&mut self, stage: &S) -> Result<S::Figures, PipelineError> {
@@ -196,11 +187,7 @@ impl<'a> Runner<'a> {
                     }
                 };
                 let record = Record { key: key.clone(), seconds: start.elapsed().as_secs_f64(), figures };
-                let path = dir.join(RECORD);
-                nerfsv_scene::io::atomic_write(&path, |w| {
-                    serde_json::to_writer_pretty(w, &record).map_err(std::io::Error::other)
-                })
-                .map_err(|e| PipelineError::io(&path, e))?;
+                write_json(&dir.join(RECORD), &record)?;
                 self.observer.note(S::NAME, &S::describe(&record.figures));
                 (record.figures, if resume { Outcome::Resumed } else { Outcome::Computed })
             }
@@ -221,11 +208,6 @@ impl<'a> Runner<'a> {
     /// How each stage ended in this run, in order.
     pub fn outcomes(&self) -> &[(&'static str, Outcome)] {
         &self.outcomes
-    }
-
-    /// The key stage `name` ran with in this run, if it ran.
-    pub fn key(&self, name: &str) -> Option<&str> {
-        self.keys.get(name).map(String::as_str)
     }
 }
 
@@ -252,11 +234,15 @@ fn begin(dir: &Path, key: &str, resumable: bool) -> Result<bool, PipelineError> 
     std::fs::create_dir_all(dir).map_err(|e| PipelineError::io(dir, e))?;
     remove_if_present(&dir.join(RECORD))?;
     if resumable {
-        let doc = serde_json::json!({ "key": key });
-        nerfsv_scene::io::atomic_write(&marker, |w| serde_json::to_writer(w, &doc).map_err(std::io::Error::other))
-            .map_err(|e| PipelineError::io(&marker, e))?;
+        write_json(&marker, &serde_json::json!({ "key": key }))?;
     }
     Ok(resume)
+}
+
+/// Writes `value` as pretty JSON, atomically.
+pub fn write_json(path: &Path, value: &impl Serialize) -> Result<(), PipelineError> {
+    nerfsv_scene::io::atomic_write(path, |w| serde_json::to_writer_pretty(w, value).map_err(std::io::Error::other))
+        .map_err(|e| PipelineError::io(path, e))
 }
 
 fn remove_if_present(path: &Path) -> Result<(), PipelineError> {

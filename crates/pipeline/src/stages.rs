@@ -9,8 +9,8 @@ use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
 use nerfsv_scene::Scene;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{NerfSettings, RunConfig};
-use crate::stage::{Stage, StageContext};
+use crate::config::NerfSettings;
+use crate::stage::{write_json, Stage, StageContext};
 use crate::PipelineError;
 
 /// Loads a split of a dataset folder, naming the folder in the error.
@@ -19,11 +19,6 @@ pub fn load_dataset_split(dir: &Path, split: &str, downscale: u32) -> Result<Spl
         context: format!("loading the {split} split of {}", dir.display()),
         error: e,
     })
-}
-
-/// Loads a NeRF checkpoint.
-pub fn load_model(path: &Path) -> Result<Nerf, PipelineError> {
-    Ok(Nerf::load(path)?)
 }
 
 /// Writes a collision field and, if asked, its mesh: both or neither (each file atomically,
@@ -65,13 +60,6 @@ pub struct DatasetFigures {
     pub height: u32,
     pub seconds: f64,
     pub primary_rays_per_second: f64,
-}
-
-impl Dataset<'_> {
-    /// The dataset folder of run `root`.
-    pub fn dir(root: &Path) -> PathBuf {
-        root.join(Self::NAME)
-    }
 }
 
 /// Renders `scene` into the dataset folder `out`, reporting progress per view.
@@ -205,19 +193,6 @@ impl Train<'_> {
     }
 }
 
-/// Trains on `data` into `out` (see [`nerfsv_nerf::train`]), reporting progress to `progress`
-/// (`step`, fraction of the budget, status line).
-pub fn train_model(
-    data: &Split,
-    out: &Path,
-    budget: Budget,
-    resume: bool,
-    settings: &NerfSettings,
-    progress: &mut dyn FnMut(&nerfsv_nerf::Progress),
-) -> Result<(Nerf, TrainStats), PipelineError> {
-    Ok(nerfsv_nerf::train(data, out, budget, resume, settings.nerf.clone(), settings.train.clone(), progress)?)
-}
-
 /// The status line of a training step, as the progress bars show it.
 pub fn train_status(p: &nerfsv_nerf::Progress) -> String {
     format!(
@@ -247,7 +222,8 @@ impl Stage for Train<'_> {
         let data = load_dataset_split(&cx.input_dir(Dataset::NAME), "train", 1)?;
         let steps = self.steps;
         let mut report = |p: &nerfsv_nerf::Progress| cx.progress(p.step, steps, &train_status(p));
-        let (_, stats) = train_model(&data, &cx.dir, Budget::Steps(steps), cx.resume, self.settings, &mut report)?;
+        let (nerf, train) = (self.settings.nerf.clone(), self.settings.train.clone());
+        let (_, stats) = nerfsv_nerf::train(&data, &cx.dir, Budget::Steps(steps), cx.resume, nerf, train, &mut report)?;
         Ok(stats)
     }
 
@@ -303,7 +279,7 @@ impl Stage for Eval {
     fn config(&self) -> impl Serialize {}
 
     fn run(&self, cx: &StageContext) -> Result<EvalFigures, PipelineError> {
-        let nerf = load_model(&Train::checkpoint(cx.root))?;
+        let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
         let test = load_dataset_split(&cx.input_dir(Dataset::NAME), "test", 1)?;
         let report = nerfsv_nerf::evaluate_with_progress(&nerf, &test, EvalOptions::default(), &|done, total| {
             cx.progress(done as u64, total as u64, "test views evaluated")
@@ -324,12 +300,6 @@ impl Stage for Eval {
             f.depth_median_abs_err_m.map_or("n/a".into(), |d| format!("{d:.3} m"))
         )
     }
-}
-
-/// Writes `value` as pretty JSON, atomically.
-pub fn write_json(path: &Path, value: &impl Serialize) -> Result<(), PipelineError> {
-    nerfsv_scene::io::atomic_write(path, |w| serde_json::to_writer_pretty(w, value).map_err(std::io::Error::other))
-        .map_err(|e| PipelineError::io(path, e))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -393,7 +363,7 @@ impl Stage for NerfField {
     }
 
     fn run(&self, cx: &StageContext) -> Result<NerfFieldFigures, PipelineError> {
-        let nerf = load_model(&Train::checkpoint(cx.root))?;
+        let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
         // Compared on the ground-truth field's own grid, read back from its stage.
         let reference = SdfGrid::load(GroundTruthField::sdf_path(cx.root))?;
         build_nerf_field(
@@ -417,9 +387,4 @@ impl Stage for NerfField {
             None => format!("built in {:.2} s", f.build_seconds),
         }
     }
-}
-
-/// Checks that the run's config is usable and turns it into the stages' inputs.
-pub fn scene_of(cfg: &RunConfig) -> Result<Scene, PipelineError> {
-    Ok(Scene::builtin(&cfg.scene)?)
 }

@@ -12,8 +12,9 @@ use clap::{Parser, Subcommand};
 /// Safety validation of a vision-based quadcopter flying through a Neural Radiance Field.
 ///
 /// Start with `nerfsv run`: on the default Stonehenge scene it renders the dataset, builds the
-/// ground-truth collision field, trains and evaluates the NeRF and builds the NeRF's collision
-/// field, into `runs/stonehenge/` (figures in `summary.json`). The other subcommands run one
+/// ground-truth collision field, trains and evaluates the NeRF, builds the NeRF's collision
+/// field, and flies the drone along its planned path in NeRF-sim and GT-sim, into
+/// `runs/stonehenge/` (figures in `summary.json`). The other subcommands run one
 /// stage each, for your own datasets and checkpoints.
 #[derive(Parser)]
 #[command(name = "nerfsv", version, about, long_about)]
@@ -40,6 +41,8 @@ enum Command {
     Render(commands::nerf::RenderArgs),
     /// Build a signed collision field (SDF grid at 40 cells/m) and its surface mesh.
     Collision(commands::collision::CollisionArgs),
+    /// Fly the drone once along the planned path in NeRF-sim or GT-sim (trajectory CSV + plot).
+    Fly(commands::fly::FlyArgs),
 }
 
 fn main() -> ExitCode {
@@ -59,6 +62,7 @@ fn main() -> ExitCode {
         Command::Run(a) => commands::run::run(a),
         Command::Scene(a) => commands::scene::run(a),
         Command::Collision(a) => commands::collision::run(a),
+        Command::Fly(a) => commands::fly::run(a),
         Command::Train(a) => commands::nerf::run_train(a),
         Command::Eval(a) => commands::nerf::run_eval(a),
         Command::Render(a) => commands::nerf::run_render(a),

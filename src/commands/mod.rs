@@ -1,4 +1,5 @@
 pub mod collision;
+pub mod fly;
 pub mod nerf;
 pub mod run;
 pub mod scene;

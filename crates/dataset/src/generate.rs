@@ -63,6 +63,11 @@ impl Default for GenerateOptions {
 }
 
 impl GenerateOptions {
+    /// How the views are rendered: the default lighting with this dataset's supersampling.
+    pub fn render_settings(&self) -> RenderSettings {
+        RenderSettings { supersample: self.supersample, ..RenderSettings::default() }
+    }
+
     /// Rejects every value no generation could use, and a split whose images would not fit
     /// the memory budget, before any work is done. The error names the field and the value.
     pub fn validate(&self) -> Result<(), InvalidValue> {
@@ -196,7 +201,7 @@ pub fn generate(
     let tmp = partial_dir(out);
     std::fs::create_dir_all(&tmp).map_err(|e| DatasetError::io(&tmp, e))?;
     let result = (|| {
-        let settings = RenderSettings { supersample: opts.supersample, ..RenderSettings::default() };
+        let settings = opts.render_settings();
         let total = opts.train + opts.val + opts.test;
         let mut done = 0;
         for split in SPLITS {

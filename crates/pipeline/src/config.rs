@@ -69,6 +69,10 @@ pub struct RunConfig {
     /// Density (1/m) above which the NeRF counts as solid in its collision field; default
     /// ln 2 / cell size.
     pub nerf_density_threshold: Option<f32>,
+    /// The drone, its path, controller and estimator (the `[sim]` table).
+    pub sim: nerfsv_sim::SimConfig,
+    /// Seed of the flight's random choices (the vision estimator's pixels).
+    pub flight_seed: u64,
 }
 
 impl Default for RunConfig {
@@ -82,6 +86,8 @@ impl Default for RunConfig {
             train: TrainConfig::default(),
             train_steps: DEFAULT_TRAIN_STEPS,
             nerf_density_threshold: None,
+            sim: nerfsv_sim::SimConfig::default(),
+            flight_seed: 0,
         }
     }
 }
@@ -90,6 +96,12 @@ impl RunConfig {
     /// Reads a TOML config (see [`load_toml`]).
     pub fn load(path: &Path) -> Result<Self, PipelineError> {
         load_toml(path)
+    }
+
+    /// The drone camera's default intrinsics: the dataset's.
+    pub fn camera_intrinsics(&self) -> nerfsv_scene::Intrinsics {
+        let d = &self.dataset;
+        nerfsv_scene::Intrinsics::from_fov_x(d.width, d.height, d.camera_angle_x)
     }
 
     /// The `[nerf]` and `[train]` tables.
@@ -114,7 +126,7 @@ impl Validate for RunConfig {
         if let Some(t) = self.nerf_density_threshold {
             positive("nerf_density_threshold", t as f64)?;
         }
-        Ok(())
+        self.sim.validate().map_err(|e| e.within("sim"))
     }
 }
 

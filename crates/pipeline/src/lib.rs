@@ -53,6 +53,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 pub mod config;
+pub mod flight;
 pub mod stage;
 pub mod stages;
 
@@ -78,6 +79,8 @@ pub enum PipelineError {
     Nerf(#[from] nerfsv_nerf::NerfError),
     #[error(transparent)]
     Collision(#[from] nerfsv_collision::CollisionError),
+    #[error(transparent)]
+    Sim(#[from] nerfsv_sim::SimError),
     #[error("stage {stage} reads stage {input}, which has not run before it")]
     MissingInput { stage: &'static str, input: &'static str },
     #[error("{}: is inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
@@ -161,6 +164,13 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     r.run(&stages::Train { settings: &settings, steps: cfg.train_steps })?;
     r.run(&stages::Eval)?;
     r.run(&stages::NerfField { density_threshold: cfg.nerf_density_threshold })?;
+    r.run(&flight::FlightStage {
+        scene: &scene,
+        sim: &cfg.sim,
+        intrinsics: cfg.camera_intrinsics(),
+        render: cfg.dataset.render_settings(),
+        seed: cfg.flight_seed,
+    })?;
     let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
     stage::write_json(&summary_path(&cfg.out), &summary)?;
     Ok(summary)

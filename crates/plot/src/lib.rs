@@ -1,0 +1,58 @@
+//! Figures of nerfsv, rendered to PNG bytes or SVG text with plotters and an embedded font
+//! (DejaVu Sans), so a figure looks the same on every machine and needs no system libraries.
+//!
+//! The crate takes plain data (`f64` metres, no other nerfsv types) and returns bytes; the
+//! caller decides where they go (and writes files atomically). Shared pieces: [`palette`] (the
+//! colours every figure and the HTML report use), [`encode_png`] (RGB8 → PNG with the `png`
+//! crate) and [`PlotError`].
+//!
+//! Figures:
+//! - [`trajectory_png`] / [`trajectory_svg`]: one flight, top view over the signed-distance
+//!   slice and side view of altitude along the track ([`trajectory`] describes the layout).
+//!
+//! ```
+//! use nerfsv_plot::{trajectory_png, FieldSlice, Track, TrackKind, TrajectoryFigure};
+//!
+//! // A 2 × 2 m slice with a disc obstacle of radius 0.3 m at the origin, 0.1 m cells.
+//! let (n, cell, origin) = (21, 0.1, [-1.0, -1.0]);
+//! let values = (0..n * n)
+//!     .map(|k| {
+//!         let (x, y) = (origin[0] + cell * (k % n) as f64, origin[1] + cell * (k / n) as f64);
+//!         (x.hypot(y) - 0.3) as f32
+//!     })
+//!     .collect();
+//! let fig = TrajectoryFigure {
+//!     title: "run 7".into(),
+//!     slice: FieldSlice { origin, cell, dims: [n, n], values, altitude: 1.0 },
+//!     tracks: vec![Track {
+//!         label: "true".into(),
+//!         points: vec![[-0.8, -0.5, 1.0], [0.0, -0.6, 1.1], [0.8, -0.5, 1.0]],
+//!         kind: TrackKind::True,
+//!     }],
+//!     waypoints: vec![],
+//!     collision: None,
+//!     start: [-0.8, -0.5, 1.0],
+//!     goal: [0.8, -0.5, 1.0],
+//!     altitude_band: [0.5, 1.5],
+//! };
+//! let png = trajectory_png(&fig, 900, 500)?;
+//! assert_eq!(&png[1..4], b"PNG");
+//! # Ok::<(), nerfsv_plot::PlotError>(())
+//! ```
+
+mod axes;
+mod error;
+mod font;
+mod geometry;
+pub mod palette;
+mod render;
+mod stroke;
+mod text;
+pub mod trajectory;
+
+pub use axes::PixelRect;
+pub use error::PlotError;
+pub use render::{encode_png, MAX_SIDE};
+pub use trajectory::{
+    top_down_view, trajectory_png, trajectory_svg, FieldSlice, TopDownView, Track, TrackKind, TrajectoryFigure,
+};

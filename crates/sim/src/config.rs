@@ -1,0 +1,114 @@
+//! The flight configuration, the `[sim]` table of a run's TOML file.
+
+use nerfsv_scene::validate::{finite, in_range, non_negative, positive};
+use nerfsv_scene::{Intrinsics, InvalidValue};
+use serde::{Deserialize, Serialize};
+
+use crate::controller::ControllerGains;
+use crate::dynamics::{Disturbance, DroneParams};
+use crate::estimator::VisionConfig;
+use crate::planner::PlannerConfig;
+
+/// The drone camera's intrinsics, when they differ from the dataset's.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    pub width: u32,
+    pub height: u32,
+    /// Horizontal field of view, radians.
+    pub camera_angle_x: f32,
+}
+
+impl CameraConfig {
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics::from_fov_x(self.width, self.height, self.camera_angle_x)
+    }
+
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("width", self.width, 4, 4096)?;
+        in_range("height", self.height, 4, 4096)?;
+        in_range("camera_angle_x", self.camera_angle_x, 0.01, 3.1)
+    }
+}
+
+/// Everything about a flight: where, how long, the drone, its controller, planner and
+/// estimator.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    /// Start position, metres (the paper's (0.39, −0.67, 0.2)).
+    pub start: [f64; 3],
+    /// Goal position, metres (the paper's (−0.4, 0.55, 0.16)).
+    pub goal: [f64; 3],
+    /// Steps of a rollout (one disturbance and one camera image each; the paper's 6).
+    pub steps: usize,
+    /// Integration substeps of `drone.dt` per step.
+    pub substeps: usize,
+    /// The flight reaches its goal when it ends this close to it, metres.
+    pub goal_tolerance_m: f64,
+    /// Standard deviations of the 12 disturbance components (position, velocity, rotation
+    /// vector, angular velocity) for random disturbances.
+    pub disturbance_std: [f64; 12],
+    pub drone: DroneParams,
+    pub controller: ControllerGains,
+    pub planner: PlannerConfig,
+    pub vision: VisionConfig,
+    /// The drone camera; default: the dataset's intrinsics.
+    pub camera: Option<CameraConfig>,
+    /// Background colour the camera sees where nothing is (the NeRF's render background).
+    pub background: [f32; 3],
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            start: [0.39, -0.67, 0.2],
+            goal: [-0.4, 0.55, 0.16],
+            steps: 6,
+            substeps: 8,
+            goal_tolerance_m: 0.1,
+            disturbance_std: Disturbance::PAPER_STD,
+            drone: DroneParams::default(),
+            controller: ControllerGains::default(),
+            planner: PlannerConfig::default(),
+            vision: VisionConfig::default(),
+            camera: None,
+            background: [1.0; 3],
+        }
+    }
+}
+
+/// Longest rollout accepted, in steps and in substeps per step.
+pub const MAX_STEPS: usize = 10_000;
+pub const MAX_SUBSTEPS: usize = 1000;
+
+impl SimConfig {
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        for i in 0..3 {
+            finite(&format!("start[{i}]"), self.start[i])?;
+            finite(&format!("goal[{i}]"), self.goal[i])?;
+        }
+        in_range("steps", self.steps, 1, MAX_STEPS)?;
+        in_range("substeps", self.substeps, 1, MAX_SUBSTEPS)?;
+        positive("goal_tolerance_m", self.goal_tolerance_m)?;
+        for (i, &s) in self.disturbance_std.iter().enumerate() {
+            non_negative(&format!("disturbance_std[{i}]"), s)?;
+        }
+        for (i, &c) in self.background.iter().enumerate() {
+            in_range(&format!("background[{i}]"), c, 0.0, 1.0)?;
+        }
+        self.drone.validate().map_err(|e| e.within("drone"))?;
+        self.controller.validate().map_err(|e| e.within("controller"))?;
+        self.planner.validate().map_err(|e| e.within("planner"))?;
+        self.vision.validate().map_err(|e| e.within("vision"))?;
+        if let Some(c) = &self.camera {
+            c.validate().map_err(|e| e.within("camera"))?;
+        }
+        Ok(())
+    }
+
+    /// Total flight time, seconds.
+    pub fn duration(&self) -> f64 {
+        (self.steps * self.substeps) as f64 * self.drone.dt
+    }
+}

@@ -1,0 +1,197 @@
+//! Files a flight reads and writes: disturbance sequences and trajectories, as CSV.
+//!
+//! A disturbance file has one row per step and the 12 columns of [`DISTURBANCE_COLUMNS`]
+//! (position, velocity, rotation vector, angular velocity), with that header line or none.
+//! A trajectory file has one row per checked substep: step, substep, time, the true and the
+//! estimated state (position, velocity, rotation as a unit quaternion w x y z, body angular
+//! velocity) and the body box's clearance (empty where the box left the field's grid).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+use crate::dynamics::{Disturbance, State};
+use crate::rollout::Rollout;
+
+/// Header of a disturbance file.
+pub const DISTURBANCE_COLUMNS: [&str; 12] =
+    ["dp_x", "dp_y", "dp_z", "dv_x", "dv_y", "dv_z", "dr_x", "dr_y", "dr_z", "dw_x", "dw_y", "dw_z"];
+
+/// A disturbance file that cannot be used; names the file, the row (1-based line) and column.
+#[derive(Debug, thiserror::Error)]
+pub enum DisturbanceFileError {
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
+    #[error("{path}: line {line}: expected 12 columns ({}), found {found}", DISTURBANCE_COLUMNS.join(","))]
+    Columns { path: PathBuf, line: usize, found: usize },
+    #[error("{path}: line {line}, column {column} ({name}): {found:?} is not a finite number")]
+    Value { path: PathBuf, line: usize, column: usize, name: &'static str, found: String },
+    #[error("{path}: expected one row per step ({expected}), found {found} rows")]
+    Rows { path: PathBuf, expected: usize, found: usize },
+}
+
+/// Reads `steps` disturbances from a CSV file.
+pub fn read_disturbances(path: &Path, steps: usize) -> Result<Vec<Disturbance>, DisturbanceFileError> {
+    let text = std::fs::read_to_string(path).map_err(|e| DisturbanceFileError::Io { path: path.into(), error: e })?;
+    parse_disturbances(&text, steps, path)
+}
+
+/// Parses a disturbance CSV (see the module docs) read from `path`; blank lines are skipped.
+pub fn parse_disturbances(text: &str, steps: usize, path: &Path) -> Result<Vec<Disturbance>, DisturbanceFileError> {
+    let mut out = Vec::with_capacity(steps);
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        if fields.len() != 12 {
+            return Err(DisturbanceFileError::Columns { path: path.into(), line: n + 1, found: fields.len() });
+        }
+        if out.is_empty() && fields.iter().zip(DISTURBANCE_COLUMNS).all(|(f, c)| *f == c) {
+            continue;
+        }
+        let mut d = [0.0; 12];
+        for (c, f) in fields.iter().enumerate() {
+            d[c] = match f.parse::<f64>() {
+                Ok(v) if v.is_finite() => v,
+                _ => {
+                    return Err(DisturbanceFileError::Value {
+                        path: path.into(),
+                        line: n + 1,
+                        column: c + 1,
+                        name: DISTURBANCE_COLUMNS[c],
+                        found: f.to_string(),
+                    })
+                }
+            };
+        }
+        out.push(Disturbance(d));
+    }
+    if out.len() != steps {
+        return Err(DisturbanceFileError::Rows { path: path.into(), expected: steps, found: out.len() });
+    }
+    Ok(out)
+}
+
+/// Disturbances as CSV with a header, one row per step (round-trips exactly through
+/// [`parse_disturbances`]: Rust prints the shortest decimal that reads back to the same f64).
+pub fn disturbances_csv(ds: &[Disturbance]) -> String {
+    let mut s = DISTURBANCE_COLUMNS.join(",");
+    s.push('\n');
+    for d in ds {
+        let row: Vec<String> = d.0.iter().map(|v| v.to_string()).collect();
+        s.push_str(&row.join(","));
+        s.push('\n');
+    }
+    s
+}
+
+/// `steps` independent disturbances `x_t ~ N(0, diag(std²))` from a stream seeded by `seed`.
+pub fn random_disturbances(std: &[f64; 12], steps: usize, seed: u64) -> Vec<Disturbance> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..steps)
+        .map(|_| {
+            Disturbance(std::array::from_fn(|i| {
+                let z: f64 = StandardNormal.sample(&mut rng);
+                z * std[i]
+            }))
+        })
+        .collect()
+}
+
+fn quaternion(r: &Matrix3<f64>) -> [f64; 4] {
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
+    [q.w, q.i, q.j, q.k]
+}
+
+fn push_state(s: &mut String, st: &State) {
+    let q = quaternion(&st.rotation);
+    let v = [
+        st.position.x,
+        st.position.y,
+        st.position.z,
+        st.velocity.x,
+        st.velocity.y,
+        st.velocity.z,
+        q[0],
+        q[1],
+        q[2],
+        q[3],
+        st.omega.x,
+        st.omega.y,
+        st.omega.z,
+    ];
+    for x in v {
+        let _ = write!(s, ",{x}");
+    }
+}
+
+/// The rollout's substeps as CSV (see the module docs for the columns).
+pub fn trajectory_csv(r: &Rollout) -> String {
+    let state_cols = |p: &str| {
+        ["x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "wx", "wy", "wz"]
+            .map(|c| format!("{p}_{c}"))
+            .join(",")
+    };
+    let mut s = format!("step,substep,time_s,{},{},clearance_m,collided\n", state_cols("true"), state_cols("est"));
+    for sub in &r.substeps {
+        let _ = write!(s, "{},{},{}", sub.step, sub.substep, sub.time);
+        push_state(&mut s, &sub.truth);
+        push_state(&mut s, &sub.estimate);
+        match sub.clearance {
+            Some(c) => {
+                let _ = writeln!(s, ",{c},{}", u8::from(c <= 0.0));
+            }
+            None => s.push_str(",,0\n"),
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn disturbances_round_trip_exactly() {
+        let ds = random_disturbances(&Disturbance::PAPER_STD, 6, 7);
+        let back = parse_disturbances(&disturbances_csv(&ds), 6, Path::new("d.csv")).unwrap();
+        assert_eq!(ds, back);
+        // Without a header too.
+        let body: String = disturbances_csv(&ds).lines().skip(1).map(|l| format!("{l}\n")).collect();
+        assert_eq!(parse_disturbances(&body, 6, Path::new("d.csv")).unwrap(), ds);
+    }
+
+    #[test]
+    fn bad_disturbance_files_name_line_and_column() {
+        let path = Path::new("d.csv");
+        let row = "0,0,0,0,0,0,0,0,0,0,0,0\n";
+        let e = parse_disturbances(&format!("{row}0,0,0\n"), 2, path).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!("d.csv: line 2: expected 12 columns ({}), found 3", DISTURBANCE_COLUMNS.join(","))
+        );
+        let e = parse_disturbances(&format!("{row}0,0,0,0,0,0,0,0,nan,0,0,0\n"), 2, path).unwrap_err();
+        assert_eq!(e.to_string(), "d.csv: line 2, column 9 (dr_z): \"nan\" is not a finite number");
+        let e = parse_disturbances(&format!("{row}0,0,0,0,0,1e999,0,0,0,0,0,0\n"), 2, path).unwrap_err();
+        assert!(e.to_string().contains("column 6 (dv_z)"), "{e}");
+        let e = parse_disturbances(row, 2, path).unwrap_err();
+        assert_eq!(e.to_string(), "d.csv: expected one row per step (2), found 1 rows");
+    }
+
+    #[test]
+    fn random_disturbances_have_the_requested_spread() {
+        let std = Disturbance::PAPER_STD;
+        let ds = random_disturbances(&std, 20_000, 1);
+        for i in 0..12 {
+            let var = ds.iter().map(|d| d.0[i] * d.0[i]).sum::<f64>() / ds.len() as f64;
+            assert!((var.sqrt() / std[i] - 1.0).abs() < 0.03, "component {i}: {}", var.sqrt());
+        }
+        assert_eq!(random_disturbances(&std, 3, 5), random_disturbances(&std, 3, 5));
+    }
+}

@@ -1,0 +1,123 @@
+//! The two worlds the drone flies in. They share one interface and differ only in what they are
+//! made of: **NeRF-sim** renders the camera's image with the NeRF and checks collisions against
+//! the NeRF's signed field; **GT-sim** renders it with the ground-truth scene and checks them
+//! against the ground-truth signed field.
+
+use nerfsv_collision::SdfGrid;
+use nerfsv_nerf::{Nerf, RayInput};
+use nerfsv_scene::{Camera, RenderSettings, Scene};
+use serde::{Deserialize, Serialize};
+
+/// Which world a rollout flies in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WorldKind {
+    /// Observations rendered by the NeRF, collisions from the NeRF-derived signed field.
+    Nerf,
+    /// Observations from the ground-truth renderer, collisions from the ground-truth field.
+    Gt,
+}
+
+impl WorldKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            WorldKind::Nerf => "nerf",
+            WorldKind::Gt => "gt",
+        }
+    }
+}
+
+/// What a simulator needs of a world: its signed field (metres, positive in free space) and
+/// the camera's view of it.
+pub trait World: Sync {
+    fn kind(&self) -> WorldKind;
+
+    /// The signed distance field the drone's body is checked against.
+    fn field(&self) -> &SdfGrid;
+
+    /// The colours of the pixels `pixels` (column, row) of the image `camera` takes,
+    /// composited on `background`, in `[0, 1]`. Only the pixels read are rendered: an image
+    /// costs what the estimator looks at.
+    fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]>;
+}
+
+/// NeRF-sim: the NeRF is both the camera and the world.
+pub struct NerfWorld<'a> {
+    pub nerf: &'a Nerf,
+    pub field: &'a SdfGrid,
+}
+
+impl World for NerfWorld<'_> {
+    fn kind(&self) -> WorldKind {
+        WorldKind::Nerf
+    }
+
+    fn field(&self) -> &SdfGrid {
+        self.field
+    }
+
+    fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]> {
+        let rays = pixel_rays(camera, pixels, background);
+        let out = self.nerf.render_rays(&rays);
+        out.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+    }
+}
+
+/// GT-sim: the ground-truth scene, rendered as the dataset was (same lighting and
+/// supersampling), against its own signed field.
+pub struct GroundTruthWorld<'a> {
+    pub scene: &'a Scene,
+    pub field: &'a SdfGrid,
+    pub render: RenderSettings,
+}
+
+impl World for GroundTruthWorld<'_> {
+    fn kind(&self) -> WorldKind {
+        WorldKind::Gt
+    }
+
+    fn field(&self) -> &SdfGrid {
+        self.field
+    }
+
+    fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]> {
+        let ss = self.render.supersample.max(1);
+        pixels
+            .iter()
+            .map(|&[i, j]| {
+                // The renderer's stratified supersampling; colour over the hits, alpha the
+                // fraction of hits, composited on the background (straight alpha).
+                let mut acc = [0.0f32; 4];
+                for sy in 0..ss {
+                    for sx in 0..ss {
+                        let ray = camera
+                            .ray(i as f32 + (sx as f32 + 0.5) / ss as f32, j as f32 + (sy as f32 + 0.5) / ss as f32);
+                        if let Some(hit) = self.scene.trace(&ray, self.render.max_steps) {
+                            let c = self.scene.shade(&ray, &hit, &self.render);
+                            for (a, c) in acc.iter_mut().zip(c) {
+                                *a += c;
+                            }
+                            acc[3] += 1.0;
+                        }
+                    }
+                }
+                let alpha = acc[3] / (ss * ss) as f32;
+                std::array::from_fn(|c| {
+                    let colour = if acc[3] > 0.0 { acc[c] / acc[3] } else { 0.0 };
+                    colour * alpha + background[c] * (1.0 - alpha)
+                })
+            })
+            .collect()
+    }
+}
+
+/// The rays through the centres of `pixels` of `camera`.
+pub fn pixel_rays(camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<RayInput> {
+    pixels
+        .iter()
+        .map(|&[i, j]| {
+            let r = camera.pixel_ray(i, j);
+            RayInput { origin: r.origin.coords.into(), direction: r.direction.into(), background, jitter: 0.0 }
+        })
+        .collect()
+}

@@ -1,5 +1,6 @@
-//! NeRF throughput: training steps (samples/s, rays/s), rendering a 100×100 view (rays/s) and
-//! density queries for the collision field (points/s), on a Stonehenge dataset made on the fly.
+//! NeRF throughput: training steps (samples/s, rays/s), rendering a 100×100 view (rays/s), 256
+//! rays with and without their colour Jacobians (pose refinement) and density queries for the
+//! collision field (points/s), on a Stonehenge dataset made on the fly.
 //!
 //! `cargo bench --bench nerf`; figures are recorded in BENCHMARKS.md. Training quality over
 //! wall time (PSNR at 60/120/300 s) is measured by `nerfsv train` + `nerfsv eval` and the
@@ -7,6 +8,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use nerfsv_dataset::{generate, load_split, GenerateOptions, LoadOptions};
+use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{NerfConfig, TrainConfig, Trainer};
 use nerfsv_scene::Scene;
 
@@ -40,6 +42,15 @@ fn nerf(c: &mut Criterion) {
     let mut g = c.benchmark_group("nerf_render");
     g.throughput(Throughput::Elements(cam.intrinsics.pixels() as u64));
     g.bench_function("view_100x100_rays", |b| b.iter(|| model.render_camera(&cam, [1.0; 3])));
+    // Pose refinement's batch: 256 pixels on a 16×16 lattice over the view, rendered plainly and
+    // with the colour's Jacobians with respect to ray origin and direction.
+    let (w, h) = (cam.intrinsics.width as usize, cam.intrinsics.height as usize);
+    let view_rays = camera_rays(&cam, [1.0; 3]);
+    let lattice: Vec<_> =
+        (0..256).map(|k| view_rays[((k / 16) * h / 16 + h / 32) * w + (k % 16) * w / 16 + w / 32]).collect();
+    g.throughput(Throughput::Elements(lattice.len() as u64));
+    g.bench_function("rays_256", |b| b.iter(|| model.render_rays(&lattice)));
+    g.bench_function("jacobian_256", |b| b.iter(|| model.render_rays_jacobian(&lattice)));
     let points: Vec<[f32; 3]> = (0..1 << 18)
         .map(|i| {
             let f =

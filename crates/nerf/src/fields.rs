@@ -23,7 +23,7 @@ use crate::config::NerfConfig;
 use crate::field_components::hash_encoding::HashEncoding;
 use crate::field_components::mlp::{
     linear_backward_input, linear_backward_weight, linear_forward, relu, relu_backward, sigmoid, trunc_exp,
-    trunc_exp_grad,
+    trunc_exp_exact_grad, trunc_exp_grad,
 };
 use crate::field_components::sh_encoding::{sh_encode, SH_DIM};
 use crate::model_components::losses::mse_and_grad;
@@ -138,7 +138,7 @@ impl NgpField {
         [0, 1, 2].map(|d| (p[d] - self.aabb_min[d]) / (self.aabb_max[d] - self.aabb_min[d]))
     }
 
-    fn w<'a>(&self, params: &'a [f32], t: usize) -> &'a [f32] {
+    pub(crate) fn w<'a>(&self, params: &'a [f32], t: usize) -> &'a [f32] {
         &params[self.tensors[t].1.clone()]
     }
 
@@ -165,12 +165,64 @@ impl NgpField {
     }
 }
 
-/// Scratch buffers of [`NgpField::density_batch`].
+impl NgpField {
+    /// Density σ (1/m) and its gradient ∇σ (1/m², world frame) at points. pos01: `[n, 3]` box
+    /// coordinates; sigma: `[n]`; grad: `[n]`. Points outside the box get σ = 0 and ∇σ = 0.
+    ///
+    /// `∇σ = trunc_exp'(o_0) · J_encᵀ · W0ᵀ · ([h > 0] ∘ W1[0, :]) / extent` (reverse mode through
+    /// `sigma_net`, then the hash encoding's position Jacobian and the box normalisation).
+    pub fn density_and_gradient_batch(
+        &self,
+        params: &[f32],
+        pos01: &[f32],
+        ws: &mut DensityWorkspace,
+        sigma: &mut [f32],
+        grad: &mut [[f32; 3]],
+    ) {
+        let n = sigma.len();
+        let (e, sh, o) = (self.enc_dim, self.sigma_hidden, 1 + self.geo);
+        self.density_batch(params, pos01, ws, sigma);
+        let w1 = self.w(params, 2);
+        ws.d_h.resize(n * sh, 0.0);
+        ws.d_enc.resize(n * e, 0.0);
+        ws.jac.resize(e * 3, 0.0);
+        for (i, &s) in sigma.iter().enumerate() {
+            let ds = if s > 0.0 { trunc_exp_exact_grad(ws.out[i * o]) } else { 0.0 };
+            let (d_h, h) = (&mut ws.d_h[i * sh..(i + 1) * sh], &ws.h[i * sh..(i + 1) * sh]);
+            for ((d, &hk), &wk) in d_h.iter_mut().zip(h).zip(&w1[..sh]) {
+                *d = if hk > 0.0 { ds * wk } else { 0.0 };
+            }
+        }
+        linear_backward_input(&ws.d_h, self.w(params, 1), &mut ws.d_enc, n, e, sh);
+        let emb = self.w(params, 0);
+        let inv_ext = [0, 1, 2].map(|d| 1.0 / (self.aabb_max[d] - self.aabb_min[d]));
+        for i in 0..n {
+            if sigma[i] == 0.0 {
+                grad[i] = [0.0; 3];
+                continue;
+            }
+            let x = [pos01[3 * i], pos01[3 * i + 1], pos01[3 * i + 2]];
+            self.encoding.position_jacobian(emb, x, &mut ws.jac);
+            let mut g = [0.0f32; 3];
+            for (&dk, jk) in ws.d_enc[i * e..(i + 1) * e].iter().zip(ws.jac.chunks_exact(3)) {
+                for (gd, &jd) in g.iter_mut().zip(jk) {
+                    *gd += dk * jd;
+                }
+            }
+            grad[i] = [0, 1, 2].map(|d| g[d] * inv_ext[d]);
+        }
+    }
+}
+
+/// Scratch buffers of [`NgpField::density_batch`] and [`NgpField::density_and_gradient_batch`].
 #[derive(Default, Debug)]
 pub struct DensityWorkspace {
     enc: Vec<f32>,
     h: Vec<f32>,
     out: Vec<f32>,
+    d_h: Vec<f32>,
+    d_enc: Vec<f32>,
+    jac: Vec<f32>,
 }
 
 /// Samples marched per live ray between density evaluations.
@@ -197,8 +249,8 @@ pub struct ChunkWorkspace {
     /// `[n]` ray of each sample id.
     pub sample_ray: Vec<u32>,
     /// `[n]` density and distance in ray-major order.
-    sig_o: Vec<f32>,
-    t_o: Vec<f32>,
+    pub(crate) sig_o: Vec<f32>,
+    pub(crate) t_o: Vec<f32>,
     // Per-ray marching state.
     live: Vec<u32>,
     t_next: Vec<f32>,
@@ -214,16 +266,16 @@ pub struct ChunkWorkspace {
     /// `[n, 3]` positions in box coordinates `[0,1]`.
     pub pos: Vec<f32>,
     enc: Vec<f32>,
-    h0: Vec<f32>,
-    out0: Vec<f32>,
+    pub(crate) h0: Vec<f32>,
+    pub(crate) out0: Vec<f32>,
     /// `[n]` densities (1/m).
     pub sigma: Vec<f32>,
     /// `[m]` sample index of each active sample.
-    act: Vec<u32>,
+    pub(crate) act: Vec<u32>,
     /// `[m, 16 + geo]`.
     cin: Vec<f32>,
-    h1: Vec<f32>,
-    h2: Vec<f32>,
+    pub(crate) h1: Vec<f32>,
+    pub(crate) h2: Vec<f32>,
     /// `[m, 3]` colours after the sigmoid.
     pub rgb: Vec<f32>,
     /// `[r, 3]`, `[r]`, `[r]`: composite colour, opacity, `Σ w t` (m).

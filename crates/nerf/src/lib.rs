@@ -10,7 +10,8 @@
 //! Modules follow nerfstudio's vocabulary: [`field_components`] (hash/SH encodings, MLP
 //! layers), [`fields`] (`NgpField` and the fused chunk kernels), [`model_components`]
 //! (occupancy grid, ray sampler, volume renderer, losses), [`optim`] (Adam), [`checkpoint`],
-//! [`train`](mod@train), [`render`], [`metrics`].
+//! [`train`](mod@train), [`render`], [`jacobian`] (rendered colour's derivatives with respect to
+//! ray origin and direction, for pose refinement), [`metrics`].
 //!
 //! # Parameters and checkpoints
 //! All parameters are one flat vector, the concatenation of torch-ngp's tensors
@@ -49,6 +50,7 @@ pub mod config;
 mod error;
 pub mod field_components;
 pub mod fields;
+pub mod jacobian;
 pub mod metrics;
 pub mod model;
 pub mod model_components;
@@ -59,6 +61,7 @@ pub mod train;
 pub use config::{check_training_memory, training_memory_bytes, BackgroundMode, NerfConfig, TrainConfig};
 pub use error::NerfError;
 pub use fields::RayInput;
+pub use jacobian::RayJacobians;
 pub use metrics::{evaluate, evaluate_with_progress, psnr, ssim, EvalOptions, EvalReport, ImageMetrics};
 pub use model::{Nerf, RayOutputs};
 pub use render::{comparison_image, render_split, RenderedView};

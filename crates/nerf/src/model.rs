@@ -12,8 +12,9 @@ use crate::model_components::occupancy_grid::OccupancyGrid;
 
 /// Points per parallel task of density queries.
 const DENSITY_CHUNK: usize = 4096;
-/// Rays per parallel task of rendering.
-pub(crate) const RENDER_CHUNK: usize = 512;
+/// Rays per parallel task of rendering (small enough that a pose update's few hundred rays use
+/// every core).
+pub(crate) const RENDER_CHUNK: usize = 128;
 
 /// A NeRF: config, the flat parameter vector (see [`crate::fields`] for its blocks) and the
 /// occupancy grid.
@@ -93,6 +94,27 @@ impl Nerf {
             })
         });
         out
+    }
+
+    /// Density σ (1/m) and its gradient ∇σ (1/m², world frame) at world points (metres); both 0
+    /// outside the scene box. Parallel. ∇σ is that of the hash encoding's trilinear interpolation
+    /// (continuous inside a cell, jumping across cell faces).
+    pub fn density_and_gradient(&self, points: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let mut sigma = vec![0.0; points.len()];
+        let mut grad = vec![[0.0; 3]; points.len()];
+        let pool = Pool::<(DensityWorkspace, Vec<f32>)>::new();
+        sigma
+            .par_chunks_mut(DENSITY_CHUNK)
+            .zip(grad.par_chunks_mut(DENSITY_CHUNK))
+            .zip(points.par_chunks(DENSITY_CHUNK))
+            .for_each(|((s, g), p)| {
+                pool.with(|(ws, pos)| {
+                    pos.clear();
+                    pos.extend(p.iter().flat_map(|q| self.field.normalize(*q)));
+                    self.field.density_and_gradient_batch(&self.params, pos, ws, s, g);
+                })
+            });
+        (sigma, grad)
     }
 
     /// The step Δt (metres) the occupancy test `σ·Δt > threshold` uses: the marching step.

@@ -11,7 +11,10 @@
 //!
 //! Maths (per level, feature f):
 //!   forward   `y_f = Σ_c w_c · E[idx_c, f]`, `w_c = Π_d (frac_d or 1 − frac_d)`
-//!   backward  `∂L/∂E[idx_c, f] += w_c · ∂L/∂y_f` (no gradient w.r.t. positions is needed).
+//!   backward  `∂L/∂E[idx_c, f] += w_c · ∂L/∂y_f`
+//!   position  `∂y_f/∂x_d = s_l · Σ_c (∂w_c/∂frac_d) · E[idx_c, f]`, `∂w_c/∂frac_d = ±Π_{d'≠d} w_{d'}`
+//!             (+ for the upper corner along `d`); 0 along an axis where `x_d` is clamped (outside
+//!             `[0,1]`). Continuous inside a cell, jumps across cell faces.
 
 /// Features per level; fixed at 2 as in instant-ngp/torch-ngp.
 pub const FEATURES: usize = 2;
@@ -93,6 +96,36 @@ impl HashEncoding {
         }
     }
 
+    /// Jacobian of [`encode`](Self::encode) with respect to the position: `jac: [n_levels · 2, 3]`
+    /// row-major, `jac[k][d] = ∂y_k/∂x_d` (x in box coordinates `[0,1]`; divide by the box extent
+    /// for metres). An axis where `x_d ∉ [0,1]` (clamped) has zero derivative.
+    #[inline]
+    pub fn position_jacobian(&self, emb: &[f32], x: [f32; 3], jac: &mut [f32]) {
+        let inside = x.map(|v| (0.0..=1.0).contains(&v));
+        for (l, lv) in self.levels.iter().enumerate() {
+            let (idx, f) = corners_frac(lv, x);
+            let g = [0, 1, 2].map(|d| if inside[d] { lv.scale } else { 0.0 });
+            let mut ja = [0.0f32; 3];
+            let mut jb = [0.0f32; 3];
+            for (c, &row) in idx.iter().enumerate() {
+                let up = [c & 1 == 1, (c >> 1) & 1 == 1, (c >> 2) & 1 == 1];
+                let wd = [0, 1, 2].map(|d| if up[d] { f[d] } else { 1.0 - f[d] });
+                let sd = [0, 1, 2].map(|d| if up[d] { 1.0f32 } else { -1.0 });
+                // ∂w_c/∂frac_d: the weight with axis d's factor replaced by ±1.
+                let dw = [sd[0] * wd[1] * wd[2], sd[1] * wd[0] * wd[2], sd[2] * wd[0] * wd[1]];
+                let (ea, eb) = (emb[row as usize * 2], emb[row as usize * 2 + 1]);
+                for d in 0..3 {
+                    ja[d] += dw[d] * ea;
+                    jb[d] += dw[d] * eb;
+                }
+            }
+            for d in 0..3 {
+                jac[6 * l + d] = g[d] * ja[d];
+                jac[6 * l + 3 + d] = g[d] * jb[d];
+            }
+        }
+    }
+
     /// Backward of one level over many points, accumulating into that level's gradient rows.
     ///
     /// positions: `[n, 3]` in `[0,1]`; d_out: `[n, 2]` (∂L/∂y of this level);
@@ -119,6 +152,21 @@ impl HashEncoding {
 /// The 8 corner rows (absolute, including the level offset) and trilinear weights of `x`.
 #[inline(always)]
 pub fn corners(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 8]) {
+    let (idx, f) = corners_frac(lv, x);
+    let mut w = [0f32; 8];
+    for (c, wc) in w.iter_mut().enumerate() {
+        let wx = if c & 1 == 1 { f[0] } else { 1.0 - f[0] };
+        let wy = if (c >> 1) & 1 == 1 { f[1] } else { 1.0 - f[1] };
+        let wz = if (c >> 2) & 1 == 1 { f[2] } else { 1.0 - f[2] };
+        *wc = wx * wy * wz;
+    }
+    (idx, w)
+}
+
+/// The 8 corner rows of `x` (corner `c` is `+ (c & 1, c >> 1 & 1, c >> 2 & 1)`) and the
+/// fractional position `frac ∈ [0,1)³` inside the cell.
+#[inline(always)]
+pub fn corners_frac(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 3]) {
     let mut g = [0u32; 3];
     let mut f = [0f32; 3];
     for d in 0..3 {
@@ -128,9 +176,8 @@ pub fn corners(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 8]) {
         f[d] = p - fl;
     }
     let mut idx = [0u32; 8];
-    let mut w = [0f32; 8];
     let r = lv.resolution;
-    for c in 0..8 {
+    for (c, ic) in idx.iter_mut().enumerate() {
         let (cx, cy, cz) = ((c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32);
         let (i, j, k) = (g[0] + cx, g[1] + cy, g[2] + cz);
         let h = if lv.dense {
@@ -138,13 +185,9 @@ pub fn corners(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 8]) {
         } else {
             i ^ j.wrapping_mul(2_654_435_761) ^ k.wrapping_mul(805_459_861)
         };
-        idx[c] = lv.offset + h % lv.size;
-        let wx = if cx == 1 { f[0] } else { 1.0 - f[0] };
-        let wy = if cy == 1 { f[1] } else { 1.0 - f[1] };
-        let wz = if cz == 1 { f[2] } else { 1.0 - f[2] };
-        w[c] = wx * wy * wz;
+        *ic = lv.offset + h % lv.size;
     }
-    (idx, w)
+    (idx, f)
 }
 
 #[cfg(test)]
@@ -159,6 +202,64 @@ mod tests {
         assert!(e.levels[0].dense && !e.levels[15].dense);
         assert!((e.levels[15].scale - 511.0).abs() < 0.5);
         assert!(e.levels.iter().all(|l| l.size <= 1 << 15 && l.size % 8 == 0));
+    }
+
+    /// ∂y/∂x of every level (dense and hashed) against central differences of an f64
+    /// re-evaluation of the same cell's trilinear interpolation, at 200 random points; points
+    /// whose stencil would leave the cell are skipped (the encoding is only C⁰ across faces).
+    #[test]
+    fn hash_encoding_position_jacobian_matches_finite_differences_on_every_level() {
+        let e = HashEncoding::new(16, 16, 512, 14);
+        assert!(e.levels[0].dense && !e.levels[15].dense);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+        let emb: Vec<f32> = (0..e.n_params()).map(|_| rng.random::<f32>() - 0.5).collect();
+        let mut jac = vec![0.0f32; e.output_dim() * 3];
+        let mut checked = vec![0usize; e.levels.len()];
+        for _ in 0..200 {
+            let x: [f32; 3] = [rng.random(), rng.random(), rng.random()];
+            e.position_jacobian(&emb, x, &mut jac);
+            for (l, lv) in e.levels.iter().enumerate() {
+                let (idx, _) = corners_frac(lv, x);
+                let s = lv.scale as f64;
+                // y_f(x) of this cell in f64; `None` when x is too near a face for the stencil.
+                let h = 1e-3 / s;
+                let eval = |q: [f64; 3]| -> [f64; 2] {
+                    let fr = [0, 1, 2].map(|d| {
+                        let p = q[d] * s + 0.5;
+                        p - p.floor()
+                    });
+                    let mut y = [0.0f64; 2];
+                    for c in 0..8 {
+                        let w: f64 = (0..3).map(|d| if (c >> d) & 1 == 1 { fr[d] } else { 1.0 - fr[d] }).product();
+                        y[0] += w * emb[idx[c] as usize * 2] as f64;
+                        y[1] += w * emb[idx[c] as usize * 2 + 1] as f64;
+                    }
+                    y
+                };
+                let fr = [0, 1, 2].map(|d| (x[d] as f64 * s + 0.5).fract());
+                if fr.iter().any(|&f| !(0.01..0.99).contains(&f)) {
+                    continue;
+                }
+                for d in 0..3 {
+                    let mut xp = x.map(|v| v as f64);
+                    let mut xm = xp;
+                    xp[d] += h;
+                    xm[d] -= h;
+                    let (yp, ym) = (eval(xp), eval(xm));
+                    for f in 0..2 {
+                        let fd = (yp[f] - ym[f]) / (2.0 * h);
+                        let an = jac[(2 * l + f) * 3 + d] as f64;
+                        // f32 cell fractions differ from f64 by ~s·6e-8; |∂y/∂x| ≤ s·max|E|.
+                        assert!((an - fd).abs() <= 1e-4 * s, "level {l} feature {f} axis {d}: {an} vs fd {fd}");
+                    }
+                }
+                checked[l] += 1;
+            }
+        }
+        assert!(checked.iter().all(|&c| c >= 100), "points checked per level: {checked:?}");
+        // Clamped axes (outside the box) have no derivative.
+        e.position_jacobian(&emb, [1.2, 0.5, -0.1], &mut jac);
+        assert!(jac.chunks(3).all(|r| r[0] == 0.0 && r[2] == 0.0) && jac.chunks(3).any(|r| r[1] != 0.0));
     }
 
     #[test]

@@ -135,6 +135,17 @@ pub fn trunc_exp_grad(x: f32) -> f32 {
     x.min(15.0).exp()
 }
 
+/// The true derivative of [`trunc_exp`]'s forward (`exp(x)`, 0 past the clamp at 80), for
+/// Jacobians of rendered outputs; training uses torch-ngp's clipped [`trunc_exp_grad`].
+#[inline]
+pub fn trunc_exp_exact_grad(x: f32) -> f32 {
+    if x < 80.0 {
+        x.exp()
+    } else {
+        0.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -12,6 +12,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::PipelineError;
 
+/// Fraction of the default run's views taken at drone altitude.
+pub const DEFAULT_CLOSE_UP_FRACTION: f32 = 0.3;
 /// Default training length of `nerfsv run`.
 pub const DEFAULT_TRAIN_STEPS: u64 = 2000;
 /// Longest training nerfsv accepts, in steps.
@@ -80,7 +82,9 @@ impl Default for RunConfig {
         Self {
             scene: "stonehenge".into(),
             out: PathBuf::from("runs/stonehenge"),
-            dataset: GenerateOptions::default(),
+            // A third of the views at drone altitude, so the NeRF knows what the drone's camera
+            // sees (hemisphere views alone leave it blurry there).
+            dataset: GenerateOptions { close_up_fraction: DEFAULT_CLOSE_UP_FRACTION, ..GenerateOptions::default() },
             cells_per_metre: 40.0,
             nerf: NerfConfig::default(),
             train: TrainConfig::default(),

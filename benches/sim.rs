@@ -1,0 +1,96 @@
+//! Drone simulator throughput.
+//!
+//! - `sim/truth_rollouts`: 64 rollouts of the default flight (6 steps × 8 substeps, the body box
+//!   checked against the ground-truth field at every substep) with random disturbances and the
+//!   `truth` estimator, in parallel over rollouts; throughput in substeps.
+//! - `sim/vision_step_{nerf,gt}`: one vision-estimator update (observe 256 pixels, 9 renders
+//!   with pose Jacobians) in each world, at the path's waypoints. Needs a trained run folder:
+//!   `NERFSV_BENCH_RUN` (default `runs/stonehenge`, made by `cargo run --release -- run`).
+//!
+//! `cargo bench --bench sim`; figures are recorded in BENCHMARKS.md.
+
+use std::path::PathBuf;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use nerfsv_collision::SdfGrid;
+use nerfsv_nerf::{Nerf, NerfConfig};
+use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::{
+    plan_flight, random_disturbances, Disturbance, EstimatorKind, GroundTruthWorld, NerfWorld, SimConfig, State, World,
+};
+use rayon::prelude::*;
+
+fn truth_rollouts(c: &mut Criterion) {
+    let scene = Scene::builtin("stonehenge").expect("built-in scene");
+    let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 40.0).expect("ground-truth field");
+    let cfg = SimConfig::default();
+    let nerf = Nerf::new(NerfConfig::default(), 0).expect("model"); // unused by `truth`
+    let flight = plan_flight(&cfg, &gt.sdf, (nerf.config.aabb_min, nerf.config.aabb_max)).expect("plan");
+    let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(100, 100, 0.8));
+    let world = GroundTruthWorld { scene: &scene, field: &gt.sdf, render: RenderSettings::default() };
+    let disturbances: Vec<Vec<Disturbance>> =
+        (0..64).map(|i| random_disturbances(&cfg.disturbance_std, cfg.steps, i)).collect();
+    let substeps = (64 * cfg.steps * (cfg.substeps + 1)) as u64;
+    let mut g = c.benchmark_group("sim");
+    g.sample_size(20);
+    g.throughput(Throughput::Elements(substeps));
+    g.bench_function("truth_rollouts", |b| {
+        b.iter(|| {
+            disturbances
+                .par_iter()
+                .enumerate()
+                .map(|(i, d)| sim.fly(&world, EstimatorKind::Truth, d, i as u64).substeps.len())
+                .sum::<usize>()
+        })
+    });
+    g.finish();
+}
+
+fn vision_steps(c: &mut Criterion) {
+    let run = std::env::var_os("NERFSV_BENCH_RUN").map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
+    let (Ok(nerf), Ok(nerf_field), Ok(gt_field)) = (
+        Nerf::load(&run.join("nerf/checkpoint.safetensors")),
+        SdfGrid::load(run.join("nerf_collision/nerf_sdf.safetensors")),
+        SdfGrid::load(run.join("collision/gt_sdf.safetensors")),
+    ) else {
+        eprintln!("sim/vision_step: no trained run at {} (set NERFSV_BENCH_RUN); skipped", run.display());
+        return;
+    };
+    let scene = Scene::builtin("stonehenge").expect("built-in scene");
+    let cfg = SimConfig::default();
+    let flight = plan_flight(&cfg, &nerf_field, (nerf.config.aabb_min, nerf.config.aabb_max)).expect("plan");
+    let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(100, 100, 0.8));
+    let nerf_world = NerfWorld { nerf: &nerf, field: &nerf_field };
+    let gt_world = GroundTruthWorld { scene: &scene, field: &gt_field, render: RenderSettings::default() };
+    // Predictions off by 2 cm and 1° (a typical step's disturbance) at every waypoint.
+    let poses: Vec<(State, State)> = (0..cfg.steps)
+        .map(|k| {
+            let r = flight.reference.at((k + 1) as f64 * sim.step_duration());
+            let truth = State::at_rest(r.position, r.heading.y.atan2(r.heading.x));
+            let mut predicted = truth;
+            predicted.position += nalgebra::Vector3::new(0.012, -0.012, 0.01);
+            predicted.rotation =
+                nerfsv_sim::dynamics::so3_exp(&nalgebra::Vector3::new(0.01, -0.01, 0.01)) * truth.rotation;
+            (truth, predicted)
+        })
+        .collect();
+    let mut g = c.benchmark_group("sim");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(poses.len() as u64));
+    let worlds: [(&str, &dyn World); 2] = [("vision_step_nerf", &nerf_world), ("vision_step_gt", &gt_world)];
+    for (name, world) in worlds {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                poses
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (t, p))| sim.observe_and_refine(world, t, p, k as u64).renders)
+                    .sum::<usize>()
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, truth_rollouts, vision_steps);
+criterion_main!(benches);

@@ -1,6 +1,6 @@
-//! 6. The flight: plan the nominal path on the NeRF's signed field and fly it, undisturbed, in
-//! both worlds with both estimators: `RUN/flight/` holds each flight's trajectory CSV and plot.
-//! The same functions serve `nerfsv fly`.
+//! The flight stage (the sixth): plan the nominal path on the NeRF's signed field and fly it,
+//! undisturbed, in both worlds with both estimators; `RUN/flight/` holds each flight's
+//! trajectory CSV and plot. The same functions serve `nerfsv fly`.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -1,0 +1,97 @@
+//! The drone on the default scene with the default run's NeRF: nominal flights in both worlds
+//! with both estimators, and the vision estimator's convergence on NeRF images.
+//!
+//! The model is the default run's (same config and seed, so the same weights): its stages are
+//! built once into `CARGO_TARGET_TMPDIR` and reused by later test runs through the pipeline's
+//! content-keyed cache (a few minutes the first time).
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+use nalgebra::Vector3;
+use nerfsv_pipeline::flight::{world, FlightInputs};
+use nerfsv_pipeline::stages::{Dataset, GroundTruthField, NerfField, Train};
+use nerfsv_pipeline::{RunConfig, Runner, Silent, Stage};
+use nerfsv_scene::Scene;
+use nerfsv_sim::dynamics::{rotation_error, so3_exp};
+use nerfsv_sim::{EstimatorKind, State, WorldKind};
+
+/// The default run's dataset, fields and model, built (or found) in the target folder.
+fn default_run() -> &'static (RunConfig, FlightInputs) {
+    static RUN: OnceLock<(RunConfig, FlightInputs)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        std::env::set_var("MATMUL_NUM_THREADS", "1");
+        let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("default_run");
+        let cfg = RunConfig { out: out.clone(), ..RunConfig::default() };
+        let scene = Scene::builtin(&cfg.scene).unwrap();
+        let settings = cfg.nerf_settings();
+        let mut r = Runner::new(&out, &Silent).unwrap();
+        r.run(&Dataset { scene: &scene, options: &cfg.dataset }).unwrap();
+        r.run(&GroundTruthField { scene: &scene, cells_per_metre: cfg.cells_per_metre }).unwrap();
+        r.run(&Train { settings: &settings, steps: cfg.train_steps }).unwrap();
+        r.run(&NerfField { density_threshold: cfg.nerf_density_threshold }).unwrap();
+        let inputs = FlightInputs::load(
+            &Train::checkpoint(&out),
+            &out.join(NerfField::NAME).join(NerfField::SDF),
+            &GroundTruthField::sdf_path(&out),
+        )
+        .unwrap();
+        (cfg, inputs)
+    })
+}
+
+#[test]
+fn undisturbed_flights_reach_the_goal_without_collision_in_both_worlds_with_both_estimators() {
+    let (cfg, inputs) = default_run();
+    let scene = Scene::builtin(&cfg.scene).unwrap();
+    let flight = inputs.plan(&cfg.sim).unwrap();
+    let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
+    for kind in [WorldKind::Nerf, WorldKind::Gt] {
+        let w = world(kind, inputs, &scene, cfg.dataset.render_settings());
+        for estimator in [EstimatorKind::Truth, EstimatorKind::Vision] {
+            let r = sim.fly(w.as_ref(), estimator, &[], cfg.flight_seed);
+            let what = format!("{}-sim, {} estimator", kind.name(), estimator.name());
+            assert!(r.first_collision.is_none(), "{what}: collided {:?}", r.first_collision);
+            assert!(r.left_grid.is_none(), "{what}: left the grid {:?}", r.left_grid);
+            assert!(r.reached_goal, "{what}: ended {:.3} m from the goal", r.goal_distance_m);
+            assert!(r.min_clearance.unwrap() > 0.0);
+        }
+    }
+}
+
+#[test]
+fn vision_estimator_reduces_a_5_cm_3_degree_error_five_fold_on_nerf_images_at_most_step_ends() {
+    let (cfg, inputs) = default_run();
+    let scene = Scene::builtin(&cfg.scene).unwrap();
+    let flight = inputs.plan(&cfg.sim).unwrap();
+    let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
+    let w = world(WorldKind::Nerf, inputs, &scene, cfg.dataset.render_settings());
+    // Where the estimator runs in a rollout: at the end of every step, on the nominal path.
+    // Not every step end converges from this far yet (see BENCHMARKS.md: a view dominated by
+    // distant stones leaves the error along the optical axis weakly constrained); the median
+    // must be five-fold better, and at most two of the six may fail.
+    let (mut position_errors, mut rotation_errors, mut failures) = (Vec::new(), Vec::new(), Vec::new());
+    for k in 1..=cfg.sim.steps {
+        let r = flight.reference.at(k as f64 * sim.step_duration());
+        let truth = State::at_rest(r.position, r.heading.y.atan2(r.heading.x));
+        let mut predicted = truth;
+        predicted.position += Vector3::new(1.0, -1.0, 1.0).normalize() * 0.05;
+        predicted.rotation = so3_exp(&(Vector3::new(1.0, 1.0, -1.0).normalize() * 3f64.to_radians())) * truth.rotation;
+        let fit = sim.observe_and_refine(w.as_ref(), &truth, &predicted, k as u64);
+        let position = (fit.position - truth.position).norm();
+        let rotation = rotation_error(&fit.rotation, &truth.rotation).to_degrees();
+        eprintln!("step {k}: 5 cm / 3° became {:.1} mm / {rotation:.2}°", 1e3 * position);
+        if position > 0.01 || rotation > 0.6 {
+            failures.push(k);
+        }
+        position_errors.push(position);
+        rotation_errors.push(rotation);
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        0.5 * (v[v.len() / 2 - 1] + v[v.len() / 2])
+    };
+    let (p, r) = (median(&mut position_errors), median(&mut rotation_errors));
+    assert!(p <= 0.01 && r <= 0.6, "median error {:.1} mm / {r:.2}° is not five-fold below 5 cm / 3°", 1e3 * p);
+    assert!(failures.len() <= 2, "no five-fold reduction at steps {failures:?}");
+}

@@ -13,7 +13,7 @@
 //! the disturbances and the seed, so the same inputs replay bit for bit.
 
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
-use nerfsv_collision::BoxQuery;
+use nerfsv_collision::{BoxQuery, SdfGrid};
 use nerfsv_nerf::Nerf;
 use nerfsv_scene::Intrinsics;
 use serde::Serialize;
@@ -53,8 +53,9 @@ pub struct Substep {
     pub time: f64,
     pub truth: State,
     pub estimate: State,
-    /// Minimum signed distance over the body box (negative when penetrating); `None` when the
-    /// box is partly outside the field's grid.
+    /// Minimum signed distance over the body box (negative when penetrating), exact within
+    /// [`FAR_FIELD_M`] of geometry and a lower bound beyond (see [`body_query`]); `None` when
+    /// the box is partly outside the field's grid.
     pub clearance: Option<f32>,
 }
 
@@ -122,6 +123,32 @@ fn mean(values: impl ExactSizeIterator<Item = f64>) -> f64 {
     }
 }
 
+/// Clearance beyond which a rollout does not need the exact minimum over the body box.
+pub const FAR_FIELD_M: f32 = 0.1;
+
+/// The body box against `field`: [`SdfGrid::box_query`] (exact to 1/32 cell) when the box may
+/// be within [`FAR_FIELD_M`] of geometry; farther away, where the exact value changes nothing,
+/// the bound `d(centre) − |half extents|` (a distance field is 1-Lipschitz, so no point of the
+/// box is closer), which is at least `FAR_FIELD_M`. A box partly off the grid is `OutOfGrid`
+/// either way.
+pub fn body_query(field: &SdfGrid, centre: Point3<f32>, rotation: &Rotation3<f32>, half: Vector3<f32>) -> BoxQuery {
+    let g = &field.geometry;
+    let m = rotation.matrix();
+    for c in 0..8 {
+        let corner = Vector3::from_fn(|a, _| if c >> a & 1 == 1 { half[a] } else { -half[a] });
+        if !g.contains(&(centre + m * corner)) {
+            return BoxQuery::OutOfGrid;
+        }
+    }
+    if let Some(d) = field.distance(centre).in_grid() {
+        let bound = d - half.norm();
+        if bound > FAR_FIELD_M {
+            return BoxQuery::Clear { clearance: bound };
+        }
+    }
+    field.box_query(centre, rotation, half)
+}
+
 /// The seed of the pixels step `step` of a rollout seeded `seed` reads (SplitMix-style mix, so
 /// neighbouring seeds and steps give unrelated streams).
 fn step_seed(seed: u64, step: usize) -> u64 {
@@ -161,7 +188,7 @@ impl Simulator<'_> {
         let record = |out: &mut Rollout, step: usize, substep: usize, time: f64, truth: &State, estimate: &State| {
             let rotation = Rotation3::from_matrix_unchecked(truth.rotation.map(|v| v as f32));
             let centre = Point3::from(truth.position.map(|v| v as f32));
-            let q = field.box_query(centre, &rotation, self.half_extents);
+            let q = body_query(field, centre, &rotation, self.half_extents);
             let event = Event { step, substep, position: truth.position.into() };
             match q {
                 BoxQuery::OutOfGrid => {

@@ -216,3 +216,34 @@ fn a_replayed_rollout_reproduces_its_trajectory_bit_for_bit_on_any_thread_count(
     assert_ne!(a.substeps.last().unwrap().estimate, d.substeps.last().unwrap().estimate);
     let _ = so3_exp(&Vector3::zeros());
 }
+
+#[test]
+fn the_body_query_is_exact_near_geometry_and_a_lower_bound_far_from_it() {
+    use nalgebra::Rotation3;
+    use nerfsv_sim::rollout::{body_query, FAR_FIELD_M};
+    let world = post_world([0.6, 0.0, 0.3], [0.1, 0.1, 0.5]);
+    let f = &world.field;
+    let half = drone_half_extents();
+    let rotation = Rotation3::from_euler_angles(0.1, -0.2, 0.7);
+    let (mut near, mut far) = (0, 0);
+    for i in 0..200 {
+        let centre = Point3::new(-0.1 + 0.009 * i as f32, 0.05 + 0.001 * i as f32, 0.3);
+        let exact = f.box_query(centre, &rotation, half);
+        let fast = body_query(f, centre, &rotation, half);
+        match exact.min_sdf() {
+            Some(e) if e <= FAR_FIELD_M => {
+                near += 1;
+                assert_eq!(fast, exact, "at {centre:?}");
+            }
+            Some(e) => {
+                far += 1;
+                let b = fast.min_sdf().unwrap();
+                assert!(b > FAR_FIELD_M && b <= e + 1e-4, "at {centre:?}: bound {b}, exact {e}");
+            }
+            None => assert_eq!(fast, exact),
+        }
+    }
+    assert!(near > 20 && far > 20, "{near} near, {far} far");
+    // Off the grid either way.
+    assert_eq!(body_query(f, Point3::new(1.79, 0.0, 0.3), &rotation, half), nerfsv_collision::BoxQuery::OutOfGrid);
+}

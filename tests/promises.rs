@@ -46,9 +46,13 @@ fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
 /// `summary.json` without its wall-clock figures.
 fn summary_without_timings(root: &Path) -> serde_json::Value {
     fn strip(v: &mut serde_json::Value) {
-        if let serde_json::Value::Object(m) = v {
-            m.retain(|k, _| !k.contains("seconds") && !k.contains("per_second") && k != "run");
-            m.values_mut().for_each(strip);
+        match v {
+            serde_json::Value::Object(m) => {
+                m.retain(|k, _| !k.contains("seconds") && !k.contains("per_second") && k != "run");
+                m.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
         }
     }
     let mut v: serde_json::Value =

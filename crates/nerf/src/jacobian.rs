@@ -25,7 +25,7 @@ use crate::field_components::mlp::{
 };
 use crate::field_components::sh_encoding::{sh_encode, sh_jacobian, SH_DIM};
 use crate::fields::{ChunkWorkspace, NgpField, RayInput};
-use crate::model::{Nerf, Pool};
+use crate::model::Nerf;
 use crate::model_components::renderer::composite_forward;
 
 /// Rays per parallel task: small, so that a few hundred rays keep every core busy.
@@ -238,6 +238,13 @@ impl JacobianWorkspace {
     }
 }
 
+thread_local! {
+    /// Each worker thread's buffers, kept across calls (a pose update renders a few hundred
+    /// rays many times), so that a call allocates nothing once they have grown. Their contents
+    /// never carry over: every call overwrites what it reads.
+    static WORKSPACE: std::cell::RefCell<(ChunkWorkspace, JacobianWorkspace)> = Default::default();
+}
+
 impl Nerf {
     /// Renders rays (as [`render_rays`](Self::render_rays): same samples, bit-identical colour,
     /// opacity and distance) with the Jacobians of the colour with respect to each ray's origin
@@ -252,7 +259,6 @@ impl Nerf {
             opacity: vec![0.0; r],
             distance: vec![0.0; r],
         };
-        let pool = Pool::<(ChunkWorkspace, JacobianWorkspace)>::new();
         out.rgb
             .par_chunks_mut(JACOBIAN_CHUNK)
             .zip(out.d_origin.par_chunks_mut(JACOBIAN_CHUNK))
@@ -261,7 +267,7 @@ impl Nerf {
             .zip(out.distance.par_chunks_mut(JACOBIAN_CHUNK))
             .zip(rays.par_chunks(JACOBIAN_CHUNK))
             .for_each(|(((((rgb, d_o), d_d), op), dist), rs)| {
-                pool.with(|(ws, jw)| {
+                WORKSPACE.with_borrow_mut(|(ws, jw)| {
                     self.forward_chunk(ws, rs);
                     for (i, c) in rgb.iter_mut().enumerate() {
                         *c = [ws.color[3 * i], ws.color[3 * i + 1], ws.color[3 * i + 2]];

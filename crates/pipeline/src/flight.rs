@@ -2,7 +2,7 @@
 //! undisturbed, in both worlds with both estimators; `RUN/flight/` holds each flight's
 //! trajectory CSV and plot. The same functions serve `nerfsv fly`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use nerfsv_collision::SdfGrid;
@@ -295,9 +295,4 @@ impl Stage for FlightStage<'_> {
         }
         s
     }
-}
-
-/// The flight stage's folder in run `root`.
-pub fn flight_dir(root: &Path) -> PathBuf {
-    root.join(FlightStage::NAME)
 }

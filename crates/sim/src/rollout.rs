@@ -12,7 +12,7 @@
 //! grid is an `OutOfGrid` event, never clamped. Rollouts are pure functions of the simulator,
 //! the disturbances and the seed, so the same inputs replay bit for bit.
 
-use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
+use nalgebra::{Point3, Rotation3, Vector3};
 use nerfsv_collision::{BoxQuery, SdfGrid};
 use nerfsv_nerf::Nerf;
 use nerfsv_scene::Intrinsics;
@@ -277,9 +277,4 @@ impl Simulator<'_> {
             &self.vision,
         )
     }
-}
-
-/// Rotation error between two body rotations, degrees.
-pub fn rotation_error_deg(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
-    rotation_error(a, b).to_degrees()
 }

@@ -1,0 +1,160 @@
+//! Configuration of the adversary, every key with a default from the paper and a doc line.
+
+use nalgebra::DMatrix;
+use nerfsv_scene::validate::{in_range, positive, InvalidValue};
+use serde::{Deserialize, Serialize};
+
+use crate::gaussian::{Gaussian, DRONE_STD};
+
+/// The `[validation]` table.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ValidationConfig {
+    /// Run seed: every rollout's seed derives from it (with sampler, population and index).
+    pub seed: u64,
+    /// The per-step disturbance prior.
+    pub disturbance: DisturbanceConfig,
+    /// Plain Monte Carlo from the prior.
+    pub monte_carlo: MonteCarloConfig,
+    /// The Cross-Entropy Method and its importance-sampling estimate.
+    pub cem: CemConfig,
+}
+
+impl ValidationConfig {
+    /// Checks every key; errors name it as `validation.<table>.<key>`.
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        self.disturbance.validate().map_err(|e| e.within("disturbance"))?;
+        self.monte_carlo.validate().map_err(|e| e.within("monte_carlo"))?;
+        self.cem.validate().map_err(|e| e.within("cem"))?;
+        Ok(())
+    }
+}
+
+/// The per-step disturbance x_t ~ N(mean, Σ): Σ = diag(std²) unless `covariance` is given.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DisturbanceConfig {
+    /// Mean, one entry per disturbance component (default 12 zeros).
+    pub mean: Vec<f64>,
+    /// Standard deviations (default 0.02 on position and rotation, 0.01 on velocity and
+    /// angular rate); ignored when `covariance` is set.
+    pub std: Vec<f64>,
+    /// Full covariance, rows of `mean.len()` entries; must be symmetric positive definite.
+    pub covariance: Option<Vec<Vec<f64>>>,
+}
+
+impl Default for DisturbanceConfig {
+    fn default() -> Self {
+        Self { mean: vec![0.0; 12], std: DRONE_STD.to_vec(), covariance: None }
+    }
+}
+
+impl DisturbanceConfig {
+    /// The per-step Gaussian, or the first key that is wrong.
+    pub fn to_gaussian(&self) -> Result<Gaussian, InvalidValue> {
+        let d = self.mean.len();
+        match &self.covariance {
+            None => Gaussian::diagonal(self.mean.clone(), &self.std),
+            Some(rows) => {
+                if rows.len() != d {
+                    return Err(InvalidValue::new(
+                        "covariance",
+                        format!("must have {d} rows to match mean"),
+                        rows.len(),
+                    ));
+                }
+                if let Some(i) = rows.iter().position(|r| r.len() != d) {
+                    return Err(InvalidValue::new(
+                        format!("covariance[{i}]"),
+                        format!("must have {d} entries to match mean"),
+                        rows[i].len(),
+                    ));
+                }
+                let flat: Vec<f64> = rows.iter().flatten().copied().collect();
+                Gaussian::new(self.mean.clone(), DMatrix::from_row_slice(d, d, &flat))
+            }
+        }
+    }
+
+    /// Checks the keys (see [`DisturbanceConfig::to_gaussian`]).
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        self.to_gaussian().map(|_| ())
+    }
+}
+
+/// Plain Monte Carlo: `rollouts` trajectories from the prior.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MonteCarloConfig {
+    /// Number of rollouts (paper: 100).
+    pub rollouts: usize,
+}
+
+impl Default for MonteCarloConfig {
+    fn default() -> Self {
+        Self { rollouts: 100 }
+    }
+}
+
+impl MonteCarloConfig {
+    /// Refuses zero rollouts.
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("rollouts", self.rollouts, 1, 100_000_000)
+    }
+}
+
+/// The Cross-Entropy Method (Kochenderfer et al., *Algorithms for Validation*) and the
+/// importance-sampling estimate drawn from its final proposal.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CemConfig {
+    /// Population size per iteration (paper: 10).
+    pub m: usize,
+    /// Number of elite samples (paper: 5); 1 ≤ m_elite ≤ m.
+    pub m_elite: usize,
+    /// Number of iterations (populations) (paper: 5).
+    pub k_max: usize,
+    /// Refit a full covariance per step instead of a diagonal one.
+    pub full_covariance: bool,
+    /// Variance floor of a refitted proposal, as a fraction of the prior's variance; keeps a
+    /// proposal from collapsing onto a few elites.
+    pub variance_floor: f64,
+    /// Variance floor of the final proposal, the one the importance batch is drawn from, as a
+    /// fraction of the prior's variance. At 1 (default) the final proposal is at least as wide as
+    /// the prior in every coordinate, which bounds the weights p/q and keeps the estimate's
+    /// variance finite; a narrower final proposal (a Gaussian fitted to the failures of a
+    /// half-space has a variance ratio near 1/z² along the failure direction) gives
+    /// heavy-tailed weights and an estimate that is low more often than its SE admits.
+    pub is_variance_floor: f64,
+    /// Samples from the final proposal for the importance-sampling failure probability.
+    pub is_samples: usize,
+}
+
+impl Default for CemConfig {
+    fn default() -> Self {
+        Self {
+            m: 10,
+            m_elite: 5,
+            k_max: 5,
+            full_covariance: false,
+            variance_floor: 1e-3,
+            is_variance_floor: 1.0,
+            is_samples: 100,
+        }
+    }
+}
+
+impl CemConfig {
+    /// Refuses m = 0, m_elite = 0 or > m, k_max = 0, a non-positive variance floor and zero
+    /// importance samples.
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("m", self.m, 1, 100_000_000)?;
+        if self.m_elite == 0 || self.m_elite > self.m {
+            return Err(InvalidValue::new("m_elite", format!("must be between 1 and m ({})", self.m), self.m_elite));
+        }
+        in_range("k_max", self.k_max, 1, 100_000)?;
+        positive("variance_floor", self.variance_floor)?;
+        positive("is_variance_floor", self.is_variance_floor)?;
+        in_range("is_samples", self.is_samples, 1, 100_000_000)
+    }
+}

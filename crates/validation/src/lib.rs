@@ -1,0 +1,50 @@
+//! The adversary of nerfsv's safety validation (DESIGN.md §7): it searches the per-step
+//! disturbances x_t ~ N(0, Σ) of a [`System`] for failures and estimates how likely they are.
+//!
+//! - [`monte_carlo`]: rollouts from the [`Prior`], failure rate with a Wilson interval.
+//! - [`cross_entropy`]: the Cross-Entropy Method of Kochenderfer et al., *Algorithms for
+//!   Validation* — one Gaussian proposal per step, elites under γ = max(0, m_elite-th score),
+//!   weights from the whole trajectory's likelihood ratio exp(Σ_t [ln p − ln q_t]) (the original
+//!   code used each step's own ratio, which biases the estimate), weighted refit — ending with
+//!   an importance-sampling estimate of the failure probability and its standard error.
+//! - Every rollout's stream comes from [`rollout_seed`]`(run seed, sampler, population, index)`
+//!   and is recorded in a [`RolloutRecord`], so any single rollout [`replay`]s; [`write_csv`]
+//!   lays records out one row per (rollout, step).
+//!
+//! The crate is generic over the system under test; the simulator implements [`System`].
+//!
+//! ```
+//! use nerfsv_validation::{monte_carlo, Gaussian, MonteCarloConfig, Outcome, Prior, System};
+//!
+//! /// Fails when the first component of the last step's disturbance exceeds 2σ.
+//! struct Toy;
+//! impl System for Toy {
+//!     fn steps(&self) -> usize { 3 }
+//!     fn dim(&self) -> usize { 1 }
+//!     fn run(&self, x: &[Vec<f64>], _seed: u64) -> Outcome {
+//!         let s: Vec<f64> = x.iter().map(|v| 2.0 - v[0]).collect();
+//!         Outcome { score: s[2], collision_step: (s[2] <= 0.0).then_some(2), step_scores: s }
+//!     }
+//! }
+//! let prior = Prior::new(Gaussian::diagonal(vec![0.0], &[1.0]).unwrap(), 3);
+//! let mc = monte_carlo(&Toy, &prior, &MonteCarloConfig { rollouts: 1000 }, 7).unwrap();
+//! assert!(mc.interval.0 < 0.0228 && 0.0228 < mc.interval.1);
+//! ```
+
+mod config;
+mod gaussian;
+mod record;
+mod sampler;
+mod seed;
+mod system;
+
+pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, ValidationConfig};
+pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
+pub use record::{csv_header, write_csv, write_csv_file, RolloutRecord};
+pub use sampler::{
+    cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
+    replay, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate, MonteCarloResult, Reward,
+    SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+};
+pub use seed::rollout_seed;
+pub use system::{Outcome, System};

@@ -1,0 +1,405 @@
+//! The samplers: Monte Carlo from the prior, the Cross-Entropy Method, and the
+//! importance-sampling failure probability from CEM's final proposal.
+//!
+//! Rollouts of one population run in parallel (rayon) and are collected in index order; every
+//! reduction runs sequentially afterwards, so results are byte-identical at any thread count.
+
+use nalgebra::{DMatrix, DVector};
+use nerfsv_scene::validate::InvalidValue;
+use rayon::prelude::*;
+
+use crate::config::{CemConfig, MonteCarloConfig};
+use crate::gaussian::{Gaussian, Prior, Proposal};
+use crate::record::RolloutRecord;
+use crate::seed::rollout_seed;
+use crate::system::{Outcome, System};
+
+/// Sampler label of Monte Carlo rollouts.
+pub const SAMPLER_MC: &str = "mc";
+/// Sampler label of CEM's populations.
+pub const SAMPLER_CEM: &str = "cem";
+/// Sampler label of the importance-sampling batch drawn from CEM's final proposal.
+pub const SAMPLER_IS: &str = "cem-is";
+
+/// z of a two-sided 95 % interval.
+const Z95: f64 = 1.959_963_984_540_054;
+
+/// A reward for CEM's ranking: (outcome, index of the rollout within its population) → reward,
+/// higher is better.
+///
+/// What a reward can change: the order among failures and the order among non-failures, and so
+/// which samples are elites (the first `m_elite` of that order) and where the proposal moves
+/// next. What it cannot change: a failure always outranks a non-failure; it does not enter the
+/// importance weights (p/q over the whole trajectory) nor the failure indicator, so the
+/// importance-sampling estimate stays unbiased whatever the reward — only its variance changes.
+pub type Reward<'a> = &'a (dyn Fn(&Outcome, usize) -> f64 + Sync);
+
+/// Runs one rollout: draws its disturbances from `proposal` with `seed`, runs `system` with the
+/// same seed, and records log-densities under `prior` and `proposal`.
+#[allow(clippy::too_many_arguments)]
+pub fn rollout<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    proposal: &Proposal,
+    sampler: &str,
+    population: usize,
+    index: usize,
+    seed: u64,
+    reward: Option<Reward<'_>>,
+) -> RolloutRecord {
+    let disturbances = proposal.draw(seed);
+    let outcome = system.run(&disturbances, seed);
+    let step_log_p = prior.step_log_pdfs(&disturbances);
+    let step_log_q = proposal.step_log_pdfs(&disturbances);
+    RolloutRecord {
+        sampler: sampler.to_owned(),
+        population,
+        index,
+        seed,
+        log_p: step_log_p.iter().sum(),
+        log_q: step_log_q.iter().sum(),
+        step_log_p,
+        step_log_q,
+        reward: reward.map(|r| r(&outcome, index)),
+        failed: outcome.failed(),
+        score: outcome.score,
+        step_scores: outcome.step_scores,
+        collision_step: outcome.collision_step,
+        disturbances,
+    }
+}
+
+/// Re-runs a recorded rollout from its seed against the proposal it was drawn from
+/// (`CemResult::proposals[record.population]` for CEM, the prior's proposal for Monte Carlo,
+/// `CemResult::proposals.last()` for the importance batch). Equal to `record` when the system
+/// is deterministic in its seed.
+pub fn replay<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    proposal: &Proposal,
+    record: &RolloutRecord,
+    reward: Option<Reward<'_>>,
+) -> RolloutRecord {
+    rollout(system, prior, proposal, &record.sampler, record.population, record.index, record.seed, reward)
+}
+
+/// `n` rollouts of one population in parallel, in index order.
+#[allow(clippy::too_many_arguments)]
+fn population<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    proposal: &Proposal,
+    sampler: &str,
+    population: usize,
+    n: usize,
+    run_seed: u64,
+    reward: Option<Reward<'_>>,
+) -> Vec<RolloutRecord> {
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let seed = rollout_seed(run_seed, sampler, population, i);
+            rollout(system, prior, proposal, sampler, population, i, seed, reward)
+        })
+        .collect()
+}
+
+fn check_shapes<S: System + ?Sized>(system: &S, prior: &Prior) -> Result<(), InvalidValue> {
+    if system.dim() != prior.dim() {
+        return Err(InvalidValue::new(
+            "disturbance",
+            format!("must have {} components per step to match the system", system.dim()),
+            prior.dim(),
+        ));
+    }
+    if system.steps() != prior.steps() {
+        return Err(InvalidValue::new(
+            "steps",
+            format!("must be {} to match the system", system.steps()),
+            prior.steps(),
+        ));
+    }
+    Ok(())
+}
+
+/// Wilson score interval (95 %) of a binomial proportion `failures / n`.
+///
+/// ```
+/// let (lo, hi) = nerfsv_validation::wilson_interval(0, 100);
+/// assert_eq!(lo, 0.0);
+/// assert!((hi - 0.036_995).abs() < 1e-5);
+/// ```
+pub fn wilson_interval(failures: usize, n: usize) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 1.0);
+    }
+    let (k, n) = (failures as f64, n as f64);
+    let p = k / n;
+    let z2 = Z95 * Z95;
+    let denom = 1.0 + z2 / n;
+    let centre = (p + z2 / (2.0 * n)) / denom;
+    let half = Z95 / denom * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
+    // The bounds are exactly 0 and 1 at the ends; rounding would leave ±1e-18 there.
+    let lo = if failures == 0 { 0.0 } else { (centre - half).max(0.0) };
+    let hi = if failures as f64 == n { 1.0 } else { (centre + half).min(1.0) };
+    (lo, hi)
+}
+
+/// The failure with the highest trajectory log-likelihood (eq. 1) among `records`; ties go to
+/// the earlier record.
+pub fn most_likely_failure(records: &[RolloutRecord]) -> Option<&RolloutRecord> {
+    records.iter().filter(|r| r.failed).fold(None, |best: Option<&RolloutRecord>, r| match best {
+        Some(b) if b.log_p >= r.log_p => Some(b),
+        _ => Some(r),
+    })
+}
+
+/// Monte Carlo: the failure rate of rollouts from the prior.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MonteCarloResult {
+    /// Every rollout, in index order.
+    pub records: Vec<RolloutRecord>,
+    /// Number of failures.
+    pub failures: usize,
+    /// failures / rollouts.
+    pub probability: f64,
+    /// Wilson 95 % interval of `probability`.
+    pub interval: (f64, f64),
+    /// The most likely failure seen.
+    pub most_likely_failure: Option<RolloutRecord>,
+}
+
+/// `config.rollouts` rollouts from the prior (sampler [`SAMPLER_MC`], population 0).
+pub fn monte_carlo<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    config: &MonteCarloConfig,
+    run_seed: u64,
+) -> Result<MonteCarloResult, InvalidValue> {
+    config.validate()?;
+    check_shapes(system, prior)?;
+    let proposal = prior.to_proposal();
+    let records = population(system, prior, &proposal, SAMPLER_MC, 0, config.rollouts, run_seed, None);
+    let failures = records.iter().filter(|r| r.failed).count();
+    Ok(MonteCarloResult {
+        failures,
+        probability: failures as f64 / records.len() as f64,
+        interval: wilson_interval(failures, records.len()),
+        most_likely_failure: most_likely_failure(&records).cloned(),
+        records,
+    })
+}
+
+/// An importance-sampling estimate of the failure probability.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImportanceEstimate {
+    /// p̂ = (1/N) Σ_i 𝟙(fail_i)·p(x_i)/q(x_i).
+    pub probability: f64,
+    /// Standard error of p̂: sample std of the terms / √N (∞ for N < 2).
+    pub standard_error: f64,
+    /// p̂ ± 1.96·SE, clamped below at 0.
+    pub interval: (f64, f64),
+    /// N.
+    pub samples: usize,
+    /// Failures among the N samples.
+    pub failures: usize,
+}
+
+/// The importance-sampling estimate from rollouts drawn from one proposal, with the
+/// trajectory-level weight p(x)/q(x) = exp(Σ_t [ln p(x_t) − ln q_t(x_t)]) of each.
+pub fn importance_estimate(records: &[RolloutRecord]) -> ImportanceEstimate {
+    let n = records.len();
+    let terms: Vec<f64> = records.iter().map(|r| if r.failed { r.weight() } else { 0.0 }).collect();
+    let p = terms.iter().sum::<f64>() / n.max(1) as f64;
+    let se = if n < 2 {
+        f64::INFINITY
+    } else {
+        let ss: f64 = terms.iter().map(|v| (v - p) * (v - p)).sum();
+        (ss / ((n - 1) as f64 * n as f64)).sqrt()
+    };
+    ImportanceEstimate {
+        probability: p,
+        standard_error: se,
+        interval: ((p - Z95 * se).max(0.0), p + Z95 * se),
+        samples: n,
+        failures: records.iter().filter(|r| r.failed).count(),
+    }
+}
+
+/// `n` rollouts from `proposal` (sampler [`SAMPLER_IS`], population 0) and their
+/// importance-sampling estimate.
+pub fn importance_sampling<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    proposal: &Proposal,
+    n: usize,
+    run_seed: u64,
+) -> Result<(Vec<RolloutRecord>, ImportanceEstimate), InvalidValue> {
+    nerfsv_scene::validate::in_range("is_samples", n, 1, 100_000_000)?;
+    check_shapes(system, prior)?;
+    if proposal.len() != prior.steps() || proposal.steps().iter().any(|g| g.dim() != prior.dim()) {
+        return Err(InvalidValue::new(
+            "proposal",
+            format!("must have {} steps of dimension {}", prior.steps(), prior.dim()),
+            format!("{} steps", proposal.len()),
+        ));
+    }
+    let records = population(system, prior, proposal, SAMPLER_IS, 0, n, run_seed, None);
+    let estimate = importance_estimate(&records);
+    Ok((records, estimate))
+}
+
+/// Which samples of a population are elites.
+///
+/// Without rewards (Kochenderfer et al.): γ = max(0, m_elite-th smallest score) and the elites
+/// are the samples with score ≤ γ — all failures once there are at least `m_elite` of them.
+/// With rewards (one per record): failures first, then within failures and within non-failures
+/// by reward, higher first (ties by index); the elites are the first `m_elite`.
+pub fn select_elites(records: &[RolloutRecord], m_elite: usize, rewards: Option<&[f64]>) -> Vec<bool> {
+    let n = records.len();
+    let m_elite = m_elite.clamp(1, n.max(1));
+    match rewards {
+        None => {
+            let mut scores: Vec<f64> = records.iter().map(|r| r.score).collect();
+            scores.sort_by(f64::total_cmp);
+            let gamma = scores.get(m_elite - 1).copied().unwrap_or(0.0).max(0.0);
+            records.iter().map(|r| r.score <= gamma).collect()
+        }
+        Some(rewards) => {
+            assert_eq!(rewards.len(), n, "select_elites: one reward per record");
+            let mut order: Vec<usize> = (0..n).collect();
+            order.sort_by(|&a, &b| {
+                records[b].failed.cmp(&records[a].failed).then(rewards[b].total_cmp(&rewards[a])).then(a.cmp(&b))
+            });
+            let mut elite = vec![false; n];
+            for &i in order.iter().take(m_elite) {
+                elite[i] = true;
+            }
+            elite
+        }
+    }
+}
+
+/// Self-normalised CEM weights: w_i ∝ exp(Σ_t [ln p(x_t) − ln q_t(x_t)]) for elites — the whole
+/// trajectory's likelihood ratio, not each step's — and 0 for the rest.
+pub fn elite_weights(records: &[RolloutRecord], elite: &[bool]) -> Vec<f64> {
+    let log_w: Vec<f64> =
+        records.iter().zip(elite).map(|(r, &e)| if e { r.log_p - r.log_q } else { f64::NEG_INFINITY }).collect();
+    let max = log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let mut w: Vec<f64> = log_w.iter().map(|&l| if max.is_finite() { (l - max).exp() } else { 0.0 }).collect();
+    let sum: f64 = w.iter().sum();
+    if sum > 0.0 && sum.is_finite() {
+        w.iter_mut().for_each(|v| *v /= sum);
+    } else {
+        // No usable ratio: fall back to equal weights on the elites.
+        let k = elite.iter().filter(|&&e| e).count().max(1) as f64;
+        w = elite.iter().map(|&e| if e { 1.0 / k } else { 0.0 }).collect();
+    }
+    w
+}
+
+/// Weighted refit of each step's Gaussian. Diagonal: each variance floored at
+/// `variance_floor × prior variance`; full covariance: `variance_floor × prior variance` is
+/// added to the diagonal, which keeps a rank-deficient fit positive definite.
+pub fn refit(
+    prior: &Prior,
+    records: &[RolloutRecord],
+    weights: &[f64],
+    full_covariance: bool,
+    variance_floor: f64,
+) -> Proposal {
+    let (d, steps) = (prior.dim(), prior.steps());
+    let floor: Vec<f64> = (0..d).map(|j| variance_floor * prior.step().covariance()[(j, j)]).collect();
+    let fitted = (0..steps)
+        .map(|t| {
+            let mut mean = DVector::<f64>::zeros(d);
+            for (r, &w) in records.iter().zip(weights) {
+                if w > 0.0 {
+                    mean += DVector::from_column_slice(&r.disturbances[t]) * w;
+                }
+            }
+            let mut cov = DMatrix::<f64>::zeros(d, d);
+            for (r, &w) in records.iter().zip(weights) {
+                if w > 0.0 {
+                    let e = DVector::from_column_slice(&r.disturbances[t]) - &mean;
+                    if full_covariance {
+                        cov += &e * e.transpose() * w;
+                    } else {
+                        for j in 0..d {
+                            cov[(j, j)] += w * e[j] * e[j];
+                        }
+                    }
+                }
+            }
+            for j in 0..d {
+                cov[(j, j)] = if full_covariance { cov[(j, j)] + floor[j] } else { cov[(j, j)].max(floor[j]) };
+            }
+            Gaussian::new(mean.iter().copied().collect(), cov)
+                .expect("a floored weighted covariance of finite samples is positive definite")
+        })
+        .collect();
+    Proposal::new(fitted)
+}
+
+/// The Cross-Entropy Method's run: every rollout, the proposals, the estimate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CemResult {
+    /// The `k_max` populations (sampler [`SAMPLER_CEM`], population k), then the importance
+    /// batch (sampler [`SAMPLER_IS`]).
+    pub records: Vec<RolloutRecord>,
+    /// `[k_max + 1]`: `proposals[k]` drew population k (`proposals[0]` is the prior);
+    /// `proposals[k_max]`, the final one, drew the importance batch.
+    pub proposals: Vec<Proposal>,
+    /// Importance-sampling failure probability from the final proposal.
+    pub estimate: ImportanceEstimate,
+    /// The most likely failure among all rollouts (populations and importance batch).
+    pub most_likely_failure: Option<RolloutRecord>,
+}
+
+impl CemResult {
+    /// The proposal a record of this run was drawn from, for [`replay`].
+    pub fn proposal_of(&self, record: &RolloutRecord) -> &Proposal {
+        if record.sampler == SAMPLER_IS {
+            self.proposals.last().expect("k_max + 1 ≥ 1 proposals")
+        } else {
+            &self.proposals[record.population]
+        }
+    }
+}
+
+/// The Cross-Entropy Method (Kochenderfer et al., *Algorithms for Validation*): `k_max`
+/// populations of `m`, each ranked (by score, or by failure then `reward`, see [`Reward`]),
+/// its elites weighted by the trajectory likelihood ratio and refitted into the next proposal;
+/// then `is_samples` rollouts of the final proposal estimate the failure probability.
+pub fn cross_entropy<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    config: &CemConfig,
+    run_seed: u64,
+    reward: Option<Reward<'_>>,
+) -> Result<CemResult, InvalidValue> {
+    config.validate()?;
+    check_shapes(system, prior)?;
+    let mut proposals = vec![prior.to_proposal()];
+    let mut records = Vec::with_capacity(config.m * config.k_max + config.is_samples);
+    for k in 0..config.k_max {
+        let q = &proposals[k];
+        let pop = population(system, prior, q, SAMPLER_CEM, k, config.m, run_seed, reward);
+        let rewards: Option<Vec<f64>> =
+            reward.map(|_| pop.iter().map(|r| r.reward.unwrap_or(f64::NEG_INFINITY)).collect());
+        let elite = select_elites(&pop, config.m_elite, rewards.as_deref());
+        let weights = elite_weights(&pop, &elite);
+        // The last fit only draws the importance batch: floor it for bounded weights.
+        let floor = if k + 1 == config.k_max {
+            config.variance_floor.max(config.is_variance_floor)
+        } else {
+            config.variance_floor
+        };
+        proposals.push(refit(prior, &pop, &weights, config.full_covariance, floor));
+        records.extend(pop);
+    }
+    let last = proposals.last().expect("k_max ≥ 1");
+    let (batch, estimate) = importance_sampling(system, prior, last, config.is_samples, run_seed)?;
+    records.extend(batch);
+    Ok(CemResult { most_likely_failure: most_likely_failure(&records).cloned(), records, proposals, estimate })
+}

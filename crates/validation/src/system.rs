@@ -1,0 +1,37 @@
+//! The system under test, as the adversary sees it.
+
+use serde::{Deserialize, Serialize};
+
+/// The system under test: flies one trajectory of `steps()` steps, each step's disturbance a
+/// `dim()`-vector (12 for the drone: Δposition, Δvelocity, Δrotation vector, Δangular velocity).
+///
+/// `Sync` because rollouts run in parallel; `run` must be a pure function of its arguments so
+/// that a recorded rollout replays.
+pub trait System: Sync {
+    /// Number of steps of one trajectory.
+    fn steps(&self) -> usize;
+    /// Dimension of one step's disturbance.
+    fn dim(&self) -> usize;
+    /// Runs one trajectory with the given disturbances (`[steps][dim]`, a row per step) and a
+    /// seed for the system's own randomness (the rollout's seed; derive a separate stream from
+    /// it rather than reusing the disturbance stream).
+    fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome;
+}
+
+/// What one trajectory did.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Outcome {
+    /// Minimum signed clearance along the trajectory (m for the drone); ≤ 0 is a failure.
+    pub score: f64,
+    /// First step whose body touched geometry, if any.
+    pub collision_step: Option<usize>,
+    /// Per-step minimum clearance, `[steps]`.
+    pub step_scores: Vec<f64>,
+}
+
+impl Outcome {
+    /// A failure: score ≤ 0 (a NaN score is not a failure).
+    pub fn failed(&self) -> bool {
+        self.score <= 0.0
+    }
+}

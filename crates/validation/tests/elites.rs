@@ -1,0 +1,46 @@
+//! Elite selection: γ = max(0, m_elite-th smallest score) without a reward; failures first, then
+//! reward, with one.
+
+use nerfsv_validation::{select_elites, RolloutRecord};
+
+fn records(scores: &[f64]) -> Vec<RolloutRecord> {
+    scores
+        .iter()
+        .enumerate()
+        .map(|(i, &s)| RolloutRecord {
+            sampler: "cem".into(),
+            population: 0,
+            index: i,
+            seed: i as u64,
+            disturbances: vec![vec![0.0]],
+            step_log_p: vec![0.0],
+            step_log_q: vec![0.0],
+            log_p: 0.0,
+            log_q: 0.0,
+            score: s,
+            step_scores: vec![s],
+            collision_step: (s <= 0.0).then_some(0),
+            reward: None,
+            failed: s <= 0.0,
+        })
+        .collect()
+}
+
+#[test]
+fn gamma_is_clamped_at_zero_so_every_failure_is_an_elite() {
+    let r = records(&[-0.5, 0.2, 0.1, -0.1, -0.3, 0.3]);
+    // m_elite-th smallest is −0.1 → γ = 0: all three failures.
+    assert_eq!(select_elites(&r, 2, None), [true, false, false, true, true, false]);
+    // m_elite-th smallest is 0.1 → γ = 0.1.
+    assert_eq!(select_elites(&r, 4, None), [true, false, true, true, true, false]);
+}
+
+#[test]
+fn a_reward_reorders_within_failures_and_non_failures_only() {
+    let r = records(&[-0.5, 0.2, 0.1, -0.1, -0.3, 0.3]);
+    let rewards = [0.0, 5.0, 1.0, 2.0, -1.0, 9.0];
+    // Failures by reward: 3 (2), 0 (0), 4 (−1); then non-failures: 5 (9), 1 (5), 2 (1).
+    assert_eq!(select_elites(&r, 2, Some(&rewards)), [true, false, false, true, false, false]);
+    // The best non-failure (reward 9) never outranks the worst failure (reward −1).
+    assert_eq!(select_elites(&r, 4, Some(&rewards)), [true, false, false, true, true, true]);
+}

@@ -32,6 +32,7 @@
 //! ```
 
 mod config;
+mod drone;
 mod gaussian;
 mod record;
 mod sampler;
@@ -39,6 +40,7 @@ mod seed;
 mod system;
 
 pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, ValidationConfig};
+pub use drone::DroneSystem;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use record::{csv_header, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{

@@ -1,0 +1,44 @@
+//! The drone as a [`System`]: one rollout of a [`Simulator`] in a [`World`] with an estimator.
+
+use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
+
+use crate::system::{Outcome, System};
+
+/// The system under test of the paper: the simulator flying in one world.
+pub struct DroneSystem<'a> {
+    pub sim: &'a Simulator<'a>,
+    pub world: &'a dyn World,
+    pub estimator: EstimatorKind,
+}
+
+impl System for DroneSystem<'_> {
+    fn steps(&self) -> usize {
+        self.sim.steps
+    }
+
+    fn dim(&self) -> usize {
+        12
+    }
+
+    /// The score is the minimum clearance of the body box over every checked substep (≤ 0 is
+    /// a collision); a step's score is its own minimum. Substeps whose box left the field's
+    /// grid have no clearance and do not count; a step with none scores +∞.
+    fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
+        let ds: Vec<Disturbance> = disturbances
+            .iter()
+            .map(|d| Disturbance(std::array::from_fn(|i| d.get(i).copied().unwrap_or(0.0))))
+            .collect();
+        let r = self.sim.fly(self.world, self.estimator, &ds, seed);
+        let mut step_scores = vec![f64::INFINITY; self.sim.steps];
+        for s in &r.substeps {
+            if let Some(c) = s.clearance {
+                step_scores[s.step] = step_scores[s.step].min(c as f64);
+            }
+        }
+        Outcome {
+            score: r.min_clearance.map_or(f64::INFINITY, f64::from),
+            collision_step: r.first_collision.map(|e| e.step),
+            step_scores,
+        }
+    }
+}

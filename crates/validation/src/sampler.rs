@@ -12,7 +12,7 @@ use crate::config::{CemConfig, MonteCarloConfig};
 use crate::gaussian::{Gaussian, Prior, Proposal};
 use crate::record::RolloutRecord;
 use crate::seed::rollout_seed;
-use crate::system::{Outcome, System};
+use crate::system::System;
 
 /// Sampler label of Monte Carlo rollouts.
 pub const SAMPLER_MC: &str = "mc";
@@ -24,15 +24,16 @@ pub const SAMPLER_IS: &str = "cem-is";
 /// z of a two-sided 95 % interval.
 const Z95: f64 = 1.959_963_984_540_054;
 
-/// A reward for CEM's ranking: (outcome, index of the rollout within its population) → reward,
-/// higher is better.
+/// A reward for CEM's ranking, higher is better: a function of the whole rollout record (its
+/// disturbances, trajectory log-likelihood `log_p`, score, per-step scores, seed and index), so
+/// the paper's eq. 10/11 (`log p − penalty·uncertainty`) can be written as one.
 ///
 /// What a reward can change: the order among failures and the order among non-failures, and so
 /// which samples are elites (the first `m_elite` of that order) and where the proposal moves
 /// next. What it cannot change: a failure always outranks a non-failure; it does not enter the
 /// importance weights (p/q over the whole trajectory) nor the failure indicator, so the
 /// importance-sampling estimate stays unbiased whatever the reward — only its variance changes.
-pub type Reward<'a> = &'a (dyn Fn(&Outcome, usize) -> f64 + Sync);
+pub type Reward<'a> = &'a (dyn Fn(&RolloutRecord) -> f64 + Sync);
 
 /// Runs one rollout: draws its disturbances from `proposal` with `seed`, runs `system` with the
 /// same seed, and records log-densities under `prior` and `proposal`.
@@ -51,7 +52,7 @@ pub fn rollout<S: System + ?Sized>(
     let outcome = system.run(&disturbances, seed);
     let step_log_p = prior.step_log_pdfs(&disturbances);
     let step_log_q = proposal.step_log_pdfs(&disturbances);
-    RolloutRecord {
+    let mut record = RolloutRecord {
         sampler: sampler.to_owned(),
         population,
         index,
@@ -60,13 +61,15 @@ pub fn rollout<S: System + ?Sized>(
         log_q: step_log_q.iter().sum(),
         step_log_p,
         step_log_q,
-        reward: reward.map(|r| r(&outcome, index)),
+        reward: None,
         failed: outcome.failed(),
         score: outcome.score,
         step_scores: outcome.step_scores,
         collision_step: outcome.collision_step,
         disturbances,
-    }
+    };
+    record.reward = reward.map(|r| r(&record));
+    record
 }
 
 /// Re-runs a recorded rollout from its seed against the proposal it was drawn from

@@ -4,13 +4,14 @@ mod common;
 
 use common::{LinearToy, Z_1E3};
 use nerfsv_validation::{
-    cross_entropy, monte_carlo, replay, rollout_seed, write_csv, CemConfig, MonteCarloConfig, Outcome, RolloutRecord,
+    cross_entropy, monte_carlo, replay, rollout_seed, write_csv, CemConfig, MonteCarloConfig, RolloutRecord,
     SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 
-/// A reward that depends on the outcome and the index, to exercise the hook.
-fn reward(o: &Outcome, i: usize) -> f64 {
-    -o.step_scores.iter().sum::<f64>() - 1e-3 * i as f64
+/// A reward in the shape of the paper's eq. 10 (log-likelihood minus a penalty), depending on
+/// the record's scores and index too, to exercise the hook.
+fn reward(r: &RolloutRecord) -> f64 {
+    r.log_p - 36.0 * r.step_scores.iter().sum::<f64>() - 1e-3 * r.index as f64
 }
 
 /// MC and CEM (with a reward) on the toy, as CSV bytes, in a pool of `threads` threads.

@@ -38,6 +38,7 @@ mod record;
 mod sampler;
 mod seed;
 mod system;
+mod table;
 
 pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, ValidationConfig};
 pub use drone::DroneSystem;
@@ -50,3 +51,4 @@ pub use sampler::{
 };
 pub use seed::rollout_seed;
 pub use system::{Outcome, System};
+pub use table::{table_row, TableRow};

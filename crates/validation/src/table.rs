@@ -1,0 +1,80 @@
+//! The paper's Tables 1–2: one row of figures per sampler.
+
+use serde::{Deserialize, Serialize};
+
+use crate::record::RolloutRecord;
+
+/// One row of the paper's Tables 1–2 over a set of rollouts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TableRow {
+    pub sampler: String,
+    pub rollouts: usize,
+    /// Fraction of rollouts that collided.
+    pub collision_rate: f64,
+    /// Mean first collision step over the rollouts that collided (steps counted from 1, as in
+    /// the paper); `None` without collisions.
+    pub avg_collision_step: Option<f64>,
+    /// Mean trajectory log-likelihood (eq. 1) under the prior.
+    pub avg_log_likelihood: f64,
+}
+
+/// The row of `sampler` over `records` (only the records of that sampler count); `None` when
+/// there are none.
+pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
+    let rows: Vec<&RolloutRecord> = records.iter().filter(|r| r.sampler == sampler).collect();
+    if rows.is_empty() {
+        return None;
+    }
+    let n = rows.len() as f64;
+    let steps: Vec<f64> = rows.iter().filter_map(|r| r.collision_step).map(|s| (s + 1) as f64).collect();
+    Some(TableRow {
+        sampler: sampler.to_owned(),
+        rollouts: rows.len(),
+        collision_rate: rows.iter().filter(|r| r.failed).count() as f64 / n,
+        avg_collision_step: (!steps.is_empty()).then(|| steps.iter().sum::<f64>() / steps.len() as f64),
+        avg_log_likelihood: rows.iter().map(|r| r.log_p).sum::<f64>() / n,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(sampler: &str, log_p: f64, collision_step: Option<usize>) -> RolloutRecord {
+        RolloutRecord {
+            sampler: sampler.into(),
+            population: 0,
+            index: 0,
+            seed: 0,
+            disturbances: vec![],
+            step_log_p: vec![],
+            step_log_q: vec![],
+            log_p,
+            log_q: log_p,
+            score: if collision_step.is_some() { -0.01 } else { 0.2 },
+            step_scores: vec![],
+            collision_step,
+            reward: None,
+            failed: collision_step.is_some(),
+        }
+    }
+
+    #[test]
+    fn a_row_counts_only_its_sampler_and_averages_collision_steps_from_one() {
+        let records = vec![
+            record("mc", -10.0, Some(2)),
+            record("mc", -20.0, None),
+            record("mc", -30.0, Some(5)),
+            record("mc", -40.0, None),
+            record("cem", 0.0, Some(0)),
+        ];
+        let row = table_row("mc", &records).unwrap();
+        assert_eq!(row.rollouts, 4);
+        assert_eq!(row.collision_rate, 0.5);
+        assert_eq!(row.avg_collision_step, Some(4.5)); // steps 3 and 6, counted from 1
+        assert_eq!(row.avg_log_likelihood, -25.0);
+        let none = table_row("mc", &records[1..2]).unwrap();
+        assert_eq!((none.collision_rate, none.avg_collision_step), (0.0, None));
+        assert!(table_row("cem-is", &records).is_none());
+    }
+}

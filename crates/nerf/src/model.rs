@@ -209,10 +209,4 @@ impl Nerf {
     }
 }
 
-/// A 64-bit seed from a run seed, a purpose tag and an index (SplitMix64 finaliser).
-pub(crate) fn mix(seed: u64, tag: u64, index: u64) -> u64 {
-    let mut z = seed ^ tag.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
+pub(crate) use nerfsv_scene::seed::mix;

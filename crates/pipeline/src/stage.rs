@@ -94,14 +94,7 @@ impl Observer for Silent {
 }
 
 /// FNV-1a, 64 bit: stable across platforms and Rust versions, unlike `DefaultHasher`.
-pub fn fnv1a(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
-}
+pub use nerfsv_scene::seed::fnv1a;
 
 /// Salt shared by every stage key: outputs of another release are recomputed.
 const CODE_SALT: &str = concat!("nerfsv-pipeline ", env!("CARGO_PKG_VERSION"));

@@ -19,6 +19,7 @@ pub mod io;
 pub mod render;
 pub mod scenes;
 pub mod sdf;
+pub mod seed;
 pub mod texture;
 pub mod validate;
 

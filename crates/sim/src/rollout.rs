@@ -149,13 +149,9 @@ pub fn body_query(field: &SdfGrid, centre: Point3<f32>, rotation: &Rotation3<f32
     field.box_query(centre, rotation, half)
 }
 
-/// The seed of the pixels step `step` of a rollout seeded `seed` reads (SplitMix-style mix, so
-/// neighbouring seeds and steps give unrelated streams).
+/// The seed of the pixels step `step` of a rollout seeded `seed` reads.
 fn step_seed(seed: u64, step: usize) -> u64 {
-    let mut z = seed ^ (step as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+    nerfsv_scene::seed::mix(seed, step as u64 + 1, 0)
 }
 
 impl Simulator<'_> {

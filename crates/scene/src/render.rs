@@ -134,49 +134,54 @@ impl Scene {
         [a[0] * light, a[1] * light, a[2] * light]
     }
 
+    /// Pixel `(i, j)` of `camera`'s view: straight RGBA (colour the mean over the
+    /// `supersample²` stratified samples that hit, alpha the fraction that hit), and the hit of
+    /// the ray through the pixel's centre.
+    pub fn render_pixel(&self, camera: &Camera, i: u32, j: u32, s: &RenderSettings) -> ([f32; 4], Option<Hit>) {
+        let ss = s.supersample.max(1);
+        let centre = camera.ray(i as f32 + 0.5, j as f32 + 0.5);
+        let centre_hit = self.trace(&centre, s.max_steps);
+        let mut acc = [0.0f32; 4];
+        for sy in 0..ss {
+            for sx in 0..ss {
+                let (ray, hit) = if ss == 1 {
+                    (centre, centre_hit)
+                } else {
+                    let ray =
+                        camera.ray(i as f32 + (sx as f32 + 0.5) / ss as f32, j as f32 + (sy as f32 + 0.5) / ss as f32);
+                    (ray, self.trace(&ray, s.max_steps))
+                };
+                if let Some(hit) = hit {
+                    let c = self.shade(&ray, &hit, s);
+                    acc[0] += c[0];
+                    acc[1] += c[1];
+                    acc[2] += c[2];
+                    acc[3] += 1.0;
+                }
+            }
+        }
+        let mut rgba = [0.0f32; 4];
+        if acc[3] > 0.0 {
+            for c in 0..3 {
+                rgba[c] = acc[c] / acc[3];
+            }
+        }
+        rgba[3] = acc[3] * (1.0 / (ss * ss) as f32);
+        (rgba, centre_hit)
+    }
+
     /// Renders one view, parallel over rows.
     pub fn render(&self, camera: &Camera, s: &RenderSettings) -> RenderedImage {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let mut rgba = vec![0.0f32; w as usize * h as usize * 4];
         let mut depth = vec![0.0f32; w as usize * h as usize];
-        let ss = s.supersample.max(1);
-        let inv = 1.0 / (ss * ss) as f32;
         rgba.par_chunks_mut(4 * w as usize).zip(depth.par_chunks_mut(w as usize)).enumerate().for_each(
             |(j, (row, drow))| {
                 for i in 0..w {
-                    let (u, v) = (i as f32 + 0.5, j as f32 + 0.5);
-                    let centre = camera.ray(u, v);
-                    let centre_hit = self.trace(&centre, s.max_steps);
-                    let mut acc = [0.0f32; 4];
-                    for sy in 0..ss {
-                        for sx in 0..ss {
-                            let (ray, hit) = if ss == 1 {
-                                (centre, centre_hit)
-                            } else {
-                                let ray = camera.ray(
-                                    i as f32 + (sx as f32 + 0.5) / ss as f32,
-                                    j as f32 + (sy as f32 + 0.5) / ss as f32,
-                                );
-                                (ray, self.trace(&ray, s.max_steps))
-                            };
-                            if let Some(hit) = hit {
-                                let c = self.shade(&ray, &hit, s);
-                                acc[0] += c[0];
-                                acc[1] += c[1];
-                                acc[2] += c[2];
-                                acc[3] += 1.0;
-                            }
-                        }
-                    }
-                    // Straight alpha: colour is the mean over the samples that hit.
-                    let o = 4 * i as usize;
-                    if acc[3] > 0.0 {
-                        for c in 0..3 {
-                            row[o + c] = acc[c] / acc[3];
-                        }
-                    }
-                    row[o + 3] = acc[3] * inv;
-                    drow[i as usize] = centre_hit.map_or(0.0, |hit| hit.t * camera.z_depth_factor(u, v));
+                    let (pixel, centre_hit) = self.render_pixel(camera, i, j as u32, s);
+                    row[4 * i as usize..4 * i as usize + 4].copy_from_slice(&pixel);
+                    drow[i as usize] =
+                        centre_hit.map_or(0.0, |hit| hit.t * camera.z_depth_factor(i as f32 + 0.5, j as f32 + 0.5));
                 }
             },
         );

@@ -81,31 +81,12 @@ impl World for GroundTruthWorld<'_> {
     }
 
     fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]> {
-        let ss = self.render.supersample.max(1);
         pixels
             .iter()
             .map(|&[i, j]| {
-                // The renderer's stratified supersampling; colour over the hits, alpha the
-                // fraction of hits, composited on the background (straight alpha).
-                let mut acc = [0.0f32; 4];
-                for sy in 0..ss {
-                    for sx in 0..ss {
-                        let ray = camera
-                            .ray(i as f32 + (sx as f32 + 0.5) / ss as f32, j as f32 + (sy as f32 + 0.5) / ss as f32);
-                        if let Some(hit) = self.scene.trace(&ray, self.render.max_steps) {
-                            let c = self.scene.shade(&ray, &hit, &self.render);
-                            for (a, c) in acc.iter_mut().zip(c) {
-                                *a += c;
-                            }
-                            acc[3] += 1.0;
-                        }
-                    }
-                }
-                let alpha = acc[3] / (ss * ss) as f32;
-                std::array::from_fn(|c| {
-                    let colour = if acc[3] > 0.0 { acc[c] / acc[3] } else { 0.0 };
-                    colour * alpha + background[c] * (1.0 - alpha)
-                })
+                // The renderer's pixel (straight alpha), composited on the background.
+                let (rgba, _) = self.scene.render_pixel(camera, i, j, &self.render);
+                std::array::from_fn(|c| rgba[c] * rgba[3] + background[c] * (1.0 - rgba[3]))
             })
             .collect()
     }

@@ -238,6 +238,14 @@ pub struct RayInput {
     pub jitter: f32,
 }
 
+impl RayInput {
+    /// The rendering ray through the centre of pixel `(i, j)` (column, row) of `camera`.
+    pub fn through_pixel(camera: &nerfsv_scene::Camera, i: u32, j: u32, background: [f32; 3]) -> Self {
+        let r = camera.pixel_ray(i, j);
+        Self { origin: r.origin.coords.into(), direction: r.direction.into(), background, jitter: 0.0 }
+    }
+}
+
 /// Buffers of the fused forward/backward over a chunk of rays, reused across steps (they only
 /// grow). Shapes use `r` rays, `n` samples, `m` active (pre-termination) samples.
 #[derive(Default, Debug)]

@@ -47,13 +47,7 @@ pub fn camera_rays(camera: &Camera, bg: [f32; 3]) -> Vec<RayInput> {
     let mut rays = Vec::with_capacity(k.pixels());
     for j in 0..k.height {
         for i in 0..k.width {
-            let r = camera.pixel_ray(i, j);
-            rays.push(RayInput {
-                origin: [r.origin.x, r.origin.y, r.origin.z],
-                direction: [r.direction.x, r.direction.y, r.direction.z],
-                background: bg,
-                jitter: 0.0,
-            });
+            rays.push(RayInput::through_pixel(camera, i, j, bg));
         }
     }
     rays

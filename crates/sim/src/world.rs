@@ -94,11 +94,5 @@ impl World for GroundTruthWorld<'_> {
 
 /// The rays through the centres of `pixels` of `camera`.
 pub fn pixel_rays(camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<RayInput> {
-    pixels
-        .iter()
-        .map(|&[i, j]| {
-            let r = camera.pixel_ray(i, j);
-            RayInput { origin: r.origin.coords.into(), direction: r.direction.into(), background, jitter: 0.0 }
-        })
-        .collect()
+    pixels.iter().map(|&[i, j]| RayInput::through_pixel(camera, i, j, background)).collect()
 }

@@ -2,10 +2,11 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use nerfsv_collision::{field_bounds, GridGeometry, SdfGrid};
+use nerfsv_collision::SdfGrid;
 use nerfsv_dataset::GenerateOptions;
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::flight::{fly_and_write, world, FlightInputs};
+use nerfsv_pipeline::stages::nerf_density_field;
 use nerfsv_pipeline::{load_toml, refuse_output_inside, Validate};
 use nerfsv_scene::{InvalidValue, Scene};
 use nerfsv_sim::{random_disturbances, read_disturbances, EstimatorKind, SimConfig, WorldKind};
@@ -102,9 +103,8 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let nerf_field = match &args.nerf_field {
         Some(path) => SdfGrid::load(path)?,
         None => {
-            let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), 40.0)?;
-            let threshold = nerfsv_collision::default_density_threshold(1.0 / geometry.cell);
-            nerfsv_collision::density_field(geometry, threshold, |p, out| out.copy_from_slice(&nerf.density(p)))?.sdf
+            // On the ground-truth field's grid, as `nerfsv run` builds it.
+            nerf_density_field(&nerf, gt.sdf.geometry, None)?.1.sdf
         }
     };
     let inputs = FlightInputs { nerf, nerf_field, gt_field: gt.sdf };

@@ -327,8 +327,22 @@ impl NerfField {
     pub const MESH: &'static str = "nerf_mesh.ply";
 }
 
-/// The NeRF's collision field on `geometry` (density > threshold is solid), with its agreement
-/// with `reference` when given; written to `sdf_path` (and the mesh to `mesh_path`).
+/// The NeRF's collision field on `geometry`: density above `density_threshold` (default
+/// ln 2 / cell) is solid. Returns the threshold used and the field.
+pub fn nerf_density_field(
+    nerf: &Nerf,
+    geometry: nerfsv_collision::GridGeometry,
+    density_threshold: Option<f32>,
+) -> Result<(f32, BuiltField), PipelineError> {
+    let threshold =
+        density_threshold.unwrap_or_else(|| nerfsv_collision::default_density_threshold(1.0 / geometry.cell));
+    let field =
+        nerfsv_collision::density_field(geometry, threshold, |points, out| out.copy_from_slice(&nerf.density(points)))?;
+    Ok((threshold, field))
+}
+
+/// The NeRF's collision field on `geometry` ([`nerf_density_field`]), with its agreement with
+/// `reference` when given; written to `sdf_path` (and the mesh to `mesh_path`).
 pub fn build_nerf_field(
     nerf: &Nerf,
     geometry: nerfsv_collision::GridGeometry,
@@ -337,10 +351,7 @@ pub fn build_nerf_field(
     sdf_path: &Path,
     mesh_path: Option<&Path>,
 ) -> Result<NerfFieldFigures, PipelineError> {
-    let threshold =
-        density_threshold.unwrap_or_else(|| nerfsv_collision::default_density_threshold(1.0 / geometry.cell));
-    let field =
-        nerfsv_collision::density_field(geometry, threshold, |points, out| out.copy_from_slice(&nerf.density(points)))?;
+    let (threshold, field) = nerf_density_field(nerf, geometry, density_threshold)?;
     write_field(&field, sdf_path, mesh_path)?;
     Ok(NerfFieldFigures {
         density_threshold: threshold,

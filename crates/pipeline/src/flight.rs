@@ -187,6 +187,14 @@ impl FlightStage<'_> {
     pub fn output(world: WorldKind, estimator: EstimatorKind, ext: &str) -> String {
         format!("trajectory_{}_{}.{ext}", world.name(), estimator.name())
     }
+    /// The flights the stage flies, in order.
+    const FLIGHTS: [(WorldKind, EstimatorKind); 4] = [
+        (WorldKind::Nerf, EstimatorKind::Vision),
+        (WorldKind::Gt, EstimatorKind::Vision),
+        (WorldKind::Nerf, EstimatorKind::Truth),
+        (WorldKind::Gt, EstimatorKind::Truth),
+    ];
+    /// [`Self::output`] of every flight, spelled out because a stage's outputs are constants.
     const OUTPUT_FILES: &'static [&'static str] = &[
         "trajectory_nerf_vision.csv",
         "trajectory_nerf_vision.png",
@@ -252,12 +260,7 @@ impl Stage for FlightStage<'_> {
         )?;
         let flight = inputs.plan(self.sim)?;
         let mut flights = Vec::new();
-        let runs = [
-            (WorldKind::Nerf, EstimatorKind::Vision),
-            (WorldKind::Gt, EstimatorKind::Vision),
-            (WorldKind::Nerf, EstimatorKind::Truth),
-            (WorldKind::Gt, EstimatorKind::Truth),
-        ];
+        let runs = Self::FLIGHTS;
         for (i, (kind, estimator)) in runs.into_iter().enumerate() {
             cx.progress(
                 i as u64,
@@ -294,5 +297,19 @@ impl Stage for FlightStage<'_> {
             s.push_str(&fl.describe());
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_declared_outputs_are_the_files_each_flight_writes() {
+        let written: Vec<String> = FlightStage::FLIGHTS
+            .iter()
+            .flat_map(|&(w, e)| ["csv", "png"].map(|ext| FlightStage::output(w, e, ext)))
+            .collect();
+        assert_eq!(written, FlightStage::OUTPUT_FILES);
     }
 }

@@ -65,8 +65,7 @@ fn vision_steps(c: &mut Criterion) {
     // Predictions off by 2 cm and 1° (a typical step's disturbance) at every waypoint.
     let poses: Vec<(State, State)> = (0..cfg.steps)
         .map(|k| {
-            let r = flight.reference.at((k + 1) as f64 * sim.step_duration());
-            let truth = State::at_rest(r.position, r.heading.y.atan2(r.heading.x));
+            let truth = flight.reference.at_rest((k + 1) as f64 * sim.step_duration());
             let mut predicted = truth;
             predicted.position += nalgebra::Vector3::new(0.012, -0.012, 0.01);
             predicted.rotation =

@@ -14,7 +14,7 @@ use nerfsv_pipeline::stages::{Dataset, GroundTruthField, NerfField, Train};
 use nerfsv_pipeline::{RunConfig, Runner, Silent, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{rotation_error, so3_exp};
-use nerfsv_sim::{EstimatorKind, Flight, Simulator, State, WorldKind};
+use nerfsv_sim::{EstimatorKind, Flight, Simulator, WorldKind};
 
 /// The default run's config, model and fields (built or found in the target folder), and its
 /// planned flight.
@@ -83,8 +83,7 @@ fn vision_estimator_reduces_a_5_cm_3_degree_error_five_fold_on_nerf_images_at_mo
     // most two of the six may fail.
     let (mut position_errors, mut rotation_errors, mut failures) = (Vec::new(), Vec::new(), Vec::new());
     for k in 1..=cfg.sim.steps {
-        let r = run.flight.reference.at(k as f64 * sim.step_duration());
-        let truth = State::at_rest(r.position, r.heading.y.atan2(r.heading.x));
+        let truth = run.flight.reference.at_rest(k as f64 * sim.step_duration());
         let mut predicted = truth;
         predicted.position += Vector3::new(1.0, -1.0, 1.0).normalize() * 0.05;
         predicted.rotation = so3_exp(&(Vector3::new(1.0, 1.0, -1.0).normalize() * 3f64.to_radians())) * truth.rotation;

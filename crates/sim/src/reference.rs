@@ -33,6 +33,7 @@
 
 use nalgebra::Vector3;
 
+use crate::dynamics::State;
 use crate::planner::PlannedPath;
 
 /// Length of the look-ahead chord that sets the heading, metres.
@@ -150,6 +151,13 @@ impl ReferenceTrajectory {
     pub fn initial_yaw(&self) -> f64 {
         let h = self.at(0.0).heading;
         h.y.atan2(h.x)
+    }
+
+    /// The drone at rest where the reference is at time `t`, facing its heading: the start
+    /// state at `t = 0`, and the nominal pose at the end of a step.
+    pub fn at_rest(&self, t: f64) -> State {
+        let r = self.at(t);
+        State::at_rest(r.position, r.heading.y.atan2(r.heading.x))
     }
 
     /// The reference at time `t` seconds (clamped to `[0, duration]`).

@@ -157,8 +157,7 @@ fn step_seed(seed: u64, step: usize) -> u64 {
 impl Simulator<'_> {
     /// The initial state: at rest at the path's start, facing along it.
     pub fn initial_state(&self) -> State {
-        let r = self.reference.at(0.0);
-        State::at_rest(r.position, r.heading.y.atan2(r.heading.x))
+        self.reference.at_rest(0.0)
     }
 
     /// Duration of one step, seconds.

@@ -21,8 +21,9 @@ impl System for DroneSystem<'_> {
     }
 
     /// The score is the minimum clearance of the body box over every checked substep (≤ 0 is
-    /// a collision); a step's score is its own minimum. Substeps whose box left the field's
-    /// grid have no clearance and do not count; a step with none scores +∞.
+    /// a collision); a step's score is its own minimum, its position the true one at its end.
+    /// Substeps whose box left the field's grid have no clearance and do not count; a step with
+    /// none scores +∞.
     fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
         let ds: Vec<Disturbance> = disturbances
             .iter()
@@ -30,15 +31,20 @@ impl System for DroneSystem<'_> {
             .collect();
         let r = self.sim.fly(self.world, self.estimator, &ds, seed);
         let mut step_scores = vec![f64::INFINITY; self.sim.steps];
+        let mut step_positions = vec![[f64::NAN; 3]; self.sim.steps];
         for s in &r.substeps {
             if let Some(c) = s.clearance {
                 step_scores[s.step] = step_scores[s.step].min(c as f64);
             }
+            // The substeps come in order: the last one of a step is its end.
+            step_positions[s.step] = s.truth.position.into();
         }
         Outcome {
             score: r.min_clearance.map_or(f64::INFINITY, f64::from),
             collision_step: r.first_collision.map(|e| e.step),
             step_scores,
+            step_positions,
+            step_uncertainty: Vec::new(),
         }
     }
 }

@@ -23,31 +23,37 @@
 //!     fn dim(&self) -> usize { 1 }
 //!     fn run(&self, x: &[Vec<f64>], _seed: u64) -> Outcome {
 //!         let s: Vec<f64> = x.iter().map(|v| 2.0 - v[0]).collect();
-//!         Outcome { score: s[2], collision_step: (s[2] <= 0.0).then_some(2), step_scores: s }
+//!         Outcome::new(s[2], (s[2] <= 0.0).then_some(2), s)
 //!     }
 //! }
 //! let prior = Prior::new(Gaussian::diagonal(vec![0.0], &[1.0]).unwrap(), 3);
-//! let mc = monte_carlo(&Toy, &prior, &MonteCarloConfig { rollouts: 1000 }, 7).unwrap();
+//! let mc = monte_carlo(&Toy, &prior, &MonteCarloConfig { rollouts: 1000 }, 7, &()).unwrap();
 //! assert!(mc.interval.0 < 0.0228 && 0.0228 < mc.interval.1);
 //! ```
 
+mod compare;
 mod config;
 mod drone;
+mod error;
 mod gaussian;
+mod journal;
 mod record;
 mod sampler;
 mod seed;
 mod system;
 mod table;
 
+pub use compare::{compare, Agreement, Confusion, Spread};
 pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, ValidationConfig};
 pub use drone::DroneSystem;
+pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
-pub use record::{csv_header, write_csv, write_csv_file, RolloutRecord};
+pub use journal::{Journal, Recorder};
+pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
-    replay, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate, MonteCarloResult, Reward,
-    SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate,
+    MonteCarloResult, Reward, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 pub use seed::rollout_seed;
 pub use system::{Outcome, System};

@@ -1,11 +1,14 @@
 //! One row per rollout ([`RolloutRecord`]) and the CSV that lays it out one row per
-//! (rollout, step), so that any figure of the report can be recomputed from the file.
+//! (rollout, step), so that any figure of the report can be recomputed from the file — and the
+//! file read back ([`read_csv`]) gives the same records, bit for bit.
 
 use std::fmt::Write as _;
 use std::io::{self, Write};
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
+
+use crate::error::ValidationError;
 
 /// Everything about one rollout: where it came from, what it flew, how likely it was, what
 /// happened.
@@ -34,6 +37,10 @@ pub struct RolloutRecord {
     pub score: f64,
     /// Per-step minimum clearance, `[steps]`.
     pub step_scores: Vec<f64>,
+    /// Position at the end of each step, `[steps]` (empty for a system without positions).
+    pub step_positions: Vec<[f64; 3]>,
+    /// Uncertainty of each step's observation, `[steps]` (empty when none is measured).
+    pub step_uncertainty: Vec<f64>,
     /// First step that touched geometry, if any.
     pub collision_step: Option<usize>,
     /// The reward the CEM ranking used, if one was given.
@@ -47,26 +54,46 @@ impl RolloutRecord {
     pub fn weight(&self) -> f64 {
         (self.log_p - self.log_q).exp()
     }
+
+    /// Mean uncertainty over the steps, if measured.
+    pub fn mean_uncertainty(&self) -> Option<f64> {
+        let u = &self.step_uncertainty;
+        (!u.is_empty()).then(|| u.iter().sum::<f64>() / u.len() as f64)
+    }
+
+    /// The key that identifies a rollout within a run: (sampler, population, index).
+    pub fn key(&self) -> (&str, usize, usize) {
+        (&self.sampler, self.population, self.index)
+    }
 }
 
+/// The columns after the disturbances.
+const TAIL: [&str; 10] = ["log_p", "log_q", "uncertainty", "reward", "score", "clearance", "x", "y", "z", "collided"];
+
 /// The CSV header for disturbances of dimension `dim`:
-/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,clearance,collided`.
+/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,clearance,x,y,z,collided`.
 pub fn csv_header(dim: usize) -> String {
     let mut s = String::from("sampler,population,index,seed,step");
     for j in 0..dim {
         let _ = write!(s, ",d{j}");
     }
-    s.push_str(",log_p,log_q,clearance,collided");
+    for c in TAIL {
+        let _ = write!(s, ",{c}");
+    }
     s
 }
 
 /// Writes `records` as CSV, one row per (rollout, step), in the order given.
 ///
-/// `log_p` and `log_q` are the step's own terms (a rollout's rows sum to eq. 1's trajectory
-/// log-likelihood and its proposal counterpart); `clearance` is the step's minimum clearance;
-/// `collided` is 1 on the first step that touched geometry and 0 elsewhere. Floats are written
-/// with Rust's shortest round-trip formatting, so a value read back is the value written and
-/// the same records always give the same bytes. Refuses records of different dimensions.
+/// Columns: `log_p` and `log_q` are the step's own terms (a rollout's rows sum to eq. 1's
+/// trajectory log-likelihood and its proposal counterpart); `uncertainty` is the step's (empty
+/// when not measured); `reward` (empty without one) and `score` (the trajectory's minimum
+/// clearance) repeat on every row of the rollout; `clearance` is the step's minimum clearance;
+/// `x,y,z` the position at the step's end (empty for systems without one); `collided` is 1 on
+/// the first step that touched geometry and 0 elsewhere (a step touched geometry where its
+/// clearance is ≤ 0). Floats are written with Rust's shortest round-trip formatting, so a value
+/// read back is the value written and the same records always give the same bytes. Refuses
+/// records of different dimensions.
 pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()> {
     let dim = records.iter().flat_map(|r| r.disturbances.first()).map(Vec::len).next().unwrap_or(0);
     writeln!(w, "{}", csv_header(dim))?;
@@ -91,8 +118,22 @@ pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()
                 let _ = write!(line, ",{v}");
             }
             let at = |v: &[f64]| v.get(t).copied().unwrap_or(f64::NAN);
-            let collided = u8::from(r.collision_step == Some(t));
-            let _ = write!(line, ",{},{},{},{collided}", at(&r.step_log_p), at(&r.step_log_q), at(&r.step_scores));
+            let _ = write!(line, ",{},{},", at(&r.step_log_p), at(&r.step_log_q));
+            if let Some(u) = r.step_uncertainty.get(t) {
+                let _ = write!(line, "{u}");
+            }
+            line.push(',');
+            if let Some(reward) = r.reward {
+                let _ = write!(line, "{reward}");
+            }
+            let _ = write!(line, ",{},{},", r.score, at(&r.step_scores));
+            match r.step_positions.get(t) {
+                Some([x, y, z]) => {
+                    let _ = write!(line, "{x},{y},{z}");
+                }
+                None => line.push_str(",,"),
+            }
+            let _ = write!(line, ",{}", u8::from(r.collision_step == Some(t)));
             writeln!(w, "{line}")?;
         }
     }
@@ -103,4 +144,114 @@ pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()
 /// killed run never leaves half a file behind.
 pub fn write_csv_file(path: &Path, records: &[RolloutRecord]) -> io::Result<()> {
     nerfsv_scene::io::atomic_write(path, |w| write_csv(w, records))
+}
+
+/// Reads a file [`write_csv`] wrote back into its records; errors name the file and line.
+pub fn read_csv_file(path: &Path) -> Result<Vec<RolloutRecord>, ValidationError> {
+    let text = std::fs::read_to_string(path).map_err(|e| ValidationError::io(path, e))?;
+    parse_csv(&text).map_err(|(line, message)| ValidationError::Csv { path: path.into(), line, message })
+}
+
+/// Parses [`write_csv`]'s format; the error is (1-based line, message).
+pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
+    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l));
+    let (_, header) = lines.next().ok_or((1, "empty file, expected a header".to_owned()))?;
+    let columns: Vec<&str> = header.split(',').collect();
+    let dim = columns.len().checked_sub(5 + TAIL.len()).ok_or((1, format!("expected `{}`", csv_header(0))))?;
+    if header != csv_header(dim) {
+        return Err((1, format!("header must be `{}`", csv_header(dim))));
+    }
+    let mut records: Vec<RolloutRecord> = Vec::new();
+    for (n, line) in lines {
+        let fields: Vec<&str> = line.split(',').collect();
+        if fields.len() != columns.len() {
+            return Err((n, format!("{} fields, expected {}", fields.len(), columns.len())));
+        }
+        let col = |i: usize| columns[i];
+        let float = |i: usize| -> Result<f64, (usize, String)> {
+            fields[i].parse::<f64>().map_err(|_| (n, format!("column {}: `{}` is not a number", col(i), fields[i])))
+        };
+        let optional = |i: usize| -> Result<Option<f64>, (usize, String)> {
+            if fields[i].is_empty() {
+                Ok(None)
+            } else {
+                float(i).map(Some)
+            }
+        };
+        let integer = |i: usize| -> Result<u64, (usize, String)> {
+            fields[i].parse::<u64>().map_err(|_| (n, format!("column {}: `{}` is not a count", col(i), fields[i])))
+        };
+        let (population, index, seed, step) =
+            (integer(1)? as usize, integer(2)? as usize, integer(3)?, integer(4)? as usize);
+        let tail = 5 + dim;
+        let x: Vec<f64> = (5..tail).map(float).collect::<Result<_, _>>()?;
+        let (log_p, log_q) = (float(tail)?, float(tail + 1)?);
+        let uncertainty = optional(tail + 2)?;
+        let reward = optional(tail + 3)?;
+        let score = float(tail + 4)?;
+        let clearance = float(tail + 5)?;
+        let position = [optional(tail + 6)?, optional(tail + 7)?, optional(tail + 8)?];
+        let collided = match fields[tail + 9] {
+            "0" => false,
+            "1" => true,
+            other => return Err((n, format!("column collided: `{other}` is not 0 or 1"))),
+        };
+        let continues = records.last().is_some_and(|r| {
+            r.sampler == fields[0] && r.population == population && r.index == index && r.seed == seed
+        });
+        if step == 0 {
+            records.push(RolloutRecord {
+                sampler: fields[0].to_owned(),
+                population,
+                index,
+                seed,
+                disturbances: Vec::new(),
+                step_log_p: Vec::new(),
+                step_log_q: Vec::new(),
+                log_p: 0.0,
+                log_q: 0.0,
+                score,
+                step_scores: Vec::new(),
+                step_positions: Vec::new(),
+                step_uncertainty: Vec::new(),
+                collision_step: None,
+                reward,
+                failed: score <= 0.0,
+            });
+        } else if !continues {
+            return Err((n, format!("step {step} does not continue the rollout above it")));
+        }
+        let r = records.last_mut().expect("a record was pushed or continues");
+        if r.disturbances.len() != step {
+            return Err((n, format!("step {step} follows step {}", r.disturbances.len().wrapping_sub(1))));
+        }
+        if r.score.to_bits() != score.to_bits() || r.reward.map(f64::to_bits) != reward.map(f64::to_bits) {
+            return Err((n, "score and reward must repeat on every row of a rollout".to_owned()));
+        }
+        r.disturbances.push(x);
+        r.step_log_p.push(log_p);
+        r.step_log_q.push(log_q);
+        r.step_scores.push(clearance);
+        match (position, step == 0 || !r.step_positions.is_empty()) {
+            ([Some(x), Some(y), Some(z)], true) => r.step_positions.push([x, y, z]),
+            ([None, None, None], _) if r.step_positions.is_empty() => {}
+            _ => return Err((n, "x, y, z must be all given or all empty, on every row of a rollout".to_owned())),
+        }
+        match (uncertainty, step == 0 || !r.step_uncertainty.is_empty()) {
+            (Some(u), true) => r.step_uncertainty.push(u),
+            (None, _) if r.step_uncertainty.is_empty() => {}
+            _ => return Err((n, "uncertainty must be given on every row of a rollout or on none".to_owned())),
+        }
+        if collided {
+            if r.collision_step.is_some() {
+                return Err((n, "a rollout has one first collision".to_owned()));
+            }
+            r.collision_step = Some(step);
+        }
+    }
+    for r in &mut records {
+        r.log_p = r.step_log_p.iter().sum();
+        r.log_q = r.step_log_q.iter().sum();
+    }
+    Ok(records)
 }

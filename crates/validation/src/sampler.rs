@@ -9,7 +9,9 @@ use nerfsv_scene::validate::InvalidValue;
 use rayon::prelude::*;
 
 use crate::config::{CemConfig, MonteCarloConfig};
+use crate::error::ValidationError;
 use crate::gaussian::{Gaussian, Prior, Proposal};
+use crate::journal::Recorder;
 use crate::record::RolloutRecord;
 use crate::seed::rollout_seed;
 use crate::system::System;
@@ -65,6 +67,8 @@ pub fn rollout<S: System + ?Sized>(
         failed: outcome.failed(),
         score: outcome.score,
         step_scores: outcome.step_scores,
+        step_positions: outcome.step_positions,
+        step_uncertainty: outcome.step_uncertainty,
         collision_step: outcome.collision_step,
         disturbances,
     };
@@ -86,7 +90,45 @@ pub fn replay<S: System + ?Sized>(
     rollout(system, prior, proposal, &record.sampler, record.population, record.index, record.seed, reward)
 }
 
-/// `n` rollouts of one population in parallel, in index order.
+/// Flies the same disturbances with the same seed in another `system` (GT-sim for a rollout
+/// found in NeRF-sim): the record keeps its identity and log-densities and takes the new
+/// outcome; no reward.
+pub fn replay_on<S: System + ?Sized>(system: &S, record: &RolloutRecord) -> RolloutRecord {
+    let outcome = system.run(&record.disturbances, record.seed);
+    RolloutRecord {
+        reward: None,
+        failed: outcome.failed(),
+        score: outcome.score,
+        step_scores: outcome.step_scores,
+        step_positions: outcome.step_positions,
+        step_uncertainty: outcome.step_uncertainty,
+        collision_step: outcome.collision_step,
+        ..record.clone()
+    }
+}
+
+/// [`replay_on`] for every record, in parallel, in order; finished replays are recalled from
+/// and kept in `recorder` (give it a journal of its own, apart from the original rollouts').
+pub fn replay_all<S: System + ?Sized>(
+    system: &S,
+    records: &[RolloutRecord],
+    recorder: &dyn Recorder,
+) -> Result<Vec<RolloutRecord>, ValidationError> {
+    records
+        .par_iter()
+        .map(|r| {
+            if let Some(done) = recorder.recall(&r.sampler, r.population, r.index).filter(|d| d.seed == r.seed) {
+                return Ok(done);
+            }
+            let replayed = replay_on(system, r);
+            recorder.record(&replayed)?;
+            Ok(replayed)
+        })
+        .collect()
+}
+
+/// `n` rollouts of one population in parallel, in index order; rollouts `recorder` recalls
+/// are not run again, the others are kept in it as they finish.
 #[allow(clippy::too_many_arguments)]
 fn population<S: System + ?Sized>(
     system: &S,
@@ -97,12 +139,19 @@ fn population<S: System + ?Sized>(
     n: usize,
     run_seed: u64,
     reward: Option<Reward<'_>>,
-) -> Vec<RolloutRecord> {
+    recorder: &dyn Recorder,
+) -> Result<Vec<RolloutRecord>, ValidationError> {
     (0..n)
         .into_par_iter()
         .map(|i| {
             let seed = rollout_seed(run_seed, sampler, population, i);
-            rollout(system, prior, proposal, sampler, population, i, seed, reward)
+            if let Some(mut done) = recorder.recall(sampler, population, i).filter(|d| d.seed == seed) {
+                done.reward = reward.map(|r| r(&done));
+                return Ok(done);
+            }
+            let record = rollout(system, prior, proposal, sampler, population, i, seed, reward);
+            recorder.record(&record)?;
+            Ok(record)
         })
         .collect()
 }
@@ -178,11 +227,12 @@ pub fn monte_carlo<S: System + ?Sized>(
     prior: &Prior,
     config: &MonteCarloConfig,
     run_seed: u64,
-) -> Result<MonteCarloResult, InvalidValue> {
+    recorder: &dyn Recorder,
+) -> Result<MonteCarloResult, ValidationError> {
     config.validate()?;
     check_shapes(system, prior)?;
     let proposal = prior.to_proposal();
-    let records = population(system, prior, &proposal, SAMPLER_MC, 0, config.rollouts, run_seed, None);
+    let records = population(system, prior, &proposal, SAMPLER_MC, 0, config.rollouts, run_seed, None, recorder)?;
     let failures = records.iter().filter(|r| r.failed).count();
     Ok(MonteCarloResult {
         failures,
@@ -237,17 +287,18 @@ pub fn importance_sampling<S: System + ?Sized>(
     proposal: &Proposal,
     n: usize,
     run_seed: u64,
-) -> Result<(Vec<RolloutRecord>, ImportanceEstimate), InvalidValue> {
+    recorder: &dyn Recorder,
+) -> Result<(Vec<RolloutRecord>, ImportanceEstimate), ValidationError> {
     nerfsv_scene::validate::in_range("is_samples", n, 1, 100_000_000)?;
     check_shapes(system, prior)?;
     if proposal.len() != prior.steps() || proposal.steps().iter().any(|g| g.dim() != prior.dim()) {
-        return Err(InvalidValue::new(
+        return Err(ValidationError::Invalid(InvalidValue::new(
             "proposal",
             format!("must have {} steps of dimension {}", prior.steps(), prior.dim()),
             format!("{} steps", proposal.len()),
-        ));
+        )));
     }
-    let records = population(system, prior, proposal, SAMPLER_IS, 0, n, run_seed, None);
+    let records = population(system, prior, proposal, SAMPLER_IS, 0, n, run_seed, None, recorder)?;
     let estimate = importance_estimate(&records);
     Ok((records, estimate))
 }
@@ -380,14 +431,15 @@ pub fn cross_entropy<S: System + ?Sized>(
     config: &CemConfig,
     run_seed: u64,
     reward: Option<Reward<'_>>,
-) -> Result<CemResult, InvalidValue> {
+    recorder: &dyn Recorder,
+) -> Result<CemResult, ValidationError> {
     config.validate()?;
     check_shapes(system, prior)?;
     let mut proposals = vec![prior.to_proposal()];
     let mut records = Vec::with_capacity(config.m * config.k_max + config.is_samples);
     for k in 0..config.k_max {
         let q = &proposals[k];
-        let pop = population(system, prior, q, SAMPLER_CEM, k, config.m, run_seed, reward);
+        let pop = population(system, prior, q, SAMPLER_CEM, k, config.m, run_seed, reward, recorder)?;
         let rewards: Option<Vec<f64>> =
             reward.map(|_| pop.iter().map(|r| r.reward.unwrap_or(f64::NEG_INFINITY)).collect());
         let elite = select_elites(&pop, config.m_elite, rewards.as_deref());
@@ -402,7 +454,7 @@ pub fn cross_entropy<S: System + ?Sized>(
         records.extend(pop);
     }
     let last = proposals.last().expect("k_max ≥ 1");
-    let (batch, estimate) = importance_sampling(system, prior, last, config.is_samples, run_seed)?;
+    let (batch, estimate) = importance_sampling(system, prior, last, config.is_samples, run_seed, recorder)?;
     records.extend(batch);
     Ok(CemResult { most_likely_failure: most_likely_failure(&records).cloned(), records, proposals, estimate })
 }

@@ -27,9 +27,18 @@ pub struct Outcome {
     pub collision_step: Option<usize>,
     /// Per-step minimum clearance, `[steps]`.
     pub step_scores: Vec<f64>,
+    /// Position at the end of each step, `[steps]`, or empty for a system without one.
+    pub step_positions: Vec<[f64; 3]>,
+    /// Uncertainty of each step's observation, `[steps]`, or empty when none is measured.
+    pub step_uncertainty: Vec<f64>,
 }
 
 impl Outcome {
+    /// An outcome with scores only (no positions, no uncertainty).
+    pub fn new(score: f64, collision_step: Option<usize>, step_scores: Vec<f64>) -> Self {
+        Self { score, collision_step, step_scores, step_positions: Vec::new(), step_uncertainty: Vec::new() }
+    }
+
     /// A failure: score ≤ 0 (a NaN score is not a failure).
     pub fn failed(&self) -> bool {
         self.score <= 0.0

@@ -16,6 +16,9 @@ pub struct TableRow {
     pub avg_collision_step: Option<f64>,
     /// Mean trajectory log-likelihood (eq. 1) under the prior.
     pub avg_log_likelihood: f64,
+    /// Mean over the rollouts of their mean per-step uncertainty; `None` when none was
+    /// measured.
+    pub avg_uncertainty: Option<f64>,
 }
 
 /// The row of `sampler` over `records` (only the records of that sampler count); `None` when
@@ -33,7 +36,13 @@ pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
         collision_rate: rows.iter().filter(|r| r.failed).count() as f64 / n,
         avg_collision_step: (!steps.is_empty()).then(|| steps.iter().sum::<f64>() / steps.len() as f64),
         avg_log_likelihood: rows.iter().map(|r| r.log_p).sum::<f64>() / n,
+        avg_uncertainty: mean(rows.iter().filter_map(|r| r.mean_uncertainty())),
     })
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
 }
 
 #[cfg(test)]
@@ -53,6 +62,8 @@ mod tests {
             log_q: log_p,
             score: if collision_step.is_some() { -0.01 } else { 0.2 },
             step_scores: vec![],
+            step_positions: vec![],
+            step_uncertainty: vec![],
             collision_step,
             reward: None,
             failed: collision_step.is_some(),
@@ -73,6 +84,11 @@ mod tests {
         assert_eq!(row.collision_rate, 0.5);
         assert_eq!(row.avg_collision_step, Some(4.5)); // steps 3 and 6, counted from 1
         assert_eq!(row.avg_log_likelihood, -25.0);
+        assert_eq!(row.avg_uncertainty, None);
+        let mut measured = records.clone();
+        measured[0].step_uncertainty = vec![1.0, 3.0];
+        measured[2].step_uncertainty = vec![4.0];
+        assert_eq!(table_row("mc", &measured).unwrap().avg_uncertainty, Some(3.0));
         let none = table_row("mc", &records[1..2]).unwrap();
         assert_eq!((none.collision_rate, none.avg_collision_step), (0.0, None));
         assert!(table_row("cem-is", &records).is_none());

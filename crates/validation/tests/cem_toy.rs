@@ -20,7 +20,7 @@ fn cem_importance_estimate_is_within_three_standard_errors_of_the_exact_probabil
     let cfg = config();
     let mut ratios = Vec::new();
     for seed in 0..5 {
-        let r = cross_entropy(&toy, &toy.prior(), &cfg, seed, None).unwrap();
+        let r = cross_entropy(&toy, &toy.prior(), &cfg, seed, None, &()).unwrap();
         let e = r.estimate;
         let rollouts = r.records.len();
         assert_eq!(rollouts, cfg.m * cfg.k_max + cfg.is_samples);
@@ -58,7 +58,7 @@ fn cem_importance_estimate_is_within_three_standard_errors_of_the_exact_probabil
 #[test]
 fn cem_moves_the_proposal_mean_towards_the_design_point() {
     let toy = LinearToy::new(Z_1E3);
-    let r = cross_entropy(&toy, &toy.prior(), &config(), 1, None).unwrap();
+    let r = cross_entropy(&toy, &toy.prior(), &config(), 1, None, &()).unwrap();
     let star = toy.design_point();
     let last = r.proposals.last().unwrap();
     // S = Σ a·x at the final proposal's mean is near or beyond the threshold, from 0 at the prior.

@@ -57,11 +57,11 @@ fn elite_and_rollout_counts_are_checked_by_name() {
     assert_eq!(c.validate().unwrap_err().to_string(), "monte_carlo.rollouts: must be between 1 and 100000000, found 0");
     // The samplers refuse them too, before running anything.
     let toy = common::LinearToy::new(2.0);
-    assert!(monte_carlo(&toy, &toy.prior(), &MonteCarloConfig { rollouts: 0 }, 0).is_err());
+    assert!(monte_carlo(&toy, &toy.prior(), &MonteCarloConfig { rollouts: 0 }, 0, &()).is_err());
     let bad = CemConfig { m: 4, m_elite: 5, ..CemConfig::default() };
-    assert!(cross_entropy(&toy, &toy.prior(), &bad, 0, None).unwrap_err().to_string().starts_with("m_elite"));
+    assert!(cross_entropy(&toy, &toy.prior(), &bad, 0, None, &()).unwrap_err().to_string().starts_with("m_elite"));
     // A prior of the wrong dimension for the system.
-    let e = monte_carlo(&toy, &nerfsv_validation::Prior::drone(6), &MonteCarloConfig::default(), 0).unwrap_err();
+    let e = monte_carlo(&toy, &nerfsv_validation::Prior::drone(6), &MonteCarloConfig::default(), 0, &()).unwrap_err();
     assert!(e.to_string().starts_with("disturbance: must have 2 components per step"), "{e}");
 }
 

@@ -20,9 +20,9 @@ fn csv_bytes(threads: usize, seed: u64) -> Vec<u8> {
     pool.install(|| {
         let toy = LinearToy::new(2.0);
         let prior = toy.prior();
-        let mc = monte_carlo(&toy, &prior, &MonteCarloConfig { rollouts: 200 }, seed).unwrap();
+        let mc = monte_carlo(&toy, &prior, &MonteCarloConfig { rollouts: 200 }, seed, &()).unwrap();
         let cfg = CemConfig { m: 40, m_elite: 8, k_max: 3, is_samples: 50, ..CemConfig::default() };
-        let cem = cross_entropy(&toy, &prior, &cfg, seed, Some(&reward)).unwrap();
+        let cem = cross_entropy(&toy, &prior, &cfg, seed, Some(&reward), &()).unwrap();
         let mut out = Vec::new();
         let all: Vec<RolloutRecord> = mc.records.into_iter().chain(cem.records).collect();
         write_csv(&mut out, &all).unwrap();
@@ -39,7 +39,10 @@ fn same_seed_gives_byte_identical_csv_with_one_and_two_threads() {
     assert!(csv_bytes(2, 43) != one, "a different run seed gave the same CSV");
     let text = String::from_utf8(one).unwrap();
     let mut lines = text.lines();
-    assert_eq!(lines.next().unwrap(), "sampler,population,index,seed,step,d0,d1,log_p,log_q,clearance,collided");
+    assert_eq!(
+        lines.next().unwrap(),
+        "sampler,population,index,seed,step,d0,d1,log_p,log_q,uncertainty,reward,score,clearance,x,y,z,collided"
+    );
     // (200 MC + 3·40 CEM + 50 IS) rollouts × 6 steps.
     assert_eq!(lines.count(), (200 + 120 + 50) * 6);
     let first: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
@@ -51,8 +54,8 @@ fn a_recorded_rollout_replays_from_its_seed() {
     let toy = LinearToy::new(2.0);
     let prior = toy.prior();
     let cfg = CemConfig { m: 40, m_elite: 8, k_max: 3, is_samples: 50, ..CemConfig::default() };
-    let cem = cross_entropy(&toy, &prior, &cfg, 7, Some(&reward)).unwrap();
-    let mc = monte_carlo(&toy, &prior, &MonteCarloConfig { rollouts: 30 }, 7).unwrap();
+    let cem = cross_entropy(&toy, &prior, &cfg, 7, Some(&reward), &()).unwrap();
+    let mc = monte_carlo(&toy, &prior, &MonteCarloConfig { rollouts: 30 }, 7, &()).unwrap();
     let picks = [
         cem.records.iter().find(|r| r.sampler == SAMPLER_CEM && r.population == 2 && r.index == 13).unwrap(),
         cem.records.iter().find(|r| r.sampler == SAMPLER_IS && r.index == 31).unwrap(),
@@ -80,9 +83,14 @@ fn a_recorded_rollout_replays_from_its_seed() {
 }
 
 #[test]
-fn csv_file_is_written_atomically_and_matches_the_stream() {
+fn csv_file_is_written_atomically_matches_the_stream_and_reads_back_bit_for_bit() {
     let toy = LinearToy::new(Z_1E3);
-    let mc = monte_carlo(&toy, &toy.prior(), &MonteCarloConfig { rollouts: 5 }, 1).unwrap();
+    let mut mc = monte_carlo(&toy, &toy.prior(), &MonteCarloConfig { rollouts: 5 }, 1, &()).unwrap();
+    // Positions, uncertainties, rewards and non-finite clearances survive too.
+    mc.records[1].step_positions = (0..6).map(|t| [t as f64, -0.1 / 3.0, 1e-300]).collect();
+    mc.records[1].step_uncertainty = vec![0.25, 1.0 / 7.0, 0.0, -0.0, 3e10, 5e-324];
+    mc.records[2].reward = Some(-123.456_789_012_345_67);
+    mc.records[3].step_scores[4] = f64::INFINITY;
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("rollouts.csv");
     nerfsv_validation::write_csv_file(&path, &mc.records).unwrap();
@@ -94,4 +102,30 @@ fn csv_file_is_written_atomically_and_matches_the_stream() {
     let row: Vec<String> =
         String::from_utf8(want).unwrap().lines().nth(1).unwrap().split(',').map(String::from).collect();
     assert_eq!(row[5].parse::<f64>().unwrap(), mc.records[0].disturbances[0][0]);
+    assert_eq!(nerfsv_validation::read_csv_file(&path).unwrap(), mc.records);
+}
+
+#[test]
+fn a_csv_that_nerfsv_did_not_write_is_refused_naming_the_line() {
+    let toy = LinearToy::new(2.0);
+    let mc = monte_carlo(&toy, &toy.prior(), &MonteCarloConfig { rollouts: 2 }, 1, &()).unwrap();
+    let mut good = Vec::new();
+    write_csv(&mut good, &mc.records).unwrap();
+    let good = String::from_utf8(good).unwrap();
+    let lines: Vec<&str> = good.lines().collect();
+    let edit = |line: usize, f: &dyn Fn(&str) -> String| -> String {
+        lines.iter().enumerate().map(|(i, l)| if i + 1 == line { f(l) } else { l.to_string() } + "\n").collect()
+    };
+    let cases: Vec<(String, usize, &str)> = vec![
+        (edit(1, &|l| l.replace("log_q", "logq")), 1, "header"),
+        (edit(3, &|l| l.replacen(",0,", ",x,", 1)), 3, "not a count"),
+        (edit(4, &|l| l.rsplit_once(',').unwrap().0.to_string()), 4, "fields"),
+        (edit(5, &|l| l.rsplit_once(',').unwrap().0.to_string() + ",2"), 5, "collided"),
+        (lines[..1].iter().chain(&lines[2..]).map(|l| format!("{l}\n")).collect(), 2, "continue"),
+    ];
+    for (text, line, what) in cases {
+        let e = nerfsv_validation::parse_csv(&text).unwrap_err();
+        assert_eq!(e.0, line, "{what}: {e:?}");
+        assert!(e.1.contains(what), "{what}: {e:?}");
+    }
 }

@@ -25,7 +25,7 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
 
     let std: Vec<f64> = DRONE_STD.iter().map(|s| 3.0 * s).collect();
     let prior = Prior::new(nerfsv_validation::Gaussian::diagonal(vec![0.0; 12], &std).unwrap(), 6);
-    let mc = monte_carlo(&system, &prior, &MonteCarloConfig { rollouts: 40 }, 7).unwrap();
+    let mc = monte_carlo(&system, &prior, &MonteCarloConfig { rollouts: 40 }, 7, &()).unwrap();
     assert!(mc.failures > 0 && mc.failures < 40, "{} failures", mc.failures);
     let failure = mc.records.iter().find(|r| r.failed).unwrap();
     assert_eq!(failure.collision_step, failure.step_scores.iter().position(|&s| s <= 0.0));

@@ -19,6 +19,8 @@ fn records(scores: &[f64]) -> Vec<RolloutRecord> {
             log_q: 0.0,
             score: s,
             step_scores: vec![s],
+            step_positions: vec![],
+            step_uncertainty: vec![],
             collision_step: (s <= 0.0).then_some(0),
             reward: None,
             failed: s <= 0.0,

@@ -15,7 +15,7 @@ fn shifted_proposal(toy: &LinearToy) -> Proposal {
 fn trajectory_weight_is_the_product_of_step_ratios() {
     let toy = LinearToy::new(Z_1E3);
     let (prior, q) = (toy.prior(), shifted_proposal(&toy));
-    let (records, _) = importance_sampling(&toy, &prior, &q, 20, 3).unwrap();
+    let (records, _) = importance_sampling(&toy, &prior, &q, 20, 3, &()).unwrap();
     for r in &records {
         let product: f64 = r
             .disturbances
@@ -47,6 +47,8 @@ fn cem_elite_weights_use_the_trajectory_ratio_not_the_mean_of_step_ratios() {
             step_log_q,
             score: -1.0,
             step_scores: vec![-1.0; 3],
+            step_positions: vec![],
+            step_uncertainty: vec![],
             collision_step: Some(2),
             reward: None,
             failed: true,
@@ -68,7 +70,7 @@ fn cem_elite_weights_use_the_trajectory_ratio_not_the_mean_of_step_ratios() {
 fn per_step_weights_bias_the_estimate_on_the_toy_and_trajectory_weights_do_not() {
     let toy = LinearToy::new(Z_1E3);
     let truth = toy.p_fail();
-    let (records, est) = importance_sampling(&toy, &toy.prior(), &shifted_proposal(&toy), 20_000, 11).unwrap();
+    let (records, est) = importance_sampling(&toy, &toy.prior(), &shifted_proposal(&toy), 20_000, 11, &()).unwrap();
     let n = records.len() as f64;
     // The original code's estimator: each failure weighted by the mean over steps of p_t/q_t.
     let per_step: f64 = records

@@ -70,7 +70,7 @@ impl System for LinearToy {
             step_scores.push(self.threshold - s + 1e-9 * jitter);
         }
         let score = self.threshold - s;
-        Outcome { score, collision_step: (score <= 0.0).then_some(STEPS - 1), step_scores }
+        Outcome::new(score, (score <= 0.0).then_some(STEPS - 1), step_scores)
     }
 }
 

@@ -1,0 +1,123 @@
+//! Finished rollouts kept on disk as they complete, so that a killed run resumes without redoing
+//! them ([`Journal`]), behind the [`Recorder`] interface the samplers call.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use crate::error::ValidationError;
+use crate::record::{read_csv_file, write_csv_file, RolloutRecord};
+
+/// Where the samplers look up and keep finished rollouts.
+pub trait Recorder: Sync {
+    /// The rollout (sampler, population, index) finished earlier, if any.
+    fn recall(&self, sampler: &str, population: usize, index: usize) -> Option<RolloutRecord>;
+    /// Keeps a rollout that just finished.
+    fn record(&self, record: &RolloutRecord) -> Result<(), ValidationError>;
+}
+
+/// Keeps nothing: every rollout runs.
+impl Recorder for () {
+    fn recall(&self, _: &str, _: usize, _: usize) -> Option<RolloutRecord> {
+        None
+    }
+    fn record(&self, _: &RolloutRecord) -> Result<(), ValidationError> {
+        Ok(())
+    }
+}
+
+/// Name of the file that holds the key of the run a journal belongs to.
+const KEY_FILE: &str = "key";
+
+/// A folder of finished rollouts, one small CSV file each (`SAMPLER-POPULATION-INDEX.csv`, in
+/// [`crate::write_csv`]'s format, written atomically), tied to one run by a key (a fingerprint
+/// of everything that determines the rollouts: configuration, model, world, seed).
+///
+/// Opened to resume, it refuses a folder of another key, naming the file; a rollout read back
+/// is bit-identical to the one written, so a resumed run equals an uninterrupted one.
+pub struct Journal {
+    dir: PathBuf,
+    done: HashMap<(String, usize, usize), RolloutRecord>,
+}
+
+impl Journal {
+    /// A fresh journal for the run `key` in `dir`: whatever `dir` held is removed.
+    pub fn create(dir: &Path, key: &str) -> Result<Self, ValidationError> {
+        if dir.exists() {
+            std::fs::remove_dir_all(dir).map_err(|e| ValidationError::io(dir, e))?;
+        }
+        std::fs::create_dir_all(dir).map_err(|e| ValidationError::io(dir, e))?;
+        let path = dir.join(KEY_FILE);
+        nerfsv_scene::io::atomic_write_bytes(&path, key.as_bytes()).map_err(|e| ValidationError::io(&path, e))?;
+        Ok(Self { dir: dir.to_owned(), done: HashMap::new() })
+    }
+
+    /// The journal of the run `key` in `dir` with the rollouts it holds; refuses a folder
+    /// without a journal or with another run's.
+    pub fn resume(dir: &Path, key: &str) -> Result<Self, ValidationError> {
+        let path = dir.join(KEY_FILE);
+        let found = std::fs::read_to_string(&path).map_err(|e| ValidationError::io(&path, e))?;
+        if found != key {
+            return Err(ValidationError::Journal {
+                path,
+                message: format!(
+                    "these results come from another configuration, model or seed (key {found}, this run's is \
+                     {key}); use another output folder or run without --resume"
+                ),
+            });
+        }
+        nerfsv_scene::io::remove_stale_temporaries_in(dir);
+        let mut done = HashMap::new();
+        let entries = std::fs::read_dir(dir).map_err(|e| ValidationError::io(dir, e))?;
+        let mut files: Vec<PathBuf> =
+            entries.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "csv")).collect();
+        files.sort();
+        for file in files {
+            let mut records = read_csv_file(&file)?;
+            let (Some(r), true) = (records.pop(), records.is_empty()) else {
+                return Err(ValidationError::Journal { path: file, message: "expected exactly one rollout".into() });
+            };
+            if file.file_name() != Some(file_name(&r).as_ref()) {
+                return Err(ValidationError::Journal {
+                    path: file,
+                    message: format!("holds rollout {}-{}-{}", r.sampler, r.population, r.index),
+                });
+            }
+            done.insert((r.sampler.clone(), r.population, r.index), r);
+        }
+        Ok(Self { dir: dir.to_owned(), done })
+    }
+
+    /// [`Journal::resume`] when `resume` is set, else [`Journal::create`].
+    pub fn open(dir: &Path, key: &str, resume: bool) -> Result<Self, ValidationError> {
+        if resume {
+            Self::resume(dir, key)
+        } else {
+            Self::create(dir, key)
+        }
+    }
+
+    /// Number of finished rollouts it held when opened.
+    pub fn len(&self) -> usize {
+        self.done.len()
+    }
+
+    /// True when it held none.
+    pub fn is_empty(&self) -> bool {
+        self.done.is_empty()
+    }
+}
+
+fn file_name(r: &RolloutRecord) -> String {
+    format!("{}-{}-{}.csv", r.sampler, r.population, r.index)
+}
+
+impl Recorder for Journal {
+    fn recall(&self, sampler: &str, population: usize, index: usize) -> Option<RolloutRecord> {
+        self.done.get(&(sampler.to_owned(), population, index)).cloned()
+    }
+
+    fn record(&self, record: &RolloutRecord) -> Result<(), ValidationError> {
+        let path = self.dir.join(file_name(record));
+        write_csv_file(&path, std::slice::from_ref(record)).map_err(|e| ValidationError::io(&path, e))
+    }
+}

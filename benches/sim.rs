@@ -15,9 +15,8 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{
-    plan_flight, random_disturbances, Disturbance, EstimatorKind, GroundTruthWorld, NerfWorld, SimConfig, State, World,
-};
+use nerfsv_sim::{plan_flight, Disturbance, EstimatorKind, GroundTruthWorld, NerfWorld, SimConfig, State, World};
+use nerfsv_validation::{drone_disturbances, Prior};
 use rayon::prelude::*;
 
 fn truth_rollouts(c: &mut Criterion) {
@@ -29,7 +28,7 @@ fn truth_rollouts(c: &mut Criterion) {
     let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(100, 100, 0.8));
     let world = GroundTruthWorld { scene: &scene, field: &gt.sdf, render: RenderSettings::default() };
     let disturbances: Vec<Vec<Disturbance>> =
-        (0..64).map(|i| random_disturbances(&cfg.disturbance_std, cfg.steps, i)).collect();
+        (0..64).map(|i| drone_disturbances(&Prior::drone(cfg.steps).to_proposal().draw(i))).collect();
     let substeps = (64 * cfg.steps * (cfg.substeps + 1)) as u64;
     let mut g = c.benchmark_group("sim");
     g.sample_size(20);

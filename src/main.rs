@@ -43,6 +43,9 @@ enum Command {
     Collision(commands::collision::CollisionArgs),
     /// Fly the drone once along the planned path in NeRF-sim or GT-sim (trajectory CSV + plot).
     Fly(commands::fly::FlyArgs),
+    /// Search for the disturbances that crash the drone (Monte Carlo or Cross-Entropy Method),
+    /// estimate the failure probability, and replay the rollouts in the other world.
+    Stress(commands::stress::StressArgs),
 }
 
 fn main() -> ExitCode {
@@ -63,6 +66,7 @@ fn main() -> ExitCode {
         Command::Scene(a) => commands::scene::run(a),
         Command::Collision(a) => commands::collision::run(a),
         Command::Fly(a) => commands::fly::run(a),
+        Command::Stress(a) => commands::stress::run(a),
         Command::Train(a) => commands::nerf::run_train(a),
         Command::Eval(a) => commands::nerf::run_eval(a),
         Command::Render(a) => commands::nerf::run_render(a),

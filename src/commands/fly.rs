@@ -1,16 +1,15 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_collision::SdfGrid;
-use nerfsv_dataset::GenerateOptions;
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::flight::{fly_and_write, world, FlightInputs};
 use nerfsv_pipeline::stages::nerf_density_field;
-use nerfsv_pipeline::{load_toml, refuse_output_inside, Validate};
-use nerfsv_scene::{InvalidValue, Scene};
-use nerfsv_sim::{random_disturbances, read_disturbances, EstimatorKind, SimConfig, WorldKind};
-use serde::Deserialize;
+use nerfsv_pipeline::{refuse_output_inside, RunConfig};
+use nerfsv_scene::Scene;
+use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
+use nerfsv_validation::drone_disturbances;
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum WorldArg {
@@ -49,13 +48,15 @@ pub struct FlyArgs {
     /// dw_x..dw_z), a header line optional.
     #[arg(long, conflicts_with = "random_seed")]
     pub disturbances: Option<PathBuf>,
-    /// Draw the disturbances from N(0, diag(sim.disturbance_std²)) with this seed.
+    /// Draw the disturbances from the prior (the config's `[validation.disturbance]`) with this
+    /// seed (with a Monte Carlo rollout's recorded seed, its disturbances).
     #[arg(long)]
     pub random_seed: Option<u64>,
     /// Seed of the estimator's pixel choices (default: --random-seed, else 0).
     #[arg(long)]
     pub seed: Option<u64>,
-    /// TOML file with the flight settings: the keys of a run config's `[sim]` table.
+    /// A run config (TOML): its `[sim]` table sets the flight, `[validation.disturbance]` the
+    /// prior of --random-seed, `[dataset]` the camera. Default: the embedded run config.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Output folder: trajectory.csv, trajectory.png, disturbances.csv, flight.json.
@@ -66,23 +67,49 @@ pub struct FlyArgs {
     pub json: bool,
 }
 
-/// A `--config` file: the `[sim]` table's keys at the top level.
-#[derive(Deserialize)]
-#[serde(transparent)]
-struct FlyConfig(SimConfig);
+/// The run config a `--config` names (its `[sim]`, `[validation]` and `[dataset]` camera
+/// matter here), or the embedded default.
+pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
+    Ok(match path {
+        Some(path) => RunConfig::load(path)?,
+        None => RunConfig::default(),
+    })
+}
 
-impl Validate for FlyConfig {
-    fn validate(&self) -> Result<(), InvalidValue> {
-        self.0.validate()
+/// The scene, the model, the NeRF's signed field (loaded, or built from the model on the
+/// ground-truth field's grid as `nerfsv run` builds it) and the ground-truth field.
+pub fn load_worlds(scene: &str, model: &Path, nerf_field: Option<&Path>) -> anyhow::Result<(Scene, FlightInputs)> {
+    let scene = Scene::builtin(scene)?;
+    let nerf = Nerf::load(model)?;
+    let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 40.0)?;
+    let nerf_field = match nerf_field {
+        Some(path) => SdfGrid::load(path)?,
+        None => nerf_density_field(&nerf, gt.sdf.geometry, None)?.1.sdf,
+    };
+    Ok((scene, FlightInputs { nerf, nerf_field, gt_field: gt.sdf }))
+}
+
+impl From<WorldArg> for WorldKind {
+    fn from(w: WorldArg) -> Self {
+        match w {
+            WorldArg::Nerf => WorldKind::Nerf,
+            WorldArg::Gt => WorldKind::Gt,
+        }
+    }
+}
+
+impl From<EstimatorArg> for EstimatorKind {
+    fn from(e: EstimatorArg) -> Self {
+        match e {
+            EstimatorArg::Truth => EstimatorKind::Truth,
+            EstimatorArg::Vision => EstimatorKind::Vision,
+        }
     }
 }
 
 pub fn run(args: FlyArgs) -> anyhow::Result<()> {
-    let cfg = match &args.config {
-        Some(path) => load_toml::<FlyConfig>(path)?.0,
-        None => SimConfig::default(),
-    };
-    let mut inputs: Vec<(&str, &std::path::Path)> = vec![("--model", &args.model)];
+    let cfg = load_config(args.config.as_deref())?;
+    let mut inputs: Vec<(&str, &Path)> = vec![("--model", &args.model)];
     if let Some(p) = &args.nerf_field {
         inputs.push(("--nerf-field", p));
     }
@@ -93,41 +120,22 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
 
     // Everything that can be refused is checked before anything is written.
     let disturbances = match (&args.disturbances, args.random_seed) {
-        (Some(path), _) => read_disturbances(path, cfg.steps)?,
-        (None, Some(seed)) => random_disturbances(&cfg.disturbance_std, cfg.steps, seed),
-        (None, None) => vec![nerfsv_sim::Disturbance::ZERO; cfg.steps],
+        (Some(path), _) => read_disturbances(path, cfg.sim.steps)?,
+        (None, Some(seed)) => drone_disturbances(&cfg.disturbance_prior()?.to_proposal().draw(seed)),
+        (None, None) => vec![nerfsv_sim::Disturbance::ZERO; cfg.sim.steps],
     };
-    let scene = Scene::builtin(&args.scene)?;
-    let nerf = Nerf::load(&args.model)?;
-    let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 40.0)?;
-    let nerf_field = match &args.nerf_field {
-        Some(path) => SdfGrid::load(path)?,
-        None => {
-            // On the ground-truth field's grid, as `nerfsv run` builds it.
-            nerf_density_field(&nerf, gt.sdf.geometry, None)?.1.sdf
-        }
-    };
-    let inputs = FlightInputs { nerf, nerf_field, gt_field: gt.sdf };
-    let flight = inputs.plan(&cfg).context("planning the flight")?;
-    let kind = match args.world {
-        WorldArg::Nerf => WorldKind::Nerf,
-        WorldArg::Gt => WorldKind::Gt,
-    };
-    let estimator = match args.estimator {
-        EstimatorArg::Truth => EstimatorKind::Truth,
-        EstimatorArg::Vision => EstimatorKind::Vision,
-    };
-    let dataset = GenerateOptions::default();
-    let intrinsics = nerfsv_scene::Intrinsics::from_fov_x(dataset.width, dataset.height, dataset.camera_angle_x);
-    let w = world(kind, &inputs, &scene, dataset.render_settings());
+    let (scene, inputs) = load_worlds(&args.scene, &args.model, args.nerf_field.as_deref())?;
+    let flight = inputs.plan(&cfg.sim).context("planning the flight")?;
+    let estimator = args.estimator.into();
+    let w = world(args.world.into(), &inputs, &scene, cfg.dataset.render_settings());
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let seed = args.seed.or(args.random_seed).unwrap_or(0);
     let (figures, _) = fly_and_write(
         &flight,
-        &cfg,
+        &cfg.sim,
         &inputs.nerf,
-        intrinsics,
+        cfg.camera_intrinsics(),
         w.as_ref(),
         estimator,
         &disturbances,

@@ -3,6 +3,7 @@ pub mod fly;
 pub mod nerf;
 pub mod run;
 pub mod scene;
+pub mod stress;
 
 use serde::Serialize;
 

@@ -75,6 +75,9 @@ pub struct RunConfig {
     pub sim: nerfsv_sim::SimConfig,
     /// Seed of the flight's random choices (the vision estimator's pixels).
     pub flight_seed: u64,
+    /// The adversary: disturbance prior, Monte Carlo, Cross-Entropy Method, run seed (the
+    /// `[validation]` table).
+    pub validation: nerfsv_validation::ValidationConfig,
 }
 
 impl Default for RunConfig {
@@ -92,6 +95,7 @@ impl Default for RunConfig {
             nerf_density_threshold: None,
             sim: nerfsv_sim::SimConfig::default(),
             flight_seed: 0,
+            validation: nerfsv_validation::ValidationConfig::default(),
         }
     }
 }
@@ -112,6 +116,13 @@ impl RunConfig {
     pub fn nerf_settings(&self) -> NerfSettings {
         NerfSettings { nerf: self.nerf.clone(), train: self.train.clone() }
     }
+
+    /// The per-step disturbance prior of the drone, `sim.steps` steps of the `[validation]`
+    /// table's Gaussian.
+    pub fn disturbance_prior(&self) -> Result<nerfsv_validation::Prior, InvalidValue> {
+        let step = self.validation.disturbance.to_gaussian().map_err(|e| e.within("validation.disturbance"))?;
+        Ok(nerfsv_validation::Prior::new(step, self.sim.steps))
+    }
 }
 
 impl Validate for RunConfig {
@@ -130,7 +141,17 @@ impl Validate for RunConfig {
         if let Some(t) = self.nerf_density_threshold {
             positive("nerf_density_threshold", t as f64)?;
         }
-        self.sim.validate().map_err(|e| e.within("sim"))
+        self.sim.validate().map_err(|e| e.within("sim"))?;
+        self.validation.validate().map_err(|e| e.within("validation"))?;
+        let d = self.validation.disturbance.mean.len();
+        if d != 12 {
+            return Err(InvalidValue::new(
+                "validation.disturbance.mean",
+                "must have 12 entries (position, velocity, rotation vector, angular velocity)",
+                d,
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -56,6 +56,7 @@ pub mod config;
 pub mod flight;
 pub mod stage;
 pub mod stages;
+pub mod stress;
 
 pub use config::{load_toml, NerfSettings, RunConfig, Validate};
 pub use stage::{Observer, Outcome, Runner, Silent, Stage, StageContext};
@@ -170,6 +171,15 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
         seed: cfg.flight_seed,
+    })?;
+    let prior = cfg.disturbance_prior()?;
+    r.run(&stress::StressStage {
+        scene: &scene,
+        sim: &cfg.sim,
+        validation: &cfg.validation,
+        prior: &prior,
+        intrinsics: cfg.camera_intrinsics(),
+        render: cfg.dataset.render_settings(),
     })?;
     let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
     stage::write_json(&summary_path(&cfg.out), &summary)?;

@@ -1,11 +1,11 @@
 //! The flight configuration, the `[sim]` table of a run's TOML file.
 
-use nerfsv_scene::validate::{finite, in_range, non_negative, positive};
+use nerfsv_scene::validate::{finite, in_range, positive};
 use nerfsv_scene::{Intrinsics, InvalidValue};
 use serde::{Deserialize, Serialize};
 
 use crate::controller::ControllerGains;
-use crate::dynamics::{Disturbance, DroneParams};
+use crate::dynamics::DroneParams;
 use crate::estimator::VisionConfig;
 use crate::planner::PlannerConfig;
 
@@ -46,9 +46,9 @@ pub struct SimConfig {
     pub substeps: usize,
     /// The flight reaches its goal when it ends this close to it, metres.
     pub goal_tolerance_m: f64,
-    /// Standard deviations of the 12 disturbance components (position, velocity, rotation
-    /// vector, angular velocity) for random disturbances.
-    pub disturbance_std: [f64; 12],
+    /// End a rollout at its first collision (the drone has crashed: nothing after it is
+    /// flown, its remaining steps have no clearance); `false` flies on through geometry.
+    pub stop_at_collision: bool,
     pub drone: DroneParams,
     pub controller: ControllerGains,
     pub planner: PlannerConfig,
@@ -67,7 +67,7 @@ impl Default for SimConfig {
             steps: 6,
             substeps: 8,
             goal_tolerance_m: 0.1,
-            disturbance_std: Disturbance::PAPER_STD,
+            stop_at_collision: true,
             drone: DroneParams::default(),
             controller: ControllerGains::default(),
             planner: PlannerConfig::default(),
@@ -91,9 +91,6 @@ impl SimConfig {
         in_range("steps", self.steps, 1, MAX_STEPS)?;
         in_range("substeps", self.substeps, 1, MAX_SUBSTEPS)?;
         positive("goal_tolerance_m", self.goal_tolerance_m)?;
-        for (i, &s) in self.disturbance_std.iter().enumerate() {
-            non_negative(&format!("disturbance_std[{i}]"), s)?;
-        }
         for (i, &c) in self.background.iter().enumerate() {
             in_range(&format!("background[{i}]"), c, 0.0, 1.0)?;
         }

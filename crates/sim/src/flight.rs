@@ -73,6 +73,7 @@ impl Flight {
             reference: self.reference.clone(),
             goal: Vector3::from(cfg.goal),
             goal_tolerance: cfg.goal_tolerance_m,
+            stop_at_collision: cfg.stop_at_collision,
             steps: cfg.steps,
             substeps: cfg.substeps,
             nerf,

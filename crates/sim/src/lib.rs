@@ -29,7 +29,7 @@ pub use config::{CameraConfig, SimConfig};
 pub use dynamics::{Disturbance, DroneParams, State};
 pub use estimator::{EstimatorKind, VisionConfig};
 pub use flight::{plan_flight, Flight, SimError};
-pub use io::{random_disturbances, read_disturbances, trajectory_csv, DisturbanceFileError};
+pub use io::{read_disturbances, trajectory_csv, DisturbanceFileError};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};
 pub use rollout::{Event, Rollout, Simulator, StepEstimate, Substep};
 pub use world::{GroundTruthWorld, NerfWorld, World, WorldKind};

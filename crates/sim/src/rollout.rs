@@ -38,6 +38,8 @@ pub struct Simulator<'a> {
     pub reference: ReferenceTrajectory,
     pub goal: Vector3<f64>,
     pub goal_tolerance: f64,
+    /// End the rollout at its first collision.
+    pub stop_at_collision: bool,
     pub steps: usize,
     pub substeps: usize,
     /// The estimator's model of the world (in both worlds).
@@ -166,7 +168,8 @@ impl Simulator<'_> {
     }
 
     /// Flies one rollout in `world` with `disturbances` (one per step; missing steps are
-    /// undisturbed). `seed` drives the estimator's random choices.
+    /// undisturbed). `seed` drives the estimator's random choices. With `stop_at_collision` it
+    /// ends at the substep of the first collision.
     pub fn fly(&self, world: &dyn World, estimator: EstimatorKind, disturbances: &[Disturbance], seed: u64) -> Rollout {
         let field = world.field();
         let mut truth = self.initial_state();
@@ -210,6 +213,10 @@ impl Simulator<'_> {
                 estimate = truth;
             }
             record(&mut out, k, 0, t0, &truth, &estimate);
+            let crashed = |out: &Rollout| self.stop_at_collision && out.first_collision.is_some();
+            if crashed(&out) {
+                break;
+            }
             for j in 1..=self.substeps {
                 let t = t0 + (j - 1) as f64 * self.drone.dt;
                 let action = control(&estimate, &self.reference.at(t), &self.gains, &self.drone);
@@ -219,6 +226,12 @@ impl Simulator<'_> {
                     EstimatorKind::Vision => step(&estimate, &action, &self.drone),
                 };
                 record(&mut out, k, j, t + self.drone.dt, &truth, &estimate);
+                if crashed(&out) {
+                    break;
+                }
+            }
+            if crashed(&out) {
+                break;
             }
             let predicted = estimate;
             let (renders, rmse) = match estimator {

@@ -72,6 +72,7 @@ fn straight<'a>(nerf: &'a Nerf, steps: usize) -> Simulator<'a> {
         reference: ReferenceTrajectory::new(&path, cfg.duration()),
         goal: Vector3::from(cfg.goal),
         goal_tolerance: cfg.goal_tolerance_m,
+        stop_at_collision: cfg.stop_at_collision,
         steps: cfg.steps,
         substeps: cfg.substeps,
         nerf,
@@ -129,6 +130,14 @@ fn a_disturbance_that_pushes_the_body_into_a_stone_collides_at_that_step_right_a
     assert_eq!((e.step, e.substep), (3, 0));
     let s = r.substeps.iter().find(|s| s.step == 3 && s.substep == 0).unwrap();
     assert!(s.clearance.unwrap() <= 0.0);
+    // The crash ends the rollout there; without stopping it flies on through the stone.
+    let last = r.substeps.last().unwrap();
+    assert_eq!((last.step, last.substep, r.estimates.len()), (3, 0, 3));
+    let mut flies_on = straight(&nerf, 6);
+    flies_on.stop_at_collision = false;
+    let on = flies_on.fly(&world, EstimatorKind::Truth, &ds, 0);
+    assert_eq!((on.first_collision, on.substeps.len(), on.estimates.len()), (r.first_collision, 6 * 9, 6));
+    assert_eq!(on.substeps[..r.substeps.len()], r.substeps[..]);
 }
 
 #[test]
@@ -199,7 +208,12 @@ fn a_replayed_rollout_reproduces_its_trajectory_bit_for_bit_on_any_thread_count(
     let sim = straight(&nerf, 4);
     let field = post_world([0.6, 0.4, 0.3], [0.02, 0.02, 0.5]).field;
     let world = NerfWorld { nerf: &nerf, field: &field };
-    let ds = nerfsv_sim::random_disturbances(&Disturbance::PAPER_STD, 4, 11);
+    // Paper-sized pushes in every component, signs varying by step.
+    let ds: Vec<Disturbance> = (0..4)
+        .map(|t| {
+            Disturbance(std::array::from_fn(|i| Disturbance::PAPER_STD[i] * ((3 * t + i) % 5) as f64 * 0.5 - 0.01))
+        })
+        .collect();
     let fly = |threads: usize| -> Rollout {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| sim.fly(&world, EstimatorKind::Vision, &ds, 5))

@@ -94,7 +94,7 @@ impl Spread {
 pub struct Agreement {
     /// One pair per trajectory: did it fail (score ≤ 0)?
     pub trajectories: Confusion,
-    /// One pair per step of every trajectory: did the body touch geometry during that step
+    /// One pair per step flown in both worlds: did the body touch geometry during that step
     /// (the step's minimum clearance ≤ 0)?
     pub steps: Confusion,
     /// |score_nerf − score_gt| per trajectory, metres.
@@ -121,6 +121,9 @@ pub fn compare(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Result<Agreement
         a.trajectories.add(n.failed, g.failed);
         diff.push((n.score - g.score).abs());
         for (&cn, &cg) in n.step_scores.iter().zip(&g.step_scores) {
+            if cn.is_nan() || cg.is_nan() {
+                continue; // not flown in one world: it had crashed before
+            }
             a.steps.add(cn <= 0.0, cg <= 0.0);
             step_diff.push((cn - cg).abs());
         }
@@ -176,6 +179,10 @@ mod tests {
         assert_eq!(a.step_clearance_difference.count, 8);
         assert!(compare(&nerf[1..2], &gt[3..4]).unwrap_err().contains("paired"));
         // No predicted failures: precision is undefined, not 0 or 1.
+        // A step one world did not fly (it had crashed) is not compared.
+        let crashed = [record(0, &[-0.01, f64::NAN])];
+        let a = compare(&crashed, &gt[..1]).unwrap();
+        assert_eq!((a.steps.total(), a.steps.false_positive, a.step_clearance_difference.count), (1, 1, 1));
         let quiet = compare(&nerf[3..], &gt[3..]).unwrap().trajectories;
         assert_eq!((quiet.precision(), quiet.recall(), quiet.accuracy()), (None, None, Some(1.0)));
     }

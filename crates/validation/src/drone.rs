@@ -11,6 +11,12 @@ pub struct DroneSystem<'a> {
     pub estimator: EstimatorKind,
 }
 
+/// A rollout's disturbances, one row per step, as the simulator takes them (components beyond
+/// a row's length are zero).
+pub fn drone_disturbances(rows: &[Vec<f64>]) -> Vec<Disturbance> {
+    rows.iter().map(|d| Disturbance(std::array::from_fn(|i| d.get(i).copied().unwrap_or(0.0)))).collect()
+}
+
 impl System for DroneSystem<'_> {
     fn steps(&self) -> usize {
         self.sim.steps
@@ -23,16 +29,16 @@ impl System for DroneSystem<'_> {
     /// The score is the minimum clearance of the body box over every checked substep (≤ 0 is
     /// a collision); a step's score is its own minimum, its position the true one at its end.
     /// Substeps whose box left the field's grid have no clearance and do not count; a step with
-    /// none scores +∞.
+    /// none scores +∞. Steps not flown (after a crash that ended the rollout) score NaN and
+    /// have NaN positions.
     fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
-        let ds: Vec<Disturbance> = disturbances
-            .iter()
-            .map(|d| Disturbance(std::array::from_fn(|i| d.get(i).copied().unwrap_or(0.0))))
-            .collect();
-        let r = self.sim.fly(self.world, self.estimator, &ds, seed);
-        let mut step_scores = vec![f64::INFINITY; self.sim.steps];
+        let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
+        let mut step_scores = vec![f64::NAN; self.sim.steps];
         let mut step_positions = vec![[f64::NAN; 3]; self.sim.steps];
         for s in &r.substeps {
+            if step_scores[s.step].is_nan() {
+                step_scores[s.step] = f64::INFINITY;
+            }
             if let Some(c) = s.clearance {
                 step_scores[s.step] = step_scores[s.step].min(c as f64);
             }

@@ -13,7 +13,7 @@ const LN_2PI: f64 = 1.837_877_066_409_345_5;
 
 /// Per-step disturbance std of the original system, in the order Δposition (m), Δvelocity (m/s),
 /// Δrotation (rotation vector, rad), Δangular velocity (rad/s).
-pub const DRONE_STD: [f64; 12] = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
+pub const DRONE_STD: [f64; 12] = nerfsv_sim::Disturbance::PAPER_STD;
 
 /// A multivariate normal N(mean, covariance) of dimension `dim`, with its Cholesky factor kept
 /// for sampling and for the log-density.

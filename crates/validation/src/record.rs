@@ -35,7 +35,8 @@ pub struct RolloutRecord {
     pub log_q: f64,
     /// Minimum signed clearance along the trajectory; ≤ 0 is a failure.
     pub score: f64,
-    /// Per-step minimum clearance, `[steps]`.
+    /// Per-step minimum clearance, `[steps]` (NaN for a step not flown because the rollout
+    /// ended at a crash).
     pub step_scores: Vec<f64>,
     /// Position at the end of each step, `[steps]` (empty for a system without positions).
     pub step_positions: Vec<[f64; 3]>,

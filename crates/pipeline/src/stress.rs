@@ -1,0 +1,573 @@
+//! The stress stage and `nerfsv stress`: Monte Carlo and the Cross-Entropy Method over the
+//! drone's disturbances in one world, the same disturbances replayed in the other world, the
+//! paper's Tables 1–2, the confusion of NeRF-sim against GT-sim, and the most likely failures
+//! flown and plotted in both worlds.
+//!
+//! Every finished rollout is kept in a journal under the output folder as it completes, so a
+//! killed run resumes without flying it again and ends with the same bytes.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
+use nerfsv_validation::{
+    compare, cross_entropy, drone_disturbances, monte_carlo, replay_all, table_row, Agreement, Confusion, DroneSystem,
+    Journal, Prior, Recorder, RolloutRecord, TableRow, ValidationConfig, ValidationError, SAMPLER_CEM, SAMPLER_IS,
+    SAMPLER_MC,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::flight::{fly_and_write, world, FlightInputs};
+use crate::stage::{Stage, StageContext};
+use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
+use crate::PipelineError;
+
+/// A search over the disturbances.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampler {
+    /// Plain Monte Carlo from the prior.
+    Mc,
+    /// The Cross-Entropy Method, then importance sampling from its final proposal.
+    Cem,
+}
+
+impl Sampler {
+    pub fn name(self) -> &'static str {
+        match self {
+            Sampler::Mc => SAMPLER_MC,
+            Sampler::Cem => SAMPLER_CEM,
+        }
+    }
+
+    /// Rollouts it flies under `cfg`.
+    pub fn rollouts(self, cfg: &ValidationConfig) -> usize {
+        match self {
+            Sampler::Mc => cfg.monte_carlo.rollouts,
+            Sampler::Cem => cfg.cem.m * cfg.cem.k_max + cfg.cem.is_samples,
+        }
+    }
+
+    /// Whether `record` belongs to this sampler's run.
+    fn owns(self, record: &RolloutRecord) -> bool {
+        match self {
+            Sampler::Mc => record.sampler == SAMPLER_MC,
+            Sampler::Cem => record.sampler == SAMPLER_CEM || record.sampler == SAMPLER_IS,
+        }
+    }
+}
+
+/// The other world: where a search's disturbances are replayed.
+pub fn other_world(kind: WorldKind) -> WorldKind {
+    match kind {
+        WorldKind::Nerf => WorldKind::Gt,
+        WorldKind::Gt => WorldKind::Nerf,
+    }
+}
+
+/// The failure of highest trajectory log-likelihood a sampler found.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FailureFigures {
+    pub sampler: String,
+    pub population: usize,
+    pub index: usize,
+    /// Replays it: `nerfsv fly --disturbances <its CSV> --seed <seed>`.
+    pub seed: u64,
+    /// Trajectory log-likelihood, eq. 1.
+    pub log_likelihood: f64,
+    /// First step that touched geometry, counted from 1 as in the paper's tables.
+    pub collision_step: Option<usize>,
+    pub min_clearance_m: f64,
+    /// The same disturbances in the other world, when replayed.
+    pub replay_collided: Option<bool>,
+    pub replay_min_clearance_m: Option<f64>,
+}
+
+/// A distribution's summary, metres.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SpreadFigures {
+    pub count: usize,
+    pub mean: f64,
+    pub median: f64,
+    pub p90: f64,
+    pub max: f64,
+}
+
+/// NeRF-sim against GT-sim on one sampler's disturbances (failure is the positive class,
+/// NeRF-sim the prediction, GT-sim the truth). Ratios are `None` where undefined (no
+/// predicted or no real failures).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ConfusionFigures {
+    pub accuracy: Option<f64>,
+    pub precision: Option<f64>,
+    pub recall: Option<f64>,
+    pub trajectories: Confusion,
+    /// Per step: did the body touch geometry during that step?
+    pub steps: Confusion,
+    pub step_accuracy: Option<f64>,
+    pub step_precision: Option<f64>,
+    pub step_recall: Option<f64>,
+    /// |min clearance in NeRF-sim − in GT-sim| per trajectory.
+    pub clearance_difference_m: SpreadFigures,
+    /// The same per step.
+    pub step_clearance_difference_m: SpreadFigures,
+}
+
+impl ConfusionFigures {
+    fn new(a: &Agreement) -> Self {
+        let spread = |s: &nerfsv_validation::Spread| SpreadFigures {
+            count: s.count,
+            mean: s.mean,
+            median: s.median,
+            p90: s.p90,
+            max: s.max,
+        };
+        Self {
+            accuracy: a.trajectories.accuracy(),
+            precision: a.trajectories.precision(),
+            recall: a.trajectories.recall(),
+            trajectories: a.trajectories,
+            steps: a.steps,
+            step_accuracy: a.steps.accuracy(),
+            step_precision: a.steps.precision(),
+            step_recall: a.steps.recall(),
+            clearance_difference_m: spread(&a.clearance_difference),
+            step_clearance_difference_m: spread(&a.step_clearance_difference),
+        }
+    }
+}
+
+/// One sampler's figures: the object `nerfsv stress --json` prints.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SamplerFigures {
+    pub sampler: Sampler,
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    /// Rollouts flown (CEM: its populations and the importance batch).
+    pub rollouts: usize,
+    /// The paper's Table 1–2 columns over the search's own rollouts (MC: all; CEM: its
+    /// populations).
+    pub collision_rate: f64,
+    pub avg_collision_step: Option<f64>,
+    pub avg_log_likelihood: f64,
+    pub avg_uncertainty: Option<f64>,
+    /// Failure probability: MC's failure rate, or CEM's importance-sampling estimate.
+    pub p_fail: f64,
+    /// Its standard error (MC: √(p(1−p)/N)).
+    pub p_fail_se: f64,
+    /// 95 % interval (MC: Wilson; CEM: p ± 1.96 SE, clamped at 0).
+    pub p_fail_interval: (f64, f64),
+    pub most_likely_failure: Option<FailureFigures>,
+    /// Only when replayed.
+    pub confusion: Option<ConfusionFigures>,
+    /// The table's rows (MC: `mc`; CEM: `cem` and `cem-is`).
+    pub table: Vec<TableRow>,
+}
+
+impl SamplerFigures {
+    pub fn describe(&self) -> String {
+        let mut s = format!(
+            "{} in {}-sim ({} estimator), {} rollouts: collision rate {:.3}, avg collision step {}, avg log-likelihood \
+             {:.2}, P(fail) {:.3e} ± {:.1e}",
+            self.sampler.name().to_uppercase(),
+            self.world.name(),
+            self.estimator.name(),
+            self.rollouts,
+            self.collision_rate,
+            self.avg_collision_step.map_or("n/a".into(), |v| format!("{v:.2}")),
+            self.avg_log_likelihood,
+            self.p_fail,
+            self.p_fail_se,
+        );
+        if let Some(f) = &self.most_likely_failure {
+            s.push_str(&format!(
+                "; most likely failure {}/{}/{} (seed {}, log-likelihood {:.2})",
+                f.sampler, f.population, f.index, f.seed, f.log_likelihood
+            ));
+        }
+        if let Some(c) = &self.confusion {
+            let t = &c.trajectories;
+            let pct = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{v:.2}"));
+            s.push_str(&format!(
+                "; vs replay: accuracy {}, precision {}, recall {} (TP {} FP {} FN {} TN {}), median |Δclearance| {:.1} mm",
+                pct(c.accuracy),
+                pct(c.precision),
+                pct(c.recall),
+                t.true_positive,
+                t.false_positive,
+                t.false_negative,
+                t.true_negative,
+                1e3 * c.clearance_difference_m.median
+            ));
+        }
+        s
+    }
+}
+
+/// Everything a stress run reports (`stress.json`, and the stress stage's figures).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StressFigures {
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    /// Where the disturbances were replayed, if they were.
+    pub replay_world: Option<WorldKind>,
+    pub samplers: Vec<SamplerFigures>,
+    /// Rollouts flown in all (searches and replays; resumed ones included).
+    pub rollouts: usize,
+    /// Wall-clock seconds of this invocation (a timing: not part of what a seed reproduces).
+    pub seconds: f64,
+    /// Rollouts flown by this invocation per second (a timing).
+    pub rollouts_per_second: f64,
+}
+
+impl StressFigures {
+    pub fn describe(&self) -> String {
+        let mut s = format!("{} rollouts in {:.0} s", self.rollouts, self.seconds);
+        for f in &self.samplers {
+            s.push_str("\n    ");
+            s.push_str(&f.describe());
+        }
+        s
+    }
+}
+
+/// What a stress run needs.
+pub struct StressSetup<'a> {
+    pub inputs: &'a FlightInputs,
+    pub flight: &'a Flight,
+    pub scene: &'a Scene,
+    pub sim: &'a SimConfig,
+    pub validation: &'a ValidationConfig,
+    pub prior: &'a Prior,
+    pub intrinsics: Intrinsics,
+    pub render: RenderSettings,
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    pub samplers: &'a [Sampler],
+    pub replay: bool,
+}
+
+/// Files a stress run writes (besides the journal and the most likely failures).
+pub const ROLLOUTS_CSV: &str = "rollouts.csv";
+pub const TABLE_CSV: &str = "table.csv";
+pub const STRESS_JSON: &str = "stress.json";
+/// The journal's folder under the output folder.
+pub const JOURNAL: &str = "journal";
+
+/// `replay_{world}.csv`: the replays' rows.
+pub fn replay_csv(world: WorldKind) -> String {
+    format!("replay_{}.csv", world.name())
+}
+
+/// Counts finished rollouts for progress, passing everything to the journal.
+struct Counting<'a> {
+    journal: &'a Journal,
+    done: AtomicU64,
+    fresh: AtomicU64,
+    total: u64,
+    progress: &'a (dyn Fn(u64, u64, &str) + Sync),
+    status: String,
+}
+
+impl Recorder for Counting<'_> {
+    fn recall(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
+        let r = self.journal.recall(s, p, i);
+        if r.is_some() {
+            self.done.fetch_add(1, Ordering::Relaxed);
+        }
+        r
+    }
+
+    fn record(&self, r: &RolloutRecord) -> Result<(), ValidationError> {
+        self.journal.record(r)?;
+        self.fresh.fetch_add(1, Ordering::Relaxed);
+        let done = self.done.fetch_add(1, Ordering::Relaxed) + 1;
+        (self.progress)(done, self.total, &self.status);
+        Ok(())
+    }
+}
+
+fn validation_error(e: ValidationError) -> PipelineError {
+    match e {
+        ValidationError::Invalid(v) => PipelineError::Invalid(v),
+        ValidationError::Io { path, error } => PipelineError::Io { path, error },
+        other => PipelineError::Internal(other.to_string()),
+    }
+}
+
+/// Runs the searches of `setup` into `out` (which exists): every sampler in `setup.world`, then,
+/// with `replay`, every rollout again in the other world; writes [`ROLLOUTS_CSV`],
+/// `replay_{world}.csv`, [`TABLE_CSV`], and for each sampler's most likely failure its
+/// disturbances (`most_likely_failure_{sampler}.csv`, for `nerfsv fly --disturbances`) and its
+/// flight in each world (`most_likely_failure_{sampler}_{world}.csv/.png`).
+///
+/// `key` identifies everything the rollouts depend on; with `resume`, the journal in `out` must
+/// carry the same key and its rollouts are not flown again.
+pub fn stress(
+    setup: &StressSetup,
+    out: &Path,
+    key: &str,
+    resume: bool,
+    progress: &(dyn Fn(u64, u64, &str) + Sync),
+) -> Result<StressFigures, PipelineError> {
+    let start = Instant::now();
+    let sim = setup.flight.simulator(setup.sim, &setup.inputs.nerf, setup.intrinsics);
+    let search_world = world(setup.world, setup.inputs, setup.scene, setup.render);
+    let replay_kind = other_world(setup.world);
+    let replay_world = world(replay_kind, setup.inputs, setup.scene, setup.render);
+    let journal_dir = out.join(JOURNAL);
+    let planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
+    let total = (planned * if setup.replay { 2 } else { 1 }) as u64;
+
+    let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume).map_err(validation_error)?;
+    let mut counting = Counting {
+        journal: &journal,
+        done: AtomicU64::new(0),
+        fresh: AtomicU64::new(0),
+        total,
+        progress,
+        status: String::new(),
+    };
+    let system = DroneSystem { sim: &sim, world: search_world.as_ref(), estimator: setup.estimator };
+    let v = setup.validation;
+    let mut records = Vec::with_capacity(planned);
+    let mut estimates = Vec::new();
+    for &sampler in setup.samplers {
+        counting.status = format!("{} in {}-sim", sampler.name().to_uppercase(), setup.world.name());
+        progress(counting.done.load(Ordering::Relaxed), total, &counting.status);
+        match sampler {
+            Sampler::Mc => {
+                let r =
+                    monte_carlo(&system, setup.prior, &v.monte_carlo, v.seed, &counting).map_err(validation_error)?;
+                let se = (r.probability * (1.0 - r.probability) / r.records.len() as f64).sqrt();
+                estimates.push((r.probability, se, r.interval));
+                records.extend(r.records);
+            }
+            Sampler::Cem => {
+                let r =
+                    cross_entropy(&system, setup.prior, &v.cem, v.seed, None, &counting).map_err(validation_error)?;
+                let e = r.estimate;
+                estimates.push((e.probability, e.standard_error, e.interval));
+                records.extend(r.records);
+            }
+        }
+    }
+
+    let replays = if setup.replay {
+        let replay_journal = Journal::open(&journal_dir.join(format!("replay_{}", replay_kind.name())), key, resume)
+            .map_err(validation_error)?;
+        let replaying = Counting {
+            journal: &replay_journal,
+            done: AtomicU64::new(counting.done.load(Ordering::Relaxed)),
+            fresh: AtomicU64::new(0),
+            total,
+            progress,
+            status: format!("replaying in {}-sim", replay_kind.name()),
+        };
+        progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
+        let system = DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator };
+        let replays = replay_all(&system, &records, &replaying).map_err(validation_error)?;
+        counting.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
+        Some(replays)
+    } else {
+        None
+    };
+
+    // Outputs.
+    let csv = |name: &str, rs: &[RolloutRecord]| -> Result<(), PipelineError> {
+        let path = out.join(name);
+        nerfsv_validation::write_csv_file(&path, rs).map_err(|e| PipelineError::io(&path, e))
+    };
+    csv(ROLLOUTS_CSV, &records)?;
+    if let Some(rs) = &replays {
+        csv(&replay_csv(replay_kind), rs)?;
+    }
+    let mut samplers = Vec::new();
+    let mut table = Vec::new();
+    for (&sampler, &(p_fail, p_fail_se, p_fail_interval)) in setup.samplers.iter().zip(&estimates) {
+        let own: Vec<usize> = (0..records.len()).filter(|&i| sampler.owns(&records[i])).collect();
+        let rows: Vec<TableRow> = match sampler {
+            Sampler::Mc => vec![table_row(SAMPLER_MC, &records)],
+            Sampler::Cem => vec![table_row(SAMPLER_CEM, &records), table_row(SAMPLER_IS, &records)],
+        }
+        .into_iter()
+        .flatten()
+        .collect();
+        let headline = rows
+            .first()
+            .cloned()
+            .ok_or_else(|| PipelineError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
+        let own_records: Vec<RolloutRecord> = own.iter().map(|&i| records[i].clone()).collect();
+        let own_replays: Option<Vec<RolloutRecord>> =
+            replays.as_ref().map(|rs| own.iter().map(|&i| rs[i].clone()).collect());
+        let confusion = match &own_replays {
+            Some(rs) => {
+                let (nerf, gt) = if setup.world == WorldKind::Nerf { (&own_records, rs) } else { (rs, &own_records) };
+                Some(ConfusionFigures::new(&compare(nerf, gt).map_err(PipelineError::Internal)?))
+            }
+            None => None,
+        };
+        let mlf = nerfsv_validation::most_likely_failure(&own_records).cloned();
+        let most_likely_failure = match &mlf {
+            Some(f) => {
+                let replayed = own_replays.as_ref().and_then(|rs| rs.iter().find(|r| r.key() == f.key()));
+                write_failure(setup, out, sampler, f, search_world.as_ref(), replayed.map(|_| replay_world.as_ref()))?;
+                Some(FailureFigures {
+                    sampler: f.sampler.clone(),
+                    population: f.population,
+                    index: f.index,
+                    seed: f.seed,
+                    log_likelihood: f.log_p,
+                    collision_step: f.collision_step.map(|s| s + 1),
+                    min_clearance_m: f.score,
+                    replay_collided: replayed.map(|r| r.failed),
+                    replay_min_clearance_m: replayed.map(|r| r.score),
+                })
+            }
+            None => None,
+        };
+        table.extend(rows.iter().cloned());
+        samplers.push(SamplerFigures {
+            sampler,
+            world: setup.world,
+            estimator: setup.estimator,
+            rollouts: own.len(),
+            collision_rate: headline.collision_rate,
+            avg_collision_step: headline.avg_collision_step,
+            avg_log_likelihood: headline.avg_log_likelihood,
+            avg_uncertainty: headline.avg_uncertainty,
+            p_fail,
+            p_fail_se,
+            p_fail_interval,
+            most_likely_failure,
+            confusion,
+            table: rows,
+        });
+    }
+    write_table(&out.join(TABLE_CSV), setup.world, &table)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let flown = counting.fresh.load(Ordering::Relaxed);
+    Ok(StressFigures {
+        world: setup.world,
+        estimator: setup.estimator,
+        replay_world: setup.replay.then_some(replay_kind),
+        samplers,
+        rollouts: records.len() + replays.as_ref().map_or(0, Vec::len),
+        seconds,
+        rollouts_per_second: flown as f64 / seconds.max(1e-9),
+    })
+}
+
+/// The most likely failure's disturbances, and its flight in the search's world (and the
+/// replay's), as trajectory CSV and plot.
+fn write_failure(
+    setup: &StressSetup,
+    out: &Path,
+    sampler: Sampler,
+    f: &RolloutRecord,
+    search: &dyn World,
+    replay: Option<&dyn World>,
+) -> Result<(), PipelineError> {
+    let ds = drone_disturbances(&f.disturbances);
+    let name = format!("most_likely_failure_{}", sampler.name());
+    let path = out.join(format!("{name}.csv"));
+    nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&ds).as_bytes())
+        .map_err(|e| PipelineError::io(&path, e))?;
+    for w in std::iter::once(search).chain(replay) {
+        let stem = format!("{name}_{}", w.kind().name());
+        fly_and_write(
+            setup.flight,
+            setup.sim,
+            &setup.inputs.nerf,
+            setup.intrinsics,
+            w,
+            setup.estimator,
+            &ds,
+            f.seed,
+            &out.join(format!("{stem}.csv")),
+            &out.join(format!("{stem}.png")),
+        )?;
+    }
+    Ok(())
+}
+
+/// The Tables 1–2 rows as CSV: `world,sampler,rollouts,collision_rate,avg_collision_step,
+/// avg_log_likelihood,avg_uncertainty` (empty where undefined).
+fn write_table(path: &Path, world: WorldKind, rows: &[TableRow]) -> Result<(), PipelineError> {
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    let mut s =
+        String::from("world,sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty\n");
+    for r in rows {
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{}\n",
+            world.name(),
+            r.sampler,
+            r.rollouts,
+            r.collision_rate,
+            opt(r.avg_collision_step),
+            r.avg_log_likelihood,
+            opt(r.avg_uncertainty)
+        ));
+    }
+    nerfsv_scene::io::atomic_write_bytes(path, s.as_bytes()).map_err(|e| PipelineError::io(path, e))
+}
+
+/// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
+/// rollout replayed in GT-sim.
+pub struct StressStage<'a> {
+    pub scene: &'a Scene,
+    pub sim: &'a SimConfig,
+    pub validation: &'a ValidationConfig,
+    pub prior: &'a Prior,
+    pub intrinsics: Intrinsics,
+    pub render: RenderSettings,
+}
+
+impl StressStage<'_> {
+    const SAMPLERS: [Sampler; 2] = [Sampler::Mc, Sampler::Cem];
+}
+
+impl Stage for StressStage<'_> {
+    const NAME: &'static str = "stress";
+    const VERSION: u32 = 1;
+    const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
+    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
+    const RESUMABLE: bool = true;
+    type Figures = StressFigures;
+
+    fn config(&self) -> impl Serialize {
+        (&self.scene.name, self.sim, self.validation, self.intrinsics, self.render.supersample)
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
+        let inputs = FlightInputs::load(
+            &Train::checkpoint(cx.root),
+            &cx.input_dir(NerfField::NAME).join(NerfField::SDF),
+            &GroundTruthField::sdf_path(cx.root),
+        )?;
+        let flight = inputs.plan(self.sim)?;
+        let setup = StressSetup {
+            inputs: &inputs,
+            flight: &flight,
+            scene: self.scene,
+            sim: self.sim,
+            validation: self.validation,
+            prior: self.prior,
+            intrinsics: self.intrinsics,
+            render: self.render,
+            world: WorldKind::Nerf,
+            estimator: EstimatorKind::Vision,
+            samplers: &Self::SAMPLERS,
+            replay: true,
+        };
+        // The runner keys the folder by this stage's config and inputs: a resumed folder is
+        // always this run's, so the journal's own key only has to be constant.
+        stress(&setup, &cx.dir, Self::NAME, cx.resume, &|done, total, status| cx.progress(done, total, status))
+    }
+
+    fn describe(f: &StressFigures) -> String {
+        f.describe()
+    }
+}

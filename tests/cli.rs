@@ -154,7 +154,8 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     let write_cfg = |steps: u32| {
         let text = format!(
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
-             train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\n"
+             train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\n\
+             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n"
         );
         std::fs::write(&cfg, text).unwrap();
     };
@@ -171,7 +172,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert_eq!(summary["nerf"]["steps"], 3);
 
     let (second, again) = run();
-    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision"] {
+    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision", "flight", "stress"] {
         assert!(second.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{second}");
     }
     assert_eq!(summary, again);

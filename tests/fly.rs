@@ -7,22 +7,6 @@ use std::path::{Path, PathBuf};
 
 use common::{nerfsv, s};
 
-/// A 2-step model of the 8×8 monolith dataset whose box is ±1 m, and the monolith's
-/// ground-truth field (the planner's map in these tests: the tiny model has learned nothing).
-fn setup(dir: &Path) -> (PathBuf, PathBuf) {
-    let ds = common::tiny_dataset(dir, "2", "1");
-    let nerf_cfg = dir.join("nerf.toml");
-    std::fs::write(&nerf_cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
-    let nerf = dir.join("nerf");
-    let (ok, _, err) =
-        nerfsv(&["train", "--data", s(&ds), "--out", s(&nerf), "--steps", "2", "--config", s(&nerf_cfg)]);
-    assert!(ok, "{err}");
-    let field = dir.join("gt.safetensors");
-    let (ok, _, err) = nerfsv(&["collision", "--scene", "monolith", "--out", s(&field)]);
-    assert!(ok, "{err}");
-    (nerf.join("checkpoint.safetensors"), field)
-}
-
 fn fly(model: &Path, field: &Path, out: &Path, extra: &[&str]) -> (bool, String, String) {
     let base = ["fly", "--scene", "monolith", "--model", s(model), "--nerf-field", s(field), "--out", s(out)];
     nerfsv(&[&base[..], extra].concat())
@@ -31,9 +15,10 @@ fn fly(model: &Path, field: &Path, out: &Path, extra: &[&str]) -> (bool, String,
 #[test]
 fn a_flight_writes_its_files_and_prints_the_figures() {
     let dir = tempfile::tempdir().unwrap();
-    let (model, field) = setup(dir.path());
-    let cfg = dir.path().join("sim.toml");
-    std::fs::write(&cfg, "[vision]\npixels = 16\niterations = 2\n").unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let cfg = dir.path().join("run.toml");
+    // The whole flight, whatever it hits (a crash would end it early).
+    std::fs::write(&cfg, "[sim]\nstop_at_collision = false\n[sim.vision]\npixels = 16\niterations = 2\n").unwrap();
     let out = dir.path().join("fly");
     let (ok, stdout, err) =
         fly(&model, &field, &out, &["--world", "gt", "--random-seed", "3", "--config", s(&cfg), "--json"]);
@@ -90,7 +75,7 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
 #[test]
 fn bad_flights_are_refused_by_name_and_write_nothing() {
     let dir = tempfile::tempdir().unwrap();
-    let (model, field) = setup(dir.path());
+    let (model, field) = common::tiny_model_and_field(dir.path());
     let out = dir.path().join("fly");
     let write = |name: &str, text: &str| {
         let p = dir.path().join(name);
@@ -100,17 +85,23 @@ fn bad_flights_are_refused_by_name_and_write_nothing() {
     let row = "0,0,0,0,0,0,0,0,0,0,0,0\n";
     let cases: Vec<(PathBuf, &str, Vec<&str>)> = vec![
         // Start inside the monolith.
-        (write("a.toml", "start = [0.0, 0.0, 0.3]\n"), "--config", vec!["start (0.00, 0.00, 0.30)", "inside geometry"]),
+        (write("a.toml", "[sim]\nstart = [0.0, 0.0, 0.3]\n"), "--config", vec!["start (0.00, 0.00, 0.30)", "inside geometry"]),
         // Goal off the field's grid.
-        (write("b.toml", "goal = [3.0, 0.0, 0.2]\n"), "--config", vec!["goal", "outside"]),
+        (write("b.toml", "[sim]\ngoal = [3.0, 0.0, 0.2]\n"), "--config", vec!["goal", "outside"]),
         // A path outside the model's ±1 m box.
         (
-            write("c.toml", "start = [1.3, -0.5, 0.2]\ngoal = [1.3, 0.5, 0.2]\n"),
+            write("c.toml", "[sim]\nstart = [1.3, -0.5, 0.2]\ngoal = [1.3, 0.5, 0.2]\n"),
             "--config",
             vec!["model's box", "does not cover"],
         ),
         // A value out of range.
-        (write("d.toml", "steps = 0\n"), "--config", vec!["d.toml", "steps", "found 0"]),
+        (write("d.toml", "[sim]\nsteps = 0\n"), "--config", vec!["d.toml", "sim.steps", "found 0"]),
+        // A prior that is not a covariance.
+        (
+            write("h.toml", "[validation.disturbance]\nstd = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, -0.01]\n"),
+            "--config",
+            vec!["h.toml", "validation.disturbance.std[11]"],
+        ),
         // Disturbance files: a short row, a NaN, too few rows.
         (
             write("e.csv", &format!("{row}{row}0,0,0\n{row}{row}{row}")),

@@ -3,8 +3,10 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::refuse_output_inside;
-use nerfsv_pipeline::stress::{stress, Sampler, StressSetup, STRESS_JSON};
+use nerfsv_pipeline::stress::{stress, Sampler, StressSetup, JOURNAL, STRESS_JSON};
 use nerfsv_scene::seed::fnv1a;
+use nerfsv_sim::WorldKind;
+use nerfsv_validation::Journal;
 
 use crate::commands::fly::{load_config, load_worlds, EstimatorArg, WorldArg};
 
@@ -74,8 +76,9 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         inputs.push(("--nerf-field", p));
     }
     refuse_output_inside(&args.out, &inputs)?;
-    if args.resume && !args.out.is_dir() {
-        anyhow::bail!("{}: --resume needs the folder of an interrupted run", args.out.display());
+    let journal = args.out.join(JOURNAL).join(WorldKind::from(args.world).name());
+    if args.resume && !Journal::exists(&journal) {
+        anyhow::bail!("{}: --resume needs the folder of an interrupted stress run", args.out.display());
     }
     // Everything that can be refused is checked before anything is written.
     let prior = cfg.disturbance_prior()?;
@@ -121,10 +124,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let reporter = crate::progress::Reporter::new(args.json);
-    let figures = stress(&setup, &args.out, &key, args.resume, &|done, total, status| {
-        nerfsv_pipeline::Observer::progress(&reporter, "stress", done, total, status)
-    })?;
-    nerfsv_pipeline::Observer::note(&reporter, "stress", "done");
+    let figures = stress(&setup, &args.out, &key, args.resume, &reporter)?;
     nerfsv_pipeline::stage::write_json(&args.out.join(STRESS_JSON), &figures)?;
     let one = &figures.samplers[0];
     crate::commands::report(args.json, one, || figures.describe())

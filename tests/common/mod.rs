@@ -51,3 +51,19 @@ pub fn tiny_dataset(dir: &Path, train: &str, test: &str) -> PathBuf {
     assert!(ok, "{err}");
     ds
 }
+
+/// A 2-step model of the 8×8 monolith dataset whose box is ±1 m, and the monolith's
+/// ground-truth field (the planner's map in these tests: the tiny model has learned nothing).
+pub fn tiny_model_and_field(dir: &Path) -> (PathBuf, PathBuf) {
+    let ds = tiny_dataset(dir, "2", "1");
+    let nerf_cfg = dir.join("nerf.toml");
+    std::fs::write(&nerf_cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
+    let nerf = dir.join("nerf");
+    let (ok, _, err) =
+        nerfsv(&["train", "--data", s(&ds), "--out", s(&nerf), "--steps", "2", "--config", s(&nerf_cfg)]);
+    assert!(ok, "{err}");
+    let field = dir.join("gt.safetensors");
+    let (ok, _, err) = nerfsv(&["collision", "--scene", "monolith", "--out", s(&field)]);
+    assert!(ok, "{err}");
+    (nerf.join("checkpoint.safetensors"), field)
+}

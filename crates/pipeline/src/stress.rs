@@ -20,7 +20,7 @@ use nerfsv_validation::{
 use serde::{Deserialize, Serialize};
 
 use crate::flight::{fly_and_write, world, FlightInputs};
-use crate::stage::{Stage, StageContext};
+use crate::stage::{Observer, Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
@@ -255,6 +255,8 @@ pub const TABLE_CSV: &str = "table.csv";
 pub const STRESS_JSON: &str = "stress.json";
 /// The journal's folder under the output folder.
 pub const JOURNAL: &str = "journal";
+/// The name progress and notes are reported under.
+pub const STAGE: &str = "stress";
 
 /// `replay_{world}.csv`: the replays' rows.
 pub fn replay_csv(world: WorldKind) -> String {
@@ -267,7 +269,7 @@ struct Counting<'a> {
     done: AtomicU64,
     fresh: AtomicU64,
     total: u64,
-    progress: &'a (dyn Fn(u64, u64, &str) + Sync),
+    observer: &'a dyn Observer,
     status: String,
 }
 
@@ -284,7 +286,7 @@ impl Recorder for Counting<'_> {
         self.journal.record(r)?;
         self.fresh.fetch_add(1, Ordering::Relaxed);
         let done = self.done.fetch_add(1, Ordering::Relaxed) + 1;
-        (self.progress)(done, self.total, &self.status);
+        self.observer.progress(STAGE, done, self.total, &self.status);
         Ok(())
     }
 }
@@ -304,14 +306,16 @@ fn validation_error(e: ValidationError) -> PipelineError {
 /// flight in each world (`most_likely_failure_{sampler}_{world}.csv/.png`).
 ///
 /// `key` identifies everything the rollouts depend on; with `resume`, the journal in `out` must
-/// carry the same key and its rollouts are not flown again.
+/// carry the same key and its rollouts are not flown again. Progress and notes go to `observer`
+/// under the name [`STAGE`].
 pub fn stress(
     setup: &StressSetup,
     out: &Path,
     key: &str,
     resume: bool,
-    progress: &(dyn Fn(u64, u64, &str) + Sync),
+    observer: &dyn Observer,
 ) -> Result<StressFigures, PipelineError> {
+    let progress = |done: u64, total: u64, status: &str| observer.progress(STAGE, done, total, status);
     let start = Instant::now();
     let sim = setup.flight.simulator(setup.sim, &setup.inputs.nerf, setup.intrinsics);
     let search_world = world(setup.world, setup.inputs, setup.scene, setup.render);
@@ -327,11 +331,14 @@ pub fn stress(
         done: AtomicU64::new(0),
         fresh: AtomicU64::new(0),
         total,
-        progress,
+        observer,
         status: String::new(),
     };
     let system = DroneSystem { sim: &sim, world: search_world.as_ref(), estimator: setup.estimator };
     let v = setup.validation;
+    if resume {
+        observer.note(STAGE, &format!("{} of {planned} rollouts were already flown", journal.len()));
+    }
     let mut records = Vec::with_capacity(planned);
     let mut estimates = Vec::new();
     for &sampler in setup.samplers {
@@ -363,12 +370,15 @@ pub fn stress(
             done: AtomicU64::new(counting.done.load(Ordering::Relaxed)),
             fresh: AtomicU64::new(0),
             total,
-            progress,
+            observer,
             status: format!("replaying in {}-sim", replay_kind.name()),
         };
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
         let system = DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator };
         let replays = replay_all(&system, &records, &replaying).map_err(validation_error)?;
+        if resume {
+            observer.note(STAGE, &format!("{} of {} replays were already flown", replay_journal.len(), records.len()));
+        }
         counting.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
         Some(replays)
     } else {
@@ -530,7 +540,7 @@ impl StressStage<'_> {
 }
 
 impl Stage for StressStage<'_> {
-    const NAME: &'static str = "stress";
+    const NAME: &'static str = STAGE;
     const VERSION: u32 = 1;
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
@@ -564,7 +574,7 @@ impl Stage for StressStage<'_> {
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
-        stress(&setup, &cx.dir, Self::NAME, cx.resume, &|done, total, status| cx.progress(done, total, status))
+        stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)
     }
 
     fn describe(f: &StressFigures) -> String {

@@ -87,13 +87,19 @@ impl Journal {
         Ok(Self { dir: dir.to_owned(), done })
     }
 
-    /// [`Journal::resume`] when `resume` is set, else [`Journal::create`].
+    /// [`Journal::resume`] when `resume` is set and `dir` holds a journal, else
+    /// [`Journal::create`] (a run killed before it began this journal resumes from nothing).
     pub fn open(dir: &Path, key: &str, resume: bool) -> Result<Self, ValidationError> {
-        if resume {
+        if resume && Self::exists(dir) {
             Self::resume(dir, key)
         } else {
             Self::create(dir, key)
         }
+    }
+
+    /// Whether `dir` holds a journal (of any run).
+    pub fn exists(dir: &Path) -> bool {
+        dir.join(KEY_FILE).is_file()
     }
 
     /// Number of finished rollouts it held when opened.

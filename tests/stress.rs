@@ -1,0 +1,237 @@
+//! `nerfsv stress`: the summary and files a user gets, the same bytes at any thread count, a
+//! killed run resumed to the uninterrupted result, and bad input refused before anything is
+//! written.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{nerfsv_with, s};
+
+/// A small study: 16-pixel vision, a wide prior so the drone does crash, `mc` MC rollouts and a
+/// 2 × 6 CEM with 6 importance samples.
+fn config(dir: &Path, name: &str, mc: usize, extra: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(
+        &p,
+        format!(
+            "[sim.vision]\npixels = 16\niterations = 2\n[validation]\nseed = 5\n[validation.disturbance]\n\
+             std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]\n\
+             [validation.monte_carlo]\nrollouts = {mc}\n[validation.cem]\nm = 6\nm_elite = 2\nk_max = 2\nis_samples = 6\n{extra}"
+        ),
+    )
+    .unwrap();
+    p
+}
+
+fn stress(model: &Path, field: &Path, out: &Path, extra: &[&str], threads: &str) -> (bool, String, String) {
+    let base = ["stress", "--scene", "monolith", "--model", s(model), "--nerf-field", s(field), "--out", s(out)];
+    nerfsv_with(&[&base[..], extra].concat(), &[("RAYON_NUM_THREADS", threads)])
+}
+
+/// The files of a stress folder that a seed determines (the journal and the figures without
+/// timings included).
+fn results(out: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut files = Vec::new();
+    let mut stack = vec![out.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(out).unwrap().display().to_string();
+                let mut bytes = std::fs::read(&p).unwrap();
+                if rel == "stress.json" {
+                    let mut v: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+                    let m = v.as_object_mut().unwrap();
+                    m.remove("seconds");
+                    m.remove("rollouts_per_second");
+                    bytes = serde_json::to_vec(&v).unwrap();
+                }
+                files.push((rel, bytes));
+            }
+        }
+    }
+    files.sort();
+    files
+}
+
+#[test]
+fn cem_with_replay_prints_the_summary_and_writes_the_same_bytes_on_one_and_two_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let cfg = config(dir.path(), "study.toml", 4, "");
+    let args = ["--sampler", "cem", "--replay", "--config", s(&cfg), "--json"];
+    let one = dir.path().join("one");
+    let (ok, stdout, err) = stress(&model, &field, &one, &args, "1");
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    for key in [
+        "rollouts",
+        "collision_rate",
+        "avg_collision_step",
+        "avg_log_likelihood",
+        "avg_uncertainty",
+        "p_fail",
+        "p_fail_se",
+        "most_likely_failure",
+    ] {
+        assert!(v.get(key).is_some(), "{key} missing from {stdout}");
+    }
+    for key in ["accuracy", "precision", "recall"] {
+        assert!(v["confusion"].get(key).is_some(), "confusion.{key} missing from {stdout}");
+    }
+    assert_eq!(v["rollouts"], 2 * 6 + 6);
+    assert!(v["collision_rate"].as_f64().unwrap() > 0.0, "the wide prior should crash the drone: {stdout}");
+    let t = &v["confusion"]["trajectories"];
+    let pairs: u64 = ["true_positive", "false_positive", "false_negative", "true_negative"]
+        .iter()
+        .map(|k| t[k].as_u64().unwrap())
+        .sum();
+    assert_eq!(pairs, 18);
+
+    let rollouts = std::fs::read_to_string(one.join("rollouts.csv")).unwrap();
+    assert!(rollouts.starts_with("sampler,population,index,seed,step,d0,"), "{rollouts}");
+    assert_eq!(rollouts.lines().count(), 1 + 18 * 6);
+    assert_eq!(std::fs::read_to_string(one.join("replay_gt.csv")).unwrap().lines().count(), 1 + 18 * 6);
+    let table = std::fs::read_to_string(one.join("table.csv")).unwrap();
+    assert!(table.starts_with("world,sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood"));
+    assert_eq!(table.lines().map(|l| l.split(',').nth(1).unwrap()).collect::<Vec<_>>(), ["sampler", "cem", "cem-is"]);
+    // The most likely failure: its disturbances and its flight in both worlds.
+    for f in ["most_likely_failure_cem.csv", "most_likely_failure_cem_nerf.png", "most_likely_failure_cem_gt.png"] {
+        assert!(one.join(f).is_file(), "{f}");
+    }
+
+    let two = dir.path().join("two");
+    let (ok, _, err) = stress(&model, &field, &two, &args, "2");
+    assert!(ok, "{err}");
+    assert_eq!(results(&one), results(&two), "results differ between 1 and 2 threads");
+
+    // The most likely failure replays with `nerfsv fly` from its disturbances and seed.
+    let seed = v["most_likely_failure"]["seed"].as_u64().unwrap().to_string();
+    let fly = dir.path().join("fly");
+    let (ok, stdout, err) = nerfsv_with(
+        &[
+            "fly",
+            "--scene",
+            "monolith",
+            "--model",
+            s(&model),
+            "--nerf-field",
+            s(&field),
+            "--disturbances",
+            s(&one.join("most_likely_failure_cem.csv")),
+            "--seed",
+            &seed,
+            "--config",
+            s(&cfg),
+            "--out",
+            s(&fly),
+            "--json",
+        ],
+        &[],
+    );
+    assert!(ok, "{err}");
+    let flown: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(flown["collided"], true);
+    assert_eq!(
+        flown["collision_step"].as_u64().unwrap() + 1,
+        v["most_likely_failure"]["collision_step"].as_u64().unwrap()
+    );
+    assert_eq!(
+        std::fs::read(fly.join("trajectory.csv")).unwrap(),
+        std::fs::read(one.join("most_likely_failure_cem_nerf.csv")).unwrap()
+    );
+}
+
+#[test]
+fn a_killed_stress_run_resumes_without_reflying_and_ends_with_the_uninterrupted_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let cfg = config(dir.path(), "study.toml", 60, "");
+    let args = ["--sampler", "mc", "--replay", "--config", s(&cfg)];
+    let whole = dir.path().join("whole");
+    let (ok, _, err) = stress(&model, &field, &whole, &args, "2");
+    assert!(ok, "{err}");
+
+    // Kill -9 once some rollouts are in the journal.
+    let killed = dir.path().join("killed");
+    let base = ["stress", "--scene", "monolith", "--model", s(&model), "--nerf-field", s(&field), "--out", s(&killed)];
+    let mut child = Command::new(env!("CARGO_BIN_EXE_nerfsv"))
+        .args([&base[..], &args[..]].concat())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let journal = killed.join("journal/nerf");
+    let start = Instant::now();
+    let flown = || {
+        std::fs::read_dir(&journal)
+            .map_or(0, |d| d.flatten().filter(|e| e.path().extension().is_some_and(|x| x == "csv")).count())
+    };
+    while flown() < 5 {
+        assert!(child.try_wait().unwrap().is_none(), "the run finished before it could be killed");
+        assert!(start.elapsed() < Duration::from_secs(120), "no rollout finished");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let before = flown();
+    assert!(before < 60, "killed too late");
+    assert!(!killed.join("rollouts.csv").exists());
+
+    let (ok, _, err) = stress(&model, &field, &killed, &[&args[..], &["--resume"]].concat(), "1");
+    assert!(ok, "{err}");
+    assert!(err.contains(&format!("{before} of 60 rollouts were already flown")), "{err}");
+    assert_eq!(results(&killed), results(&whole), "a resumed run must end with the uninterrupted run's files");
+
+    // Resuming into results of another configuration is refused, naming the journal, and
+    // changes nothing.
+    let before = results(&killed);
+    let (ok, _, err) = stress(&model, &field, &killed, &[&args[..], &["--resume", "--seed", "6"]].concat(), "2");
+    assert!(!ok);
+    assert!(err.contains("journal/nerf/key") && err.contains("another configuration"), "{err}");
+    assert_eq!(results(&killed), before);
+}
+
+#[test]
+fn bad_studies_are_refused_by_name_and_write_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let out = dir.path().join("out");
+    let edit = |name: &str, from: &str, to: &str| {
+        let p = config(dir.path(), name, 4, "");
+        std::fs::write(&p, std::fs::read_to_string(&p).unwrap().replace(from, to)).unwrap();
+        p
+    };
+    let cases = [
+        // A covariance that is not positive definite.
+        (
+            edit("a.toml", "std = [", "covariance = [[1.0, 2.0], [2.0, 1.0]]\nmean = [0.0, 0.0]\nstd = ["),
+            "cem",
+            vec!["a.toml", "validation.disturbance.covariance", "positive definite"],
+        ),
+        // A population smaller than its elite count.
+        (edit("b.toml", "m_elite = 2", "m_elite = 7"), "cem", vec!["b.toml", "validation.cem.m_elite", "found 7"]),
+        // Zero rollouts.
+        (
+            edit("c.toml", "rollouts = 4", "rollouts = 0"),
+            "mc",
+            vec!["c.toml", "validation.monte_carlo.rollouts", "found 0"],
+        ),
+    ];
+    for (cfg, sampler, expected) in cases {
+        let (ok, _, err) = stress(&model, &field, &out, &["--sampler", sampler, "--config", s(&cfg)], "2");
+        assert!(!ok, "{} was accepted", cfg.display());
+        for e in expected {
+            assert!(err.contains(e), "{}: {e:?} not in {err}", cfg.display());
+        }
+        assert!(!out.exists(), "{} left output behind", cfg.display());
+    }
+    // --resume of a folder that holds no run.
+    let (ok, _, err) = stress(&model, &field, &out, &["--resume"], "2");
+    assert!(!ok && err.contains("--resume") && !out.exists(), "{err}");
+}

@@ -128,6 +128,12 @@ pub struct CemConfig {
     pub is_variance_floor: f64,
     /// Samples from the final proposal for the importance-sampling failure probability.
     pub is_samples: usize,
+    /// Share α of the importance batch drawn from the prior instead of the final proposal (a
+    /// defensive mixture, Hesterberg 1995; 0 turns it off): every weight p/q is then at most
+    /// 1/α, so a proposal that drifted away from where the prior's failures are cannot drive the
+    /// estimate to ~0 with a falsely small standard error (on the default drone, without it, the
+    /// estimate was 3·10⁻⁹ ± 2·10⁻⁹ against Monte Carlo's 0.08 ± 0.03).
+    pub is_defensive: f64,
 }
 
 impl Default for CemConfig {
@@ -140,6 +146,7 @@ impl Default for CemConfig {
             variance_floor: 1e-3,
             is_variance_floor: 1.0,
             is_samples: 100,
+            is_defensive: 0.2,
         }
     }
 }
@@ -155,6 +162,9 @@ impl CemConfig {
         in_range("k_max", self.k_max, 1, 100_000)?;
         positive("variance_floor", self.variance_floor)?;
         positive("is_variance_floor", self.is_variance_floor)?;
+        if !(0.0..1.0).contains(&self.is_defensive) {
+            return Err(InvalidValue::new("is_defensive", "must be in [0, 1)", self.is_defensive));
+        }
         in_range("is_samples", self.is_samples, 1, 100_000_000)
     }
 }

@@ -4,7 +4,7 @@
 
 use nalgebra::{DMatrix, DVector};
 use nerfsv_scene::validate::InvalidValue;
-use rand::{Rng, SeedableRng};
+use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
@@ -197,10 +197,14 @@ impl Prior {
     }
 }
 
-/// A proposal over a whole trajectory: one [`Gaussian`] per step, independent across steps.
+/// A proposal over a whole trajectory: one [`Gaussian`] per step, independent across steps —
+/// optionally a *defensive mixture* (Hesterberg 1995) with the prior: with probability α the
+/// whole trajectory is drawn from the prior instead, so q(x) ≥ α·p(x) everywhere and every
+/// importance weight p/q is at most 1/α.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Proposal {
     steps: Vec<Gaussian>,
+    defensive: Option<(Prior, f64)>,
 }
 
 impl Proposal {
@@ -209,7 +213,21 @@ impl Proposal {
         if let Some(first) = steps.first() {
             assert!(steps.iter().all(|g| g.dim() == first.dim()), "Proposal::new: steps of different dimensions");
         }
-        Self { steps }
+        Self { steps, defensive: None }
+    }
+
+    /// The mixture α·prior + (1 − α)·self over whole trajectories (α in (0, 1); panics if the
+    /// prior's shape differs).
+    pub fn defensive(mut self, prior: &Prior, alpha: f64) -> Self {
+        assert!(alpha > 0.0 && alpha < 1.0, "Proposal::defensive: α = {alpha} is not in (0, 1)");
+        assert!(prior.steps() == self.len() && self.steps.iter().all(|g| g.dim() == prior.dim()));
+        self.defensive = Some((prior.clone(), alpha));
+        self
+    }
+
+    /// The defensive mixture's prior weight α, if this is one.
+    pub fn defensive_fraction(&self) -> Option<f64> {
+        self.defensive.as_ref().map(|(_, a)| *a)
     }
 
     /// The per-step Gaussians, `[steps]`.
@@ -227,8 +245,15 @@ impl Proposal {
         self.steps.is_empty()
     }
 
-    /// One trajectory, `[steps][dim]`, steps drawn in order from `rng`.
+    /// One trajectory, `[steps][dim]`, steps drawn in order from `rng` (for a defensive
+    /// mixture, after one uniform draw that picks the prior with probability α).
     pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Vec<Vec<f64>> {
+        if let Some((prior, alpha)) = &self.defensive {
+            let u: f64 = rng.random();
+            if u < *alpha {
+                return (0..prior.steps()).map(|_| prior.step().sample(rng)).collect();
+            }
+        }
         self.steps.iter().map(|g| g.sample(rng)).collect()
     }
 
@@ -239,14 +264,25 @@ impl Proposal {
         self.sample(&mut ChaCha8Rng::seed_from_u64(seed))
     }
 
-    /// Per-step log-densities ln q_t(x_t), `[steps]`.
+    /// Per-step log-densities ln q_t(x_t) of the per-step Gaussians, `[steps]` (for a defensive
+    /// mixture, of its non-prior component: the mixture does not factor over steps).
     pub fn step_log_pdfs(&self, disturbances: &[Vec<f64>]) -> Vec<f64> {
         assert_eq!(disturbances.len(), self.steps.len(), "trajectory length mismatch");
         self.steps.iter().zip(disturbances).map(|(g, x)| g.log_pdf(x)).collect()
     }
 
-    /// Σ_t ln q_t(x_t).
+    /// ln q(x) of the whole trajectory: Σ_t ln q_t(x_t), or for a defensive mixture
+    /// ln(α·p(x) + (1 − α)·Π_t q_t(x_t)), computed without overflow.
     pub fn log_pdf(&self, disturbances: &[Vec<f64>]) -> f64 {
-        self.step_log_pdfs(disturbances).iter().sum()
+        let component: f64 = self.step_log_pdfs(disturbances).iter().sum();
+        match &self.defensive {
+            None => component,
+            Some((prior, alpha)) => {
+                let a = alpha.ln() + prior.log_likelihood(disturbances);
+                let b = (1.0 - alpha).ln() + component;
+                let m = a.max(b);
+                m + ((a - m).exp() + (b - m).exp()).ln()
+            }
+        }
     }
 }

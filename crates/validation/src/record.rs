@@ -31,7 +31,8 @@ pub struct RolloutRecord {
     pub step_log_q: Vec<f64>,
     /// Trajectory log-likelihood, eq. 1: Σ_t ln p(x_t).
     pub log_p: f64,
-    /// Σ_t ln q_t(x_t).
+    /// ln q(x) of the whole trajectory under the proposal it was drawn from: Σ_t ln q_t(x_t),
+    /// or a defensive mixture's density (see [`crate::Proposal::defensive`]).
     pub log_q: f64,
     /// Minimum signed clearance along the trajectory; ≤ 0 is a failure.
     pub score: f64,
@@ -69,10 +70,11 @@ impl RolloutRecord {
 }
 
 /// The columns after the disturbances.
-const TAIL: [&str; 10] = ["log_p", "log_q", "uncertainty", "reward", "score", "clearance", "x", "y", "z", "collided"];
+const TAIL: [&str; 11] =
+    ["log_p", "log_q", "uncertainty", "reward", "score", "trajectory_log_q", "clearance", "x", "y", "z", "collided"];
 
 /// The CSV header for disturbances of dimension `dim`:
-/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,clearance,x,y,z,collided`.
+/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,collided`.
 pub fn csv_header(dim: usize) -> String {
     let mut s = String::from("sampler,population,index,seed,step");
     for j in 0..dim {
@@ -88,8 +90,10 @@ pub fn csv_header(dim: usize) -> String {
 ///
 /// Columns: `log_p` and `log_q` are the step's own terms (a rollout's rows sum to eq. 1's
 /// trajectory log-likelihood and its proposal counterpart); `uncertainty` is the step's (empty
-/// when not measured); `reward` (empty without one) and `score` (the trajectory's minimum
-/// clearance) repeat on every row of the rollout; `clearance` is the step's minimum clearance;
+/// when not measured); `reward` (empty without one), `score` (the trajectory's minimum
+/// clearance) and `trajectory_log_q` (ln q of the whole trajectory: the sum of the rows'
+/// `log_q`, except for a defensive mixture, which does not factor over steps) repeat on every
+/// row of the rollout; `clearance` is the step's minimum clearance;
 /// `x,y,z` the position at the step's end (empty for systems without one); `collided` is 1 on
 /// the first step that touched geometry and 0 elsewhere (a step touched geometry where its
 /// clearance is ≤ 0). Floats are written with Rust's shortest round-trip formatting, so a value
@@ -127,7 +131,7 @@ pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()
             if let Some(reward) = r.reward {
                 let _ = write!(line, "{reward}");
             }
-            let _ = write!(line, ",{},{},", r.score, at(&r.step_scores));
+            let _ = write!(line, ",{},{},{},", r.score, r.log_q, at(&r.step_scores));
             match r.step_positions.get(t) {
                 Some([x, y, z]) => {
                     let _ = write!(line, "{x},{y},{z}");
@@ -190,9 +194,10 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         let uncertainty = optional(tail + 2)?;
         let reward = optional(tail + 3)?;
         let score = float(tail + 4)?;
-        let clearance = float(tail + 5)?;
-        let position = [optional(tail + 6)?, optional(tail + 7)?, optional(tail + 8)?];
-        let collided = match fields[tail + 9] {
+        let trajectory_log_q = float(tail + 5)?;
+        let clearance = float(tail + 6)?;
+        let position = [optional(tail + 7)?, optional(tail + 8)?, optional(tail + 9)?];
+        let collided = match fields[tail + 10] {
             "0" => false,
             "1" => true,
             other => return Err((n, format!("column collided: `{other}` is not 0 or 1"))),
@@ -210,7 +215,7 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
                 step_log_p: Vec::new(),
                 step_log_q: Vec::new(),
                 log_p: 0.0,
-                log_q: 0.0,
+                log_q: trajectory_log_q,
                 score,
                 step_scores: Vec::new(),
                 step_positions: Vec::new(),
@@ -226,8 +231,11 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         if r.disturbances.len() != step {
             return Err((n, format!("step {step} follows step {}", r.disturbances.len().wrapping_sub(1))));
         }
-        if r.score.to_bits() != score.to_bits() || r.reward.map(f64::to_bits) != reward.map(f64::to_bits) {
-            return Err((n, "score and reward must repeat on every row of a rollout".to_owned()));
+        if r.score.to_bits() != score.to_bits()
+            || r.reward.map(f64::to_bits) != reward.map(f64::to_bits)
+            || r.log_q.to_bits() != trajectory_log_q.to_bits()
+        {
+            return Err((n, "score, reward and trajectory_log_q must repeat on every row of a rollout".to_owned()));
         }
         r.disturbances.push(x);
         r.step_log_p.push(log_p);
@@ -252,7 +260,6 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
     }
     for r in &mut records {
         r.log_p = r.step_log_p.iter().sum();
-        r.log_q = r.step_log_q.iter().sum();
     }
     Ok(records)
 }

@@ -54,13 +54,14 @@ pub fn rollout<S: System + ?Sized>(
     let outcome = system.run(&disturbances, seed);
     let step_log_p = prior.step_log_pdfs(&disturbances);
     let step_log_q = proposal.step_log_pdfs(&disturbances);
+    let log_q = proposal.log_pdf(&disturbances);
     let mut record = RolloutRecord {
         sampler: sampler.to_owned(),
         population,
         index,
         seed,
         log_p: step_log_p.iter().sum(),
-        log_q: step_log_q.iter().sum(),
+        log_q,
         step_log_p,
         step_log_q,
         reward: None,
@@ -445,12 +446,11 @@ pub fn cross_entropy<S: System + ?Sized>(
         let elite = select_elites(&pop, config.m_elite, rewards.as_deref());
         let weights = elite_weights(&pop, &elite);
         // The last fit only draws the importance batch: floor it for bounded weights.
-        let floor = if k + 1 == config.k_max {
-            config.variance_floor.max(config.is_variance_floor)
-        } else {
-            config.variance_floor
-        };
-        proposals.push(refit(prior, &pop, &weights, config.full_covariance, floor));
+        let last = k + 1 == config.k_max;
+        let floor = if last { config.variance_floor.max(config.is_variance_floor) } else { config.variance_floor };
+        let fitted = refit(prior, &pop, &weights, config.full_covariance, floor);
+        // The importance batch is drawn from a defensive mixture with the prior.
+        proposals.push(if last && config.is_defensive > 0.0 { fitted.defensive(prior, config.is_defensive) } else { fitted });
         records.extend(pop);
     }
     let last = proposals.last().expect("k_max ≥ 1");

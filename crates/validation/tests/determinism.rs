@@ -41,7 +41,7 @@ fn same_seed_gives_byte_identical_csv_with_one_and_two_threads() {
     let mut lines = text.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "sampler,population,index,seed,step,d0,d1,log_p,log_q,uncertainty,reward,score,clearance,x,y,z,collided"
+        "sampler,population,index,seed,step,d0,d1,log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,collided"
     );
     // (200 MC + 3·40 CEM + 50 IS) rollouts × 6 steps.
     assert_eq!(lines.count(), (200 + 120 + 50) * 6);

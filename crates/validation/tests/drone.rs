@@ -29,6 +29,11 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
     assert!(mc.failures > 0 && mc.failures < 40, "{} failures", mc.failures);
     let failure = mc.records.iter().find(|r| r.failed).unwrap();
     assert_eq!(failure.collision_step, failure.step_scores.iter().position(|&s| s <= 0.0));
+    // The crash ended the rollout: the steps after it were not flown (NaN clearance).
+    let crash = failure.collision_step.unwrap();
+    assert!(failure.step_scores[crash + 1..].iter().all(|s| s.is_nan()));
+    assert!(failure.step_scores[..=crash].iter().all(|s| !s.is_nan()));
     let again = replay(&system, &prior, &prior.to_proposal(), failure, None);
-    assert_eq!(&again, failure);
+    // Bit for bit, NaNs included (which `==` would call unequal).
+    assert_eq!(format!("{again:?}"), format!("{failure:?}"));
 }

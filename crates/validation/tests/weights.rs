@@ -91,3 +91,45 @@ fn per_step_weights_bias_the_estimate_on_the_toy_and_trajectory_weights_do_not()
     // larger than the trajectory ratio: the estimate is off by orders of magnitude.
     assert!(per_step > 30.0 * truth, "per-step estimate {per_step} unexpectedly close to {truth}");
 }
+
+/// A proposal that drifted past the failure boundary and shrank (the drone's CEM does this:
+/// its final proposal lands where a few elites were): plain importance sampling from it
+/// misses the boundary, where most of the failure probability is, and reports a tiny estimate
+/// with a tiny standard error. The defensive mixture with the prior bounds every weight by 1/α
+/// and keeps the estimate honest.
+#[test]
+fn a_defensive_mixture_bounds_the_weights_and_rescues_a_drifted_proposal() {
+    let toy = LinearToy::new(2.0); // P(fail) = Q(2) ≈ 0.0228
+    let truth = toy.p_fail();
+    let prior = toy.prior();
+    let narrow: Vec<f64> = STD.iter().map(|s| 0.4 * s).collect();
+    let drifted = Proposal::new(
+        toy.design_point()
+            .into_iter()
+            .map(|m| Gaussian::diagonal(m.iter().map(|v| 2.5 * v).collect(), &narrow).unwrap())
+            .collect(),
+    );
+    let n = 4000;
+    let (_, plain) = importance_sampling(&toy, &prior, &drifted, n, 8, &()).unwrap();
+    assert!(
+        (plain.probability - truth).abs() > 5.0 * plain.standard_error,
+        "plain IS should be confidently wrong here: {} ± {} vs {truth}",
+        plain.probability,
+        plain.standard_error
+    );
+    let alpha = 0.2;
+    let defensive = drifted.clone().defensive(&prior, alpha);
+    for seed in 0..4 {
+        let (records, e) = importance_sampling(&toy, &prior, &defensive, n, seed, &()).unwrap();
+        assert!(records.iter().all(|r| r.weight() <= 1.0 / alpha * (1.0 + 1e-12)), "a weight above 1/α");
+        // About α of the batch came from the prior.
+        let from_prior = records.iter().filter(|r| r.log_p > drifted.log_pdf(&r.disturbances)).count() as f64;
+        assert!((from_prior / n as f64 - alpha).abs() < 0.05, "{from_prior}");
+        assert!(
+            (e.probability - truth).abs() <= 3.0 * e.standard_error,
+            "seed {seed}: defensive estimate {} ± {} vs {truth}",
+            e.probability,
+            e.standard_error
+        );
+    }
+}

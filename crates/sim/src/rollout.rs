@@ -2,13 +2,10 @@
 //!
 //! A rollout is `steps` steps; step `k` covers one segment of the planned path in `substeps`
 //! substeps of `dt`. At the start of step `k` the disturbance `x_k` is applied to the true
-//! state and the vision estimator takes the camera's image of that instant (the end of the
-//! previous step, after the disturbance that ends it, as NeRF-Navigation's loop observes the
-//! noisy state) and refines its predicted pose; then each substep the controller turns the
-//! *estimated* state and the reference into an action, the true state (and, for the vision
-//! estimator, the estimate) is integrated, and the drone's body box is checked against the
-//! world's signed field. (Observing before the disturbance instead leaves each disturbance
-//! unseen for a whole step: 93 of 100 Monte Carlo rollouts of the default scene crashed so.)
+//! state; then each substep the controller turns the *estimated* state and the reference into
+//! an action, the true state (and, for the vision estimator, the estimate) is integrated, and
+//! the drone's body box is checked against the world's signed field. At the end of the step the
+//! vision estimator takes an image and refines its pose.
 //!
 //! The body is checked after the disturbance (substep 0) and after every integration (substeps
 //! 1..=substeps). A box that touches geometry is a collision; a box partly outside the field's
@@ -64,7 +61,7 @@ pub struct Substep {
     pub clearance: Option<f32>,
 }
 
-/// Estimation at the start of a step (after its disturbance, before it is flown).
+/// Estimation at the end of a step.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct StepEstimate {
     pub step: usize,
@@ -108,12 +105,12 @@ impl Rollout {
         self.first_collision.is_some()
     }
 
-    /// Mean position error of the estimate after each step's image, metres.
+    /// Mean position error of the estimate at the step ends, metres.
     pub fn mean_position_error_m(&self) -> f64 {
         mean(self.estimates.iter().map(|e| e.position_error_m))
     }
 
-    /// Mean rotation error of the estimate after each step's image, degrees.
+    /// Mean rotation error of the estimate at the step ends, degrees.
     pub fn mean_rotation_error_deg(&self) -> f64 {
         mean(self.estimates.iter().map(|e| e.rotation_error_deg))
     }
@@ -215,8 +212,27 @@ impl Simulator<'_> {
             if estimator == EstimatorKind::Truth {
                 estimate = truth;
             }
-            // The camera's image of this instant (the end of the previous step, after the
-            // disturbance that ends it) corrects the prediction before the step is flown.
+            record(&mut out, k, 0, t0, &truth, &estimate);
+            let crashed = |out: &Rollout| self.stop_at_collision && out.first_collision.is_some();
+            if crashed(&out) {
+                break;
+            }
+            for j in 1..=self.substeps {
+                let t = t0 + (j - 1) as f64 * self.drone.dt;
+                let action = control(&estimate, &self.reference.at(t), &self.gains, &self.drone);
+                truth = step(&truth, &action, &self.drone);
+                estimate = match estimator {
+                    EstimatorKind::Truth => truth,
+                    EstimatorKind::Vision => step(&estimate, &action, &self.drone),
+                };
+                record(&mut out, k, j, t + self.drone.dt, &truth, &estimate);
+                if crashed(&out) {
+                    break;
+                }
+            }
+            if crashed(&out) {
+                break;
+            }
             let predicted = estimate;
             let (renders, rmse) = match estimator {
                 EstimatorKind::Truth => (0, 0.0),
@@ -240,27 +256,6 @@ impl Simulator<'_> {
                 renders,
                 photometric_rmse: rmse,
             });
-            record(&mut out, k, 0, t0, &truth, &estimate);
-            let crashed = |out: &Rollout| self.stop_at_collision && out.first_collision.is_some();
-            if crashed(&out) {
-                break;
-            }
-            for j in 1..=self.substeps {
-                let t = t0 + (j - 1) as f64 * self.drone.dt;
-                let action = control(&estimate, &self.reference.at(t), &self.gains, &self.drone);
-                truth = step(&truth, &action, &self.drone);
-                estimate = match estimator {
-                    EstimatorKind::Truth => truth,
-                    EstimatorKind::Vision => step(&estimate, &action, &self.drone),
-                };
-                record(&mut out, k, j, t + self.drone.dt, &truth, &estimate);
-                if crashed(&out) {
-                    break;
-                }
-            }
-            if crashed(&out) {
-                break;
-            }
         }
         out.goal_distance_m = (truth.position - self.goal).norm();
         out.reached_goal = out.goal_distance_m <= self.goal_tolerance;

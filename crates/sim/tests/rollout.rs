@@ -132,7 +132,7 @@ fn a_disturbance_that_pushes_the_body_into_a_stone_collides_at_that_step_right_a
     assert!(s.clearance.unwrap() <= 0.0);
     // The crash ends the rollout there; without stopping it flies on through the stone.
     let last = r.substeps.last().unwrap();
-    assert_eq!((last.step, last.substep, r.estimates.len()), (3, 0, 4));
+    assert_eq!((last.step, last.substep, r.estimates.len()), (3, 0, 3));
     let mut flies_on = straight(&nerf, 6);
     flies_on.stop_at_collision = false;
     let on = flies_on.fly(&world, EstimatorKind::Truth, &ds, 0);

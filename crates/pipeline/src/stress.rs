@@ -19,7 +19,7 @@ use nerfsv_validation::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::flight::{fly_and_write, world, FlightInputs};
+use crate::flight::{fly_and_write, world, FlightFigures, FlightInputs};
 use crate::stage::{Observer, Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
@@ -160,7 +160,7 @@ pub struct SamplerFigures {
     /// 95 % interval (MC: Wilson; CEM: p ± 1.96 SE, clamped at 0).
     pub p_fail_interval: (f64, f64),
     pub most_likely_failure: Option<FailureFigures>,
-    /// Only when replayed.
+    /// Over the search's own rollouts (MC: all; CEM: its populations), when replayed.
     pub confusion: Option<ConfusionFigures>,
     /// The table's rows (MC: `mc`; CEM: `cem` and `cem-is`).
     pub table: Vec<TableRow>,
@@ -323,7 +323,17 @@ pub fn stress(
     let replay_world = world(replay_kind, setup.inputs, setup.scene, setup.render);
     let journal_dir = out.join(JOURNAL);
     let planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
-    let total = (planned * if setup.replay { 2 } else { 1 }) as u64;
+    // The searches' rollouts are replayed, not the importance batch (it estimates a
+    // probability; the paper's confusion matrices are over MC's and CEM's own rollouts).
+    let to_replay: usize = setup
+        .samplers
+        .iter()
+        .map(|s| match s {
+            Sampler::Mc => setup.validation.monte_carlo.rollouts,
+            Sampler::Cem => setup.validation.cem.m * setup.validation.cem.k_max,
+        })
+        .sum();
+    let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
 
     let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume).map_err(validation_error)?;
     let mut counting = Counting {
@@ -375,9 +385,10 @@ pub fn stress(
         };
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
         let system = DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator };
-        let replays = replay_all(&system, &records, &replaying).map_err(validation_error)?;
+        let searched: Vec<RolloutRecord> = records.iter().filter(|r| r.sampler != SAMPLER_IS).cloned().collect();
+        let replays = replay_all(&system, &searched, &replaying).map_err(validation_error)?;
         if resume {
-            observer.note(STAGE, &format!("{} of {} replays were already flown", replay_journal.len(), records.len()));
+            observer.note(STAGE, &format!("{} of {} replays were already flown", replay_journal.len(), searched.len()));
         }
         counting.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
         Some(replays)
@@ -398,6 +409,8 @@ pub fn stress(
     let mut table = Vec::new();
     for (&sampler, &(p_fail, p_fail_se, p_fail_interval)) in setup.samplers.iter().zip(&estimates) {
         let own: Vec<usize> = (0..records.len()).filter(|&i| sampler.owns(&records[i])).collect();
+        let own_searched: Vec<&RolloutRecord> =
+            own.iter().map(|&i| &records[i]).filter(|r| r.sampler != SAMPLER_IS).collect();
         let rows: Vec<TableRow> = match sampler {
             Sampler::Mc => vec![table_row(SAMPLER_MC, &records)],
             Sampler::Cem => vec![table_row(SAMPLER_CEM, &records), table_row(SAMPLER_IS, &records)],
@@ -410,11 +423,13 @@ pub fn stress(
             .cloned()
             .ok_or_else(|| PipelineError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
         let own_records: Vec<RolloutRecord> = own.iter().map(|&i| records[i].clone()).collect();
-        let own_replays: Option<Vec<RolloutRecord>> =
-            replays.as_ref().map(|rs| own.iter().map(|&i| rs[i].clone()).collect());
+        let own_replays: Option<Vec<RolloutRecord>> = replays
+            .as_ref()
+            .map(|rs| rs.iter().filter(|r| own_searched.iter().any(|o| o.key() == r.key())).cloned().collect());
+        let searched: Vec<RolloutRecord> = own_searched.into_iter().cloned().collect();
         let confusion = match &own_replays {
             Some(rs) => {
-                let (nerf, gt) = if setup.world == WorldKind::Nerf { (&own_records, rs) } else { (rs, &own_records) };
+                let (nerf, gt) = if setup.world == WorldKind::Nerf { (&searched, rs) } else { (rs, &searched) };
                 Some(ConfusionFigures::new(&compare(nerf, gt).map_err(PipelineError::Internal)?))
             }
             None => None,
@@ -422,8 +437,7 @@ pub fn stress(
         let mlf = nerfsv_validation::most_likely_failure(&own_records).cloned();
         let most_likely_failure = match &mlf {
             Some(f) => {
-                let replayed = own_replays.as_ref().and_then(|rs| rs.iter().find(|r| r.key() == f.key()));
-                write_failure(setup, out, sampler, f, search_world.as_ref(), replayed.map(|_| replay_world.as_ref()))?;
+                let replayed = write_failure(setup, out, sampler, f, search_world.as_ref(), replay_world.as_ref())?;
                 Some(FailureFigures {
                     sampler: f.sampler.clone(),
                     population: f.population,
@@ -432,8 +446,10 @@ pub fn stress(
                     log_likelihood: f.log_p,
                     collision_step: f.collision_step.map(|s| s + 1),
                     min_clearance_m: f.score,
-                    replay_collided: replayed.map(|r| r.failed),
-                    replay_min_clearance_m: replayed.map(|r| r.score),
+                    replay_collided: replayed.as_ref().map(|r| r.collided),
+                    replay_min_clearance_m: replayed
+                        .as_ref()
+                        .map(|r| r.min_clearance_m.map_or(f64::INFINITY, f64::from)),
                 })
             }
             None => None,
@@ -470,24 +486,25 @@ pub fn stress(
     })
 }
 
-/// The most likely failure's disturbances, and its flight in the search's world (and the
-/// replay's), as trajectory CSV and plot.
+/// The most likely failure's disturbances, and its flight in the search's world (and, when
+/// replaying, in the other), as trajectory CSV and plot; the other world's flight's figures.
 fn write_failure(
     setup: &StressSetup,
     out: &Path,
     sampler: Sampler,
     f: &RolloutRecord,
     search: &dyn World,
-    replay: Option<&dyn World>,
-) -> Result<(), PipelineError> {
+    other: &dyn World,
+) -> Result<Option<FlightFigures>, PipelineError> {
     let ds = drone_disturbances(&f.disturbances);
     let name = format!("most_likely_failure_{}", sampler.name());
     let path = out.join(format!("{name}.csv"));
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&ds).as_bytes())
         .map_err(|e| PipelineError::io(&path, e))?;
-    for w in std::iter::once(search).chain(replay) {
+    let mut replayed = None;
+    for w in std::iter::once(search).chain(setup.replay.then_some(other)) {
         let stem = format!("{name}_{}", w.kind().name());
-        fly_and_write(
+        let (figures, _) = fly_and_write(
             setup.flight,
             setup.sim,
             &setup.inputs.nerf,
@@ -499,8 +516,11 @@ fn write_failure(
             &out.join(format!("{stem}.csv")),
             &out.join(format!("{stem}.png")),
         )?;
+        if w.kind() != setup.world {
+            replayed = Some(figures);
+        }
     }
-    Ok(())
+    Ok(replayed)
 }
 
 /// The Tables 1–2 rows as CSV: `world,sampler,rollouts,collision_rate,avg_collision_step,

@@ -35,6 +35,11 @@ const Z95: f64 = 1.959_963_984_540_054;
 /// next. What it cannot change: a failure always outranks a non-failure; it does not enter the
 /// importance weights (p/q over the whole trajectory) nor the failure indicator, so the
 /// importance-sampling estimate stays unbiased whatever the reward — only its variance changes.
+///
+/// For Monte Carlo a reward changes nothing at all: its rollouts are drawn from the prior, never
+/// ranked, so the collision rate, the failure probability and its interval are the same with or
+/// without one; a reward there can only be recorded and averaged (the CSV's `reward` column).
+/// The paper's "MC with rewards" rows differ from its plain MC rows only by sampling noise.
 pub type Reward<'a> = &'a (dyn Fn(&RolloutRecord) -> f64 + Sync);
 
 /// Runs one rollout: draws its disturbances from `proposal` with `seed`, runs `system` with the
@@ -450,7 +455,11 @@ pub fn cross_entropy<S: System + ?Sized>(
         let floor = if last { config.variance_floor.max(config.is_variance_floor) } else { config.variance_floor };
         let fitted = refit(prior, &pop, &weights, config.full_covariance, floor);
         // The importance batch is drawn from a defensive mixture with the prior.
-        proposals.push(if last && config.is_defensive > 0.0 { fitted.defensive(prior, config.is_defensive) } else { fitted });
+        proposals.push(if last && config.is_defensive > 0.0 {
+            fitted.defensive(prior, config.is_defensive)
+        } else {
+            fitted
+        });
         records.extend(pop);
     }
     let last = proposals.last().expect("k_max ≥ 1");

@@ -27,8 +27,9 @@ pub enum EstimatorArg {
     Vision,
 }
 
+/// The drone, its worlds and its estimator: what `fly` and `stress` both take.
 #[derive(Args)]
-pub struct FlyArgs {
+pub struct DroneArgs {
     /// The world the drone flies in.
     #[arg(long, value_enum, default_value = "nerf")]
     pub world: WorldArg,
@@ -44,6 +45,28 @@ pub struct FlyArgs {
     pub nerf_field: Option<PathBuf>,
     #[arg(long, value_enum, default_value = "vision")]
     pub estimator: EstimatorArg,
+}
+
+impl DroneArgs {
+    /// The files read, for `refuse_output_inside`.
+    pub fn inputs(&self) -> Vec<(&'static str, &Path)> {
+        let mut inputs: Vec<(&str, &Path)> = vec![("--model", &self.model)];
+        if let Some(p) = &self.nerf_field {
+            inputs.push(("--nerf-field", p));
+        }
+        inputs
+    }
+
+    /// The scene and the flight inputs (see [`load_worlds`]).
+    pub fn load(&self) -> anyhow::Result<(Scene, FlightInputs)> {
+        load_worlds(&self.scene, &self.model, self.nerf_field.as_deref())
+    }
+}
+
+#[derive(Args)]
+pub struct FlyArgs {
+    #[command(flatten)]
+    pub drone: DroneArgs,
     /// One disturbance per step: CSV with 12 columns (dp_x..dp_z, dv_x..dv_z, dr_x..dr_z,
     /// dw_x..dw_z), a header line optional.
     #[arg(long, conflicts_with = "random_seed")]
@@ -109,10 +132,7 @@ impl From<EstimatorArg> for EstimatorKind {
 
 pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let cfg = load_config(args.config.as_deref())?;
-    let mut inputs: Vec<(&str, &Path)> = vec![("--model", &args.model)];
-    if let Some(p) = &args.nerf_field {
-        inputs.push(("--nerf-field", p));
-    }
+    let mut inputs = args.drone.inputs();
     if let Some(p) = &args.disturbances {
         inputs.push(("--disturbances", p));
     }
@@ -124,10 +144,10 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         (None, Some(seed)) => drone_disturbances(&cfg.disturbance_prior()?.to_proposal().draw(seed)),
         (None, None) => vec![nerfsv_sim::Disturbance::ZERO; cfg.sim.steps],
     };
-    let (scene, inputs) = load_worlds(&args.scene, &args.model, args.nerf_field.as_deref())?;
+    let (scene, inputs) = args.drone.load()?;
     let flight = inputs.plan(&cfg.sim).context("planning the flight")?;
-    let estimator = args.estimator.into();
-    let w = world(args.world.into(), &inputs, &scene, cfg.dataset.render_settings());
+    let estimator = args.drone.estimator.into();
+    let w = world(args.drone.world.into(), &inputs, &scene, cfg.dataset.render_settings());
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let seed = args.seed.or(args.random_seed).unwrap_or(0);

@@ -8,7 +8,7 @@ use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::WorldKind;
 use nerfsv_validation::Journal;
 
-use crate::commands::fly::{load_config, load_worlds, EstimatorArg, WorldArg};
+use crate::commands::fly::{load_config, DroneArgs};
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum SamplerArg {
@@ -22,21 +22,9 @@ pub enum SamplerArg {
 pub struct StressArgs {
     #[arg(long, value_enum, default_value = "cem")]
     pub sampler: SamplerArg,
-    /// The world the search flies in.
-    #[arg(long, value_enum, default_value = "nerf")]
-    pub world: WorldArg,
-    /// Built-in ground-truth scene (GT-sim's world; its grid also carries the NeRF's field).
-    #[arg(long, default_value = "stonehenge")]
-    pub scene: String,
-    /// NeRF checkpoint: the estimator's model, NeRF-sim's world, and the planner's map.
-    #[arg(long)]
-    pub model: PathBuf,
-    /// The NeRF's signed field (e.g. RUN/nerf_collision/nerf_sdf.safetensors); default: built
-    /// from --model on the scene's grid.
-    #[arg(long)]
-    pub nerf_field: Option<PathBuf>,
-    #[arg(long, value_enum, default_value = "vision")]
-    pub estimator: EstimatorArg,
+    /// The drone (`--world`: where the search flies).
+    #[command(flatten)]
+    pub drone: DroneArgs,
     /// Fly every rollout again in the other world and compare (confusion matrix, clearances).
     #[arg(long)]
     pub replay: bool,
@@ -71,12 +59,9 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     if let Some(seed) = args.seed {
         cfg.validation.seed = seed;
     }
-    let mut inputs: Vec<(&str, &Path)> = vec![("--model", &args.model)];
-    if let Some(p) = &args.nerf_field {
-        inputs.push(("--nerf-field", p));
-    }
-    refuse_output_inside(&args.out, &inputs)?;
-    let journal = args.out.join(JOURNAL).join(WorldKind::from(args.world).name());
+    let d = &args.drone;
+    refuse_output_inside(&args.out, &d.inputs())?;
+    let journal = args.out.join(JOURNAL).join(WorldKind::from(d.world).name());
     if args.resume && !Journal::exists(&journal) {
         anyhow::bail!("{}: --resume needs the folder of an interrupted stress run", args.out.display());
     }
@@ -86,7 +71,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         SamplerArg::Mc => Sampler::Mc,
         SamplerArg::Cem => Sampler::Cem,
     };
-    let (scene, worlds) = load_worlds(&args.scene, &args.model, args.nerf_field.as_deref())?;
+    let (scene, worlds) = d.load()?;
     let flight = worlds.plan(&cfg.sim).context("planning the flight")?;
     let setup = StressSetup {
         inputs: &worlds,
@@ -97,8 +82,8 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         prior: &prior,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
-        world: args.world.into(),
-        estimator: args.estimator.into(),
+        world: d.world.into(),
+        estimator: d.estimator.into(),
         samplers: &[sampler],
         replay: args.replay,
     };
@@ -111,12 +96,12 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
                 &cfg.validation,
                 setup.intrinsics,
                 setup.render.supersample,
-                &args.scene,
+                &d.scene,
                 setup.world,
                 setup.estimator,
                 sampler,
-                file_hash(&args.model)?,
-                args.nerf_field.as_deref().map(file_hash).transpose()?,
+                file_hash(&d.model)?,
+                d.nerf_field.as_deref().map(file_hash).transpose()?,
             ))?
             .as_bytes()
         )

@@ -223,6 +223,15 @@ impl FlightInputs {
         })
     }
 
+    /// The run's model, NeRF field and ground-truth field, from the stages that made them.
+    pub fn from_run(root: &Path) -> Result<Self, PipelineError> {
+        Self::load(
+            &Train::checkpoint(root),
+            &root.join(NerfField::NAME).join(NerfField::SDF),
+            &GroundTruthField::sdf_path(root),
+        )
+    }
+
     pub fn plan(&self, cfg: &SimConfig) -> Result<Flight, PipelineError> {
         Ok(plan_flight(cfg, &self.nerf_field, (self.nerf.config.aabb_min, self.nerf.config.aabb_max))?)
     }
@@ -253,11 +262,7 @@ impl Stage for FlightStage<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<FlightStageFigures, PipelineError> {
-        let inputs = FlightInputs::load(
-            &Train::checkpoint(cx.root),
-            &cx.input_dir(NerfField::NAME).join(NerfField::SDF),
-            &GroundTruthField::sdf_path(cx.root),
-        )?;
+        let inputs = FlightInputs::from_run(cx.root)?;
         let flight = inputs.plan(self.sim)?;
         let mut flights = Vec::new();
         let runs = Self::FLIGHTS;

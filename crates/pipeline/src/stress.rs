@@ -572,11 +572,7 @@ impl Stage for StressStage<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
-        let inputs = FlightInputs::load(
-            &Train::checkpoint(cx.root),
-            &cx.input_dir(NerfField::NAME).join(NerfField::SDF),
-            &GroundTruthField::sdf_path(cx.root),
-        )?;
+        let inputs = FlightInputs::from_run(cx.root)?;
         let flight = inputs.plan(self.sim)?;
         let setup = StressSetup {
             inputs: &inputs,

@@ -3,8 +3,9 @@
 //! - `sim/truth_rollouts`: 64 rollouts of the default flight (6 steps × 8 substeps, the body box
 //!   checked against the ground-truth field at every substep) with random disturbances and the
 //!   `truth` estimator, in parallel over rollouts; throughput in substeps.
-//! - `sim/vision_step_{nerf,gt}`: one vision-estimator update (observe 256 pixels, 9 renders
-//!   with pose Jacobians) in each world, at the path's waypoints. Needs a trained run folder:
+//! - `sim/vision_step_{nerf,gt}`: one vision-estimator update (observe 256 pixels, then at most
+//!   9 renders, the pose Jacobians only at accepted poses, stopping once converged) in each
+//!   world, at the path's waypoints. Needs a trained run folder:
 //!   `NERFSV_BENCH_RUN` (default `runs/stonehenge`, made by `cargo run --release -- run`).
 //!
 //! `cargo bench --bench sim`; figures are recorded in BENCHMARKS.md.

@@ -29,7 +29,7 @@ use crate::model::Nerf;
 use crate::model_components::renderer::composite_forward;
 
 /// Rays per parallel task: small, so that a few hundred rays keep every core busy.
-const JACOBIAN_CHUNK: usize = 32;
+pub const JACOBIAN_CHUNK: usize = 32;
 /// Active samples per block of the reverse pass (3 adjoint rows each), so a block's buffers
 /// (`[3·BLOCK, 64]` floats) stay in L2.
 const BLOCK: usize = 128;
@@ -239,47 +239,126 @@ impl JacobianWorkspace {
 }
 
 thread_local! {
-    /// Each worker thread's buffers, kept across calls (a pose update renders a few hundred
-    /// rays many times), so that a call allocates nothing once they have grown. Their contents
-    /// never carry over: every call overwrites what it reads.
-    static WORKSPACE: std::cell::RefCell<(ChunkWorkspace, JacobianWorkspace)> = Default::default();
+    /// Each worker thread's reverse-pass buffers, kept across calls (a pose update differentiates
+    /// a few hundred rays many times), so that a call allocates nothing once they have grown.
+    /// Their contents never carry over: every call overwrites what it reads.
+    static WORKSPACE: std::cell::RefCell<JacobianWorkspace> = Default::default();
+}
+
+/// Rays rendered with everything their Jacobians need kept: the forward pass of
+/// [`Nerf::render_rays_jacobian`], whose reverse pass [`jacobians`](Self::jacobians) runs on
+/// demand. A pose search renders trial poses and needs derivatives only at the ones it accepts;
+/// rendering into the same `RayRender` again reuses its buffers.
+///
+/// ```no_run
+/// # fn f(nerf: &nerfsv_nerf::Nerf, rays: &[nerfsv_nerf::RayInput]) {
+/// let mut r = nerf.ray_render();
+/// r.render(rays);
+/// let colour = r.rgb()[0];
+/// let jac = r.jacobians(); // ∂colour/∂origin, ∂colour/∂direction of those rays
+/// # let _ = (colour, jac); }
+/// ```
+#[derive(Debug)]
+pub struct RayRender<'a> {
+    nerf: &'a Nerf,
+    rays: Vec<RayInput>,
+    /// One forward workspace per chunk of [`JACOBIAN_CHUNK`] rays, as the forward left it.
+    chunks: Vec<ChunkWorkspace>,
+    rgb: Vec<[f32; 3]>,
+    opacity: Vec<f32>,
+    distance: Vec<f32>,
+}
+
+impl RayRender<'_> {
+    /// Renders `rays` (forward pass only; colours bit-identical to
+    /// [`render_rays`](Nerf::render_rays)). Parallel over chunks of 32 rays.
+    pub fn render(&mut self, rays: &[RayInput]) {
+        let r = rays.len();
+        let nerf = self.nerf;
+        self.rays.clear();
+        self.rays.extend_from_slice(rays);
+        self.chunks.resize_with(r.div_ceil(JACOBIAN_CHUNK), Default::default);
+        self.rgb.resize(r, [0.0; 3]);
+        self.opacity.resize(r, 0.0);
+        self.distance.resize(r, 0.0);
+        self.chunks
+            .par_iter_mut()
+            .zip(self.rgb.par_chunks_mut(JACOBIAN_CHUNK))
+            .zip(self.opacity.par_chunks_mut(JACOBIAN_CHUNK))
+            .zip(self.distance.par_chunks_mut(JACOBIAN_CHUNK))
+            .zip(rays.par_chunks(JACOBIAN_CHUNK))
+            .for_each(|((((ws, rgb), op), dist), rs)| {
+                nerf.forward_chunk(ws, rs);
+                for (i, c) in rgb.iter_mut().enumerate() {
+                    *c = [ws.color[3 * i], ws.color[3 * i + 1], ws.color[3 * i + 2]];
+                }
+                op.copy_from_slice(&ws.opacity);
+                for ((d, &o), &w) in dist.iter_mut().zip(&ws.opacity).zip(&ws.depth) {
+                    *d = if o > 1e-6 { w / o } else { 0.0 };
+                }
+            });
+    }
+
+    /// `[r]` colour of each ray of the last render, composited on its background.
+    pub fn rgb(&self) -> &[[f32; 3]] {
+        &self.rgb
+    }
+
+    /// `[r]` opacity and expected ray distance (m) of the last render.
+    pub fn opacity(&self) -> &[f32] {
+        &self.opacity
+    }
+
+    pub fn distance(&self) -> &[f32] {
+        &self.distance
+    }
+
+    /// The last render's colours with their Jacobians with respect to each ray's origin and
+    /// direction (the reverse pass; parallel over chunks, bit-identical for any thread count).
+    pub fn jacobians(&self) -> RayJacobians {
+        let r = self.rays.len();
+        let mut out = RayJacobians {
+            rgb: self.rgb.clone(),
+            d_origin: vec![[[0.0; 3]; 3]; r],
+            d_direction: vec![[[0.0; 3]; 3]; r],
+            opacity: self.opacity.clone(),
+            distance: self.distance.clone(),
+        };
+        let nerf = self.nerf;
+        self.chunks
+            .par_iter()
+            .zip(out.d_origin.par_chunks_mut(JACOBIAN_CHUNK))
+            .zip(out.d_direction.par_chunks_mut(JACOBIAN_CHUNK))
+            .zip(self.rays.par_chunks(JACOBIAN_CHUNK))
+            .for_each(|(((ws, d_o), d_d), rs)| {
+                WORKSPACE.with_borrow_mut(|jw| jw.backward(&nerf.field, &nerf.params, ws, rs, d_o, d_d))
+            });
+        out
+    }
 }
 
 impl Nerf {
+    /// An empty [`RayRender`] of this model.
+    pub fn ray_render(&self) -> RayRender<'_> {
+        RayRender {
+            nerf: self,
+            rays: Vec::new(),
+            chunks: Vec::new(),
+            rgb: Vec::new(),
+            opacity: Vec::new(),
+            distance: Vec::new(),
+        }
+    }
+
     /// Renders rays (as [`render_rays`](Self::render_rays): same samples, bit-identical colour,
     /// opacity and distance) with the Jacobians of the colour with respect to each ray's origin
     /// and direction, sample distances held fixed (see [the module docs](crate::jacobian)).
-    /// Parallel over chunks of 32 rays; bit-identical for any rayon thread count.
+    /// Parallel over chunks of 32 rays; bit-identical for any rayon thread count. The forward
+    /// and reverse passes of [`RayRender`] in one call.
     pub fn render_rays_jacobian(&self, rays: &[RayInput]) -> RayJacobians {
-        let r = rays.len();
-        let mut out = RayJacobians {
-            rgb: vec![[0.0; 3]; r],
-            d_origin: vec![[[0.0; 3]; 3]; r],
-            d_direction: vec![[[0.0; 3]; 3]; r],
-            opacity: vec![0.0; r],
-            distance: vec![0.0; r],
-        };
-        out.rgb
-            .par_chunks_mut(JACOBIAN_CHUNK)
-            .zip(out.d_origin.par_chunks_mut(JACOBIAN_CHUNK))
-            .zip(out.d_direction.par_chunks_mut(JACOBIAN_CHUNK))
-            .zip(out.opacity.par_chunks_mut(JACOBIAN_CHUNK))
-            .zip(out.distance.par_chunks_mut(JACOBIAN_CHUNK))
-            .zip(rays.par_chunks(JACOBIAN_CHUNK))
-            .for_each(|(((((rgb, d_o), d_d), op), dist), rs)| {
-                WORKSPACE.with_borrow_mut(|(ws, jw)| {
-                    self.forward_chunk(ws, rs);
-                    for (i, c) in rgb.iter_mut().enumerate() {
-                        *c = [ws.color[3 * i], ws.color[3 * i + 1], ws.color[3 * i + 2]];
-                    }
-                    op.copy_from_slice(&ws.opacity);
-                    for ((d, &o), &w) in dist.iter_mut().zip(&ws.opacity).zip(&ws.depth) {
-                        *d = if o > 1e-6 { w / o } else { 0.0 };
-                    }
-                    jw.backward(&self.field, &self.params, ws, rs, d_o, d_d);
-                })
-            });
-        out
+        let mut r = self.ray_render();
+        r.render(rays);
+        r.jacobians()
     }
 
     /// The distances (m) of the samples each ray composites (before early termination), as

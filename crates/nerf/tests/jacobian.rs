@@ -278,3 +278,21 @@ fn density_gradient_matches_central_differences_on_a_trained_model() {
     // Outside the box: no density, no gradient.
     assert_eq!(nerf.density_and_gradient(&[[5.0, 0.0, 0.0]]), (vec![0.0], vec![[0.0; 3]]));
 }
+
+/// The forward pass kept for later differentiation: a `RayRender` reused for a second, different
+/// batch of rays gives that batch exactly what `render_rays_jacobian` gives, colours before the
+/// reverse pass included.
+#[test]
+fn a_reused_ray_render_gives_the_one_call_jacobians_of_its_last_rays() {
+    let nerf = model();
+    let rays = view_rays();
+    let mut r = nerf.ray_render();
+    r.render(&rays[..100]);
+    let tail = &rays[rays.len() - 70..];
+    r.render(tail);
+    let once = nerf.render_rays_jacobian(tail);
+    assert_eq!(r.rgb(), &once.rgb[..]);
+    assert_eq!((r.opacity(), r.distance()), (&once.opacity[..], &once.distance[..]));
+    assert_eq!(r.jacobians(), once);
+    assert!(once.d_origin.iter().any(|m| frob(m) > 0.5));
+}

@@ -19,8 +19,9 @@
 //!    (body) estimates, so a velocity disturbance is not left uncorrected for ever.
 
 use nalgebra::{Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
-use nerfsv_nerf::{Nerf, RayInput};
-use nerfsv_scene::validate::{in_range, positive};
+use nerfsv_nerf::jacobian::RayRender;
+use nerfsv_nerf::{Nerf, RayInput, RayJacobians};
+use nerfsv_scene::validate::{in_range, non_negative, positive};
 use nerfsv_scene::{Intrinsics, InvalidValue};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -72,6 +73,10 @@ pub struct VisionConfig {
     pub prior_rotation_deg: f64,
     /// Fraction of the pose correction per step duration added to the velocity estimates.
     pub velocity_gain: f64,
+    /// `[metres, degrees]`: the search stops at the finest level when the step it proposes
+    /// moves the pose less than this in both position and rotation, and leaves a coarser level
+    /// at four times it. `[0, 0]` spends every render.
+    pub stop_step: [f64; 2],
 }
 
 impl Default for VisionConfig {
@@ -85,6 +90,7 @@ impl Default for VisionConfig {
             prior_position_m: 0.05,
             prior_rotation_deg: 3.0,
             velocity_gain: 0.5,
+            stop_step: [5e-4, 0.03],
         }
     }
 }
@@ -99,7 +105,9 @@ impl VisionConfig {
         in_range("huber", self.huber, 0.1, 1e6)?;
         positive("prior_position_m", self.prior_position_m)?;
         positive("prior_rotation_deg", self.prior_rotation_deg)?;
-        in_range("velocity_gain", self.velocity_gain, 0.0, 1.0)
+        in_range("velocity_gain", self.velocity_gain, 0.0, 1.0)?;
+        non_negative("stop_step[0]", self.stop_step[0])?;
+        non_negative("stop_step[1]", self.stop_step[1])
     }
 }
 
@@ -108,8 +116,10 @@ impl VisionConfig {
 pub struct PoseFit {
     pub position: Vector3<f64>,
     pub rotation: Matrix3<f64>,
-    /// Renders spent (each one pass over the pixels with derivatives).
+    /// Renders spent (forward passes over the pixels, the one at the prediction included).
     pub renders: usize,
+    /// Of those, the renders also differentiated (the reverse pass for the pose Jacobians).
+    pub linearisations: usize,
     /// Root-mean-square colour error over the pixels at the final pose.
     pub rmse: f64,
 }
@@ -142,16 +152,9 @@ pub fn stratified_pixels(k: &Intrinsics, n: usize, seed: u64) -> Vec<[u32; 2]> {
     out
 }
 
-/// The NeRF's colours at the pixels and their pose Jacobians (3×6: ∂colour/∂(δp, δθ)).
-struct Rendered {
-    rgb: Vec<Vector3<f64>>,
-    jacobian: Vec<Matrix3x6<f64>>,
-}
-
-fn render(nerf: &Nerf, rays: &[RayInput]) -> Rendered {
-    let jac = nerf.render_rays_jacobian(rays);
-    let jacobian = rays
-        .iter()
+/// The pose Jacobians (3×6: ∂colour/∂(δp, δθ)) of rays from their colour Jacobians.
+fn pose_jacobians(jac: &RayJacobians, rays: &[RayInput]) -> Vec<Matrix3x6<f64>> {
+    rays.iter()
         .enumerate()
         .map(|(p, ray)| {
             let d = Vector3::from(ray.direction.map(f64::from));
@@ -163,8 +166,7 @@ fn render(nerf: &Nerf, rays: &[RayInput]) -> Rendered {
             j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-jd * d.cross_matrix()));
             j
         })
-        .collect();
-    Rendered { rgb: jac.rgb.iter().map(|c| Vector3::from(c.map(f64::from))).collect(), jacobian }
+        .collect()
 }
 
 /// One linearisation at one pyramid level: the robust cost, and the normal equations.
@@ -174,39 +176,69 @@ struct Linearised {
     g: Vector6<f64>,
 }
 
-/// The photometric term at one pyramid level from one render (`groups`: each pixel's block):
-/// at level `l` pixels are grouped into blocks of `2^l × 2^l` neighbouring strata and each block's mean colour residual (and mean
-/// Jacobian) is one robust term, so level 2 compares colours averaged over ~16 pixels spread
-/// across a quarter-span of the strata grid: a blurred image with a wide basin of convergence,
-/// at no extra rendering cost. Huber cost, Gauss–Newton `JᵀWJ` and `JᵀWr`, whitened by
-/// `σ_I / √(block size)`.
-fn photometric(r: &Rendered, observed: &[[f32; 3]], groups: &[u32], cfg: &VisionConfig) -> Linearised {
+/// Per block of `groups` (each pixel's block): the sum of the colour residuals `rgb − observed`,
+/// and of `jacobian` when given, over the block's pixels, and their count.
+fn block_sums(
+    rgb: &[[f32; 3]],
+    jacobian: Option<&[Matrix3x6<f64>]>,
+    observed: &[[f32; 3]],
+    groups: &[u32],
+) -> Vec<(Vector3<f64>, Matrix3x6<f64>, u32)> {
     let n_groups = groups.iter().map(|&g| g as usize + 1).max().unwrap_or(0);
     let mut res = vec![(Vector3::<f64>::zeros(), Matrix3x6::<f64>::zeros(), 0u32); n_groups];
     for (p, &g) in groups.iter().enumerate() {
         let e = &mut res[g as usize];
-        e.0 += r.rgb[p] - Vector3::from(observed[p].map(f64::from));
-        e.1 += r.jacobian[p];
+        e.0 += Vector3::from(rgb[p].map(f64::from)) - Vector3::from(observed[p].map(f64::from));
+        if let Some(j) = jacobian {
+            e.1 += j[p];
+        }
         e.2 += 1;
     }
+    res
+}
+
+/// The photometric term at one pyramid level from one render (`groups`: each pixel's block):
+/// at level `l` pixels are grouped into blocks of `2^l × 2^l` neighbouring strata and each block's
+/// mean colour residual (and mean Jacobian) is one robust term, so level 2 compares colours
+/// averaged over ~16 pixels spread across a quarter-span of the strata grid: a blurred image with
+/// a wide basin of convergence, at no extra rendering cost. Huber cost, and with the pixels'
+/// pose Jacobians the Gauss–Newton `JᵀWJ` and `JᵀWr`, whitened by `σ_I / √(block size)`.
+fn photometric(
+    rgb: &[[f32; 3]],
+    jacobian: Option<&[Matrix3x6<f64>]>,
+    observed: &[[f32; 3]],
+    groups: &[u32],
+    cfg: &VisionConfig,
+) -> Linearised {
     let k = cfg.huber;
     let mut out = Linearised { cost: 0.0, h: Matrix6::zeros(), g: Vector6::zeros() };
-    for (sum_r, sum_j, n) in res {
+    for (sum_r, sum_j, n) in block_sums(rgb, jacobian, observed, groups) {
         if n == 0 {
             continue;
         }
         let inv_n = 1.0 / n as f64;
         // The mean of n pixels' errors has variance σ²/n; weight each block like n pixels.
         let inv_sigma = (n as f64).sqrt() / cfg.photometric_sigma;
-        let (rr, jj) = (sum_r * inv_n, sum_j * inv_n);
+        let rr = sum_r * inv_n;
         let e = rr.norm() * inv_sigma;
         let (cost, w) = if e <= k { (e * e, 1.0) } else { (2.0 * k * e - k * k, k / e) };
         out.cost += cost;
-        let ws = w * inv_sigma * inv_sigma;
-        out.h += jj.transpose() * jj * ws;
-        out.g += jj.transpose() * rr * ws;
+        if jacobian.is_some() {
+            let jj = sum_j * inv_n;
+            let ws = w * inv_sigma * inv_sigma;
+            out.h += jj.transpose() * jj * ws;
+            out.g += jj.transpose() * rr * ws;
+        }
     }
     out
+}
+
+/// A pose, its pixels' rays and their render (forward pass; derivatives on demand).
+struct PoseRender<'a> {
+    position: Vector3<f64>,
+    rotation: Matrix3<f64>,
+    rays: Vec<RayInput>,
+    render: RayRender<'a>,
 }
 
 /// Refines the camera pose `(position, rotation)` of a drone whose prediction is
@@ -214,6 +246,11 @@ fn photometric(r: &Rendered, observed: &[[f32; 3]], groups: &[u32], cfg: &Vision
 /// [`stratified_pixels`] with `cfg.pixels`), by Levenberg–Marquardt with the analytic pose
 /// Jacobian of the NeRF's rendered colours, coarse to fine over `cfg.levels` (by default the
 /// first half of the renders align blocks of 4×4 strata, the rest blocks of 2×2).
+///
+/// Each render is a forward pass at a trial pose; the reverse pass that gives the colours' pose
+/// Jacobians runs only at poses the search accepts and linearises at. A level ends early when
+/// the step it proposes is below `cfg.stop_step` (four times it on coarser levels), and so does
+/// the search at the finest level.
 #[allow(clippy::too_many_arguments)]
 pub fn refine_pose(
     nerf: &Nerf,
@@ -239,10 +276,10 @@ pub fn refine_pose(
     };
     let [coarsest, finest] = cfg.levels.map(|l| l as usize);
     let levels: Vec<Vec<u32>> = (0..=coarsest as u32).map(group_ids).collect();
-    let level_at = |render: usize| -> usize {
-        let span = coarsest - finest + 1;
-        let per = cfg.iterations.div_ceil(span).max(1);
-        coarsest.saturating_sub(render / per).max(finest)
+    // Renders (the first included) after which each level ends at the latest.
+    let level_end = |level: usize| -> usize {
+        let per = cfg.iterations.div_ceil(coarsest - finest + 1).max(1);
+        per * (coarsest - level + 1)
     };
     // Prior residual; its Jacobian is taken as the identity (small corrections).
     let prior = |p: &Vector3<f64>, r: &Matrix3<f64>| {
@@ -250,28 +287,43 @@ pub fn refine_pose(
         let dr = so3_log(&(r * prior_rotation.transpose()));
         Vector6::new(dp.x, dp.y, dp.z, dr.x, dr.y, dr.z)
     };
-    let rays_at = |p: &Vector3<f64>, r: &Matrix3<f64>| pixel_rays(&drone_camera(intrinsics, p, r), pixels, background);
-    let linearise = |rendered: &Rendered, p: &Vector3<f64>, r: &Matrix3<f64>, level: usize| {
-        let mut lin = photometric(rendered, observed, &levels[level], cfg);
-        let e = prior(p, r);
+    let render_at = |pose: &mut PoseRender, p: Vector3<f64>, r: Matrix3<f64>| {
+        pose.rays = pixel_rays(&drone_camera(intrinsics, &p, &r), pixels, background);
+        pose.render.render(&pose.rays);
+        (pose.position, pose.rotation) = (p, r);
+    };
+    let linearise = |pose: &PoseRender, jacobian: Option<&[Matrix3x6<f64>]>, level: usize| {
+        let mut lin = photometric(pose.render.rgb(), jacobian, observed, &levels[level], cfg);
+        let e = prior(&pose.position, &pose.rotation);
         lin.cost += e.component_mul(&prior_w).dot(&e);
         lin.h += Matrix6::from_diagonal(&prior_w);
         lin.g += e.component_mul(&prior_w);
         lin
     };
-    let rmse = |rendered: &Rendered| {
-        let sq: f64 =
-            rendered.rgb.iter().zip(observed).map(|(c, o)| (c - Vector3::from(o.map(f64::from))).norm_squared()).sum();
-        (sq / (3 * pixels.len().max(1)) as f64).sqrt()
-    };
+    let stop = [cfg.stop_step[0], cfg.stop_step[1].to_radians()];
 
-    let (mut p, mut r) = (*prior_position, *prior_rotation);
-    let mut current = render(nerf, &rays_at(&p, &r));
-    let mut renders = 1;
+    let empty = |nerf| PoseRender {
+        position: Vector3::zeros(),
+        rotation: Matrix3::identity(),
+        rays: Vec::new(),
+        render: Nerf::ray_render(nerf),
+    };
+    let (mut current, mut trial) = (empty(nerf), empty(nerf));
+    render_at(&mut current, *prior_position, *prior_rotation);
+    // The current pose's pixel Jacobians, once computed.
+    let mut jacobian: Option<Vec<Matrix3x6<f64>>> = None;
+    let (mut renders, mut linearisations) = (1, 0);
+    let mut level = coarsest;
     let mut lambda = 1e-3;
     while renders < cfg.iterations.max(1) {
-        let level = level_at(renders - 1);
-        let lin = linearise(&current, &p, &r, level);
+        while level > finest && renders > level_end(level) {
+            level -= 1;
+        }
+        let jac = jacobian.get_or_insert_with(|| {
+            linearisations += 1;
+            pose_jacobians(&current.render.jacobians(), &current.rays)
+        });
+        let lin = linearise(&current, Some(jac), level);
         let mut a = lin.h;
         for i in 0..6 {
             a[(i, i)] += lambda * lin.h[(i, i)].max(1e-12);
@@ -280,17 +332,35 @@ pub fn refine_pose(
             lambda *= 10.0;
             continue;
         };
-        let cand_p = p + step.fixed_rows::<3>(0);
-        let cand_r = crate::dynamics::reorthonormalise(&(so3_exp(&step.fixed_rows::<3>(3).into_owned()) * r));
-        let cand = render(nerf, &rays_at(&cand_p, &cand_r));
+        let (dp, dr) = (step.fixed_rows::<3>(0).into_owned(), step.fixed_rows::<3>(3).into_owned());
+        // Converged at this level when the undamped step is below the tolerance (four times it on
+        // a coarser level, which only has to bring the next one into its basin): no render needed.
+        let scale = if level == finest { 1.0 } else { 4.0 };
+        if lambda <= 1e-2 && dp.norm() < scale * stop[0] && dr.norm() < scale * stop[1] {
+            if level == finest {
+                break;
+            }
+            level -= 1;
+            continue;
+        }
+        let cand_r = crate::dynamics::reorthonormalise(&(so3_exp(&dr) * current.rotation));
+        render_at(&mut trial, current.position + dp, cand_r);
         renders += 1;
-        let cand_cost = linearise(&cand, &cand_p, &cand_r, level).cost;
-        if cand_cost < lin.cost {
-            (p, r, current) = (cand_p, cand_r, cand);
+        if linearise(&trial, None, level).cost < lin.cost {
+            std::mem::swap(&mut current, &mut trial);
+            jacobian = None;
             lambda = (lambda * 0.3).max(1e-7);
         } else {
             lambda *= 10.0;
         }
     }
-    PoseFit { position: p, rotation: r, renders, rmse: rmse(&current) }
+    let sq: f64 = current
+        .render
+        .rgb()
+        .iter()
+        .zip(observed)
+        .map(|(c, o)| (Vector3::from(c.map(f64::from)) - Vector3::from(o.map(f64::from))).norm_squared())
+        .sum();
+    let rmse = (sq / (3 * pixels.len().max(1)) as f64).sqrt();
+    PoseFit { position: current.position, rotation: current.rotation, renders, linearisations, rmse }
 }

@@ -6,6 +6,7 @@
 use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::{Nerf, RayInput};
 use nerfsv_scene::{Camera, RenderSettings, Scene};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Which world a rollout flies in.
@@ -80,9 +81,11 @@ impl World for GroundTruthWorld<'_> {
         self.field
     }
 
+    /// Parallel over pixels (each is traced on its own, so any thread count gives the same
+    /// colours).
     fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]> {
         pixels
-            .iter()
+            .par_iter()
             .map(|&[i, j]| {
                 // The renderer's pixel (straight alpha), composited on the background.
                 let (rgba, _) = self.scene.render_pixel(camera, i, j, &self.render);

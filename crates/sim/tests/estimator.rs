@@ -1,0 +1,51 @@
+//! The vision estimator's search: it spends renders only until it has converged.
+
+use nalgebra::{Matrix3, Vector3};
+use nerfsv_nerf::{Nerf, NerfConfig};
+use nerfsv_scene::Intrinsics;
+use nerfsv_sim::camera::drone_camera;
+use nerfsv_sim::estimator::{refine_pose, stratified_pixels};
+use nerfsv_sim::world::pixel_rays;
+use nerfsv_sim::VisionConfig;
+
+/// An untrained model: every ray sees a non-trivial colour that varies with the pose.
+fn tiny_nerf() -> Nerf {
+    let cfg = NerfConfig {
+        aabb_min: [-2.0; 3],
+        aabb_max: [2.0; 3],
+        hash_levels: 4,
+        log2_hashmap_size: 10,
+        base_resolution: 8,
+        finest_resolution: 32,
+        grid_resolution: 16,
+        ..NerfConfig::default()
+    };
+    Nerf::new(cfg, 3).unwrap()
+}
+
+/// A prediction that is already the optimum (the image is the model's own render there)
+/// proposes a null step at every level: one render, one linearisation, and the prediction back;
+/// with a zero tolerance the search spends its whole budget instead.
+#[test]
+fn the_search_stops_at_the_first_step_below_its_tolerance() {
+    let nerf = tiny_nerf();
+    let k = Intrinsics::from_fov_x(32, 32, 0.8);
+    let (p, r) = (Vector3::new(0.1, -0.2, 0.3), Matrix3::identity());
+    let cfg = VisionConfig { pixels: 64, ..VisionConfig::default() };
+    let pixels = stratified_pixels(&k, cfg.pixels, 4);
+    let bg = [1.0; 3];
+    let out = nerf.render_rays(&pixel_rays(&drone_camera(k, &p, &r), &pixels, bg));
+    let observed: Vec<[f32; 3]> = out.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    assert!(observed.iter().any(|c| (c[0] - observed[0][0]).abs() > 1e-3), "a flat image tests nothing");
+
+    let fit = refine_pose(&nerf, k, &p, &r, &pixels, &observed, bg, &cfg);
+    assert_eq!((fit.renders, fit.linearisations), (1, 1));
+    assert_eq!((fit.position, fit.rotation), (p, r));
+    assert_eq!(fit.rmse, 0.0);
+
+    let exhaustive = VisionConfig { stop_step: [0.0, 0.0], ..cfg.clone() };
+    let fit = refine_pose(&nerf, k, &p, &r, &pixels, &observed, bg, &exhaustive);
+    assert_eq!(fit.renders, cfg.iterations);
+    // Null steps do not lower the cost, so no trial is accepted and none is differentiated.
+    assert_eq!(fit.linearisations, 1);
+}

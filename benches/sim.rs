@@ -10,13 +10,13 @@
 //!
 //! `cargo bench --bench sim`; figures are recorded in BENCHMARKS.md.
 
-use std::path::PathBuf;
+mod common;
 
+use common::BenchRun;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{plan_flight, Disturbance, EstimatorKind, GroundTruthWorld, NerfWorld, SimConfig, State, World};
+use nerfsv_sim::{plan_flight, Disturbance, EstimatorKind, GroundTruthWorld, SimConfig, State, World, WorldKind};
 use nerfsv_validation::{drone_disturbances, Prior};
 use rayon::prelude::*;
 
@@ -47,21 +47,9 @@ fn truth_rollouts(c: &mut Criterion) {
 }
 
 fn vision_steps(c: &mut Criterion) {
-    let run = std::env::var_os("NERFSV_BENCH_RUN").map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
-    let (Ok(nerf), Ok(nerf_field), Ok(gt_field)) = (
-        Nerf::load(&run.join("nerf/checkpoint.safetensors")),
-        SdfGrid::load(run.join("nerf_collision/nerf_sdf.safetensors")),
-        SdfGrid::load(run.join("collision/gt_sdf.safetensors")),
-    ) else {
-        eprintln!("sim/vision_step: no trained run at {} (set NERFSV_BENCH_RUN); skipped", run.display());
-        return;
-    };
-    let scene = Scene::builtin("stonehenge").expect("built-in scene");
-    let cfg = SimConfig::default();
-    let flight = plan_flight(&cfg, &nerf_field, (nerf.config.aabb_min, nerf.config.aabb_max)).expect("plan");
-    let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(100, 100, 0.8));
-    let nerf_world = NerfWorld { nerf: &nerf, field: &nerf_field };
-    let gt_world = GroundTruthWorld { scene: &scene, field: &gt_field, render: RenderSettings::default() };
+    let Some(run) = BenchRun::load("sim/vision_step") else { return };
+    let (cfg, flight, sim) = (&run.cfg, &run.flight, run.simulator());
+    let (nerf_world, gt_world) = (run.world(WorldKind::Nerf), run.world(WorldKind::Gt));
     // Predictions off by 2 cm and 1° (a typical step's disturbance) at every waypoint.
     let poses: Vec<(State, State)> = (0..cfg.steps)
         .map(|k| {
@@ -76,7 +64,8 @@ fn vision_steps(c: &mut Criterion) {
     let mut g = c.benchmark_group("sim");
     g.sample_size(10);
     g.throughput(Throughput::Elements(poses.len() as u64));
-    let worlds: [(&str, &dyn World); 2] = [("vision_step_nerf", &nerf_world), ("vision_step_gt", &gt_world)];
+    let worlds: [(&str, &dyn World); 2] =
+        [("vision_step_nerf", nerf_world.as_ref()), ("vision_step_gt", gt_world.as_ref())];
     for (name, world) in worlds {
         g.bench_function(name, |b| {
             b.iter(|| {

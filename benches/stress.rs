@@ -9,33 +9,19 @@
 //!
 //! `cargo bench --bench stress`.
 
-use std::path::PathBuf;
+mod common;
 
+use common::BenchRun;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use nerfsv_collision::SdfGrid;
-use nerfsv_nerf::Nerf;
-use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{plan_flight, EstimatorKind, GroundTruthWorld, NerfWorld, SimConfig};
+use nerfsv_sim::{EstimatorKind, WorldKind};
 use nerfsv_validation::{monte_carlo, replay_all, DroneSystem, MonteCarloConfig, Prior};
 
 fn mc_truth_replay(c: &mut Criterion) {
-    let run = std::env::var_os("NERFSV_BENCH_RUN").map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
-    let (Ok(nerf), Ok(nerf_field), Ok(gt_field)) = (
-        Nerf::load(&run.join("nerf/checkpoint.safetensors")),
-        SdfGrid::load(run.join("nerf_collision/nerf_sdf.safetensors")),
-        SdfGrid::load(run.join("collision/gt_sdf.safetensors")),
-    ) else {
-        eprintln!("stress: no trained run at {} (set NERFSV_BENCH_RUN); skipped", run.display());
-        return;
-    };
-    let scene = Scene::builtin("stonehenge").expect("built-in scene");
-    let cfg = SimConfig::default();
-    let flight = plan_flight(&cfg, &nerf_field, (nerf.config.aabb_min, nerf.config.aabb_max)).expect("plan");
-    let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(100, 100, 0.8));
-    let nerf_world = NerfWorld { nerf: &nerf, field: &nerf_field };
-    let gt_world = GroundTruthWorld { scene: &scene, field: &gt_field, render: RenderSettings::default() };
-    let search = DroneSystem { sim: &sim, world: &nerf_world, estimator: EstimatorKind::Truth };
-    let replay = DroneSystem { sim: &sim, world: &gt_world, estimator: EstimatorKind::Truth };
+    let Some(run) = BenchRun::load("stress") else { return };
+    let (cfg, sim) = (&run.cfg, run.simulator());
+    let (nerf_world, gt_world) = (run.world(WorldKind::Nerf), run.world(WorldKind::Gt));
+    let search = DroneSystem { sim: &sim, world: nerf_world.as_ref(), estimator: EstimatorKind::Truth };
+    let replay = DroneSystem { sim: &sim, world: gt_world.as_ref(), estimator: EstimatorKind::Truth };
     let prior = Prior::drone(cfg.steps);
     let mut g = c.benchmark_group("stress");
     g.sample_size(10);

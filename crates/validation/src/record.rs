@@ -12,7 +12,7 @@ use crate::error::ValidationError;
 
 /// Everything about one rollout: where it came from, what it flew, how likely it was, what
 /// happened.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RolloutRecord {
     /// Sampler label: [`crate::SAMPLER_MC`], [`crate::SAMPLER_CEM`] or [`crate::SAMPLER_IS`].
     pub sampler: String,
@@ -52,6 +52,20 @@ pub struct RolloutRecord {
 }
 
 impl RolloutRecord {
+    /// The record with what a system's run did: score, per-step clearances, positions and
+    /// uncertainty, first collision, failure.
+    pub fn with_outcome(self, outcome: crate::Outcome) -> Self {
+        Self {
+            failed: outcome.failed(),
+            score: outcome.score,
+            step_scores: outcome.step_scores,
+            step_positions: outcome.step_positions,
+            step_uncertainty: outcome.step_uncertainty,
+            collision_step: outcome.collision_step,
+            ..self
+        }
+    }
+
     /// The trajectory-level importance weight p(x)/q(x) = exp(Σ_t [ln p(x_t) − ln q_t(x_t)]).
     pub fn weight(&self) -> f64 {
         (self.log_p - self.log_q).exp()

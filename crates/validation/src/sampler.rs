@@ -69,15 +69,10 @@ pub fn rollout<S: System + ?Sized>(
         log_q,
         step_log_p,
         step_log_q,
-        reward: None,
-        failed: outcome.failed(),
-        score: outcome.score,
-        step_scores: outcome.step_scores,
-        step_positions: outcome.step_positions,
-        step_uncertainty: outcome.step_uncertainty,
-        collision_step: outcome.collision_step,
         disturbances,
-    };
+        ..RolloutRecord::default()
+    }
+    .with_outcome(outcome);
     record.reward = reward.map(|r| r(&record));
     record
 }
@@ -101,16 +96,7 @@ pub fn replay<S: System + ?Sized>(
 /// outcome; no reward.
 pub fn replay_on<S: System + ?Sized>(system: &S, record: &RolloutRecord) -> RolloutRecord {
     let outcome = system.run(&record.disturbances, record.seed);
-    RolloutRecord {
-        reward: None,
-        failed: outcome.failed(),
-        score: outcome.score,
-        step_scores: outcome.step_scores,
-        step_positions: outcome.step_positions,
-        step_uncertainty: outcome.step_uncertainty,
-        collision_step: outcome.collision_step,
-        ..record.clone()
-    }
+    RolloutRecord { reward: None, ..record.clone() }.with_outcome(outcome)
 }
 
 /// [`replay_on`] for every record, in parallel, in order; finished replays are recalled from

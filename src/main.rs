@@ -13,7 +13,8 @@ use clap::{Parser, Subcommand};
 ///
 /// Start with `nerfsv run`: on the default Stonehenge scene it renders the dataset, builds the
 /// ground-truth collision field, trains and evaluates the NeRF, builds the NeRF's collision
-/// field, and flies the drone along its planned path in NeRF-sim and GT-sim, into
+/// field, flies the drone along its planned path in NeRF-sim and GT-sim, and stress-tests it
+/// (Monte Carlo and the Cross-Entropy Method in NeRF-sim, replayed in GT-sim), into
 /// `runs/stonehenge/` (figures in `summary.json`). The other subcommands run one
 /// stage each, for your own datasets and checkpoints.
 #[derive(Parser)]

@@ -25,7 +25,8 @@ pub struct StressArgs {
     /// The drone (`--world`: where the search flies).
     #[command(flatten)]
     pub drone: DroneArgs,
-    /// Fly every rollout again in the other world and compare (confusion matrix, clearances).
+    /// Fly the search's rollouts (MC's, or CEM's populations; not the importance batch) again
+    /// in the other world and compare (confusion matrix, clearance differences).
     #[arg(long)]
     pub replay: bool,
     /// Run seed (default: the config's `validation.seed`).

@@ -164,28 +164,54 @@ pub fn corners(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 8]) {
 }
 
 /// The 8 corner rows of `x` (corner `c` is `+ (c & 1, c >> 1 & 1, c >> 2 & 1)`) and the
-/// fractional position `frac ∈ [0,1)³` inside the cell.
+/// fractional position `frac ∈ [0,1)³` inside the cell. The one corner-index computation shared
+/// by [`HashEncoding::encode`], [`HashEncoding::position_jacobian`] and
+/// [`HashEncoding::backward_level`].
+///
+/// Bit-identical to the textbook `floor` / `h % size` form (`reference_corners_frac` in the
+/// tests), but cheaper:
+/// - `p = clamp(x, 0, 1)·s + 0.5 ≥ 0.5` (the scale `s = base·b^l − 1 ≥ 1`), so `floor(p)` is
+///   the truncation `p as u32` (no libm `floorf` call) and `frac = p − (p as u32) as f32`. A NaN
+///   coordinate gives cell 0 and a NaN fraction, as `floor` did.
+/// - dense levels: the largest corner is `floor(s + 0.5) + 1 ≤ ceil(s) + 1 = r − 1`, so the
+///   index is below `r³ ≤ size` and the modulo is the identity;
+/// - hashed levels: the table size is `2^log2_table`, so `h % size = h & (size − 1)` (`%` is
+///   kept for any other size).
 #[inline(always)]
 pub fn corners_frac(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 3]) {
     let mut g = [0u32; 3];
     let mut f = [0f32; 3];
     for d in 0..3 {
         let p = x[d].clamp(0.0, 1.0) * lv.scale + 0.5;
-        let fl = p.floor();
-        g[d] = fl as u32;
-        f[d] = p - fl;
+        let i = p as u32;
+        g[d] = i;
+        f[d] = p - i as f32;
     }
     let mut idx = [0u32; 8];
-    let r = lv.resolution;
-    for (c, ic) in idx.iter_mut().enumerate() {
-        let (cx, cy, cz) = ((c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32);
-        let (i, j, k) = (g[0] + cx, g[1] + cy, g[2] + cz);
-        let h = if lv.dense {
-            i.wrapping_add(j.wrapping_mul(r)).wrapping_add(k.wrapping_mul(r * r))
-        } else {
+    let corner = |c: usize| [0, 1, 2].map(|d| g[d] + ((c >> d) & 1) as u32);
+    if lv.dense {
+        let r = lv.resolution;
+        for (c, ic) in idx.iter_mut().enumerate() {
+            let [i, j, k] = corner(c);
+            let h = i.wrapping_add(j.wrapping_mul(r)).wrapping_add(k.wrapping_mul(r * r));
+            debug_assert!(h < lv.size);
+            *ic = lv.offset + h;
+        }
+    } else {
+        let hash = |c: usize| {
+            let [i, j, k] = corner(c);
             i ^ j.wrapping_mul(2_654_435_761) ^ k.wrapping_mul(805_459_861)
         };
-        *ic = lv.offset + h % lv.size;
+        if lv.size.is_power_of_two() {
+            let mask = lv.size - 1;
+            for (c, ic) in idx.iter_mut().enumerate() {
+                *ic = lv.offset + (hash(c) & mask);
+            }
+        } else {
+            for (c, ic) in idx.iter_mut().enumerate() {
+                *ic = lv.offset + hash(c) % lv.size;
+            }
+        }
     }
     (idx, f)
 }
@@ -194,6 +220,91 @@ pub fn corners_frac(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 3]) {
 mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
+
+    /// The textbook corner computation (`floor`, `h % size` on every level) that
+    /// [`corners_frac`] must reproduce bit for bit.
+    fn reference_corners_frac(lv: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 3]) {
+        let mut g = [0u32; 3];
+        let mut f = [0f32; 3];
+        for d in 0..3 {
+            let p = x[d].clamp(0.0, 1.0) * lv.scale + 0.5;
+            let fl = p.floor();
+            g[d] = fl as u32;
+            f[d] = p - fl;
+        }
+        let mut idx = [0u32; 8];
+        let r = lv.resolution;
+        for (c, ic) in idx.iter_mut().enumerate() {
+            let (cx, cy, cz) = ((c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32);
+            let (i, j, k) = (g[0] + cx, g[1] + cy, g[2] + cz);
+            let h = if lv.dense {
+                i.wrapping_add(j.wrapping_mul(r)).wrapping_add(k.wrapping_mul(r * r))
+            } else {
+                i ^ j.wrapping_mul(2_654_435_761) ^ k.wrapping_mul(805_459_861)
+            };
+            *ic = lv.offset + h % lv.size;
+        }
+        (idx, f)
+    }
+
+    /// [`corners_frac`] (truncation instead of `floor`, no modulo on dense levels, a mask on
+    /// power-of-two hashed levels) equals the `floor`/`%` reference on every level of the default
+    /// config and of a few others, at random points and at the edge cases: 0, 1, just below 1,
+    /// cell boundaries and their neighbouring floats, outside the box, ±0, ±∞ and NaN.
+    #[test]
+    fn corner_indices_match_the_floor_and_modulo_reference() {
+        let d = crate::config::NerfConfig::default();
+        let configs = [
+            (d.hash_levels, d.base_resolution, d.finest_resolution, d.log2_hashmap_size),
+            (16, 16, 512, 14),
+            (16, 16, 2048, 19),
+            (4, 4, 64, 10),
+            (8, 2, 4096, 8),
+            (3, 7, 33, 12),
+        ];
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let below_one = 1.0f32 - f32::EPSILON / 2.0;
+        let specials = [0.0, -0.0, 1.0, below_one, f32::MIN_POSITIVE, 0.5, -1e-7, 1.0 + 1e-7, 2.0, -3.0];
+        let specials = specials.into_iter().chain([f32::INFINITY, f32::NEG_INFINITY, f32::NAN]);
+        let specials: Vec<f32> = specials.collect();
+        let same = |a: ([u32; 8], [f32; 3]), b: ([u32; 8], [f32; 3])| {
+            a.0 == b.0 && a.1.iter().zip(b.1).all(|(u, v)| u.to_bits() == v.to_bits() || (u.is_nan() && v.is_nan()))
+        };
+        let mut n = 0usize;
+        for (levels, base, finest, log2) in configs {
+            let e = HashEncoding::new(levels, base, finest, log2);
+            for lv in &e.levels {
+                // Coordinates on and next to every cell boundary `(i − 0.5)/s` of this level.
+                let mut xs = specials.clone();
+                let s = lv.scale;
+                for i in 0..=lv.resolution {
+                    let b = (i as f32 - 0.5) / s;
+                    xs.extend([
+                        b,
+                        f32::from_bits(b.to_bits().wrapping_add(1)),
+                        f32::from_bits(b.to_bits().wrapping_sub(1)),
+                    ]);
+                }
+                xs.extend((0..2000).map(|_| rng.random::<f32>()));
+                xs.retain(|v| v.is_nan() || (-4.0..=4.0).contains(v) || v.is_infinite());
+                for (t, &a) in xs.iter().enumerate() {
+                    // Each coordinate on each axis, the other two from the list too (rotating).
+                    for x in [
+                        [a, 0.3, 0.7],
+                        [0.9, a, 0.1],
+                        [0.2, 0.6, a],
+                        [a, xs[(t * 7) % xs.len()], xs[(t * 13) % xs.len()]],
+                    ] {
+                        let (got, want) = (corners_frac(lv, x), reference_corners_frac(lv, x));
+                        assert!(same(got, want), "level {lv:?} x {x:?}: {got:?} vs {want:?}");
+                        assert!(got.0.iter().all(|&r| r >= lv.offset && r < lv.offset + lv.size));
+                        n += 1;
+                    }
+                }
+            }
+        }
+        assert!(n > 100_000, "{n} points");
+    }
 
     #[test]
     fn levels_grow_geometrically_and_coarse_levels_are_dense() {

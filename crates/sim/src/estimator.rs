@@ -75,7 +75,9 @@ pub struct VisionConfig {
     pub velocity_gain: f64,
     /// `[metres, degrees]`: the search stops at the finest level when the step it proposes
     /// moves the pose less than this in both position and rotation, and leaves a coarser level
-    /// at four times it. `[0, 0]` spends every render.
+    /// at four times it. `[0, 0]` (default) spends every render: at 0.5 mm / 0.03° the NeRF-sim
+    /// update needs 30 % fewer renders, but the undisturbed GT-sim flight of the default scene,
+    /// whose clearance is only 2 cm, then grazes the central stone (−2.4 mm at step 3).
     pub stop_step: [f64; 2],
 }
 
@@ -90,7 +92,7 @@ impl Default for VisionConfig {
             prior_position_m: 0.05,
             prior_rotation_deg: 3.0,
             velocity_gain: 0.5,
-            stop_step: [5e-4, 0.03],
+            stop_step: [0.0, 0.0],
         }
     }
 }

@@ -31,7 +31,7 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     let nerf = tiny_nerf();
     let k = Intrinsics::from_fov_x(32, 32, 0.8);
     let (p, r) = (Vector3::new(0.1, -0.2, 0.3), Matrix3::identity());
-    let cfg = VisionConfig { pixels: 64, ..VisionConfig::default() };
+    let cfg = VisionConfig { pixels: 64, stop_step: [5e-4, 0.03], ..VisionConfig::default() };
     let pixels = stratified_pixels(&k, cfg.pixels, 4);
     let bg = [1.0; 3];
     let out = nerf.render_rays(&pixel_rays(&drone_camera(k, &p, &r), &pixels, bg));

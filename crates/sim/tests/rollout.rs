@@ -224,7 +224,9 @@ fn a_replayed_rollout_reproduces_its_trajectory_bit_for_bit_on_any_thread_count(
     assert_eq!(a, b);
     assert_eq!(a, c);
     // The vision estimator did work: its renders are counted.
-    assert!(a.estimates.iter().all(|e| e.renders == 2));
+    // (at most `iterations`; fewer where the search converged, see `stop_step`).
+    assert!(a.estimates.iter().all(|e| (1..=2).contains(&e.renders)));
+    assert!(a.estimates.iter().any(|e| e.renders == 2));
     // Another seed picks other pixels, so the estimates differ.
     let d = sim.fly(&world, EstimatorKind::Vision, &ds, 6);
     assert_ne!(a.substeps.last().unwrap().estimate, d.substeps.last().unwrap().estimate);

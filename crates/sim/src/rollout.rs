@@ -4,8 +4,9 @@
 //! substeps of `dt`. At the start of step `k` the disturbance `x_k` is applied to the true
 //! state; then each substep the controller turns the *estimated* state and the reference into
 //! an action, the true state (and, for the vision estimator, the estimate) is integrated, and
-//! the drone's body box is checked against the world's signed field. At the end of the step the
-//! vision estimator takes an image and refines its pose.
+//! the drone's body box is checked against the world's signed field. At the end of the step (and
+//! with `images_per_step` > 1 also at evenly spread substeps within it) the vision estimator
+//! takes an image and refines its pose.
 //!
 //! The body is checked after the disturbance (substep 0) and after every integration (substeps
 //! 1..=substeps). A box that touches geometry is a collision; a box partly outside the field's
@@ -156,7 +157,20 @@ fn step_seed(seed: u64, step: usize) -> u64 {
     nerfsv_scene::seed::mix(seed, step as u64 + 1, 0)
 }
 
+/// The seed of the pixels of the image after substep `substep` (not the step's last) of step
+/// `step`, with more than one image per step.
+fn image_seed(seed: u64, step: usize, substep: usize) -> u64 {
+    nerfsv_scene::seed::mix(seed, step as u64 + 1, substep as u64)
+}
+
 impl Simulator<'_> {
+    /// Whether the vision estimator takes an image after substep `j` (1-based) of a step:
+    /// `images_per_step` of them spread evenly, the last after the step's last substep.
+    pub fn images_after(&self, j: usize) -> bool {
+        let n = self.vision.images_per_step.min(self.substeps);
+        j * n / self.substeps > (j - 1) * n / self.substeps
+    }
+
     /// The initial state: at rest at the path's start, facing along it.
     pub fn initial_state(&self) -> State {
         self.reference.at_rest(0.0)
@@ -217,6 +231,9 @@ impl Simulator<'_> {
             if crashed(&out) {
                 break;
             }
+            // Substep of the previous image (the rate correction's interval).
+            let mut last_image = 0;
+            let mut end_update = (estimate, 0, 0.0);
             for j in 1..=self.substeps {
                 let t = t0 + (j - 1) as f64 * self.drone.dt;
                 let action = control(&estimate, &self.reference.at(t), &self.gains, &self.drone);
@@ -229,23 +246,27 @@ impl Simulator<'_> {
                 if crashed(&out) {
                     break;
                 }
+                if estimator == EstimatorKind::Vision && self.images_after(j) {
+                    let predicted = estimate;
+                    // The step's end keeps the seed of one image per step.
+                    let pixel_seed = if j == self.substeps { step_seed(seed, k) } else { image_seed(seed, k, j) };
+                    let fit = self.observe_and_refine(world, &truth, &predicted, pixel_seed);
+                    estimate.position = fit.position;
+                    estimate.rotation = fit.rotation;
+                    // α–β correction of the rates from the pose correction.
+                    let g = self.vision.velocity_gain / ((j - last_image) as f64 * self.drone.dt);
+                    last_image = j;
+                    estimate.velocity += (fit.position - predicted.position) * g;
+                    estimate.omega += so3_log(&(predicted.rotation.transpose() * fit.rotation)) * g;
+                    end_update = (predicted, fit.renders, fit.rmse);
+                }
             }
             if crashed(&out) {
                 break;
             }
-            let predicted = estimate;
-            let (renders, rmse) = match estimator {
-                EstimatorKind::Truth => (0, 0.0),
-                EstimatorKind::Vision => {
-                    let fit = self.observe_and_refine(world, &truth, &predicted, step_seed(seed, k));
-                    estimate.position = fit.position;
-                    estimate.rotation = fit.rotation;
-                    // α–β correction of the rates from the pose correction.
-                    let g = self.vision.velocity_gain / self.step_duration();
-                    estimate.velocity += (fit.position - predicted.position) * g;
-                    estimate.omega += so3_log(&(predicted.rotation.transpose() * fit.rotation)) * g;
-                    (fit.renders, fit.rmse)
-                }
+            let (predicted, renders, rmse) = match estimator {
+                EstimatorKind::Truth => (estimate, 0, 0.0),
+                EstimatorKind::Vision => end_update,
             };
             out.estimates.push(StepEstimate {
                 step: k,

@@ -223,9 +223,10 @@ fn a_replayed_rollout_reproduces_its_trajectory_bit_for_bit_on_any_thread_count(
     let c = fly(1);
     assert_eq!(a, b);
     assert_eq!(a, c);
-    // The vision estimator did work: its renders are counted, within the budget of 2 (a
-    // search whose step is already below its tolerance stops early).
+    // The vision estimator did work: its renders are counted (at most `iterations`; fewer
+    // where the search converged, see `stop_step`).
     assert!(a.estimates.iter().all(|e| (1..=2).contains(&e.renders)), "{:?}", a.estimates);
+    assert!(a.estimates.iter().any(|e| e.renders == 2));
     // Another seed picks other pixels, so the estimates differ.
     let d = sim.fly(&world, EstimatorKind::Vision, &ds, 6);
     assert_ne!(a.substeps.last().unwrap().estimate, d.substeps.last().unwrap().estimate);

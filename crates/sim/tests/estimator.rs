@@ -1,27 +1,15 @@
 //! The vision estimator's search: it spends renders only until it has converged.
 
+mod common;
+
+use common::tiny_nerf;
+
 use nalgebra::{Matrix3, Vector3};
-use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::Intrinsics;
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::estimator::{refine_pose, stratified_pixels};
 use nerfsv_sim::world::pixel_rays;
 use nerfsv_sim::VisionConfig;
-
-/// An untrained model: every ray sees a non-trivial colour that varies with the pose.
-fn tiny_nerf() -> Nerf {
-    let cfg = NerfConfig {
-        aabb_min: [-2.0; 3],
-        aabb_max: [2.0; 3],
-        hash_levels: 4,
-        log2_hashmap_size: 10,
-        base_resolution: 8,
-        finest_resolution: 32,
-        grid_resolution: 16,
-        ..NerfConfig::default()
-    };
-    Nerf::new(cfg, 3).unwrap()
-}
 
 /// A prediction that is already the optimum (the image is the model's own render there)
 /// proposes a null step at every level: one render, one linearisation, and the prediction back;

@@ -1,9 +1,13 @@
 //! Rollouts on synthetic worlds: collisions at the right step and substep (a corner between
 //! step ends included), leaving the grid, and bit-exact replay.
 
+mod common;
+
+use common::tiny_nerf;
+
 use nalgebra::{Point3, Vector3};
 use nerfsv_collision::{drone_half_extents, ScalarGrid, SdfGrid};
-use nerfsv_nerf::{Nerf, NerfConfig};
+use nerfsv_nerf::Nerf;
 use nerfsv_scene::{Aabb, Camera, Intrinsics};
 use nerfsv_sim::config::SimConfig;
 use nerfsv_sim::dynamics::so3_exp;
@@ -39,20 +43,6 @@ fn post_world(centre: [f32; 3], half: [f32; 3]) -> FieldWorld {
     let bounds = Aabb::new(Point3::new(-0.2, -0.5, -0.2), Point3::new(1.8, 0.5, 0.8));
     let grid = ScalarGrid::sample(&bounds, 40.0, |p| box_sdf(p, centre, half));
     FieldWorld { field: SdfGrid::from_field(&grid, 0.0, true) }
-}
-
-fn tiny_nerf() -> Nerf {
-    let cfg = NerfConfig {
-        aabb_min: [-2.0; 3],
-        aabb_max: [2.0; 3],
-        hash_levels: 4,
-        log2_hashmap_size: 10,
-        base_resolution: 8,
-        finest_resolution: 32,
-        grid_resolution: 16,
-        ..NerfConfig::default()
-    };
-    Nerf::new(cfg, 3).unwrap()
 }
 
 /// A straight flight along +x at 0.3 m altitude: 1.2 m in `steps` steps.

@@ -82,6 +82,8 @@ pub enum PipelineError {
     Collision(#[from] nerfsv_collision::CollisionError),
     #[error(transparent)]
     Sim(#[from] nerfsv_sim::SimError),
+    #[error(transparent)]
+    Validation(#[from] nerfsv_validation::ValidationError),
     #[error("stage {stage} reads stage {input}, which has not run before it")]
     MissingInput { stage: &'static str, input: &'static str },
     #[error("{}: is inside {option} {}; refusing to write over an input", .output.display(), .input.display())]

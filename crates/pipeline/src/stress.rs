@@ -291,14 +291,6 @@ impl Recorder for Counting<'_> {
     }
 }
 
-fn validation_error(e: ValidationError) -> PipelineError {
-    match e {
-        ValidationError::Invalid(v) => PipelineError::Invalid(v),
-        ValidationError::Io { path, error } => PipelineError::Io { path, error },
-        other => PipelineError::Internal(other.to_string()),
-    }
-}
-
 /// Runs the searches of `setup` into `out` (which exists): every sampler in `setup.world`, then,
 /// with `replay`, every rollout again in the other world; writes [`ROLLOUTS_CSV`],
 /// `replay_{world}.csv`, [`TABLE_CSV`], and for each sampler's most likely failure its
@@ -335,7 +327,7 @@ pub fn stress(
         .sum();
     let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
 
-    let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume).map_err(validation_error)?;
+    let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume)?;
     let mut counting = Counting {
         journal: &journal,
         done: AtomicU64::new(0),
@@ -356,15 +348,13 @@ pub fn stress(
         progress(counting.done.load(Ordering::Relaxed), total, &counting.status);
         match sampler {
             Sampler::Mc => {
-                let r =
-                    monte_carlo(&system, setup.prior, &v.monte_carlo, v.seed, &counting).map_err(validation_error)?;
+                let r = monte_carlo(&system, setup.prior, &v.monte_carlo, v.seed, &counting)?;
                 let se = (r.probability * (1.0 - r.probability) / r.records.len() as f64).sqrt();
                 estimates.push((r.probability, se, r.interval));
                 records.extend(r.records);
             }
             Sampler::Cem => {
-                let r =
-                    cross_entropy(&system, setup.prior, &v.cem, v.seed, None, &counting).map_err(validation_error)?;
+                let r = cross_entropy(&system, setup.prior, &v.cem, v.seed, None, &counting)?;
                 let e = r.estimate;
                 estimates.push((e.probability, e.standard_error, e.interval));
                 records.extend(r.records);
@@ -373,8 +363,7 @@ pub fn stress(
     }
 
     let replays = if setup.replay {
-        let replay_journal = Journal::open(&journal_dir.join(format!("replay_{}", replay_kind.name())), key, resume)
-            .map_err(validation_error)?;
+        let replay_journal = Journal::open(&journal_dir.join(format!("replay_{}", replay_kind.name())), key, resume)?;
         let replaying = Counting {
             journal: &replay_journal,
             done: AtomicU64::new(counting.done.load(Ordering::Relaxed)),
@@ -386,7 +375,7 @@ pub fn stress(
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
         let system = DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator };
         let searched: Vec<RolloutRecord> = records.iter().filter(|r| r.sampler != SAMPLER_IS).cloned().collect();
-        let replays = replay_all(&system, &searched, &replaying).map_err(validation_error)?;
+        let replays = replay_all(&system, &searched, &replaying)?;
         if resume {
             observer.note(STAGE, &format!("{} of {} replays were already flown", replay_journal.len(), searched.len()));
         }

@@ -42,11 +42,19 @@ impl Sampler {
         }
     }
 
-    /// Rollouts it flies under `cfg`.
+    /// Rollouts it flies under `cfg`: its search, then (CEM) the importance batch.
     pub fn rollouts(self, cfg: &ValidationConfig) -> usize {
         match self {
+            Sampler::Mc => self.searched(cfg),
+            Sampler::Cem => self.searched(cfg) + cfg.cem.is_samples,
+        }
+    }
+
+    /// Rollouts of its search proper, the ones a replay flies again: MC's, CEM's populations.
+    pub fn searched(self, cfg: &ValidationConfig) -> usize {
+        match self {
             Sampler::Mc => cfg.monte_carlo.rollouts,
-            Sampler::Cem => cfg.cem.m * cfg.cem.k_max + cfg.cem.is_samples,
+            Sampler::Cem => cfg.cem.m * cfg.cem.k_max,
         }
     }
 
@@ -263,6 +271,12 @@ pub fn replay_csv(world: WorldKind) -> String {
     format!("replay_{}.csv", world.name())
 }
 
+/// The searches' own rollouts, in order: not the importance batch, which estimates a probability
+/// (the paper's confusion matrices are over MC's and CEM's own rollouts).
+fn searched(records: &[RolloutRecord]) -> impl Iterator<Item = &RolloutRecord> {
+    records.iter().filter(|r| r.sampler != SAMPLER_IS)
+}
+
 /// Counts finished rollouts for progress, passing everything to the journal.
 struct Counting<'a> {
     journal: &'a Journal,
@@ -315,16 +329,7 @@ pub fn stress(
     let replay_world = world(replay_kind, setup.inputs, setup.scene, setup.render);
     let journal_dir = out.join(JOURNAL);
     let planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
-    // The searches' rollouts are replayed, not the importance batch (it estimates a
-    // probability; the paper's confusion matrices are over MC's and CEM's own rollouts).
-    let to_replay: usize = setup
-        .samplers
-        .iter()
-        .map(|s| match s {
-            Sampler::Mc => setup.validation.monte_carlo.rollouts,
-            Sampler::Cem => setup.validation.cem.m * setup.validation.cem.k_max,
-        })
-        .sum();
+    let to_replay: usize = setup.samplers.iter().map(|s| s.searched(setup.validation)).sum();
     let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
 
     let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume)?;
@@ -374,10 +379,11 @@ pub fn stress(
         };
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
         let system = DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator };
-        let searched: Vec<RolloutRecord> = records.iter().filter(|r| r.sampler != SAMPLER_IS).cloned().collect();
-        let replays = replay_all(&system, &searched, &replaying)?;
+        let originals: Vec<RolloutRecord> = searched(&records).cloned().collect();
+        let replays = replay_all(&system, &originals, &replaying)?;
         if resume {
-            observer.note(STAGE, &format!("{} of {} replays were already flown", replay_journal.len(), searched.len()));
+            observer
+                .note(STAGE, &format!("{} of {} replays were already flown", replay_journal.len(), originals.len()));
         }
         counting.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
         Some(replays)
@@ -397,9 +403,6 @@ pub fn stress(
     let mut samplers = Vec::new();
     let mut table = Vec::new();
     for (&sampler, &(p_fail, p_fail_se, p_fail_interval)) in setup.samplers.iter().zip(&estimates) {
-        let own: Vec<usize> = (0..records.len()).filter(|&i| sampler.owns(&records[i])).collect();
-        let own_searched: Vec<&RolloutRecord> =
-            own.iter().map(|&i| &records[i]).filter(|r| r.sampler != SAMPLER_IS).collect();
         let rows: Vec<TableRow> = match sampler {
             Sampler::Mc => vec![table_row(SAMPLER_MC, &records)],
             Sampler::Cem => vec![table_row(SAMPLER_CEM, &records), table_row(SAMPLER_IS, &records)],
@@ -411,20 +414,21 @@ pub fn stress(
             .first()
             .cloned()
             .ok_or_else(|| PipelineError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
-        let own_records: Vec<RolloutRecord> = own.iter().map(|&i| records[i].clone()).collect();
-        let own_replays: Option<Vec<RolloutRecord>> = replays
-            .as_ref()
-            .map(|rs| rs.iter().filter(|r| own_searched.iter().any(|o| o.key() == r.key())).cloned().collect());
-        let searched: Vec<RolloutRecord> = own_searched.into_iter().cloned().collect();
-        let confusion = match &own_replays {
+        // The replays follow the searched records one for one, in order.
+        let confusion = match &replays {
             Some(rs) => {
-                let (nerf, gt) = if setup.world == WorldKind::Nerf { (&searched, rs) } else { (rs, &searched) };
+                let (ours, theirs): (Vec<RolloutRecord>, Vec<RolloutRecord>) = searched(&records)
+                    .zip(rs)
+                    .filter(|(r, _)| sampler.owns(r))
+                    .map(|(r, g)| (r.clone(), g.clone()))
+                    .unzip();
+                let (nerf, gt) = if setup.world == WorldKind::Nerf { (&ours, &theirs) } else { (&theirs, &ours) };
                 Some(ConfusionFigures::new(&compare(nerf, gt).map_err(PipelineError::Internal)?))
             }
             None => None,
         };
-        let mlf = nerfsv_validation::most_likely_failure(&own_records).cloned();
-        let most_likely_failure = match &mlf {
+        let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)));
+        let most_likely_failure = match mlf {
             Some(f) => {
                 let replayed = write_failure(setup, out, sampler, f, search_world.as_ref(), replay_world.as_ref())?;
                 Some(FailureFigures {
@@ -448,7 +452,7 @@ pub fn stress(
             sampler,
             world: setup.world,
             estimator: setup.estimator,
-            rollouts: own.len(),
+            rollouts: sampler.rollouts(v),
             collision_rate: headline.collision_rate,
             avg_collision_step: headline.avg_collision_step,
             avg_log_likelihood: headline.avg_log_likelihood,

@@ -191,8 +191,8 @@ pub fn wilson_interval(failures: usize, n: usize) -> (f64, f64) {
 
 /// The failure with the highest trajectory log-likelihood (eq. 1) among `records`; ties go to
 /// the earlier record.
-pub fn most_likely_failure(records: &[RolloutRecord]) -> Option<&RolloutRecord> {
-    records.iter().filter(|r| r.failed).fold(None, |best: Option<&RolloutRecord>, r| match best {
+pub fn most_likely_failure<'a>(records: impl IntoIterator<Item = &'a RolloutRecord>) -> Option<&'a RolloutRecord> {
+    records.into_iter().filter(|r| r.failed).fold(None, |best: Option<&RolloutRecord>, r| match best {
         Some(b) if b.log_p >= r.log_p => Some(b),
         _ => Some(r),
     })

@@ -57,9 +57,17 @@ impl DroneArgs {
         inputs
     }
 
-    /// The scene and the flight inputs (see [`load_worlds`]).
+    /// The scene, the model, the NeRF's signed field (loaded, or built from the model on the
+    /// ground-truth field's grid as `nerfsv run` builds it) and the ground-truth field.
     pub fn load(&self) -> anyhow::Result<(Scene, FlightInputs)> {
-        load_worlds(&self.scene, &self.model, self.nerf_field.as_deref())
+        let scene = Scene::builtin(&self.scene)?;
+        let nerf = Nerf::load(&self.model)?;
+        let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 40.0)?;
+        let nerf_field = match &self.nerf_field {
+            Some(path) => SdfGrid::load(path)?,
+            None => nerf_density_field(&nerf, gt.sdf.geometry, None)?.1.sdf,
+        };
+        Ok((scene, FlightInputs { nerf, nerf_field, gt_field: gt.sdf }))
     }
 }
 
@@ -97,19 +105,6 @@ pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
         Some(path) => RunConfig::load(path)?,
         None => RunConfig::default(),
     })
-}
-
-/// The scene, the model, the NeRF's signed field (loaded, or built from the model on the
-/// ground-truth field's grid as `nerfsv run` builds it) and the ground-truth field.
-pub fn load_worlds(scene: &str, model: &Path, nerf_field: Option<&Path>) -> anyhow::Result<(Scene, FlightInputs)> {
-    let scene = Scene::builtin(scene)?;
-    let nerf = Nerf::load(model)?;
-    let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 40.0)?;
-    let nerf_field = match nerf_field {
-        Some(path) => SdfGrid::load(path)?,
-        None => nerf_density_field(&nerf, gt.sdf.geometry, None)?.1.sdf,
-    };
-    Ok((scene, FlightInputs { nerf, nerf_field, gt_field: gt.sdf }))
 }
 
 impl From<WorldArg> for WorldKind {

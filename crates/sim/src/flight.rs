@@ -53,13 +53,18 @@ pub fn plan_flight(cfg: &SimConfig, field: &SdfGrid, model_box: ([f32; 3], [f32;
             return Err(SimError::ModelBox { min, max, point: p.into() });
         }
     }
-    let reference = ReferenceTrajectory::new(&path, cfg.duration());
-    let step = cfg.substeps as f64 * cfg.drone.dt;
-    let waypoints = (0..=cfg.steps).map(|k| reference.at(k as f64 * step).position).collect();
-    Ok(Flight { path, reference, waypoints })
+    Ok(Flight::along(path, cfg))
 }
 
 impl Flight {
+    /// The flight along `path` with the timing of `cfg` (no planning, no checks).
+    pub fn along(path: PlannedPath, cfg: &SimConfig) -> Self {
+        let reference = ReferenceTrajectory::new(&path, cfg.duration());
+        let step = cfg.substeps as f64 * cfg.drone.dt;
+        let waypoints = (0..=cfg.steps).map(|k| reference.at(k as f64 * step).position).collect();
+        Flight { path, reference, waypoints }
+    }
+
     /// The simulator flying this flight with the settings of `cfg`, the estimator's `nerf` and
     /// camera `intrinsics`.
     pub fn simulator<'a>(&self, cfg: &SimConfig, nerf: &'a Nerf, intrinsics: Intrinsics) -> Simulator<'a> {

@@ -12,8 +12,7 @@ use nerfsv_scene::{Aabb, Camera, Intrinsics};
 use nerfsv_sim::config::SimConfig;
 use nerfsv_sim::dynamics::so3_exp;
 use nerfsv_sim::planner::PlannedPath;
-use nerfsv_sim::reference::ReferenceTrajectory;
-use nerfsv_sim::{Disturbance, EstimatorKind, NerfWorld, Rollout, Simulator, World, WorldKind};
+use nerfsv_sim::{Disturbance, EstimatorKind, Flight, NerfWorld, Rollout, Simulator, World, WorldKind};
 
 /// A world of one analytic signed field; its camera sees a flat grey.
 struct FieldWorld {
@@ -46,27 +45,12 @@ fn post_world(centre: [f32; 3], half: [f32; 3]) -> FieldWorld {
 }
 
 /// A straight flight along +x at 0.3 m altitude: 1.2 m in `steps` steps.
-fn straight<'a>(nerf: &'a Nerf, steps: usize) -> Simulator<'a> {
+fn straight(nerf: &Nerf, steps: usize) -> Simulator<'_> {
     let path = PlannedPath { points: vec![Vector3::new(0.0, 0.0, 0.3), Vector3::new(1.2, 0.0, 0.3)] };
-    let cfg = SimConfig { steps, start: [0.0, 0.0, 0.3], goal: [1.2, 0.0, 0.3], ..SimConfig::default() };
-    let mut vision = cfg.vision.clone();
-    vision.pixels = 16;
-    vision.iterations = 2;
-    Simulator {
-        drone: cfg.drone.clone(),
-        gains: cfg.controller.clone(),
-        vision,
-        intrinsics: Intrinsics::from_fov_x(16, 16, 0.8),
-        background: [1.0; 3],
-        half_extents: drone_half_extents(),
-        reference: ReferenceTrajectory::new(&path, cfg.duration()),
-        goal: Vector3::from(cfg.goal),
-        goal_tolerance: cfg.goal_tolerance_m,
-        stop_at_collision: cfg.stop_at_collision,
-        steps: cfg.steps,
-        substeps: cfg.substeps,
-        nerf,
-    }
+    let mut cfg = SimConfig { steps, start: [0.0, 0.0, 0.3], goal: [1.2, 0.0, 0.3], ..SimConfig::default() };
+    cfg.vision.pixels = 16;
+    cfg.vision.iterations = 2;
+    Flight::along(path, &cfg).simulator(&cfg, nerf, Intrinsics::from_fov_x(16, 16, 0.8))
 }
 
 /// Minimum of the analytic post SDF over a dense lattice of the body box (2.5 mm).

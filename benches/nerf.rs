@@ -13,7 +13,6 @@ use nerfsv_nerf::{NerfConfig, TrainConfig, Trainer};
 use nerfsv_scene::Scene;
 
 fn nerf(c: &mut Criterion) {
-    std::env::set_var("MATMUL_NUM_THREADS", "1");
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = Scene::builtin("stonehenge").expect("built-in scene");
     let opts = GenerateOptions { train: 40, val: 1, test: 1, ..GenerateOptions::default() };

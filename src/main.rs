@@ -50,10 +50,6 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    // matrixmultiply must not start threads inside rayon's workers (see nerfsv_nerf's docs).
-    if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
-        std::env::set_var("MATMUL_NUM_THREADS", "1");
-    }
     let cli = Cli::parse();
     if let Some(gib) = cli.memory_budget_gib {
         if let Err(e) = nerfsv_scene::validate::positive("--memory-budget-gib", gib) {

@@ -34,7 +34,6 @@ impl DefaultRun {
 fn default_run() -> &'static DefaultRun {
     static RUN: OnceLock<DefaultRun> = OnceLock::new();
     RUN.get_or_init(|| {
-        std::env::set_var("MATMUL_NUM_THREADS", "1");
         let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("default_run");
         let cfg = RunConfig { out: out.clone(), ..RunConfig::default() };
         let scene = Scene::builtin(&cfg.scene).unwrap();

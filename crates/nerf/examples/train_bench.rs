@@ -9,9 +9,6 @@ use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::{evaluate, EvalOptions, NerfConfig, TrainConfig, Trainer};
 
 fn main() {
-    if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
-        std::env::set_var("MATMUL_NUM_THREADS", "1");
-    }
     let args: Vec<String> = std::env::args().collect();
     let dir = std::path::PathBuf::from(args.get(1).map(String::as_str).unwrap_or("/work/data/stonehenge"));
     let budget: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(300.0);

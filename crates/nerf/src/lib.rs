@@ -25,8 +25,8 @@
 //! # Determinism
 //! The same [`TrainConfig::seed`] gives bit-identical weights whatever the rayon thread count,
 //! and a resumed run ends at the same weights as an uninterrupted one (see [`train()`]).
-//! Set `MATMUL_NUM_THREADS=1` in the process environment so that `matrixmultiply` does not
-//! start its own threads inside rayon's (results are the same either way; speed is not).
+//! The matrix products run single-threaded inside rayon's workers (`matrixmultiply` without its
+//! `threading` feature: its own threads inside rayon's cost a vision update a third of its speed).
 //!
 //! # Example
 //! ```no_run

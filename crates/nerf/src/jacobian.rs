@@ -69,17 +69,25 @@ pub(crate) struct JacobianWorkspace {
     jac: Vec<f32>,
     /// `[r, 3, 16]` `Σ_j ∂C_c/∂SH` per ray.
     view: Vec<f32>,
+    /// Active samples (indices `j`) taken through the colour net, and those whose compositing
+    /// weight is below the caller's threshold (density path only).
+    full: Vec<u32>,
+    thin: Vec<u32>,
 }
 
 impl JacobianWorkspace {
     /// After `ws.forward(field, params, rays, …)`: writes `∂C/∂o` and `∂C/∂d` of every ray of
-    /// the chunk (`[r]` each, overwritten).
+    /// the chunk (`[r]` each, overwritten). Samples whose compositing weight `w_j` is below
+    /// `min_weight` keep only their density term `∂C/∂σ_j ⊗ ∇σ(x_j)` (see
+    /// [`RayRender::jacobians_above`]); `min_weight = 0` is exact.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn backward(
         &mut self,
         field: &NgpField,
         params: &[f32],
         ws: &ChunkWorkspace,
         rays: &[RayInput],
+        min_weight: f32,
         d_origin: &mut [[[f32; 3]; 3]],
         d_direction: &mut [[[f32; 3]; 3]],
     ) {
@@ -126,17 +134,29 @@ impl JacobianWorkspace {
         let (w_s0, w_s1) = (field.w(params, 1), field.w(params, 2));
         let emb = field.w(params, 0);
         let inv_ext = [0, 1, 2].map(|d| 1.0 / (field.aabb_max[d] - field.aabb_min[d]));
-        for b0 in (0..m).step_by(BLOCK) {
-            let b1 = (b0 + BLOCK).min(m);
-            let rows = 3 * (b1 - b0);
+        self.full.clear();
+        self.thin.clear();
+        for j in 0..m as u32 {
+            if self.w[j as usize] < min_weight {
+                self.thin.push(j);
+            } else {
+                self.full.push(j);
+            }
+        }
+        let full = std::mem::take(&mut self.full);
+        for b0 in (0..full.len()).step_by(BLOCK) {
+            let b1 = (b0 + BLOCK).min(full.len());
+            let block = &full[b0..b1];
+            let rows = 3 * block.len();
             // color_net backward of C_c: d(pre-sigmoid) = w_j·s(1 − s) on channel c only, so
             // d h2 = that · W2[c, :] masked by the ReLU.
             self.d_h2.resize(rows * ch, 0.0);
-            for j in b0..b1 {
+            for (q, &j) in block.iter().enumerate() {
+                let j = j as usize;
                 for c in 0..3 {
                     let s = ws.rgb[3 * j + c];
                     let dp = self.w[j] * s * (1.0 - s);
-                    let row = &mut self.d_h2[(3 * (j - b0) + c) * ch..(3 * (j - b0) + c + 1) * ch];
+                    let row = &mut self.d_h2[(3 * q + c) * ch..(3 * q + c + 1) * ch];
                     let h2 = &ws.h2[j * ch..(j + 1) * ch];
                     for ((d, &wk), &hk) in row.iter_mut().zip(&w_c2[c * ch..(c + 1) * ch]).zip(h2) {
                         *d = if hk > 0.0 { dp * wk } else { 0.0 };
@@ -145,10 +165,11 @@ impl JacobianWorkspace {
             }
             self.d_h1.resize(rows * ch, 0.0);
             linear_backward_input(&self.d_h2, w_c1, &mut self.d_h1, rows, ch, ch);
-            for j in b0..b1 {
+            for (q, &j) in block.iter().enumerate() {
+                let j = j as usize;
                 let h1 = &ws.h1[j * ch..(j + 1) * ch];
                 for c in 0..3 {
-                    let row = &mut self.d_h1[(3 * (j - b0) + c) * ch..(3 * (j - b0) + c + 1) * ch];
+                    let row = &mut self.d_h1[(3 * q + c) * ch..(3 * q + c + 1) * ch];
                     for (d, &hk) in row.iter_mut().zip(h1) {
                         if hk <= 0.0 {
                             *d = 0.0;
@@ -160,10 +181,11 @@ impl JacobianWorkspace {
             linear_backward_input(&self.d_h1, w_c0, &mut self.d_cin, rows, ci, ch);
             // sigma_net output adjoint [∂C/∂o_0, ∂C/∂geo]; SH part summed per ray.
             self.d_out0.resize(rows * o, 0.0);
-            for j in b0..b1 {
+            for (q, &j) in block.iter().enumerate() {
+                let j = j as usize;
                 let ri = self.ray[j] as usize;
                 for c in 0..3 {
-                    let row = 3 * (j - b0) + c;
+                    let row = 3 * q + c;
                     let dc = &self.d_cin[row * ci..(row + 1) * ci];
                     for (v, &x) in self.view[(3 * ri + c) * SH_DIM..(3 * ri + c + 1) * SH_DIM].iter_mut().zip(dc) {
                         *v += x;
@@ -174,11 +196,12 @@ impl JacobianWorkspace {
             }
             self.d_h0.resize(rows * sh, 0.0);
             linear_backward_input(&self.d_out0, w_s1, &mut self.d_h0, rows, sh, o);
-            for j in b0..b1 {
+            for (q, &j) in block.iter().enumerate() {
+                let j = j as usize;
                 let s = ws.act[j] as usize;
                 let h0 = &ws.h0[s * sh..(s + 1) * sh];
                 for c in 0..3 {
-                    let row = &mut self.d_h0[(3 * (j - b0) + c) * sh..(3 * (j - b0) + c + 1) * sh];
+                    let row = &mut self.d_h0[(3 * q + c) * sh..(3 * q + c + 1) * sh];
                     for (d, &hk) in row.iter_mut().zip(h0) {
                         if hk <= 0.0 {
                             *d = 0.0;
@@ -189,14 +212,15 @@ impl JacobianWorkspace {
             self.d_enc.resize(rows * e, 0.0);
             linear_backward_input(&self.d_h0, w_s0, &mut self.d_enc, rows, e, sh);
             // Through the hash encoding and the box normalisation to ∂C/∂x_j, then o and d.
-            for j in b0..b1 {
+            for (q, &j) in block.iter().enumerate() {
+                let j = j as usize;
                 let s = ws.act[j] as usize;
                 let x = [ws.pos[3 * s], ws.pos[3 * s + 1], ws.pos[3 * s + 2]];
                 field.encoding.position_jacobian(emb, x, &mut self.jac);
                 let ri = self.ray[j] as usize;
                 let tj = self.t[j];
                 for c in 0..3 {
-                    let row = 3 * (j - b0) + c;
+                    let row = 3 * q + c;
                     let mut dx = [0.0f32; 3];
                     for (&dk, jk) in self.d_enc[row * e..(row + 1) * e].iter().zip(self.jac.chunks_exact(3)) {
                         for (xd, &jd) in dx.iter_mut().zip(jk) {
@@ -211,6 +235,8 @@ impl JacobianWorkspace {
                 }
             }
         }
+        self.full = full;
+        self.density_only(field, params, ws, inv_ext, d_origin, d_direction);
         // View term: ∂C/∂d += (∂C/∂SH · ∂SH/∂u) · (I − u uᵀ)/|d|.
         let mut jsh = [[0.0f32; 3]; SH_DIM];
         for (ri, r) in rays.iter().enumerate() {
@@ -235,6 +261,63 @@ impl JacobianWorkspace {
                 }
             }
         }
+    }
+}
+
+impl JacobianWorkspace {
+    /// The density term alone for the samples in `thin`: `∂C_c/∂x_j = ∂C_c/∂o_0 · ∇o_0(x_j)`,
+    /// one row per sample through `sigma_net` (`∂o_0/∂h = W1[0, :]` masked by the ReLU) and the
+    /// encoding, where the full path takes three rows through both nets. What it leaves out,
+    /// `w_j·∂c_j/∂x_j` and the colour net's share of `∂C/∂geo` and `∂C/∂SH`, is proportional to
+    /// `w_j`, which is below the caller's threshold.
+    fn density_only(
+        &mut self,
+        field: &NgpField,
+        params: &[f32],
+        ws: &ChunkWorkspace,
+        inv_ext: [f32; 3],
+        d_origin: &mut [[[f32; 3]; 3]],
+        d_direction: &mut [[[f32; 3]; 3]],
+    ) {
+        let (e, sh) = (field.enc_dim, field.sigma_hidden);
+        let (w_s0, w_s1, emb) = (field.w(params, 1), field.w(params, 2), field.w(params, 0));
+        let d_o0 = &w_s1[..sh];
+        let thin = std::mem::take(&mut self.thin);
+        for block in thin.chunks(3 * BLOCK) {
+            let rows = block.len();
+            self.d_h0.resize(rows * sh, 0.0);
+            for (q, &j) in block.iter().enumerate() {
+                let s = ws.act[j as usize] as usize;
+                let h0 = &ws.h0[s * sh..(s + 1) * sh];
+                for ((d, &wk), &hk) in self.d_h0[q * sh..(q + 1) * sh].iter_mut().zip(d_o0).zip(h0) {
+                    *d = if hk > 0.0 { wk } else { 0.0 };
+                }
+            }
+            self.d_enc.resize(rows * e, 0.0);
+            linear_backward_input(&self.d_h0, w_s0, &mut self.d_enc, rows, e, sh);
+            for (q, &j) in block.iter().enumerate() {
+                let j = j as usize;
+                let s = ws.act[j] as usize;
+                let x = [ws.pos[3 * s], ws.pos[3 * s + 1], ws.pos[3 * s + 2]];
+                field.encoding.position_jacobian(emb, x, &mut self.jac);
+                let mut grad = [0.0f32; 3];
+                for (&dk, jk) in self.d_enc[q * e..(q + 1) * e].iter().zip(self.jac.chunks_exact(3)) {
+                    for (xd, &jd) in grad.iter_mut().zip(jk) {
+                        *xd += dk * jd;
+                    }
+                }
+                let (ri, tj) = (self.ray[j] as usize, self.t[j]);
+                for c in 0..3 {
+                    let gc = self.g[3 * j + c];
+                    for d in 0..3 {
+                        let v = gc * grad[d] * inv_ext[d];
+                        d_origin[ri][c][d] += v;
+                        d_direction[ri][c][d] += tj * v;
+                    }
+                }
+            }
+        }
+        self.thin = thin;
     }
 }
 
@@ -316,6 +399,16 @@ impl RayRender<'_> {
     /// The last render's colours with their Jacobians with respect to each ray's origin and
     /// direction (the reverse pass; parallel over chunks, bit-identical for any thread count).
     pub fn jacobians(&self) -> RayJacobians {
+        self.jacobians_above(0.0)
+    }
+
+    /// [`jacobians`](Self::jacobians), with the samples whose compositing weight `w_j` is below
+    /// `min_weight` taken through their density only: their colour's own change with position,
+    /// `w_j·∂c_j/∂x_j` (and its share through the geometry features and the view direction), is
+    /// left out, which costs one row through `sigma_net` instead of three through both nets.
+    /// Samples in front of a surface, with little weight but a large `∂C/∂σ_j`, keep their whole
+    /// geometric term. With `min_weight = 0` this is [`jacobians`](Self::jacobians), bit for bit.
+    pub fn jacobians_above(&self, min_weight: f32) -> RayJacobians {
         let r = self.rays.len();
         let mut out = RayJacobians {
             rgb: self.rgb.clone(),
@@ -331,7 +424,7 @@ impl RayRender<'_> {
             .zip(out.d_direction.par_chunks_mut(JACOBIAN_CHUNK))
             .zip(self.rays.par_chunks(JACOBIAN_CHUNK))
             .for_each(|(((ws, d_o), d_d), rs)| {
-                WORKSPACE.with_borrow_mut(|jw| jw.backward(&nerf.field, &nerf.params, ws, rs, d_o, d_d))
+                WORKSPACE.with_borrow_mut(|jw| jw.backward(&nerf.field, &nerf.params, ws, rs, min_weight, d_o, d_d))
             });
         out
     }
@@ -429,6 +522,7 @@ impl Nerf {
             c.step_size,
             c.max_samples_per_ray,
             c.early_stop_transmittance,
+            crate::fields::RENDER_ROUND,
         );
     }
 }

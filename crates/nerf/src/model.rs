@@ -144,6 +144,7 @@ impl Nerf {
                         c.step_size,
                         c.max_samples_per_ray,
                         c.early_stop_transmittance,
+                        crate::fields::RENDER_ROUND,
                     );
                     rgb.copy_from_slice(&ws.color);
                     op.copy_from_slice(&ws.opacity);

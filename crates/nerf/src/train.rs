@@ -292,6 +292,7 @@ impl Trainer {
                     c.step_size,
                     c.max_samples_per_ray,
                     c.early_stop_transmittance,
+                    crate::fields::TRAIN_ROUND,
                 );
                 ws.backward(&nerf.field, &nerf.params, tg, b);
             });

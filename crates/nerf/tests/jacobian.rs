@@ -296,3 +296,93 @@ fn a_reused_ray_render_gives_the_one_call_jacobians_of_its_last_rays() {
     assert_eq!(r.jacobians(), once);
     assert!(once.d_origin.iter().any(|m| frob(m) > 0.5));
 }
+
+/// The density-only path of [`RayRender::jacobians_above`]: on a model whose colours do not
+/// depend on position (the colour net's geometry-feature weights zeroed), a sample's whole
+/// contribution to `∂C/∂o` is its density term, so taking every sample through the density
+/// path alone must give the full reverse pass's `∂C/∂o` (up to rounding).
+#[test]
+fn the_density_only_path_is_exact_when_colours_do_not_depend_on_position() {
+    let mut nerf = model().clone();
+    let (shape, range) = nerf.field.tensors[3].clone(); // color_net.0.weight [hidden, 16 + geo]
+    for row in nerf.params[range].chunks_exact_mut(shape[1]) {
+        row[16..].fill(0.0);
+    }
+    let rays = view_rays();
+    let mut r = nerf.ray_render();
+    r.render(&rays);
+    let (full, thin) = (r.jacobians(), r.jacobians_above(2.0));
+    let mut checked = 0;
+    for (i, (a, b)) in full.d_origin.iter().zip(&thin.d_origin).enumerate() {
+        let err = (0..9).map(|q| ((a[q / 3][q % 3] - b[q / 3][q % 3]) as f64).powi(2)).sum::<f64>().sqrt();
+        assert!(err <= 1e-4 * frob(a).max(1e-3), "ray {i}: full {a:?} vs density only {b:?}");
+        checked += (frob(a) > 0.1) as usize;
+    }
+    assert!(checked > 50, "only {checked} rays with a Jacobian to compare");
+}
+
+/// With a threshold, samples of little compositing weight lose only their colour's own change
+/// with position: on the trained model the pose Jacobians of the rays that hit the geometry
+/// stay within a few percent of the exact ones, and the threshold does change them (the cheap
+/// path ran). A threshold of 0 is the exact pass, bit for bit.
+#[test]
+fn a_weight_threshold_changes_the_jacobians_by_a_few_percent() {
+    let nerf = model();
+    let rays = view_rays();
+    let mut r = nerf.ray_render();
+    r.render(&rays);
+    let exact = r.jacobians();
+    assert_eq!(r.jacobians_above(0.0), exact);
+    let approx = r.jacobians_above(0.01);
+    let (mut errs, mut changed) = (Vec::new(), 0);
+    for i in (0..rays.len()).filter(|&i| exact.opacity[i] > 0.9) {
+        for (a, b) in [(&exact.d_origin[i], &approx.d_origin[i]), (&exact.d_direction[i], &approx.d_direction[i])] {
+            let err = (0..9).map(|q| ((a[q / 3][q % 3] - b[q / 3][q % 3]) as f64).powi(2)).sum::<f64>().sqrt();
+            changed += (err > 0.0) as usize;
+            errs.push(err / frob(a).max(1e-6));
+        }
+    }
+    errs.sort_by(f64::total_cmp);
+    let (median, p90) = (errs[errs.len() / 2], errs[errs.len() * 9 / 10]);
+    eprintln!("relative change: median {median:.1e}, p90 {p90:.1e}, max {:.1e}", errs[errs.len() - 1]);
+    assert!(changed > errs.len() / 10, "the threshold changed only {changed} of {} Jacobians", errs.len());
+    assert!(median < 0.05 && p90 < 0.15, "relative change median {median:.1e}, p90 {p90:.1e}");
+}
+
+/// Rendering marches in rounds of `RENDER_ROUND` samples, training in rounds of `TRAIN_ROUND`:
+/// a ray's colour, opacity and depth do not depend on the round (only how many samples past
+/// its termination get a density), bit for bit, and shorter rounds evaluate fewer samples.
+#[test]
+fn a_rays_render_does_not_depend_on_the_marching_round() {
+    use nerfsv_nerf::fields::ChunkWorkspace;
+    let nerf = model();
+    let rays = view_rays();
+    let c = &nerf.config;
+    let render = |round: usize| {
+        let mut ws = ChunkWorkspace::default();
+        let mut out = (Vec::new(), Vec::new(), Vec::new(), 0);
+        for chunk in rays.chunks(64) {
+            ws.forward(
+                &nerf.field,
+                &nerf.params,
+                chunk,
+                &nerf.grid,
+                c.step_size,
+                c.max_samples_per_ray,
+                c.early_stop_transmittance,
+                round,
+            );
+            out.0.extend_from_slice(&ws.color);
+            out.1.extend_from_slice(&ws.opacity);
+            out.2.extend_from_slice(&ws.depth);
+            out.3 += ws.n_samples();
+        }
+        out
+    };
+    let long = render(16);
+    for round in [1, 4] {
+        let short = render(round);
+        assert_eq!((&short.0, &short.1, &short.2), (&long.0, &long.1, &long.2), "round {round}");
+        assert!(short.3 < long.3, "round {round}: {} samples against {}", short.3, long.3);
+    }
+}

@@ -87,6 +87,14 @@ pub struct VisionConfig {
     /// update needs 30 % fewer renders, but the undisturbed GT-sim flight of the default scene,
     /// whose clearance is only 2 cm, then grazes the central stone (−2.4 mm at step 3).
     pub stop_step: [f64; 2],
+    /// Samples whose compositing weight is below this enter the pose Jacobians through their
+    /// density only ([`RayRender::jacobians_above`]): their own colour's change with position
+    /// is weighted by at most this. 0 (default) differentiates every sample in full. 0.01
+    /// makes the reverse pass ≈ 20–25 % cheaper with the same accuracy on NeRF images (24 of 36
+    /// 5 cm / 3° cases within 1 cm / 0.5°, 25 with 0), but the undisturbed GT-sim vision flight
+    /// of the default scene then ends 0.24 m from its goal instead of 0.05 m: that flight's
+    /// estimate drifts 5–13 cm per step and which way it ends is decided by small changes.
+    pub jacobian_min_weight: f64,
 }
 
 impl Default for VisionConfig {
@@ -102,6 +110,7 @@ impl Default for VisionConfig {
             velocity_gain: 0.5,
             images_per_step: 1,
             stop_step: [0.0, 0.0],
+            jacobian_min_weight: 0.0,
         }
     }
 }
@@ -119,7 +128,8 @@ impl VisionConfig {
         in_range("velocity_gain", self.velocity_gain, 0.0, 1.0)?;
         in_range("images_per_step", self.images_per_step, 1, 1000)?;
         non_negative("stop_step[0]", self.stop_step[0])?;
-        non_negative("stop_step[1]", self.stop_step[1])
+        non_negative("stop_step[1]", self.stop_step[1])?;
+        in_range("jacobian_min_weight", self.jacobian_min_weight, 0.0, 1.0)
     }
 }
 
@@ -333,7 +343,7 @@ pub fn refine_pose(
         }
         let jac = jacobian.get_or_insert_with(|| {
             linearisations += 1;
-            pose_jacobians(&current.render.jacobians(), &current.rays)
+            pose_jacobians(&current.render.jacobians_above(cfg.jacobian_min_weight as f32), &current.rays)
         });
         let lin = linearise(&current, Some(jac), level);
         let mut a = lin.h;

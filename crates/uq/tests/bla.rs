@@ -111,6 +111,27 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
         let evidence = -0.5 * quad - 0.5 * c_logdet - 0.5 * m as f64 * (2.0 * std::f64::consts::PI).ln();
 
         let theta0 = vec![0.3; p];
+        // One step is eq. 9 exactly: θ₁ = θ₀ − (H + λI)⁻¹ g, g = Aᵀ(Aθ₀ − y)/σ² + αθ₀.
+        let damped: Vec<Vec<f64>> = (0..p)
+            .map(|i| {
+                (0..p)
+                    .map(|j| {
+                        (0..m).map(|k| model.a[k][i] * model.a[k][j]).sum::<f64>() / var
+                            + if i == j { alpha + cfg.lm_damping } else { 0.0 }
+                    })
+                    .collect()
+            })
+            .collect();
+        let (damped_inv, _) = inverse_logdet(damped);
+        let mut r0 = Vec::new();
+        model.residuals(&theta0, &mut r0);
+        let g: Vec<f64> =
+            (0..p).map(|i| (0..m).map(|k| model.a[k][i] * r0[k]).sum::<f64>() / var + alpha * theta0[i]).collect();
+        let one = lm_map(&mut model, &theta0, &UqConfig { lm_iterations: 1, ..cfg.clone() });
+        for i in 0..p {
+            let want = theta0[i] - (0..p).map(|j| damped_inv[i][j] * g[j]).sum::<f64>();
+            assert!((one.theta[i] - want).abs() < 1e-10, "m={m}: first step θ₁[{i}] {} vs {want}", one.theta[i]);
+        }
         let fit = lm_map(&mut model, &theta0, &cfg);
         let scale = mean.iter().map(|v| v.abs()).fold(0.0, f64::max);
         for i in 0..p {

@@ -131,7 +131,7 @@ fn composited_samples_rebuild_the_render_and_are_thread_count_independent() {
     assert!(a == b, "outputs differ between 1 and 2 threads");
     let (jac, samples) = a;
     assert_eq!(jac.samples, samples);
-    for i in 0..rs.len() {
+    for (i, ray) in rs.iter().enumerate() {
         assert_eq!(samples.rgb[i], [plain.rgb[3 * i], plain.rgb[3 * i + 1], plain.rgb[3 * i + 2]], "ray {i}");
         assert_eq!(samples.opacity[i], plain.opacity[i]);
         assert_eq!(samples.distance[i], plain.distance[i]);
@@ -139,7 +139,7 @@ fn composited_samples_rebuild_the_render_and_are_thread_count_independent() {
         let a: f32 = w.iter().sum();
         assert!((a - samples.opacity[i]).abs() < 1e-5, "ray {i}: Σw {a} vs opacity {}", samples.opacity[i]);
         for ch in 0..3 {
-            let col: f32 = c.iter().zip(w).map(|(c, w)| c[ch] * w).sum::<f32>() + (1.0 - a) * rs[i].background[ch];
+            let col: f32 = c.iter().zip(w).map(|(c, w)| c[ch] * w).sum::<f32>() + (1.0 - a) * ray.background[ch];
             assert!((col - samples.rgb[i][ch]).abs() < 1e-5, "ray {i}: {col} vs {}", samples.rgb[i][ch]);
         }
     }

@@ -267,7 +267,8 @@ pub fn laplace_at<M: ResidualModel>(
     for i in 0..p {
         h[(i, i)] += alpha;
     }
-    let llt = Llt::new(h.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
+    let llt =
+        Llt::new(h.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
     let l = llt.L();
     let log_det_h = 2.0 * (0..p).map(|i| l[(i, i)].ln()).sum::<f64>();
     let covariance = llt.inverse();
@@ -369,10 +370,19 @@ pub fn bla_image(
     check_reference(image, rays.len(), reference)?;
     let theta0: Vec<f64> = nerf.sigma_net_params().iter().map(|&v| v as f64).collect();
     let mut model = nerf.clone();
-    let mut best: Option<(usize, MapFit, Vec<RayInput>, Vec<[f32; 3]>)> = None;
+    // (perturbation, its MAP, its rays and their references) of the lowest loss so far.
+    struct Kept {
+        perturbation: usize,
+        map: MapFit,
+        rays: Vec<RayInput>,
+        reference: Vec<[f32; 3]>,
+    }
+    let mut best: Option<Kept> = None;
     let mut perturbation_losses = Vec::new();
     for k in 0..cfg.perturbations {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.seed ^ (0xB1A0_0000 + k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            cfg.seed ^ (0xB1A0_0000 + k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        );
         let jittered: Vec<RayInput> = rays.iter().map(|r| RayInput { jitter: rng.random::<f32>(), ..*r }).collect();
         let samples = nerf.render_rays_samples(&jittered);
         let hit: Vec<usize> = (0..rays.len()).filter(|&i| !samples.ray(i).1.is_empty()).collect();
@@ -387,11 +397,11 @@ pub fn bla_image(
         let fit = lm_map(&mut res, &theta0, cfg);
         let NerfResiduals { rays: sel_rays, reference: sel_ref, .. } = res;
         perturbation_losses.push(fit.loss);
-        if best.as_ref().is_none_or(|b| fit.loss < b.1.loss) {
-            best = Some((k, fit, sel_rays, sel_ref));
+        if best.as_ref().is_none_or(|b| fit.loss < b.map.loss) {
+            best = Some(Kept { perturbation: k, map: fit, rays: sel_rays, reference: sel_ref });
         }
     }
-    let Some((perturbation, map, sel_rays, sel_ref)) = best else {
+    let Some(Kept { perturbation, map, rays: sel_rays, reference: sel_ref }) = best else {
         unreachable!("at least one perturbation (validated)")
     };
     let n_rays = sel_rays.len();

@@ -50,8 +50,8 @@ impl GaRay {
         for (c, &w) in colours.iter().zip(weights) {
             let w = w as f64;
             opacity += w;
-            for ch in 0..3 {
-                let cw = c[ch] as f64 * w;
+            for (ch, &cc) in c.iter().enumerate() {
+                let cw = cc as f64 * w;
                 out.m[ch] += cw;
                 out.s[ch] += cw * cw;
             }
@@ -99,8 +99,7 @@ impl GaFit {
         self.standardized
             .iter()
             .map(|z| {
-                let (sum, n) =
-                    z.iter().filter(|v| !v.is_nan()).fold((0.0f32, 0u32), |(s, n), &v| (s + v * v, n + 1));
+                let (sum, n) = z.iter().filter(|v| !v.is_nan()).fold((0.0f32, 0u32), |(s, n), &v| (s + v * v, n + 1));
                 if n == 0 {
                     f32::NAN
                 } else {

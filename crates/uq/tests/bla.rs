@@ -2,6 +2,9 @@
 //! the exact evidence of that model, monotone Levenberg–Marquardt with λ = 0.01 (on a
 //! nonlinear model and on a NeRF), and the whole per-image method on a small NeRF.
 
+// Dense-matrix oracles read best as index loops.
+#![allow(clippy::needless_range_loop)]
+
 mod common;
 
 use faer::Mat;
@@ -89,7 +92,8 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
             .map(|i| {
                 (0..p)
                     .map(|j| {
-                        (0..m).map(|k| model.a[k][i] * model.a[k][j]).sum::<f64>() / var + if i == j { alpha } else { 0.0 }
+                        (0..m).map(|k| model.a[k][i] * model.a[k][j]).sum::<f64>() / var
+                            + if i == j { alpha } else { 0.0 }
                     })
                     .collect()
             })
@@ -101,7 +105,8 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
             .map(|i| {
                 (0..m)
                     .map(|j| {
-                        (0..p).map(|k| model.a[i][k] * model.a[j][k]).sum::<f64>() / alpha + if i == j { var } else { 0.0 }
+                        (0..p).map(|k| model.a[i][k] * model.a[j][k]).sum::<f64>() / alpha
+                            + if i == j { var } else { 0.0 }
                     })
                     .collect()
             })
@@ -149,7 +154,11 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
         assert!((lap.normalized_trace - trace / p as f64).abs() < 1e-12 * trace);
         assert!((lap.rmv - (trace / p as f64).sqrt()).abs() < 1e-12);
         assert_eq!(lap.residuals, m);
-        assert!((lap.log_evidence - evidence).abs() < 1e-8 * evidence.abs(), "m={m}: {} vs {evidence}", lap.log_evidence);
+        assert!(
+            (lap.log_evidence - evidence).abs() < 1e-8 * evidence.abs(),
+            "m={m}: {} vs {evidence}",
+            lap.log_evidence
+        );
     }
 }
 
@@ -209,7 +218,13 @@ fn levenberg_marquardt_with_lambda_0_01_decreases_the_loss_monotonically() {
     let x: Vec<f64> = (0..60).map(|k| k as f64 / 20.0).collect();
     let y = x.iter().map(|x| (0.7 * x).exp() + 1.5 * (2.0 * x).sin()).collect();
     let mut model = Curved { x, y };
-    let cfg = UqConfig { prior_precision: 1e-3, noise_std: 0.1, lm_iterations: 60, lm_tolerance: 1e-12, ..UqConfig::default() };
+    let cfg = UqConfig {
+        prior_precision: 1e-3,
+        noise_std: 0.1,
+        lm_iterations: 60,
+        lm_tolerance: 1e-12,
+        ..UqConfig::default()
+    };
     assert_eq!(cfg.lm_damping, 0.01);
     let fit = lm_map(&mut model, &[1.4, -1.0, 1.2], &cfg);
     assert!(fit.losses.len() >= 5, "{:?}", fit.losses);
@@ -250,7 +265,8 @@ fn bla_of_a_nerf_image_keeps_the_lowest_loss_perturbation_and_a_positive_definit
     let nerf = common::tiny_nerf();
     let rays = common::view_rays(12);
     let reference = shifted_reference(&rays);
-    let cfg = UqConfig { max_rays: 60, lm_iterations: 3, prior_precision_grid: vec![0.1, 1.0, 10.0], ..UqConfig::default() };
+    let cfg =
+        UqConfig { max_rays: 60, lm_iterations: 3, prior_precision_grid: vec![0.1, 1.0, 10.0], ..UqConfig::default() };
     let fit = bla_image(&nerf, "r_3", &rays, &reference, &cfg).unwrap();
     assert_eq!(fit.perturbation_losses.len(), 3);
     let min = fit.perturbation_losses.iter().cloned().fold(f64::INFINITY, f64::min);
@@ -284,8 +300,10 @@ fn bla_refuses_bad_config_and_an_image_whose_rays_all_miss_naming_them() {
         let err = bla_image(&nerf, "r_0", &rays, &reference, &cfg).unwrap_err();
         assert!(matches!(err, UqError::Config(_)) && err.to_string().starts_with(key), "{err}");
     }
-    let away: Vec<_> =
-        rays.iter().map(|r| nerfsv_nerf::RayInput { origin: [0.0, 5.0, 0.0], direction: [0.0, 1.0, 0.0], ..*r }).collect();
+    let away: Vec<_> = rays
+        .iter()
+        .map(|r| nerfsv_nerf::RayInput { origin: [0.0, 5.0, 0.0], direction: [0.0, 1.0, 0.0], ..*r })
+        .collect();
     let err = bla_image(&nerf, "r_9", &away, &reference, &UqConfig::default()).unwrap_err();
     assert!(err.to_string().starts_with("r_9: all 16 rays miss"), "{err}");
 }

@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 #[serde(default, deny_unknown_fields)]
 pub struct UqConfig {
     /// GA: images whose fitted σ_d reaches this bound are excluded ("absolutely uncertain", the
-    /// paper's σ_d ≥ 3); σ_d ≤ 0 is always excluded ("absolutely certain").
+    /// paper's σ_d ≥ 3, the default); σ_d ≤ 0 is always excluded ("absolutely certain").
     pub ga_sigma_max: f64,
     /// BLA: precision α of the isotropic Gaussian prior N(0, α⁻¹·I) on the `sigma_net` weights
     /// (1/unit², default 1: about ten times the spread of torch's initialisation, ±1/√fan_in).
@@ -23,24 +23,26 @@ pub struct UqConfig {
     /// colour units (default 0.05, the RMS error of a NeRF at about 26 dB PSNR).
     pub noise_std: f64,
     /// BLA: the Levenberg–Marquardt damping λ of eq. 9 (the paper's 0.01). A rejected step
-    /// (loss not decreased) is retried with 10·λ; an accepted one resets λ towards this value.
+    /// (loss not decreased) is retried with 10·λ; an accepted one divides λ by 10, down to this
+    /// value.
     pub lm_damping: f64,
-    /// BLA: Levenberg–Marquardt iterations (Jacobian evaluations) per perturbation.
+    /// BLA: Levenberg–Marquardt iterations (Jacobian evaluations) per perturbation (default 5).
     pub lm_iterations: usize,
     /// BLA: the iteration stops when an accepted step lowers the loss by less than this
-    /// fraction of it.
+    /// fraction of it (default 1e-6).
     pub lm_tolerance: f64,
     /// BLA: spatial perturbations (the paper's n = 3): jittered copies of the sample positions,
-    /// each fitted to its MAP; the lowest-loss MAP is kept.
+    /// each fitted to its MAP; the lowest-loss MAP is kept (default 3).
     pub perturbations: usize,
     /// BLA: the rays of an image that enter the fit, at most (an even stride through those that
     /// composite at least one sample). Cost grows as rays²·P per step and rays·P² for the
-    /// covariance, with P = 3072 `sigma_net` weights.
+    /// covariance, with P = 3072 `sigma_net` weights (default 256).
     pub max_rays: usize,
-    /// BLA: seed of the perturbations' jitter (mixed with the perturbation's index).
+    /// BLA: seed of the perturbations' jitter (mixed with the perturbation's index; default 0).
     pub seed: u64,
     /// BLA: when not empty, the prior precisions among which the Laplace log marginal
-    /// likelihood (at the MAP found with `prior_precision`) picks the one the covariance uses.
+    /// likelihood (at the MAP found with `prior_precision`) picks the one the covariance uses
+    /// (default empty: `prior_precision` is used).
     pub prior_precision_grid: Vec<f64>,
 }
 

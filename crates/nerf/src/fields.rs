@@ -280,7 +280,7 @@ pub struct ChunkWorkspace {
     pub dt: Vec<f32>,
     /// `[n, 3]` positions in box coordinates `[0,1]`.
     pub pos: Vec<f32>,
-    enc: Vec<f32>,
+    pub(crate) enc: Vec<f32>,
     pub(crate) h0: Vec<f32>,
     pub(crate) out0: Vec<f32>,
     /// `[n]` densities (1/m).

@@ -512,7 +512,7 @@ impl Nerf {
     }
 
     /// [`ChunkWorkspace::forward`] with the rendering settings of this model.
-    fn forward_chunk(&self, ws: &mut ChunkWorkspace, rays: &[RayInput]) {
+    pub(crate) fn forward_chunk(&self, ws: &mut ChunkWorkspace, rays: &[RayInput]) {
         let c = &self.config;
         ws.forward(
             &self.field,

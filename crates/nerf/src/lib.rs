@@ -11,7 +11,9 @@
 //! layers), [`fields`] (`NgpField` and the fused chunk kernels), [`model_components`]
 //! (occupancy grid, ray sampler, volume renderer, losses), [`optim`] (Adam), [`checkpoint`],
 //! [`train`](mod@train), [`render`], [`jacobian`] (rendered colour's derivatives with respect to
-//! ray origin and direction, for pose refinement), [`metrics`].
+//! ray origin and direction, for pose refinement), [`param_jacobian`] (composited samples and
+//! the derivatives of colour and distance with respect to the `sigma_net` weights, for the
+//! uncertainty stage), [`metrics`].
 //!
 //! # Parameters and checkpoints
 //! All parameters are one flat vector, the concatenation of torch-ngp's tensors
@@ -55,6 +57,7 @@ pub mod metrics;
 pub mod model;
 pub mod model_components;
 pub mod optim;
+pub mod param_jacobian;
 pub mod render;
 pub mod train;
 
@@ -64,6 +67,7 @@ pub use fields::RayInput;
 pub use jacobian::RayJacobians;
 pub use metrics::{evaluate, evaluate_with_progress, psnr, ssim, EvalOptions, EvalReport, ImageMetrics};
 pub use model::{Nerf, RayOutputs};
+pub use param_jacobian::{RaySamples, SigmaNetJacobians};
 pub use render::{comparison_image, render_split, RenderedView};
 pub use train::{
     check_bounds, checkpoint_path, train, train_stats_path, Budget, Progress, StepStats, TrainStats, Trainer,

@@ -1,0 +1,67 @@
+//! Uncertainty quantification per 100×100 image: the Gaussian approximation (render with the
+//! composited samples, closed-form fit) and the Bayesian Laplace approximation (3 perturbations
+//! of Levenberg–Marquardt on the `sigma_net` weights, then the dense 3072² covariance by
+//! Cholesky), with the default `UqConfig`.
+//!
+//! Uses the trained model and the first test view of `NERFSV_BENCH_RUN` (default
+//! `runs/stonehenge`, made by `cargo run --release -- run`); without one, a freshly initialised
+//! model and a grey reference. `cargo bench --bench uq`.
+
+use std::path::PathBuf;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use nalgebra::{Point3, Vector3};
+use nerfsv_dataset::{load_split, LoadOptions};
+use nerfsv_nerf::render::camera_rays;
+use nerfsv_nerf::{Nerf, NerfConfig};
+use nerfsv_scene::{Camera, Intrinsics};
+use nerfsv_uq::{bla_image, ga_image, UqConfig};
+
+fn uq(c: &mut Criterion) {
+    std::env::set_var("MATMUL_NUM_THREADS", "1");
+    let run = std::env::var_os("NERFSV_BENCH_RUN").map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
+    let bg = [1.0f32; 3];
+    let trained = Nerf::load(&run.join("nerf/checkpoint.safetensors"))
+        .ok()
+        .zip(load_split(&run.join("dataset"), "test", LoadOptions::default()).ok());
+    let (nerf, rays, reference) = match trained {
+        Some((nerf, test)) => {
+            let f = &test.frames[0];
+            eprintln!("uq: {} and its test view {}", run.display(), f.file_path);
+            let reference: Vec<[f32; 3]> =
+                f.image.rgba.chunks_exact(4).map(|p| [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))).collect();
+            (nerf, camera_rays(&f.camera, bg), reference)
+        }
+        None => {
+            eprintln!("uq: no trained run at {} (set NERFSV_BENCH_RUN): a fresh model", run.display());
+            let nerf = Nerf::new(NerfConfig::default(), 0).expect("model");
+            let k = Intrinsics::from_fov_x(100, 100, 0.8);
+            let cam = Camera::look_at(Point3::new(2.5, -2.5, 1.5), Point3::new(0.0, 0.0, 0.2), Vector3::z(), k);
+            let rays = camera_rays(&cam, bg);
+            let n = rays.len();
+            (nerf, rays, vec![[0.5; 3]; n])
+        }
+    };
+    let cfg = UqConfig::default();
+    let ga = ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max).expect("GA");
+    eprintln!("uq: {} rays; GA μ_d {:.4} σ_d {:.4} ({} terms)", rays.len(), ga.mu_d, ga.sigma_d, ga.terms);
+    let t = std::time::Instant::now();
+    let bla = bla_image(&nerf, "bench", &rays, &reference, &cfg).expect("BLA");
+    eprintln!(
+        "uq: BLA {:.2} s: {} rays, losses {:?}, LM path {:?}, trace/P {:.4e}, rmv {:.4e}",
+        t.elapsed().as_secs_f64(),
+        bla.rays,
+        bla.perturbation_losses,
+        bla.map.losses,
+        bla.laplace.normalized_trace,
+        bla.laplace.rmv
+    );
+    let mut g = c.benchmark_group("uq");
+    g.bench_function("ga_100x100", |b| b.iter(|| ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max)));
+    g.sample_size(10);
+    g.bench_function("bla_100x100", |b| b.iter(|| bla_image(&nerf, "bench", &rays, &reference, &cfg)));
+    g.finish();
+}
+
+criterion_group!(benches, uq);
+criterion_main!(benches);

@@ -1,0 +1,411 @@
+//! Bayesian Laplace approximation (BLA), the paper's eq. 4–9, over the `sigma_net` weights.
+//!
+//! With residuals `r(θ) ∈ ℝ^m` (rendered minus reference colour, per ray and channel),
+//! Gaussian noise of standard deviation σ_n and the prior `θ ~ N(0, α⁻¹·I)`, the negative log
+//! posterior is, up to a constant,
+//!
+//!   `L(θ) = ½·|r(θ)|²/σ_n² + ½·α·|θ|²`
+//!
+//! Its gradient is `g = Jᵀr/σ_n² + α·θ` and its Gauss–Newton Hessian
+//! `H = JᵀJ/σ_n² + α·I` (`J = ∂r/∂θ`, `[m, P]`; eq. 8 with the prior). The mode (eq. 7) is
+//! found by Levenberg–Marquardt, eq. 9: `θ ← θ − (H + λI)⁻¹·g`, λ = 0.01, a step kept only if
+//! it lowers `L` (else retried with 10·λ), so the loss never increases. The posterior is then
+//! `N(θ̂, Σ)`, `Σ = H(θ̂)⁻¹`, by a dense Cholesky factorisation (faer).
+//!
+//! Each step solves with `JᵀJ + c·I` (`c = (α + λ)·σ_n²`) on whichever side is smaller: when
+//! `m < P`, by the push-through identity
+//! `(JᵀJ + cI)⁻¹ = (I − Jᵀ(JJᵀ + cI)⁻¹J)/c`, an `m × m` factorisation instead of `P × P`.
+//!
+//! Summaries of Σ per image (both in the units of θ²):
+//! - **normalised trace** `tr(Σ)/P`, the mean posterior variance of a weight;
+//! - **root-mean-variance** `rmv = √(mean_p Σ_pp)`, its square root: the RMS posterior
+//!   standard deviation of a weight. (The two carry the same information; the paper's eq. 11
+//!   reward uses their product.)
+//!
+//! The Laplace log marginal likelihood (eq. 6 approximated at the mode),
+//!
+//!   `log p(y) ≈ −L(θ̂) − (m/2)·log(2π σ_n²) + (P/2)·log α − ½·log det H`,
+//!
+//! can choose α among a grid ([`UqConfig::prior_precision_grid`]); `log det H(α)` for every α
+//! comes from one eigen-decomposition of the Gram matrix, with the mode held at the one found
+//! with the configured α.
+
+use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
+use faer::linalg::solvers::{DenseSolveCore, Llt, Solve};
+use faer::{Accum, Mat, Par, Side};
+use nerfsv_nerf::{Nerf, RayInput};
+use rand::{RngExt, SeedableRng};
+
+use crate::ga::check_reference;
+use crate::{UqConfig, UqError};
+
+/// A least-squares model: residuals `r(θ)` and their Jacobian, the input of the BLA core.
+pub trait ResidualModel {
+    /// `P`, the number of parameters.
+    fn n_params(&self) -> usize;
+    /// Writes `r(θ)` (`[m]`) into `r` (resized to `m`).
+    fn residuals(&mut self, theta: &[f64], r: &mut Vec<f64>);
+    /// Writes `r(θ)` into `r` and `J = ∂r/∂θ` (`[m, P]`) into `jacobian` (resized).
+    fn residuals_and_jacobian(&mut self, theta: &[f64], r: &mut Vec<f64>, jacobian: &mut Mat<f64>);
+}
+
+/// `L(θ) = ½·|r|²/σ_n² + ½·α·|θ|²`, the negative log posterior up to a constant.
+pub fn neg_log_posterior(r: &[f64], theta: &[f64], prior_precision: f64, noise_std: f64) -> f64 {
+    let rr: f64 = r.iter().map(|v| v * v).sum();
+    let tt: f64 = theta.iter().map(|v| v * v).sum();
+    0.5 * rr / (noise_std * noise_std) + 0.5 * prior_precision * tt
+}
+
+/// The Levenberg–Marquardt path to the mode.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapFit {
+    /// `θ̂`, `[P]`.
+    pub theta: Vec<f64>,
+    /// `L(θ̂)`.
+    pub loss: f64,
+    /// `L` at the start and after every accepted step (strictly decreasing).
+    pub losses: Vec<f64>,
+    /// Steps rejected (loss not lowered) and retried with a larger damping.
+    pub rejected: usize,
+}
+
+/// Rejected steps retried (λ ×10 each) before the iteration gives up.
+const MAX_RETRIES: usize = 10;
+
+/// Solver of `(JᵀJ/σ_n² + β·I)·δ = g` for several β from one Gram matrix.
+struct StepSolver {
+    /// `JJᵀ` (`m < P`) or `JᵀJ` (lower triangle).
+    gram: Mat<f64>,
+    dual: bool,
+}
+
+impl StepSolver {
+    fn new(jac: &Mat<f64>) -> Self {
+        let (m, p) = (jac.nrows(), jac.ncols());
+        let dual = m < p;
+        let n = m.min(p);
+        let mut gram = Mat::zeros(n, n);
+        let (a, b) = if dual { (jac.as_ref(), jac.transpose()) } else { (jac.transpose(), jac.as_ref()) };
+        triangular_matmul(
+            gram.as_mut(),
+            BlockStructure::TriangularLower,
+            Accum::Replace,
+            a,
+            BlockStructure::Rectangular,
+            b,
+            BlockStructure::Rectangular,
+            1.0,
+            Par::rayon(0),
+        );
+        Self { gram, dual }
+    }
+
+    /// `δ = (JᵀJ/σ² + β·I)⁻¹·g`, or `None` if the factorisation fails (non-finite input).
+    fn solve(&self, jac: &Mat<f64>, g: &Mat<f64>, beta: f64, noise_var: f64) -> Option<Mat<f64>> {
+        let c = beta * noise_var;
+        let mut a = self.gram.clone();
+        for i in 0..a.nrows() {
+            a[(i, i)] += c;
+        }
+        let llt = Llt::new(a.as_ref(), Side::Lower).ok()?;
+        if self.dual {
+            // δ = (g − Jᵀ (JJᵀ + cI)⁻¹ J g) / β
+            let mut v = Mat::zeros(jac.nrows(), 1);
+            matmul(v.as_mut(), Accum::Replace, jac.as_ref(), g.as_ref(), 1.0, Par::rayon(0));
+            llt.solve_in_place(v.as_mut());
+            let mut d = g.clone();
+            matmul(d.as_mut(), Accum::Add, jac.transpose(), v.as_ref(), -1.0, Par::rayon(0));
+            Some(d * faer::Scale(1.0 / beta))
+        } else {
+            // δ = σ² (JᵀJ + cI)⁻¹ g
+            let mut d = g * faer::Scale(noise_var);
+            llt.solve_in_place(d.as_mut());
+            Some(d)
+        }
+    }
+}
+
+/// Levenberg–Marquardt (eq. 9) from `theta0` to the mode of the posterior of `model`:
+/// at most [`UqConfig::lm_iterations`] Jacobians, each followed by a step `δ = (H + λI)⁻¹·g`
+/// kept only if it lowers `L` (a rejected one is retried with 10·λ, up to 10 times; an
+/// accepted one divides λ by 10, down to [`UqConfig::lm_damping`]). Stops early when a step
+/// lowers `L` by less than [`UqConfig::lm_tolerance`] of it, or when no step does.
+pub fn lm_map<M: ResidualModel>(model: &mut M, theta0: &[f64], cfg: &UqConfig) -> MapFit {
+    let (alpha, var) = (cfg.prior_precision, cfg.noise_std * cfg.noise_std);
+    let p = model.n_params();
+    assert_eq!(theta0.len(), p, "θ has {} values, the model {p}", theta0.len());
+    let mut theta = theta0.to_vec();
+    let (mut r, mut r_try) = (Vec::new(), Vec::new());
+    let mut jac = Mat::zeros(0, 0);
+    let mut lambda = cfg.lm_damping;
+    let mut rejected = 0;
+    let mut losses = Vec::new();
+    let mut loss = f64::INFINITY;
+    for _ in 0..cfg.lm_iterations {
+        model.residuals_and_jacobian(&theta, &mut r, &mut jac);
+        if losses.is_empty() {
+            loss = neg_log_posterior(&r, &theta, alpha, cfg.noise_std);
+            losses.push(loss);
+            if !loss.is_finite() {
+                break;
+            }
+        }
+        // g = Jᵀr/σ² + αθ
+        let rc = Mat::from_fn(r.len(), 1, |i, _| r[i]);
+        let mut g = Mat::from_fn(p, 1, |i, _| alpha * theta[i]);
+        matmul(g.as_mut(), Accum::Add, jac.transpose(), rc.as_ref(), 1.0 / var, Par::rayon(0));
+        let solver = StepSolver::new(&jac);
+        let mut accepted = None;
+        for _ in 0..MAX_RETRIES {
+            let step = solver.solve(&jac, &g, alpha + lambda, var);
+            if let Some(d) = step {
+                let trial: Vec<f64> = (0..p).map(|i| theta[i] - d[(i, 0)]).collect();
+                model.residuals(&trial, &mut r_try);
+                let l = neg_log_posterior(&r_try, &trial, alpha, cfg.noise_std);
+                if l.is_finite() && l < loss {
+                    accepted = Some((trial, l));
+                    lambda = (lambda / 10.0).max(cfg.lm_damping);
+                    break;
+                }
+            }
+            rejected += 1;
+            lambda *= 10.0;
+        }
+        let Some((trial, l)) = accepted else { break };
+        let decrease = (loss - l) / loss.abs().max(f64::MIN_POSITIVE);
+        theta = trial;
+        loss = l;
+        losses.push(l);
+        if decrease < cfg.lm_tolerance {
+            break;
+        }
+    }
+    MapFit { theta, loss, losses, rejected }
+}
+
+/// The Gaussian posterior at a mode.
+#[derive(Clone, Debug)]
+pub struct Laplace {
+    /// `Σ = H(θ̂)⁻¹`, `[P, P]` (dense).
+    pub covariance: Mat<f64>,
+    /// The prior precision α that `H` (and so Σ) uses.
+    pub prior_precision: f64,
+    /// `tr(Σ)/P`.
+    pub normalized_trace: f64,
+    /// `√(mean diag Σ)`.
+    pub rmv: f64,
+    /// Laplace log marginal likelihood at that α (see the module docs).
+    pub log_evidence: f64,
+    /// `(α, log evidence)` for every α of [`UqConfig::prior_precision_grid`] (empty without one).
+    pub evidence_grid: Vec<(f64, f64)>,
+    /// `m`, residuals at the mode.
+    pub residuals: usize,
+}
+
+/// The Laplace approximation at the mode `theta` of `model`: `H = JᵀJ/σ_n² + α·I`, its
+/// Cholesky factor, `Σ = H⁻¹`, the summaries and the log evidence. With a non-empty
+/// [`UqConfig::prior_precision_grid`], α is the grid's value of highest evidence (the mode is
+/// not refitted).
+pub fn laplace_at<M: ResidualModel>(
+    image: &str,
+    model: &mut M,
+    theta: &[f64],
+    cfg: &UqConfig,
+) -> Result<Laplace, UqError> {
+    let var = cfg.noise_std * cfg.noise_std;
+    let p = model.n_params();
+    let mut r = Vec::new();
+    let mut jac = Mat::zeros(0, 0);
+    model.residuals_and_jacobian(theta, &mut r, &mut jac);
+    let m = r.len();
+    let rr: f64 = r.iter().map(|v| v * v).sum();
+    let tt: f64 = theta.iter().map(|v| v * v).sum();
+    if !rr.is_finite() || !tt.is_finite() {
+        return Err(UqError::NonFinite { image: image.to_string(), what: "the residuals at the mode" });
+    }
+    // log p(y | α) ≈ −½rr/σ² − ½α·tt − (m/2)·log(2πσ²) + (P/2)·log α − ½·log det H(α).
+    let evidence = |alpha: f64, log_det_h: f64| {
+        -0.5 * rr / var - 0.5 * alpha * tt - 0.5 * m as f64 * (2.0 * std::f64::consts::PI * var).ln()
+            + 0.5 * p as f64 * alpha.ln()
+            - 0.5 * log_det_h
+    };
+    let mut evidence_grid = Vec::new();
+    let mut alpha = cfg.prior_precision;
+    if !cfg.prior_precision_grid.is_empty() {
+        // Eigenvalues of the Gram matrix on its smaller side: the non-zero ones of JᵀJ.
+        let solver = StepSolver::new(&jac);
+        let eig = solver
+            .gram
+            .self_adjoint_eigenvalues(Side::Lower)
+            .map_err(|_| UqError::NonFinite { image: image.to_string(), what: "the Gram matrix" })?;
+        let k = eig.len();
+        let mut best = (f64::NEG_INFINITY, alpha);
+        for &a in &cfg.prior_precision_grid {
+            let log_det = eig.iter().map(|&e| (e.max(0.0) / var + a).ln()).sum::<f64>() + (p - k) as f64 * a.ln();
+            let e = evidence(a, log_det);
+            evidence_grid.push((a, e));
+            if e > best.0 {
+                best = (e, a);
+            }
+        }
+        alpha = best.1;
+    }
+    // H = JᵀJ/σ² + αI (lower triangle), Cholesky, Σ = H⁻¹.
+    let mut h = Mat::zeros(p, p);
+    triangular_matmul(
+        h.as_mut(),
+        BlockStructure::TriangularLower,
+        Accum::Replace,
+        jac.transpose(),
+        BlockStructure::Rectangular,
+        jac.as_ref(),
+        BlockStructure::Rectangular,
+        1.0 / var,
+        Par::rayon(0),
+    );
+    for i in 0..p {
+        h[(i, i)] += alpha;
+    }
+    let llt =
+        Llt::new(h.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
+    let l = llt.L();
+    let log_det_h = 2.0 * (0..p).map(|i| l[(i, i)].ln()).sum::<f64>();
+    let covariance = llt.inverse();
+    let trace: f64 = (0..p).map(|i| covariance[(i, i)]).sum();
+    let normalized_trace = trace / p as f64;
+    if !normalized_trace.is_finite() {
+        return Err(UqError::NonFinite { image: image.to_string(), what: "the posterior covariance" });
+    }
+    Ok(Laplace {
+        covariance,
+        prior_precision: alpha,
+        normalized_trace,
+        rmv: normalized_trace.sqrt(),
+        log_evidence: evidence(alpha, log_det_h),
+        evidence_grid,
+        residuals: m,
+    })
+}
+
+/// Residuals of a NeRF's rendered colours against reference colours, as functions of the
+/// `sigma_net` weights: `r[3i + c] = render(ray i)_c − reference_i,c`. Holds the model it sets
+/// the weights of.
+pub struct NerfResiduals<'a> {
+    nerf: &'a mut Nerf,
+    rays: Vec<RayInput>,
+    reference: Vec<[f32; 3]>,
+}
+
+impl<'a> NerfResiduals<'a> {
+    /// `rays` and their `reference` colours (same length).
+    pub fn new(nerf: &'a mut Nerf, rays: Vec<RayInput>, reference: Vec<[f32; 3]>) -> Self {
+        assert_eq!(rays.len(), reference.len());
+        Self { nerf, rays, reference }
+    }
+
+    fn set(&mut self, theta: &[f64]) {
+        for (w, &t) in self.nerf.sigma_net_params_mut().iter_mut().zip(theta) {
+            *w = t as f32;
+        }
+    }
+}
+
+impl ResidualModel for NerfResiduals<'_> {
+    fn n_params(&self) -> usize {
+        self.nerf.field.sigma_net_range().len()
+    }
+
+    fn residuals(&mut self, theta: &[f64], r: &mut Vec<f64>) {
+        self.set(theta);
+        let out = self.nerf.render_rays(&self.rays);
+        r.clear();
+        r.extend(out.rgb.iter().zip(self.reference.iter().flatten()).map(|(&c, &t)| c as f64 - t as f64));
+    }
+
+    fn residuals_and_jacobian(&mut self, theta: &[f64], r: &mut Vec<f64>, jacobian: &mut Mat<f64>) {
+        self.set(theta);
+        let out = self.nerf.render_rays_sigma_jacobian(&self.rays);
+        r.clear();
+        for (c, t) in out.samples.rgb.iter().zip(&self.reference) {
+            r.extend((0..3).map(|ch| c[ch] as f64 - t[ch] as f64));
+        }
+        let p = out.n_params;
+        *jacobian = Mat::from_fn(r.len(), p, |row, col| out.ray(row / 3)[(row % 3) * p + col] as f64);
+    }
+}
+
+/// The BLA of one image.
+#[derive(Clone, Debug)]
+pub struct BlaFit {
+    /// The kept (lowest-loss) MAP.
+    pub map: MapFit,
+    /// Which perturbation it came from, and every perturbation's final loss.
+    pub perturbation: usize,
+    pub perturbation_losses: Vec<f64>,
+    /// Rays fitted (those compositing a sample, at most [`UqConfig::max_rays`]).
+    pub rays: usize,
+    /// The posterior at the kept MAP.
+    pub laplace: Laplace,
+}
+
+/// The BLA of one image: for each of [`UqConfig::perturbations`] jittered copies of the
+/// sample positions (per-ray lattice offset `U[0, 1)` steps, seeded by
+/// `(UqConfig::seed, perturbation)`), the rays that composite a sample (at most
+/// [`UqConfig::max_rays`], an even stride through them) are fitted from the trained weights to
+/// their MAP; the lowest-loss MAP is kept and the Laplace approximation taken there.
+///
+/// `rays` are the image's pixel rays (their `jitter` is replaced) and `reference` their
+/// colours on the same backgrounds. Rays without samples have residuals that no weight
+/// changes, so leaving them out changes neither the mode nor the Hessian. `nerf` is cloned
+/// once (its weights are varied on the copy).
+pub fn bla_image(
+    nerf: &Nerf,
+    image: &str,
+    rays: &[RayInput],
+    reference: &[[f32; 3]],
+    cfg: &UqConfig,
+) -> Result<BlaFit, UqError> {
+    cfg.validate().map_err(|e| e.within("uq"))?;
+    check_reference(image, rays.len(), reference)?;
+    let theta0: Vec<f64> = nerf.sigma_net_params().iter().map(|&v| v as f64).collect();
+    let mut model = nerf.clone();
+    // (perturbation, its MAP, its rays and their references) of the lowest loss so far.
+    struct Kept {
+        perturbation: usize,
+        map: MapFit,
+        rays: Vec<RayInput>,
+        reference: Vec<[f32; 3]>,
+    }
+    let mut best: Option<Kept> = None;
+    let mut perturbation_losses = Vec::new();
+    for k in 0..cfg.perturbations {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            cfg.seed ^ (0xB1A0_0000 + k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        );
+        let jittered: Vec<RayInput> = rays.iter().map(|r| RayInput { jitter: rng.random::<f32>(), ..*r }).collect();
+        let samples = nerf.render_rays_samples(&jittered);
+        let hit: Vec<usize> = (0..rays.len()).filter(|&i| !samples.ray(i).1.is_empty()).collect();
+        if hit.is_empty() {
+            return Err(UqError::AllRaysMiss { image: image.to_string(), rays: rays.len() });
+        }
+        let n = hit.len().min(cfg.max_rays);
+        let pick: Vec<usize> = (0..n).map(|q| hit[q * hit.len() / n]).collect();
+        let sel_rays: Vec<RayInput> = pick.iter().map(|&i| jittered[i]).collect();
+        let sel_ref: Vec<[f32; 3]> = pick.iter().map(|&i| reference[i]).collect();
+        let mut res = NerfResiduals::new(&mut model, sel_rays, sel_ref);
+        let fit = lm_map(&mut res, &theta0, cfg);
+        let NerfResiduals { rays: sel_rays, reference: sel_ref, .. } = res;
+        perturbation_losses.push(fit.loss);
+        if best.as_ref().is_none_or(|b| fit.loss < b.map.loss) {
+            best = Some(Kept { perturbation: k, map: fit, rays: sel_rays, reference: sel_ref });
+        }
+    }
+    let Some(Kept { perturbation, map, rays: sel_rays, reference: sel_ref }) = best else {
+        unreachable!("at least one perturbation (validated)")
+    };
+    let n_rays = sel_rays.len();
+    let mut res = NerfResiduals::new(&mut model, sel_rays, sel_ref);
+    let laplace = laplace_at(image, &mut res, &map.theta, cfg)?;
+    Ok(BlaFit { map, perturbation, perturbation_losses, rays: n_rays, laplace })
+}

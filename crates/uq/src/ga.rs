@@ -1,0 +1,231 @@
+//! Gaussian approximation (GA), the paper's eq. 2–3, summed over every ray and colour channel
+//! of an image.
+//!
+//! A ray's colour is modelled as the composite of its samples with a density scale drawn per
+//! image, `r ~ N(μ_d·m, σ_d²·s)` with `m = Σ_i c_i d_i` and `s = Σ_i c_i² d_i²` (`c_i` the
+//! sample colours, `d_i` their compositing weights, per channel). The negative log-likelihood
+//! of an image, up to constants, is eq. 2 summed over its `N` (ray, channel) terms with `s > 0`:
+//!
+//!   `f(μ, σ) = Σ_k [ log(s_k σ²) + (r_k − μ m_k)² / (s_k σ²) ]`
+//!
+//! The paper minimises one ray's term, which has no finite optimum (`σ → 0` drives it to −∞
+//! whenever `r = μ m` can be met). Summed over the image it is a weighted least-squares problem
+//! with the closed-form optimum
+//!
+//!   `μ̂ = Σ(r m / s) / Σ(m² / s)`,   `σ̂² = (1/N)·Σ (r − μ̂ m)² / s`
+//!
+//! (`∂f/∂μ = 0` is linear in μ for any σ; then `∂f/∂σ² = 0`). [`GaFit`] reports σ_d = σ̂ and
+//! μ_d = μ̂, the paper's exclusions (σ_d ≤ 0: "absolutely certain", σ_d ≥ 3: "absolutely
+//! uncertain") and the standardised residual `z_k = (r_k − μ̂ m_k)/(σ̂ √s_k)` of every pixel and
+//! channel (mean square 1 over the image by construction).
+//!
+//! Rays that composite no sample (they miss the box or cross only empty occupancy cells) have
+//! `s = 0` and no information about the density scale: they are left out of the fit, counted,
+//! and get a NaN residual. Colour that does not come from samples, the background seen through
+//! the remaining transmittance `T = 1 − Σ_i d_i`, is subtracted from the reference first:
+//! `r = reference − T·background`.
+
+use nerfsv_nerf::{Nerf, RayInput};
+use rayon::prelude::*;
+
+use crate::UqError;
+
+/// One ray's GA inputs, per colour channel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GaRay {
+    /// `m = Σ_i c_i d_i`.
+    pub m: [f64; 3],
+    /// `s = Σ_i c_i² d_i²` (0 for a ray without samples).
+    pub s: [f64; 3],
+    /// The colour the samples must explain: reference minus the background term.
+    pub r: [f64; 3],
+}
+
+impl GaRay {
+    /// From a ray's composited samples (`colours: [k, 3]`, `weights: [k]`), its reference colour
+    /// and its background.
+    pub fn from_samples(colours: &[[f32; 3]], weights: &[f32], reference: [f32; 3], background: [f32; 3]) -> Self {
+        let mut out = Self::default();
+        let mut opacity = 0.0f64;
+        for (c, &w) in colours.iter().zip(weights) {
+            let w = w as f64;
+            opacity += w;
+            for (ch, &cc) in c.iter().enumerate() {
+                let cw = cc as f64 * w;
+                out.m[ch] += cw;
+                out.s[ch] += cw * cw;
+            }
+        }
+        for ch in 0..3 {
+            out.r[ch] = reference[ch] as f64 - (1.0 - opacity) * background[ch] as f64;
+        }
+        out
+    }
+}
+
+/// Why an image is left out of the paper's statistics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum GaExclusion {
+    /// σ_d ≤ 0: the samples explain the image exactly.
+    AbsolutelyCertain,
+    /// σ_d ≥ the bound (3 by default).
+    AbsolutelyUncertain,
+}
+
+/// The GA optimum of one image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GaFit {
+    /// μ_d: the density scale that best explains the image (1 when the render matches).
+    pub mu_d: f64,
+    /// σ_d ≥ 0: its standard deviation.
+    pub sigma_d: f64,
+    /// `f(μ_d, σ_d)`, eq. 2 summed over the terms (−∞ when σ_d = 0).
+    pub objective: f64,
+    /// `N`, the (ray, channel) terms with `s > 0`.
+    pub terms: usize,
+    /// Rays without any composited sample, left out.
+    pub rays_without_samples: usize,
+    /// The paper's exclusion, if any.
+    pub excluded: Option<GaExclusion>,
+    /// `[r]` standardised residuals `(r − μ_d m)/(σ_d √s)` per ray and channel; NaN where
+    /// `s = 0`, 0 everywhere when σ_d = 0.
+    pub standardized: Vec<[f32; 3]>,
+}
+
+impl GaFit {
+    /// `[r]` the per-pixel uncertainty map: the root mean square of the standardised residuals
+    /// over the pixel's channels with `s > 0` (NaN for a pixel without samples).
+    pub fn pixel_rms(&self) -> Vec<f32> {
+        self.standardized
+            .iter()
+            .map(|z| {
+                let (sum, n) = z.iter().filter(|v| !v.is_nan()).fold((0.0f32, 0u32), |(s, n), &v| (s + v * v, n + 1));
+                if n == 0 {
+                    f32::NAN
+                } else {
+                    (sum / n as f32).sqrt()
+                }
+            })
+            .collect()
+    }
+}
+
+/// Eq. 2 summed over every term with `s > 0`, at `(μ, σ)`.
+pub fn ga_objective(rays: &[GaRay], mu: f64, sigma: f64) -> f64 {
+    let v = sigma * sigma;
+    let mut f = 0.0;
+    for ray in rays {
+        for ch in 0..3 {
+            let s = ray.s[ch];
+            if s > 0.0 {
+                let e = ray.r[ch] - mu * ray.m[ch];
+                f += (s * v).ln() + e * e / (s * v);
+            }
+        }
+    }
+    f
+}
+
+/// The closed-form GA optimum of an image's rays (see the module docs). `image` names it in
+/// errors; images with `σ_d ≥ sigma_max` or `σ_d ≤ 0` are flagged, not refused.
+///
+/// Errors: [`UqError::AllRaysMiss`] when no ray has a sample, [`UqError::NonFinite`] when the
+/// inputs are not finite.
+pub fn ga_fit(image: &str, rays: &[GaRay], sigma_max: f64) -> Result<GaFit, UqError> {
+    // Pass 1: μ̂ = Σ(r m/s) / Σ(m²/s).
+    let (mut num, mut den, mut terms, mut without) = (0.0f64, 0.0f64, 0usize, 0usize);
+    for ray in rays {
+        if ray.s.iter().all(|&s| s <= 0.0) {
+            without += 1;
+        }
+        for ch in 0..3 {
+            let s = ray.s[ch];
+            if s > 0.0 {
+                num += ray.r[ch] * ray.m[ch] / s;
+                den += ray.m[ch] * ray.m[ch] / s;
+                terms += 1;
+            }
+        }
+    }
+    if terms == 0 {
+        return Err(UqError::AllRaysMiss { image: image.to_string(), rays: rays.len() });
+    }
+    let mu = num / den;
+    if !mu.is_finite() {
+        return Err(UqError::NonFinite { image: image.to_string(), what: "μ_d" });
+    }
+    // Pass 2: σ̂² = mean of (r − μ̂ m)²/s, and Σ log s for the objective.
+    let (mut ss, mut log_s) = (0.0f64, 0.0f64);
+    for ray in rays {
+        for ch in 0..3 {
+            let s = ray.s[ch];
+            if s > 0.0 {
+                let e = ray.r[ch] - mu * ray.m[ch];
+                ss += e * e / s;
+                log_s += s.ln();
+            }
+        }
+    }
+    let var = ss / terms as f64;
+    let sigma = var.sqrt();
+    if !sigma.is_finite() {
+        return Err(UqError::NonFinite { image: image.to_string(), what: "σ_d" });
+    }
+    let objective = if var > 0.0 { log_s + terms as f64 * (var.ln() + 1.0) } else { f64::NEG_INFINITY };
+    let standardized = rays
+        .iter()
+        .map(|ray| {
+            [0, 1, 2].map(|ch| {
+                let s = ray.s[ch];
+                if s <= 0.0 {
+                    f32::NAN
+                } else if sigma == 0.0 {
+                    0.0
+                } else {
+                    ((ray.r[ch] - mu * ray.m[ch]) / (sigma * s.sqrt())) as f32
+                }
+            })
+        })
+        .collect();
+    let excluded = if sigma <= 0.0 {
+        Some(GaExclusion::AbsolutelyCertain)
+    } else if sigma >= sigma_max {
+        Some(GaExclusion::AbsolutelyUncertain)
+    } else {
+        None
+    };
+    Ok(GaFit { mu_d: mu, sigma_d: sigma, objective, terms, rays_without_samples: without, excluded, standardized })
+}
+
+/// Renders `rays` (one per pixel, each with its background) and fits the GA to the image's
+/// `reference` colours (`[r]`, straight colour already composited on the same backgrounds).
+/// Rendering is parallel over rays (rayon); the fit is two passes over the rays.
+pub fn ga_image(
+    nerf: &Nerf,
+    image: &str,
+    rays: &[RayInput],
+    reference: &[[f32; 3]],
+    sigma_max: f64,
+) -> Result<GaFit, UqError> {
+    check_reference(image, rays.len(), reference)?;
+    let samples = nerf.render_rays_samples(rays);
+    let ga_rays: Vec<GaRay> = (0..rays.len())
+        .into_par_iter()
+        .map(|i| {
+            let (c, w) = samples.ray(i);
+            GaRay::from_samples(c, w, reference[i], rays[i].background)
+        })
+        .collect();
+    ga_fit(image, &ga_rays, sigma_max)
+}
+
+/// Rays and references pair up and every reference is finite.
+pub(crate) fn check_reference(image: &str, rays: usize, reference: &[[f32; 3]]) -> Result<(), UqError> {
+    if rays != reference.len() {
+        return Err(UqError::LengthMismatch { image: image.to_string(), rays, references: reference.len() });
+    }
+    if let Some((pixel, value)) = reference.iter().enumerate().find(|(_, c)| c.iter().any(|v| !v.is_finite())) {
+        return Err(UqError::NonFiniteReference { image: image.to_string(), pixel, value: *value });
+    }
+    Ok(())
+}

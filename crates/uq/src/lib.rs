@@ -1,0 +1,44 @@
+//! How far a trained NeRF can be trusted, image by image and pixel by pixel: the two methods of
+//! the paper, done so that they have finite, data-dependent answers.
+//!
+//! - [`ga`]: the **Gaussian approximation** (eq. 2–3). Per image, a density scale
+//!   `μ_d ± σ_d` that explains the reference colours from the rendered samples
+//!   (`r ~ N(μ_d·Σc_i d_i, σ_d²·Σc_i² d_i²)` per ray and channel), fitted in closed form over
+//!   every ray and channel of the image; the paper's exclusions (σ_d ≤ 0, σ_d ≥ 3) and a
+//!   per-pixel map of standardised residuals.
+//! - [`bla`]: the **Bayesian Laplace approximation** (eq. 4–9) over the 3072 `sigma_net`
+//!   weights: Levenberg–Marquardt (λ = 0.01) from the trained weights to the MAP of the image's
+//!   colours under a Gaussian prior, over n = 3 jittered copies of the sample positions keeping
+//!   the lowest-loss MAP, then the dense posterior covariance `(JᵀJ/σ_n² + α·I)⁻¹` by Cholesky
+//!   (faer), summarised by its normalised trace and root-mean-variance.
+//!
+//! Both read the model through [`nerfsv_nerf::param_jacobian`] (composited samples, and the
+//! Jacobian of each ray's colour with respect to the `sigma_net` weights). The BLA core
+//! ([`bla::lm_map`], [`bla::laplace_at`]) is generic over a [`bla::ResidualModel`], so it is
+//! tested on models whose posterior is known in closed form.
+//!
+//! # Example
+//! ```no_run
+//! # fn f(nerf: &nerfsv_nerf::Nerf, frame: &nerfsv_dataset::Frame) {
+//! use nerfsv_nerf::render::camera_rays;
+//! use nerfsv_uq::{bla_image, ga_image, UqConfig};
+//! let bg = [1.0f32; 3];
+//! let rays = camera_rays(&frame.camera, bg);
+//! let reference: Vec<[f32; 3]> = frame.image.rgba.chunks_exact(4)
+//!     .map(|p| [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))).collect();
+//! let cfg = UqConfig::default();
+//! let ga = ga_image(nerf, "r_0", &rays, &reference, cfg.ga_sigma_max).unwrap();
+//! let bla = bla_image(nerf, "r_0", &rays, &reference, &cfg).unwrap();
+//! println!("σ_d {:.3}, trace {:.3e}, rmv {:.3e}", ga.sigma_d, bla.laplace.normalized_trace, bla.laplace.rmv);
+//! # }
+//! ```
+
+pub mod bla;
+mod config;
+mod error;
+pub mod ga;
+
+pub use bla::{bla_image, laplace_at, lm_map, BlaFit, Laplace, MapFit, NerfResiduals, ResidualModel};
+pub use config::UqConfig;
+pub use error::UqError;
+pub use ga::{ga_fit, ga_image, ga_objective, GaExclusion, GaFit, GaRay};

@@ -247,7 +247,9 @@ fn draw_histograms<DB: Canvas>(
             counts[b] += 1;
         }
         let peak = counts.iter().copied().max().unwrap_or(0).max(1) as f64;
-        let axes = Axes { rect, x: [lo, hi], y: [0.0, 1.08 * peak] };
+        // The bins span the values; the axes leave a little room either side.
+        let pad = 0.02 * (hi - lo);
+        let axes = Axes { rect, x: [lo - pad, hi + pad], y: [0.0, 1.08 * peak] };
         let style = layout.axes_style(&x_title, if k == 0 { "images" } else { "" }, &rect);
         axes.draw_grid(root, &style, palette::GRID)?;
         let colour = RGBColor::from(group_colour(k));

@@ -274,6 +274,7 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     let total: usize = splits.iter().map(|(_, sp)| take(sp)).sum();
     let stage = format!("uq {}", method.name());
     let mut rows = Vec::with_capacity(total);
+    reporter.progress(&stage, 0, total as u64, "images");
     for (name, split) in &splits {
         for (index, frame) in split.frames.iter().take(take(split)).enumerate() {
             let image = format!("{}: frame {index} ({})", split.path.display(), frame.file_path);
@@ -330,9 +331,15 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     nerfsv_scene::io::remove_stale_temporaries_in(&args.out);
-    for (name, bytes) in &files {
+    for (k, (name, bytes)) in files.iter().enumerate() {
         let path = args.out.join(name);
-        nerfsv_scene::io::atomic_write_bytes(&path, bytes).with_context(|| format!("writing {}", path.display()))?;
+        if let Err(e) = nerfsv_scene::io::atomic_write_bytes(&path, bytes) {
+            // All or nothing: the files this call has written are removed again.
+            for (done, _) in &files[..k] {
+                let _ = std::fs::remove_file(args.out.join(done));
+            }
+            return Err(anyhow::Error::new(e).context(format!("writing {}", path.display())));
+        }
     }
     crate::commands::report(args.json, &summary, || describe(&summary, &args.out))
 }
@@ -479,8 +486,10 @@ fn figures(rows: &[Row], splits: &[&'static str], method: MethodArg, cfg: &UqCon
     let per_split = |value: &dyn Fn(&Row) -> Option<[f64; 2]>| -> Vec<(&'static str, Vec<[f64; 2]>)> {
         splits.iter().map(|s| (*s, rows.iter().filter(|r| r.split == *s).filter_map(value).collect())).collect()
     };
-    let largest = |groups: &[(&str, Vec<[f64; 2]>)]| groups.iter().map(|(_, v)| v.len()).max().unwrap_or(0);
-    let hist = |groups: &[(&'static str, Vec<[f64; 2]>)], axis: usize, title: String, x_title: &str| {
+    fn largest<L>(groups: &[(L, Vec<[f64; 2]>)]) -> usize {
+        groups.iter().map(|(_, v)| v.len()).max().unwrap_or(0)
+    }
+    fn hist<L: ToString>(groups: &[(L, Vec<[f64; 2]>)], axis: usize, title: String, x_title: &str) -> Figure {
         Figure::Histogram(HistogramFigure {
             title,
             x_title: x_title.to_string(),
@@ -490,7 +499,7 @@ fn figures(rows: &[Row], splits: &[&'static str], method: MethodArg, cfg: &UqCon
                 .collect(),
             bins: bins(largest(groups)),
         })
-    };
+    }
     let scatter = |groups: &[(&'static str, Vec<[f64; 2]>)], title: String, x: &str, y: &str| {
         Figure::Scatter(ScatterFigure {
             title,
@@ -512,8 +521,20 @@ fn figures(rows: &[Row], splits: &[&'static str], method: MethodArg, cfg: &UqCon
             } else {
                 String::new()
             };
+            // Histogram panels say how many of their split's images were left out.
+            let labelled: Vec<(String, Vec<[f64; 2]>)> = kept
+                .iter()
+                .map(|(s, v)| {
+                    let n = rows
+                        .iter()
+                        .filter(|r| r.split == *s && matches!(&r.fit, Fit::Ga(Some(g)) if g.excluded.is_some()))
+                        .count();
+                    let label = if n > 0 { format!("{s} ({n} excluded)") } else { s.to_string() };
+                    (label, v.clone())
+                })
+                .collect();
             vec![
-                ("uq_ga_sigma_d".into(), hist(&kept, 1, format!("GA: σ_d per image{note}"), "σ_d")),
+                ("uq_ga_sigma_d".into(), hist(&labelled, 1, format!("GA: σ_d per image{note}"), "σ_d")),
                 ("uq_ga_mu_sigma".into(), scatter(&kept, format!("GA: μ_d and σ_d per image{note}"), "μ_d", "σ_d")),
             ]
         }

@@ -250,7 +250,9 @@ fn draw_histograms<DB: Canvas>(
         // The bins span the values; the axes leave a little room either side.
         let pad = 0.02 * (hi - lo);
         let axes = Axes { rect, x: [lo - pad, hi + pad], y: [0.0, 1.08 * peak] };
-        let style = layout.axes_style(&x_title, if k == 0 { "images" } else { "" }, &rect);
+        let mut style = layout.axes_style(&x_title, if k == 0 { "images" } else { "" }, &rect);
+        // Counts are whole: no more ticks than 0..=peak, so that their step is at least 1.
+        style.max_y_ticks = style.max_y_ticks.min(peak as usize + 1);
         axes.draw_grid(root, &style, palette::GRID)?;
         let colour = RGBColor::from(group_colour(k));
         for (b, &c) in counts.iter().enumerate().filter(|(_, &c)| c > 0) {

@@ -237,7 +237,7 @@ fn draw_histograms<DB: Canvas>(
     let n = fig.groups.len() as i32;
     let (left, right, gap) = (layout.px(70.0), layout.px(16.0), layout.px(40.0));
     let panel_w = (layout.width - left - right - (n - 1) * gap) / n;
-    let (top, bottom) = (layout.px(50.0) + layout.px(26.0), layout.height - layout.px(50.0));
+    let (top, bottom) = (layout.px(50.0) + layout.px(26.0), layout.height - layout.px(58.0));
     for (k, g) in fig.groups.iter().enumerate() {
         let x0 = left + k as i32 * (panel_w + gap);
         let rect = PixelRect { x0, y0: top, x1: x0 + panel_w, y1: bottom };
@@ -316,7 +316,7 @@ fn draw_scatter<DB: Canvas>(
         x0: layout.px(80.0),
         y0: layout.px(74.0),
         x1: layout.width - layout.px(24.0),
-        y1: layout.height - layout.px(50.0),
+        y1: layout.height - layout.px(58.0),
     };
     let axes = Axes { rect, x, y };
     let style = layout.axes_style(&x_title, &y_title, &rect);

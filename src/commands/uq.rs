@@ -382,7 +382,11 @@ fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: MethodArg)
 
 fn describe(summary: &Summary, out: &Path) -> String {
     let mut text = String::new();
-    let opt = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.4e}"));
+    let opt = |v: Option<f64>| match v {
+        None => "n/a".to_string(),
+        Some(v) if (1e-3..1e5).contains(&v.abs()) => format!("{v:.4}"),
+        Some(v) => format!("{v:.4e}"),
+    };
     for (name, s) in [("train", &summary.train), ("val", &summary.val), ("test", &summary.test)] {
         let Some(s) = s else { continue };
         let _ = match summary.method {

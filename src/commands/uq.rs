@@ -561,3 +561,49 @@ fn figures(rows: &[Row], splits: &[&'static str], method: MethodArg, cfg: &UqCon
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rays from far outside the model's box, pointing away from it.
+    fn missing_rays() -> (Vec<RayInput>, Vec<[f32; 3]>) {
+        let ray =
+            RayInput { origin: [10.0, 10.0, 10.0], direction: [1.0, 0.0, 0.0], background: BACKGROUND, jitter: 0.0 };
+        (vec![ray; 6], vec![[0.5; 3]; 6])
+    }
+
+    #[test]
+    fn an_image_whose_rays_all_miss_gets_an_empty_row_and_a_count_not_an_error() {
+        let nerf = Nerf::new(nerfsv_nerf::NerfConfig::default(), 0).unwrap();
+        let (rays, refs) = missing_rays();
+        let cfg = UqConfig::default();
+        for method in [MethodArg::Ga, MethodArg::Bla] {
+            let fit = fit_image(&nerf, method, "r_3", &rays, &refs, &cfg).unwrap();
+            assert!(matches!(fit, Fit::Ga(None) | Fit::Bla(None)));
+            let rows = vec![Row { split: "test", index: 3, file_path: "./test/r_3".into(), fit }];
+            let text = csv(&rows, method);
+            let line = text.lines().nth(1).unwrap();
+            assert!(line.starts_with("test,3,./test/r_3,") && line.contains("all_rays_miss"), "{line}");
+            assert_eq!(line.split(',').count(), text.lines().next().unwrap().split(',').count(), "{line}");
+            let s = summarise(rows.iter(), method);
+            assert_eq!((s.images, s.all_rays_miss), (1, 1));
+            assert!(s.mean_sigma_d.is_none() && s.mean_trace.is_none());
+        }
+    }
+
+    #[test]
+    fn csv_fields_with_commas_or_quotes_are_quoted() {
+        assert_eq!(field("./train/r_0"), "./train/r_0");
+        assert_eq!(field("a,b"), "\"a,b\"");
+        assert_eq!(field("say \"x\""), "\"say \"\"x\"\"\"");
+    }
+
+    #[test]
+    fn stride_takes_an_even_spread_of_at_most_n() {
+        let v: Vec<usize> = (0..10).collect();
+        assert_eq!(stride(&v, Some(5)), [0, 2, 4, 6, 8]);
+        assert_eq!(stride(&v, Some(20)), v);
+        assert_eq!(stride(&v, None), v);
+    }
+}

@@ -170,23 +170,38 @@ fn bla_offline_on_one_image_per_split_reports_trace_and_rmv() {
     assert_figures(&out, &["uq_bla_trace", "uq_bla_rmv", "uq_bla_trace_rmv"]);
 }
 
+/// A copy of the dataset `ds` in `to` with only `splits` (transforms files and images).
+fn copy_splits(ds: &Path, to: &Path, splits: &[&str]) -> PathBuf {
+    for split in splits {
+        let name = format!("transforms_{split}.json");
+        std::fs::create_dir_all(to.join(split)).unwrap();
+        std::fs::copy(ds.join(&name), to.join(&name)).unwrap();
+        for e in std::fs::read_dir(ds.join(split)).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), to.join(split).join(e.file_name())).unwrap();
+        }
+    }
+    to.to_path_buf()
+}
+
+#[test]
+fn a_malformed_last_split_is_refused_naming_its_file_after_the_others_ran_and_nothing_is_written() {
+    let (ds, _) = setup();
+    let dir = tempfile::tempdir().unwrap();
+    let copy = copy_splits(ds, &dir.path().join("ds"), &["train", "val", "test"]);
+    std::fs::write(copy.join("transforms_test.json"), "{\"camera_angle_x\": 0.7, \"frames\": 3}").unwrap();
+    let out = dir.path().join("out");
+    let (ok, _, err) = offline("ga", &copy, &out, &[]);
+    assert!(!ok, "accepted a malformed test split");
+    assert!(err.contains("transforms_test.json") && err.contains("frames"), "{err}");
+    assert!(!out.exists(), "{} was created", out.display());
+}
+
 #[test]
 fn a_split_without_its_transforms_file_is_skipped_and_reported() {
     let (ds, _) = setup();
     let dir = tempfile::tempdir().unwrap();
-    // A copy of the dataset without the val split.
-    let copy = dir.path().join("ds");
-    std::fs::create_dir_all(&copy).unwrap();
-    for name in ["transforms_train.json", "transforms_test.json"] {
-        std::fs::copy(ds.join(name), copy.join(name)).unwrap();
-    }
-    for sub in ["train", "test"] {
-        std::fs::create_dir_all(copy.join(sub)).unwrap();
-        for e in std::fs::read_dir(ds.join(sub)).unwrap() {
-            let e = e.unwrap();
-            std::fs::copy(e.path(), copy.join(sub).join(e.file_name())).unwrap();
-        }
-    }
+    let copy = copy_splits(ds, &dir.path().join("ds"), &["train", "test"]);
     let out = dir.path().join("ga");
     let (ok, stdout, err) = offline("ga", &copy, &out, &["--json"]);
     assert!(ok, "{err}");

@@ -7,10 +7,9 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
-use nerfsv_dataset::{Frame, Split};
+use nerfsv_dataset::{load_split, Frame, LoadOptions};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, RayInput};
-use nerfsv_pipeline::stages::load_dataset_split;
 use nerfsv_pipeline::{refuse_output_inside, Observer};
 use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
 use nerfsv_scene::validate::in_range;
@@ -263,20 +262,17 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     for s in &skipped_splits {
         reporter.note("uq", &format!("no transforms_{s}.json in {}: the {s} split is skipped", args.data.display()));
     }
-    let mut splits: Vec<(&'static str, Split)> = Vec::new();
-    for s in &present {
-        let split = load_dataset_split(&args.data, s, args.downscale)?;
+    // One split in memory at a time (an 800×800 dataset's three splits would not fit); nothing
+    // is written before the last split has been read and fitted.
+    let mut rows = Vec::new();
+    for name in &present {
+        let split = load_split(&args.data, name, LoadOptions { downscale: args.downscale, load_depth: false })
+            .with_context(|| format!("loading the {name} split of {}", args.data.display()))?;
         nerfsv_nerf::check_bounds(&nerf.config, &split)?;
-        splits.push((s, split));
-    }
-
-    let take = |split: &Split| args.max_images.map_or(split.frames.len(), |n| n.min(split.frames.len()));
-    let total: usize = splits.iter().map(|(_, sp)| take(sp)).sum();
-    let stage = format!("uq {}", method.name());
-    let mut rows = Vec::with_capacity(total);
-    reporter.progress(&stage, 0, total as u64, "images");
-    for (name, split) in &splits {
-        for (index, frame) in split.frames.iter().take(take(split)).enumerate() {
+        let total = args.max_images.map_or(split.frames.len(), |n| n.min(split.frames.len()));
+        let stage = format!("uq {} {name}", method.name());
+        reporter.progress(&stage, 0, total as u64, "images");
+        for (index, frame) in split.frames.iter().take(total).enumerate() {
             let image = format!("{}: frame {index} ({})", split.path.display(), frame.file_path);
             let all_rays = camera_rays(&frame.camera, BACKGROUND);
             let all_refs = reference(frame);
@@ -293,13 +289,13 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
                 reporter.note(&stage, &format!("{image}: all rays miss the model; its row is left empty"));
             }
             rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
-            reporter.progress(&stage, rows.len() as u64, total as u64, &format!("{name} images"));
+            reporter.progress(&stage, index as u64 + 1, total as u64, "images");
         }
     }
 
     let mut summary =
         Summary { method: method.name(), train: None, val: None, test: None, skipped_splits, seconds: 0.0 };
-    for (name, _) in &splits {
+    for name in &present {
         let s = summarise(rows.iter().filter(|r| r.split == *name), method);
         match *name {
             "train" => summary.train = Some(s),
@@ -309,10 +305,9 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     }
 
     // Every file is made in memory first, so a failure leaves nothing half written.
-    let present_names: Vec<&'static str> = splits.iter().map(|(n, _)| *n).collect();
     let mut files: Vec<(String, Vec<u8>)> =
         vec![(format!("uq_{}.csv", method.name()), csv(&rows, method).into_bytes())];
-    for (stem, fig) in figures(&rows, &present_names, method, &cfg) {
+    for (stem, fig) in figures(&rows, &present, method, &cfg) {
         let (png, svg) = match &fig {
             Figure::Histogram(h) => (
                 nerfsv_plot::histograms_png(h, FIGURE.0, FIGURE.1)?,

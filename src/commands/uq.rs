@@ -35,13 +35,14 @@ pub struct UqArgs {
 pub enum UqCommand {
     /// GA or BLA on every image of a dataset's train, val and test splits: one CSV row per image
     /// and the paper's figures (σ_d histograms and μ_d–σ_d scatter; trace and rmv histograms and
-    /// trace–rmv scatter), PNG and SVG.
+    /// trace–rmv scatter), PNG and SVG. An image whose rays all miss the model gets a row with
+    /// empty values and is counted (`all_rays_miss`), not fitted.
     Offline(OfflineArgs),
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MethodArg {
-    /// Gaussian approximation (eq. 2–3): μ_d and σ_d per image from all its pixels (about 0.1 s
+    /// Gaussian approximation (eq. 2–3): μ_d and σ_d per image from all its pixels (about 0.2 s
     /// per 100×100 image).
     Ga,
     /// Bayesian Laplace approximation (eq. 4–9) over the `sigma_net` weights: normalised trace

@@ -47,6 +47,9 @@ enum Command {
     /// Search for the disturbances that crash the drone (Monte Carlo or Cross-Entropy Method),
     /// estimate the failure probability, and replay the rollouts in the other world.
     Stress(commands::stress::StressArgs),
+    /// Uncertainty of a trained NeRF: `uq offline` runs GA or BLA on every image of a dataset
+    /// (CSV and figures).
+    Uq(commands::uq::UqArgs),
 }
 
 fn main() -> ExitCode {
@@ -64,6 +67,7 @@ fn main() -> ExitCode {
         Command::Collision(a) => commands::collision::run(a),
         Command::Fly(a) => commands::fly::run(a),
         Command::Stress(a) => commands::stress::run(a),
+        Command::Uq(a) => commands::uq::run(a),
         Command::Train(a) => commands::nerf::run_train(a),
         Command::Eval(a) => commands::nerf::run_eval(a),
         Command::Render(a) => commands::nerf::run_render(a),

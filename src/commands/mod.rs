@@ -4,6 +4,7 @@ pub mod nerf;
 pub mod run;
 pub mod scene;
 pub mod stress;
+pub mod uq;
 
 use serde::Serialize;
 

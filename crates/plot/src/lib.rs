@@ -9,6 +9,9 @@
 //! Figures:
 //! - [`trajectory_png`] / [`trajectory_svg`]: one flight, top view over the signed-distance
 //!   slice and side view of altitude along the track ([`trajectory`] describes the layout).
+//! - [`histograms_png`] / [`histograms_svg`]: histograms of one quantity per group (split) on
+//!   shared bins; [`scatter_png`] / [`scatter_svg`]: two quantities coloured by group
+//!   ([`distribution`]).
 //!
 //! ```
 //! use nerfsv_plot::{trajectory_png, FieldSlice, Track, TrackKind, TrajectoryFigure};
@@ -41,6 +44,7 @@
 //! ```
 
 mod axes;
+pub mod distribution;
 mod error;
 mod font;
 mod geometry;
@@ -51,6 +55,9 @@ mod text;
 pub mod trajectory;
 
 pub use axes::PixelRect;
+pub use distribution::{
+    histograms_png, histograms_svg, scatter_png, scatter_svg, Group, HistogramFigure, PointGroup, ScatterFigure,
+};
 pub use error::PlotError;
 pub use render::{encode_png, MAX_SIDE};
 pub use trajectory::{

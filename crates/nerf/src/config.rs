@@ -73,6 +73,23 @@ impl Default for NerfConfig {
 }
 
 impl NerfConfig {
+    /// A small model for tests and examples: box `[-1, 1]³`, 4 hash levels of at most 2^10 rows
+    /// from resolution 4 to 32 (`sigma_net`: `64·8 + 16·64 = 1536` weights), 0.05 m steps, an
+    /// 8³ occupancy grid; the networks as the default.
+    pub fn tiny() -> Self {
+        Self {
+            aabb_min: [-1.0; 3],
+            aabb_max: [1.0; 3],
+            hash_levels: 4,
+            log2_hashmap_size: 10,
+            base_resolution: 4,
+            finest_resolution: 32,
+            step_size: 0.05,
+            grid_resolution: 8,
+            ..Self::default()
+        }
+    }
+
     /// Checks every field, then that the model fits the memory budget (see
     /// [`NerfConfig::estimated_bytes`]). The error names the field (without the `nerf.` table
     /// prefix: add it with [`InvalidValue::within`]) and the value found.

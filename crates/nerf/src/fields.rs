@@ -572,17 +572,7 @@ mod tests {
     /// differences, for hash-table entries and weights of every layer.
     #[test]
     fn loss_gradient_matches_finite_differences_end_to_end() {
-        let cfg = NerfConfig {
-            aabb_min: [-1.0; 3],
-            aabb_max: [1.0; 3],
-            hash_levels: 4,
-            log2_hashmap_size: 10,
-            base_resolution: 4,
-            finest_resolution: 32,
-            step_size: 0.05,
-            grid_resolution: 8,
-            ..NerfConfig::default()
-        };
+        let cfg = NerfConfig::tiny();
         let field = NgpField::new(&cfg);
         let mut params = field.init_params(9);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);

@@ -217,21 +217,11 @@ impl JacobianWorkspace {
                 let s = ws.act[j] as usize;
                 let x = [ws.pos[3 * s], ws.pos[3 * s + 1], ws.pos[3 * s + 2]];
                 field.encoding.position_jacobian(emb, x, &mut self.jac);
-                let ri = self.ray[j] as usize;
-                let tj = self.t[j];
+                let (ri, tj) = (self.ray[j] as usize, self.t[j]);
                 for c in 0..3 {
                     let row = 3 * q + c;
-                    let mut dx = [0.0f32; 3];
-                    for (&dk, jk) in self.d_enc[row * e..(row + 1) * e].iter().zip(self.jac.chunks_exact(3)) {
-                        for (xd, &jd) in dx.iter_mut().zip(jk) {
-                            *xd += dk * jd;
-                        }
-                    }
-                    for d in 0..3 {
-                        let v = dx[d] * inv_ext[d];
-                        d_origin[ri][c][d] += v;
-                        d_direction[ri][c][d] += tj * v;
-                    }
+                    let dx = through_encoding(&self.d_enc[row * e..(row + 1) * e], &self.jac);
+                    add_to_ray(dx, 1.0, inv_ext, tj, &mut d_origin[ri][c], &mut d_direction[ri][c]);
                 }
             }
         }
@@ -261,6 +251,37 @@ impl JacobianWorkspace {
                 }
             }
         }
+    }
+}
+
+/// An encoding adjoint row `[e]` through the encoding's position Jacobian `[e, 3]` (row-major):
+/// `Σ_k d_k·J_k`, the derivative with respect to the sample position in box coordinates.
+#[inline]
+fn through_encoding(d_enc: &[f32], jac: &[f32]) -> [f32; 3] {
+    let mut dx = [0.0f32; 3];
+    for (&dk, jk) in d_enc.iter().zip(jac.chunks_exact(3)) {
+        for (xd, &jd) in dx.iter_mut().zip(jk) {
+            *xd += dk * jd;
+        }
+    }
+    dx
+}
+
+/// Adds `scale·dx` (a derivative with respect to the sample position `x = o + t·d`, box
+/// coordinates) to one channel's `∂C/∂o` and `∂C/∂d` rows: `/ extent` for metres, `·t` for `d`.
+#[inline]
+fn add_to_ray(
+    dx: [f32; 3],
+    scale: f32,
+    inv_ext: [f32; 3],
+    t: f32,
+    d_origin: &mut [f32; 3],
+    d_direction: &mut [f32; 3],
+) {
+    for d in 0..3 {
+        let v = scale * dx[d] * inv_ext[d];
+        d_origin[d] += v;
+        d_direction[d] += t * v;
     }
 }
 
@@ -300,20 +321,11 @@ impl JacobianWorkspace {
                 let s = ws.act[j] as usize;
                 let x = [ws.pos[3 * s], ws.pos[3 * s + 1], ws.pos[3 * s + 2]];
                 field.encoding.position_jacobian(emb, x, &mut self.jac);
-                let mut grad = [0.0f32; 3];
-                for (&dk, jk) in self.d_enc[q * e..(q + 1) * e].iter().zip(self.jac.chunks_exact(3)) {
-                    for (xd, &jd) in grad.iter_mut().zip(jk) {
-                        *xd += dk * jd;
-                    }
-                }
+                let grad = through_encoding(&self.d_enc[q * e..(q + 1) * e], &self.jac);
                 let (ri, tj) = (self.ray[j] as usize, self.t[j]);
                 for c in 0..3 {
                     let gc = self.g[3 * j + c];
-                    for d in 0..3 {
-                        let v = gc * grad[d] * inv_ext[d];
-                        d_origin[ri][c][d] += v;
-                        d_direction[ri][c][d] += tj * v;
-                    }
+                    add_to_ray(grad, gc, inv_ext, tj, &mut d_origin[ri][c], &mut d_direction[ri][c]);
                 }
             }
         }

@@ -10,18 +10,7 @@ use rand::{RngExt, SeedableRng};
 /// early: the sample positions then do not depend on the weights, so central differences of
 /// `render_rays` differentiate exactly the function the Jacobian is of.
 fn model() -> Nerf {
-    let cfg = NerfConfig {
-        aabb_min: [-1.0; 3],
-        aabb_max: [1.0; 3],
-        hash_levels: 4,
-        log2_hashmap_size: 10,
-        base_resolution: 4,
-        finest_resolution: 32,
-        step_size: 0.05,
-        grid_resolution: 8,
-        early_stop_transmittance: 1e-30,
-        ..NerfConfig::default()
-    };
+    let cfg = NerfConfig { early_stop_transmittance: 1e-30, ..NerfConfig::tiny() };
     let mut nerf = Nerf::new(cfg, 9).unwrap();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let r = nerf.field.embeddings_range();

@@ -7,17 +7,7 @@ use rand::{RngExt, SeedableRng};
 /// 4 hash levels (`P = 64·8 + 16·64 = 1536` `sigma_net` weights), box [-1, 1]³, embeddings
 /// `U(−1, 1)` so that densities are a few 1/m and rays have opacities well inside (0, 1).
 pub fn tiny_nerf() -> Nerf {
-    let cfg = NerfConfig {
-        aabb_min: [-1.0; 3],
-        aabb_max: [1.0; 3],
-        hash_levels: 4,
-        log2_hashmap_size: 10,
-        base_resolution: 4,
-        finest_resolution: 32,
-        step_size: 0.05,
-        grid_resolution: 8,
-        ..NerfConfig::default()
-    };
+    let cfg = NerfConfig::tiny();
     let mut nerf = Nerf::new(cfg, 9).unwrap();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let r = nerf.field.embeddings_range();

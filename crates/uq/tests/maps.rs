@@ -125,11 +125,7 @@ fn bla_pixel_variance_equals_the_naive_quadratic_form() {
             let j = &jac.ray(i)[q * p..(q + 1) * p];
             let want = naive_quadratic_form(j, &sigma);
             assert!(want > 0.0);
-            assert!(
-                (var[i][q] - want).abs() <= 1e-9 * want,
-                "ray {i} output {q}: |jL|² {} vs jΣjᵀ {want}",
-                var[i][q]
-            );
+            assert!((var[i][q] - want).abs() <= 1e-9 * want, "ray {i} output {q}: |jL|² {} vs jΣjᵀ {want}", var[i][q]);
         }
     }
 }
@@ -169,4 +165,3 @@ fn bla_maps_are_the_per_pixel_quadratic_forms_in_z_depth() {
     let neg = Mat::<f64>::identity(p, p) * faer::Scale(-1.0);
     assert!(matches!(bla_maps(&nerf, "r_0", &cam, BG, &neg), Err(UqError::NotPositiveDefinite { .. })));
 }
-

@@ -21,8 +21,8 @@
 //! posterior `θ ~ N(θ̂, Σ)` gives `Var[q] = j_q Σ j_qᵀ` for each output
 //! `q ∈ {R, G, B, D̄}` with `j_q = ∂q/∂θ` (a row of [`nerfsv_nerf::SigmaNetJacobians`]). With
 //! the Cholesky factor `Σ = L·Lᵀ` ([`CovarianceFactor`]) this is `|j_q·L|²`: the rays are taken
-//! in batches of [`BLA_BATCH_RAYS`], their `[4·B, P]` Jacobian rows multiplied by the
-//! triangular `L` in one faer product (`≈ 4·B·P²` flops per batch, no `P × P` matrix per ray),
+//! in batches of [`BLA_BATCH_RAYS`], their Jacobian rows (as the columns of `[P, 4·B]`)
+//! multiplied by the triangular `Lᵀ` in one faer product (`≈ 4·B·P²` flops per batch, no `P × P` matrix per ray),
 //! and each row's squared norm is its variance.
 //!
 //! **Missing values.** A pixel whose ray composites no sample (it misses the model's box, or
@@ -178,7 +178,8 @@ impl CovarianceFactor {
 
 /// Reusable buffers of [`bla_ray_variances_into`].
 pub struct BlaMapWorkspace {
-    /// `[4·B, P]` the batch's Jacobian rows (f64), then `[4·B, P]` those rows times `L`.
+    /// `[P, 4·B]` the batch's Jacobian rows as columns (f64, contiguous), then `Lᵀ` times them
+    /// (column `k` is `(j_k·L)ᵀ`).
     rows: Mat<f64>,
     prod: Mat<f64>,
 }
@@ -215,39 +216,35 @@ pub fn bla_ray_variances_into(
     let n = jac.samples.len();
     let hit: Vec<usize> = (0..n).filter(|&i| !jac.samples.ray(i).1.is_empty()).collect();
     let rows = Q * hit.len();
-    if ws.rows.nrows() < rows || ws.rows.ncols() != p {
-        ws.rows = Mat::zeros(rows, p);
-        ws.prod = Mat::zeros(rows, p);
+    if ws.rows.ncols() < rows || ws.rows.nrows() != p {
+        ws.rows = Mat::zeros(p, rows);
+        ws.prod = Mat::zeros(p, rows);
     }
+    // Column-major: each Jacobian row is one contiguous column.
     for (k, &i) in hit.iter().enumerate() {
         let src = jac.ray(i);
         for q in 0..Q {
-            let mut dst = ws.rows.row_mut(Q * k + q);
+            let mut dst = ws.rows.col_mut(Q * k + q);
             for (c, &v) in src[q * p..(q + 1) * p].iter().enumerate() {
                 dst[c] = v as f64;
             }
         }
     }
-    let a = ws.rows.as_ref().subrows(0, rows);
+    let a = ws.rows.as_ref().subcols(0, rows);
     triangular_matmul(
-        ws.prod.as_mut().subrows_mut(0, rows),
+        ws.prod.as_mut().subcols_mut(0, rows),
         BlockStructure::Rectangular,
         Accum::Replace,
+        factor.l.transpose(),
+        BlockStructure::TriangularUpper,
         a,
         BlockStructure::Rectangular,
-        factor.l.as_ref(),
-        BlockStructure::TriangularLower,
         1.0,
         Par::rayon(0),
     );
-    // Squared row norms, column by column (faer matrices are column-major).
-    let mut norms = vec![0.0f64; rows];
-    for c in 0..p {
-        let col = ws.prod.as_ref().col(c);
-        for (r, acc) in norms.iter_mut().enumerate() {
-            *acc += col[r] * col[r];
-        }
-    }
+    // |j·L|² = squared norm of each column of Lᵀ·Jᵀ.
+    let prod = ws.prod.as_ref();
+    let norms: Vec<f64> = (0..rows).map(|r| prod.col(r).iter().map(|v| v * v).sum()).collect();
     let mut next = 0;
     for i in 0..n {
         if next < hit.len() && hit[next] == i {

@@ -1,7 +1,9 @@
 //! Uncertainty quantification per 100×100 image: the Gaussian approximation (render with the
 //! composited samples, closed-form fit) and the Bayesian Laplace approximation (3 perturbations
 //! of Levenberg–Marquardt on the `sigma_net` weights, then the dense 3072² covariance by
-//! Cholesky), with the default `UqConfig`.
+//! Cholesky), with the default `UqConfig`; and the per-pixel colour/depth uncertainty maps of
+//! each, given the image's fit (`ga_maps`: σ_d; `bla_maps`: the Laplace covariance, factorised
+//! inside, the Jacobians taken at the mode).
 //!
 //! Uses the trained model and the first test view of `NERFSV_BENCH_RUN` (default
 //! `runs/stonehenge`, made by `cargo run --release -- run`); without one, a freshly initialised
@@ -15,7 +17,7 @@ use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Camera, Intrinsics};
-use nerfsv_uq::{bla_image, ga_image, UqConfig};
+use nerfsv_uq::{bla_image, bla_maps, ga_image, ga_maps, CovarianceFactor, UqConfig};
 
 fn uq(c: &mut Criterion) {
     std::env::set_var("MATMUL_NUM_THREADS", "1");
@@ -24,13 +26,13 @@ fn uq(c: &mut Criterion) {
     let trained = Nerf::load(&run.join("nerf/checkpoint.safetensors"))
         .ok()
         .zip(load_split(&run.join("dataset"), "test", LoadOptions::default()).ok());
-    let (nerf, rays, reference) = match trained {
+    let (nerf, camera, rays, reference) = match trained {
         Some((nerf, test)) => {
             let f = &test.frames[0];
             eprintln!("uq: {} and its test view {}", run.display(), f.file_path);
             let reference: Vec<[f32; 3]> =
                 f.image.rgba.chunks_exact(4).map(|p| [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))).collect();
-            (nerf, camera_rays(&f.camera, bg), reference)
+            (nerf, f.camera, camera_rays(&f.camera, bg), reference)
         }
         None => {
             eprintln!("uq: no trained run at {} (set NERFSV_BENCH_RUN): a fresh model", run.display());
@@ -39,7 +41,7 @@ fn uq(c: &mut Criterion) {
             let cam = Camera::look_at(Point3::new(2.5, -2.5, 1.5), Point3::new(0.0, 0.0, 0.2), Vector3::z(), k);
             let rays = camera_rays(&cam, bg);
             let n = rays.len();
-            (nerf, rays, vec![[0.5; 3]; n])
+            (nerf, cam, rays, vec![[0.5; 3]; n])
         }
     };
     let cfg = UqConfig::default();
@@ -56,10 +58,21 @@ fn uq(c: &mut Criterion) {
         bla.laplace.normalized_trace,
         bla.laplace.rmv
     );
+    let mut at_mode = nerf.clone();
+    for (w, &v) in at_mode.sigma_net_params_mut().iter_mut().zip(&bla.map.theta) {
+        *w = v as f32;
+    }
+    let t = std::time::Instant::now();
+    CovarianceFactor::new("bench", &bla.laplace.covariance).expect("Cholesky of Σ");
+    eprintln!("uq: Cholesky of the 3072² covariance (inside bla_maps) {:.3} s", t.elapsed().as_secs_f64());
     let mut g = c.benchmark_group("uq");
     g.bench_function("ga_100x100", |b| b.iter(|| ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max)));
+    g.bench_function("ga_maps_100x100", |b| b.iter(|| ga_maps(&nerf, "bench", &camera, bg, ga.sigma_d)));
     g.sample_size(10);
     g.bench_function("bla_100x100", |b| b.iter(|| bla_image(&nerf, "bench", &rays, &reference, &cfg)));
+    g.bench_function("bla_maps_100x100", |b| {
+        b.iter(|| bla_maps(&at_mode, "bench", &camera, bg, &bla.laplace.covariance))
+    });
     g.finish();
 }
 

@@ -54,6 +54,9 @@ pub struct RaySamples {
     pub sample_rgb: Vec<[f32; 3]>,
     /// `[n]` compositing weight `w_i = T_i·(1 − exp(−σ_i δ_i))` of each composited sample.
     pub sample_weight: Vec<f32>,
+    /// `[n]` distance `t_i` (m along the unit ray direction) of each composited sample, the
+    /// `t_i` of `D̄ = Σ w_i t_i / A`.
+    pub sample_t: Vec<f32>,
 }
 
 impl RaySamples {
@@ -61,6 +64,11 @@ impl RaySamples {
     pub fn ray(&self, i: usize) -> (&[[f32; 3]], &[f32]) {
         let (a, b) = (self.sample_start[i] as usize, self.sample_start[i + 1] as usize);
         (&self.sample_rgb[a..b], &self.sample_weight[a..b])
+    }
+
+    /// The sample distances `t_i` (m) of ray `i`, parallel to [`ray`](Self::ray)'s slices.
+    pub fn ray_distances(&self, i: usize) -> &[f32] {
+        &self.sample_t[self.sample_start[i] as usize..self.sample_start[i + 1] as usize]
     }
 
     /// Number of rays.
@@ -80,6 +88,7 @@ impl RaySamples {
             sample_start: vec![0; r + 1],
             sample_rgb: Vec::new(),
             sample_weight: Vec::new(),
+            sample_t: Vec::new(),
         }
     }
 
@@ -94,6 +103,7 @@ impl RaySamples {
         }
         self.sample_rgb.extend_from_slice(&c.sample_rgb);
         self.sample_weight.extend_from_slice(&c.sample_weight);
+        self.sample_t.extend_from_slice(&c.sample_t);
     }
 }
 
@@ -106,6 +116,7 @@ struct ChunkSamples {
     start: Vec<u32>,
     sample_rgb: Vec<[f32; 3]>,
     sample_weight: Vec<f32>,
+    sample_t: Vec<f32>,
 }
 
 /// [`RaySamples`] with each ray's Jacobian with respect to the `sigma_net` weights.
@@ -264,8 +275,8 @@ impl ParamJacobianWorkspace {
     }
 }
 
-/// Copies a chunk's composites and (when `samples`) its composited samples' colours and
-/// weights, from the forward pass alone.
+/// Copies a chunk's composites and (when `samples`) its composited samples' colours, weights
+/// and distances, from the forward pass alone.
 fn chunk_composites(ws: &ChunkWorkspace, nr: usize, out: &mut ChunkSamples, samples: bool) {
     out.rgb.clear();
     out.opacity.clear();
@@ -274,6 +285,7 @@ fn chunk_composites(ws: &ChunkWorkspace, nr: usize, out: &mut ChunkSamples, samp
     out.start.push(0);
     out.sample_rgb.clear();
     out.sample_weight.clear();
+    out.sample_t.clear();
     let mut j0 = 0;
     for ri in 0..nr {
         out.rgb.push([ws.color[3 * ri], ws.color[3 * ri + 1], ws.color[3 * ri + 2]]);
@@ -289,6 +301,7 @@ fn chunk_composites(ws: &ChunkWorkspace, nr: usize, out: &mut ChunkSamples, samp
                 out.sample_weight.push(trans * (1.0 - ex));
                 let j = j0 + i;
                 out.sample_rgb.push([ws.rgb[3 * j], ws.rgb[3 * j + 1], ws.rgb[3 * j + 2]]);
+                out.sample_t.push(ws.t_o[a + i]);
                 trans *= ex;
             }
         }
@@ -299,8 +312,8 @@ fn chunk_composites(ws: &ChunkWorkspace, nr: usize, out: &mut ChunkSamples, samp
 
 impl Nerf {
     /// Renders rays (as [`render_rays`](Self::render_rays): same samples, bit-identical colour,
-    /// opacity and distance) and keeps each ray's composited samples: colour `c_i` and
-    /// compositing weight `w_i` (the inputs of the Gaussian approximation). Parallel over
+    /// opacity and distance) and keeps each ray's composited samples: colour `c_i`,
+    /// compositing weight `w_i` (the inputs of the Gaussian approximation) and distance `t_i`. Parallel over
     /// chunks of 128 rays; bit-identical for any rayon thread count.
     pub fn render_rays_samples(&self, rays: &[RayInput]) -> RaySamples {
         let chunks: Vec<ChunkSamples> = rays

@@ -131,6 +131,14 @@ fn composited_samples_rebuild_the_render_and_are_thread_count_independent() {
             let col: f32 = c.iter().zip(w).map(|(c, w)| c[ch] * w).sum::<f32>() + (1.0 - a) * ray.background[ch];
             assert!((col - samples.rgb[i][ch]).abs() < 1e-5, "ray {i}: {col} vs {}", samples.rgb[i][ch]);
         }
+        // The sample distances rebuild the expected distance D̄ = Σ w_i t_i / A.
+        let t = samples.ray_distances(i);
+        assert_eq!(t.len(), w.len());
+        assert!(t.windows(2).all(|p| p[0] < p[1]), "ray {i}: distances not increasing");
+        if a > 1e-6 {
+            let d: f32 = t.iter().zip(w).map(|(t, w)| t * w).sum::<f32>() / a;
+            assert!((d - samples.distance[i]).abs() < 1e-4, "ray {i}: Σwt/A {d} vs {}", samples.distance[i]);
+        }
     }
     assert!(samples.ray(7).0.is_empty());
     assert!(jac.ray(7).iter().all(|&v| v == 0.0));

@@ -20,7 +20,21 @@ pub enum UqError {
     /// The fitted quantities are not finite (a diverged model).
     #[error("{image}: {what} is not finite")]
     NonFinite { image: String, what: &'static str },
-    /// The Hessian at the mode could not be factorised (only possible with a non-finite one).
-    #[error("{image}: the Hessian of the log posterior is not positive definite")]
+    /// The Hessian at the mode (or a posterior covariance given to the maps) could not be
+    /// factorised.
+    #[error("{image}: the Hessian of the log posterior (or its covariance) is not positive definite")]
     NotPositiveDefinite { image: String },
+    /// A posterior covariance whose shape is not `[P, P]` for the model's `P` weights.
+    #[error("{image}: the covariance is {rows}×{cols}, expected {params}×{params} (the model's sigma_net weights)")]
+    CovarianceShape { image: String, rows: usize, cols: usize, params: usize },
+    /// A per-pixel map whose size is not the image's.
+    #[error("{image}: the {what} has {found} pixels, expected {expected}")]
+    MapSize { image: String, what: &'static str, found: usize, expected: usize },
+    /// The image has no ground-truth depth: its AUSE is skipped, not computed against zeros.
+    #[error("{image}: no ground-truth depth (AUSE skipped)")]
+    NoGroundTruthDepth { image: String },
+    /// Too few pixels with a valid ground truth and a finite uncertainty for the 100 fractions
+    /// of a sparsification curve.
+    #[error("{image}: {pixels} pixels with ground-truth depth and a finite uncertainty, at least {needed} needed")]
+    TooFewPixels { image: String, pixels: usize, needed: usize },
 }

@@ -11,6 +11,14 @@
 //!   colours under a Gaussian prior, over n = 3 jittered copies of the sample positions keeping
 //!   the lowest-loss MAP, then the dense posterior covariance `(JᵀJ/σ_n² + α·I)⁻¹` by Cholesky
 //!   (faer), summarised by its normalised trace and root-mean-variance.
+//! - [`maps`]: **per-pixel colour and depth uncertainty** of a camera from either: GA's
+//!   `σ_d·√s` (and `σ_d·√(Σw_i²t_i²)/A` for the distance), BLA's linearised `j Σ jᵀ` with the
+//!   rows of the `sigma_net` Jacobian, as `|j·L|²` (`Σ = L·Lᵀ`) in batched products; NaN where a
+//!   ray composites no sample.
+//! - [`ause`]: **calibration**, the area under the sparsification error of the depth error
+//!   against a per-pixel uncertainty (100 fractions, curves normalised by their shared maximum,
+//!   as Bayes' Rays evaluates it), per image and averaged; an image without ground-truth depth
+//!   is an error naming it.
 //!
 //! Both read the model through [`nerfsv_nerf::param_jacobian`] (composited samples, and the
 //! Jacobian of each ray's colour with respect to the `sigma_net` weights). The BLA core
@@ -33,12 +41,16 @@
 //! # }
 //! ```
 
+pub mod ause;
 pub mod bla;
 mod config;
 mod error;
 pub mod ga;
+pub mod maps;
 
+pub use ause::{depth_ause, depth_errors, mean_ause, sparsification, Sparsification};
 pub use bla::{bla_image, laplace_at, lm_map, BlaFit, Laplace, MapFit, NerfResiduals, ResidualModel};
 pub use config::UqConfig;
 pub use error::UqError;
 pub use ga::{ga_fit, ga_image, ga_objective, GaExclusion, GaFit, GaRay};
+pub use maps::{bla_maps, bla_maps_factored, ga_maps, ga_maps_from_samples, CovarianceFactor, UncertaintyMaps};

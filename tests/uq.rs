@@ -257,3 +257,116 @@ fn missing_data_folder_or_model_is_refused_and_nothing_is_written() {
     assert!(!out.exists());
     assert!(model.exists());
 }
+
+/// A 24×24 monolith dataset (2 train, 1 val, 2 test views, ground-truth depth) and a 2-step
+/// model of it: enough pixels per image for the 100-step sparsification curve.
+fn ause_setup() -> &'static (PathBuf, PathBuf) {
+    static SETUP: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    SETUP.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("uq_ause_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let ds = dir.join("ds");
+        let (ok, _, err) = nerfsv(&[
+            "scene",
+            "--scene",
+            "monolith",
+            "--out",
+            s(&ds),
+            "--width",
+            "24",
+            "--height",
+            "24",
+            "--train",
+            "2",
+            "--val",
+            "1",
+            "--test",
+            "2",
+            "--supersample",
+            "1",
+        ]);
+        assert!(ok, "{err}");
+        let cfg = dir.join("nerf.toml");
+        std::fs::write(&cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
+        let nerf = dir.join("nerf");
+        let (ok, _, err) = nerfsv(&["train", "--data", s(&ds), "--out", s(&nerf), "--steps", "2", "--config", s(&cfg)]);
+        assert!(ok, "{err}");
+        (ds, nerf.join("checkpoint.safetensors"))
+    })
+}
+
+fn ause(method: &str, data: &Path) -> (bool, String, String) {
+    let (_, model) = ause_setup();
+    nerfsv(&["uq", "ause", "--method", method, "--model", s(model), "--data", s(data), "--json"])
+}
+
+/// Both methods score every test image that has ground-truth depth: an AUSE in [0, 1] per image
+/// over at least the curve's 100 pixels, and their mean.
+#[test]
+fn ause_scores_every_test_image_with_ground_truth_depth() {
+    let (ds, _) = ause_setup();
+    for method in ["ga", "bla"] {
+        let (ok, out, err) = ause(method, ds);
+        assert!(ok, "{method}: {err}");
+        let v: serde_json::Value = serde_json::from_str(&out).expect("one JSON object");
+        assert_eq!(v["method"], method);
+        assert_eq!(v["split"], "test");
+        assert_eq!(v["images"], 2, "{method}: {v}");
+        assert_eq!(v["skipped"].as_array().map(Vec::len), Some(0));
+        let per_image = v["per_image"].as_array().expect("per_image");
+        assert_eq!(per_image.len(), 2);
+        for im in per_image {
+            let a = im["ause"].as_f64().expect("ause");
+            assert!((0.0..=1.0).contains(&a), "{method}: {im}");
+            assert!(im["pixels"].as_u64().expect("pixels") >= 100, "{method}: {im}");
+        }
+        let mean = v["mean_ause"].as_f64().expect("mean_ause");
+        let expected = per_image.iter().map(|im| im["ause"].as_f64().unwrap()).sum::<f64>() / 2.0;
+        assert!((mean - expected).abs() < 1e-12, "{method}: mean {mean} vs {expected}");
+    }
+}
+
+/// A split whose frames carry no ground-truth depth is not scored on zeros: every image is
+/// skipped with a message naming it, and there is no mean.
+#[test]
+fn ause_skips_images_without_ground_truth_depth_naming_them() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("uq_ause_nodepth_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let copy = dir.join("ds");
+    let (ok, _, err) = nerfsv(&[
+        "scene",
+        "--scene",
+        "monolith",
+        "--out",
+        s(&copy),
+        "--width",
+        "24",
+        "--height",
+        "24",
+        "--train",
+        "1",
+        "--val",
+        "1",
+        "--test",
+        "2",
+        "--supersample",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    let transforms = copy.join("transforms_test.json");
+    let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&transforms).unwrap()).unwrap();
+    for f in t["frames"].as_array_mut().unwrap() {
+        f.as_object_mut().unwrap().remove("depth_file_path");
+    }
+    std::fs::write(&transforms, serde_json::to_string(&t).unwrap()).unwrap();
+    let (ok, out, err) = ause("ga", &copy);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["images"], 0);
+    assert!(v["mean_ause"].is_null(), "{v}");
+    let skipped = v["skipped"].as_array().unwrap();
+    assert_eq!(skipped.len(), 2);
+    assert!(skipped.iter().all(|m| m.as_str().unwrap().contains("r_")), "{skipped:?}");
+}

@@ -1,5 +1,6 @@
 //! `nerfsv uq offline`: the paper's offline uncertainty stage on every image of a dataset's
-//! train, val and test splits, with its CSV and figures.
+//! train, val and test splits, with its CSV and figures; `nerfsv uq ause`: how well a method's
+//! per-pixel depth uncertainty ranks the NeRF's true depth errors.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -13,7 +14,9 @@ use nerfsv_nerf::{Nerf, RayInput};
 use nerfsv_pipeline::{refuse_output_inside, Observer};
 use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
 use nerfsv_scene::validate::in_range;
-use nerfsv_uq::{bla_image, ga_image, GaExclusion, UqConfig, UqError};
+use nerfsv_uq::{
+    bla_image, bla_maps, depth_errors, ga_image, ga_maps, mean_ause, sparsification, GaExclusion, UqConfig, UqError,
+};
 use serde::Serialize;
 
 use crate::progress::Reporter;
@@ -38,6 +41,36 @@ pub enum UqCommand {
     /// trace–rmv scatter), PNG and SVG. An image whose rays all miss the model gets a row with
     /// empty values and is counted (`all_rays_miss`), not fitted.
     Offline(OfflineArgs),
+    /// Calibration: the depth AUSE (area between the sparsification curve of the NeRF's depth
+    /// error, removing pixels by decreasing depth uncertainty, and the oracle's, over 100
+    /// fractions, both normalised by their shared maximum; 0 is perfect) of GA's or BLA's
+    /// per-pixel depth uncertainty, per image of a split with ground-truth depth and on average.
+    /// Images without ground-truth depth are skipped with a message, never scored on zeros.
+    Ause(AuseArgs),
+}
+
+#[derive(Args)]
+pub struct AuseArgs {
+    #[arg(long, value_enum)]
+    pub method: MethodArg,
+    /// Checkpoint written by `nerfsv train`.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Blender-format dataset folder with ground-truth depth (`nerfsv scene` writes it).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The split scored.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// TOML file of uq settings, top-level keys (see `nerfsv uq offline --config`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Score only the first N images of the split (default: all; BLA takes seconds per image).
+    #[arg(long)]
+    pub max_images: Option<usize>,
+    /// Print one JSON object: method, split, images scored, skipped ones, mean AUSE, per image.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -98,7 +131,129 @@ pub struct OfflineArgs {
 pub fn run(args: UqArgs) -> anyhow::Result<()> {
     match args.command {
         UqCommand::Offline(a) => offline(a),
+        UqCommand::Ause(a) => ause(a),
     }
+}
+
+/// One image's depth AUSE.
+#[derive(Serialize)]
+struct ImageAuse {
+    image: String,
+    ause: f64,
+    /// Pixels with a valid ground-truth depth and a finite uncertainty.
+    pixels: usize,
+}
+
+#[derive(Serialize)]
+struct AuseSummary {
+    method: &'static str,
+    split: String,
+    images: usize,
+    /// Images skipped, with the reason (no ground-truth depth, every ray missing the model,
+    /// fewer than 100 pixels with both a ground-truth depth and a finite uncertainty).
+    skipped: Vec<String>,
+    mean_ause: Option<f64>,
+    per_image: Vec<ImageAuse>,
+    seconds: f64,
+}
+
+/// The depth-uncertainty map of `method` for `frame` (BLA: linearised at its posterior mode).
+fn depth_uncertainty(nerf: &Nerf, method: MethodArg, frame: &Frame, cfg: &UqConfig) -> Result<Vec<f32>, UqError> {
+    let name = frame.file_path.as_str();
+    let rays = camera_rays(&frame.camera, BACKGROUND);
+    let refs = reference(frame);
+    let maps = match method {
+        MethodArg::Ga => {
+            let fit = ga_image(nerf, name, &rays, &refs, cfg.ga_sigma_max)?;
+            ga_maps(nerf, name, &frame.camera, BACKGROUND, fit.sigma_d)?
+        }
+        MethodArg::Bla => {
+            let fit = bla_image(nerf, name, &rays, &refs, cfg)?;
+            let mut at_mode = nerf.clone();
+            for (w, &v) in at_mode.sigma_net_params_mut().iter_mut().zip(&fit.map.theta) {
+                *w = v as f32;
+            }
+            bla_maps(&at_mode, name, &frame.camera, BACKGROUND, &fit.laplace.covariance)?
+        }
+    };
+    Ok(maps.depth_std)
+}
+
+fn ause(args: AuseArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let cfg = load_uq_config(args.config.as_deref())?;
+    if let Some(n) = args.max_images {
+        in_range("--max-images", n, 1, usize::MAX)?;
+    }
+    if !has_split(&args.data, &args.split) {
+        anyhow::bail!("{}: no transforms file for split {:?}", args.data.display(), args.split);
+    }
+    let nerf = Nerf::load(&args.model).with_context(|| format!("loading the model {}", args.model.display()))?;
+    let split = load_split(&args.data, &args.split, LoadOptions::default())?;
+    let frames = &split.frames[..args.max_images.unwrap_or(usize::MAX).min(split.frames.len())];
+    let reporter = Reporter::new(args.json);
+    let (mut per_image, mut scored, mut skipped) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, frame) in frames.iter().enumerate() {
+        reporter.progress("ause", i as u64, frames.len() as u64, "images scored");
+        let name = frame.file_path.as_str();
+        let view = nerf.render_camera(&frame.camera, BACKGROUND);
+        let errors = match depth_errors(name, &view.depth, frame.depth.as_ref().map(|d| &d.metres[..])) {
+            Ok(e) => e,
+            Err(e @ UqError::NoGroundTruthDepth { .. }) => {
+                reporter.note("ause", &format!("skipped: {e}"));
+                skipped.push(e.to_string());
+                continue;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let uncertainty = match depth_uncertainty(&nerf, args.method, frame, &cfg) {
+            Ok(u) => u,
+            Err(e @ UqError::AllRaysMiss { .. }) => {
+                reporter.note("ause", &format!("skipped: {e}"));
+                skipped.push(e.to_string());
+                continue;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let curve = match sparsification(name, &errors, &uncertainty) {
+            Ok(c) => c,
+            Err(e @ UqError::TooFewPixels { .. }) => {
+                reporter.note("ause", &format!("skipped: {e}"));
+                skipped.push(e.to_string());
+                continue;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        per_image.push(ImageAuse { image: name.to_string(), ause: curve.ause, pixels: curve.pixels });
+        scored.push(curve);
+    }
+    reporter.progress("ause", frames.len() as u64, frames.len() as u64, "images scored");
+    let summary = AuseSummary {
+        method: args.method.name(),
+        split: args.split.clone(),
+        images: scored.len(),
+        skipped,
+        mean_ause: mean_ause(&scored),
+        per_image,
+        seconds: start.elapsed().as_secs_f64(),
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&summary)?);
+    } else {
+        for im in &summary.per_image {
+            println!("{}: depth AUSE {:.4} over {} pixels", im.image, im.ause, im.pixels);
+        }
+        let mean = summary.mean_ause.map_or_else(|| "n/a (no image scored)".to_string(), |m| format!("{m:.4}"));
+        println!(
+            "{} on {} ({} images, {} skipped): mean depth AUSE {mean} in {:.1} s",
+            summary.method,
+            summary.split,
+            summary.images,
+            summary.skipped.len(),
+            summary.seconds
+        );
+    }
+    Ok(())
 }
 
 /// One image's result; `None`: every ray missed the model, so there is nothing to fit.

@@ -266,27 +266,7 @@ fn ause_setup() -> &'static (PathBuf, PathBuf) {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("uq_ause_{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let ds = dir.join("ds");
-        let (ok, _, err) = nerfsv(&[
-            "scene",
-            "--scene",
-            "monolith",
-            "--out",
-            s(&ds),
-            "--width",
-            "24",
-            "--height",
-            "24",
-            "--train",
-            "2",
-            "--val",
-            "1",
-            "--test",
-            "2",
-            "--supersample",
-            "1",
-        ]);
-        assert!(ok, "{err}");
+        let ds = common::monolith_dataset(&dir, "24", "2", "2");
         let cfg = dir.join("nerf.toml");
         std::fs::write(&cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
         let nerf = dir.join("nerf");
@@ -334,27 +314,7 @@ fn ause_skips_images_without_ground_truth_depth_naming_them() {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("uq_ause_nodepth_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let copy = dir.join("ds");
-    let (ok, _, err) = nerfsv(&[
-        "scene",
-        "--scene",
-        "monolith",
-        "--out",
-        s(&copy),
-        "--width",
-        "24",
-        "--height",
-        "24",
-        "--train",
-        "1",
-        "--val",
-        "1",
-        "--test",
-        "2",
-        "--supersample",
-        "1",
-    ]);
-    assert!(ok, "{err}");
+    let copy = common::monolith_dataset(&dir, "24", "1", "2");
     let transforms = copy.join("transforms_test.json");
     let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&transforms).unwrap()).unwrap();
     for f in t["frames"].as_array_mut().unwrap() {

@@ -28,6 +28,12 @@ pub fn s(p: &Path) -> &str {
 /// Writes a tiny 8×8 monolith dataset (`train` training views, one validation view, `test`
 /// test views) into `dir/ds`.
 pub fn tiny_dataset(dir: &Path, train: &str, test: &str) -> PathBuf {
+    monolith_dataset(dir, "8", train, test)
+}
+
+/// Writes a `size`×`size` monolith dataset (`train` training views, one validation view, `test`
+/// test views, ground-truth depth) into `dir/ds`.
+pub fn monolith_dataset(dir: &Path, size: &str, train: &str, test: &str) -> PathBuf {
     let ds = dir.join("ds");
     let (ok, _, err) = nerfsv(&[
         "scene",
@@ -36,9 +42,9 @@ pub fn tiny_dataset(dir: &Path, train: &str, test: &str) -> PathBuf {
         "--out",
         s(&ds),
         "--width",
-        "8",
+        size,
         "--height",
-        "8",
+        size,
         "--train",
         train,
         "--val",

@@ -17,12 +17,8 @@ fn setup() -> &'static (PathBuf, PathBuf) {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let ds = common::tiny_dataset(&dir, "2", "1");
-        let cfg = dir.join("nerf.toml");
-        std::fs::write(&cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
-        let nerf = dir.join("nerf");
-        let (ok, _, err) = nerfsv(&["train", "--data", s(&ds), "--out", s(&nerf), "--steps", "2", "--config", s(&cfg)]);
-        assert!(ok, "{err}");
-        (ds, nerf.join("checkpoint.safetensors"))
+        let model = common::tiny_model(&dir, &ds);
+        (ds, model)
     })
 }
 
@@ -267,12 +263,8 @@ fn ause_setup() -> &'static (PathBuf, PathBuf) {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let ds = common::monolith_dataset(&dir, "24", "2", "2");
-        let cfg = dir.join("nerf.toml");
-        std::fs::write(&cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
-        let nerf = dir.join("nerf");
-        let (ok, _, err) = nerfsv(&["train", "--data", s(&ds), "--out", s(&nerf), "--steps", "2", "--config", s(&cfg)]);
-        assert!(ok, "{err}");
-        (ds, nerf.join("checkpoint.safetensors"))
+        let model = common::tiny_model(&dir, &ds);
+        (ds, model)
     })
 }
 

@@ -62,14 +62,20 @@ pub fn monolith_dataset(dir: &Path, size: &str, train: &str, test: &str) -> Path
 /// ground-truth field (the planner's map in these tests: the tiny model has learned nothing).
 pub fn tiny_model_and_field(dir: &Path) -> (PathBuf, PathBuf) {
     let ds = tiny_dataset(dir, "2", "1");
-    let nerf_cfg = dir.join("nerf.toml");
-    std::fs::write(&nerf_cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
-    let nerf = dir.join("nerf");
-    let (ok, _, err) =
-        nerfsv(&["train", "--data", s(&ds), "--out", s(&nerf), "--steps", "2", "--config", s(&nerf_cfg)]);
-    assert!(ok, "{err}");
+    let model = tiny_model(dir, &ds);
     let field = dir.join("gt.safetensors");
     let (ok, _, err) = nerfsv(&["collision", "--scene", "monolith", "--out", s(&field)]);
     assert!(ok, "{err}");
-    (nerf.join("checkpoint.safetensors"), field)
+    (model, field)
+}
+
+/// A 2-step model of the monolith dataset `ds` in a ±1 m box, trained into `dir/nerf`: its
+/// checkpoint.
+pub fn tiny_model(dir: &Path, ds: &Path) -> PathBuf {
+    let nerf_cfg = dir.join("nerf.toml");
+    std::fs::write(&nerf_cfg, "[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n").unwrap();
+    let nerf = dir.join("nerf");
+    let (ok, _, err) = nerfsv(&["train", "--data", s(ds), "--out", s(&nerf), "--steps", "2", "--config", s(&nerf_cfg)]);
+    assert!(ok, "{err}");
+    nerf.join("checkpoint.safetensors")
 }

@@ -341,9 +341,10 @@ impl ChunkWorkspace {
     }
 
     /// Forward pass over a chunk of rays: marches through `grid` in rounds of `round` (≥ 1;
-    /// [`TRAIN_ROUND`], [`RENDER_ROUND`]) samples per live ray, evaluating densities as it goes so that a ray stops being marched
-    /// once its transmittance falls below `t_min` (or it leaves the box, or has `max_samples`);
-    /// then colours for the samples before termination, and composites per ray.
+    /// [`TRAIN_ROUND`], [`RENDER_ROUND`]) samples per live ray, evaluating densities as it goes
+    /// so that a ray stops being marched once its transmittance falls below `t_min` (or it
+    /// leaves the box, or has `max_samples`); then colours for the samples before termination,
+    /// and composites per ray.
     ///
     /// Samples are stored in evaluation order (`t`, `pos`, `sigma`, … indexed by sample id);
     /// `order` lists them ray by ray, and `ray_start` indexes `order`.

@@ -522,19 +522,4 @@ impl Nerf {
             })
             .collect()
     }
-
-    /// [`ChunkWorkspace::forward`] with the rendering settings of this model.
-    pub(crate) fn forward_chunk(&self, ws: &mut ChunkWorkspace, rays: &[RayInput]) {
-        let c = &self.config;
-        ws.forward(
-            &self.field,
-            &self.params,
-            rays,
-            &self.grid,
-            c.step_size,
-            c.max_samples_per_ray,
-            c.early_stop_transmittance,
-            crate::fields::RENDER_ROUND,
-        );
-    }
 }

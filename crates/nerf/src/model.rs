@@ -135,17 +135,7 @@ impl Nerf {
             .zip(rays.par_chunks(RENDER_CHUNK))
             .map(|(((rgb, op), dist), rs)| {
                 pool.with(|ws| {
-                    let c = &self.config;
-                    ws.forward(
-                        &self.field,
-                        &self.params,
-                        rs,
-                        &self.grid,
-                        c.step_size,
-                        c.max_samples_per_ray,
-                        c.early_stop_transmittance,
-                        crate::fields::RENDER_ROUND,
-                    );
+                    self.forward_chunk(ws, rs);
                     rgb.copy_from_slice(&ws.color);
                     op.copy_from_slice(&ws.opacity);
                     for ((d, &o), &w) in dist.iter_mut().zip(&ws.opacity).zip(&ws.depth) {
@@ -157,6 +147,21 @@ impl Nerf {
             .sum();
         out.samples = samples;
         out
+    }
+
+    /// [`ChunkWorkspace::forward`] with the rendering settings of this model.
+    pub(crate) fn forward_chunk(&self, ws: &mut ChunkWorkspace, rays: &[RayInput]) {
+        let c = &self.config;
+        ws.forward(
+            &self.field,
+            &self.params,
+            rays,
+            &self.grid,
+            c.step_size,
+            c.max_samples_per_ray,
+            c.early_stop_transmittance,
+            crate::fields::RENDER_ROUND,
+        );
     }
 
     /// One occupancy-grid update (`update_index` = how many came before): evaluates σ·Δt at a

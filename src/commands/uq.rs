@@ -15,7 +15,8 @@ use nerfsv_pipeline::{refuse_output_inside, Observer};
 use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
 use nerfsv_scene::validate::in_range;
 use nerfsv_uq::{
-    bla_image, bla_maps, depth_errors, ga_image, ga_maps, mean_ause, sparsification, GaExclusion, UqConfig, UqError,
+    bla_image, bla_maps, depth_errors, ga_fit_samples, ga_image, ga_maps_from_samples, mean_ause, sparsification,
+    GaExclusion, UqConfig, UqError,
 };
 use serde::Serialize;
 
@@ -164,8 +165,10 @@ fn depth_uncertainty(nerf: &Nerf, method: MethodArg, frame: &Frame, cfg: &UqConf
     let refs = reference(frame);
     let maps = match method {
         MethodArg::Ga => {
-            let fit = ga_image(nerf, name, &rays, &refs, cfg.ga_sigma_max)?;
-            ga_maps(nerf, name, &frame.camera, BACKGROUND, fit.sigma_d)?
+            // One render serves the fit and the maps.
+            let samples = nerf.render_rays_samples(&rays);
+            let fit = ga_fit_samples(name, &rays, &samples, &refs, cfg.ga_sigma_max)?;
+            ga_maps_from_samples(name, &frame.camera, &samples, fit.sigma_d)?
         }
         MethodArg::Bla => {
             let fit = bla_image(nerf, name, &rays, &refs, cfg)?;

@@ -25,7 +25,7 @@
 //! the remaining transmittance `T = 1 − Σ_i d_i`, is subtracted from the reference first:
 //! `r = reference − T·background`.
 
-use nerfsv_nerf::{Nerf, RayInput};
+use nerfsv_nerf::{Nerf, RayInput, RaySamples};
 use rayon::prelude::*;
 
 use crate::UqError;
@@ -208,7 +208,34 @@ pub fn ga_image(
     sigma_max: f64,
 ) -> Result<GaFit, UqError> {
     check_reference(image, rays.len(), reference)?;
-    let samples = nerf.render_rays_samples(rays);
+    fit_rendered(image, rays, &nerf.render_rays_samples(rays), reference, sigma_max)
+}
+
+/// [`ga_image`] on an already rendered view: `samples` of `rays` (from
+/// [`Nerf::render_rays_samples`]), so a caller that needs them again (the GA maps,
+/// [`crate::ga_maps_from_samples`]) renders once.
+pub fn ga_fit_samples(
+    image: &str,
+    rays: &[RayInput],
+    samples: &RaySamples,
+    reference: &[[f32; 3]],
+    sigma_max: f64,
+) -> Result<GaFit, UqError> {
+    check_reference(image, rays.len(), reference)?;
+    if samples.len() != rays.len() {
+        return Err(UqError::LengthMismatch { image: image.to_string(), rays: samples.len(), references: rays.len() });
+    }
+    fit_rendered(image, rays, samples, reference, sigma_max)
+}
+
+/// The GA of checked inputs: each ray's `(m, s, r)` from its samples, then [`ga_fit`].
+fn fit_rendered(
+    image: &str,
+    rays: &[RayInput],
+    samples: &RaySamples,
+    reference: &[[f32; 3]],
+    sigma_max: f64,
+) -> Result<GaFit, UqError> {
     let ga_rays: Vec<GaRay> = (0..rays.len())
         .into_par_iter()
         .map(|i| {

@@ -52,5 +52,5 @@ pub use ause::{depth_ause, depth_errors, mean_ause, sparsification, Sparsificati
 pub use bla::{bla_image, laplace_at, lm_map, BlaFit, Laplace, MapFit, NerfResiduals, ResidualModel};
 pub use config::UqConfig;
 pub use error::UqError;
-pub use ga::{ga_fit, ga_image, ga_objective, GaExclusion, GaFit, GaRay};
+pub use ga::{ga_fit, ga_fit_samples, ga_image, ga_objective, GaExclusion, GaFit, GaRay};
 pub use maps::{bla_maps, bla_maps_factored, ga_maps, ga_maps_from_samples, CovarianceFactor, UncertaintyMaps};

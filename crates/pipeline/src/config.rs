@@ -78,6 +78,9 @@ pub struct RunConfig {
     /// The adversary: disturbance prior, Monte Carlo, Cross-Entropy Method, run seed (the
     /// `[validation]` table).
     pub validation: nerfsv_validation::ValidationConfig,
+    /// Uncertainty quantification: GA and BLA settings, the online rewards, the uncertainty
+    /// field (the `[uq]` table).
+    pub uq: nerfsv_uq::UqConfig,
 }
 
 impl Default for RunConfig {
@@ -96,6 +99,7 @@ impl Default for RunConfig {
             sim: nerfsv_sim::SimConfig::default(),
             flight_seed: 0,
             validation: nerfsv_validation::ValidationConfig::default(),
+            uq: nerfsv_uq::UqConfig::default(),
         }
     }
 }
@@ -138,6 +142,7 @@ impl Validate for RunConfig {
         nerfsv_collision::check_cells_per_metre("cells_per_metre", self.cells_per_metre)?;
         self.nerf_settings().validate()?;
         in_range("train_steps", self.train_steps, 1, MAX_TRAIN_STEPS)?;
+        self.uq.validate().map_err(|e| e.within("uq"))?;
         if let Some(t) = self.nerf_density_threshold {
             positive("nerf_density_threshold", t as f64)?;
         }

@@ -44,6 +44,24 @@ pub struct UqConfig {
     /// likelihood (at the MAP found with `prior_precision`) picks the one the covariance uses
     /// (default empty: `prior_precision` is used).
     pub prior_precision_grid: Vec<f64>,
+    /// Online: the penalty of the rewards of eq. 10 (`log p − penalty·σ_d`) and eq. 11
+    /// (`log p − penalty·rmv·trace·n`, n = `perturbations`); the paper's 36.
+    pub reward_penalty: f64,
+    /// Online, GA: pixels of the drone's view (an even grid of strata, one pixel each) that the
+    /// per-step fit sums over (default 1024).
+    pub online_rays: usize,
+    /// Online, BLA: rays of the drone's view fitted per step (default 64; the per-step cost
+    /// grows with rays², the offline fit uses `max_rays`).
+    pub online_bla_rays: usize,
+    /// Uncertainty field: voxels per metre of its grid (default 20).
+    pub field_cells_per_metre: f64,
+    /// Uncertainty field, BLA: rays per training image whose Jacobians enter the posterior
+    /// (default 64).
+    pub field_rays_per_image: usize,
+    /// Uncertainty field, BLA: eigen-directions of the data term kept exactly; the rest of the
+    /// posterior is taken at the prior (default 256; the error against the dense value is
+    /// measured in BENCHMARKS.md).
+    pub field_rank: usize,
 }
 
 impl Default for UqConfig {
@@ -59,6 +77,12 @@ impl Default for UqConfig {
             max_rays: 256,
             seed: 0,
             prior_precision_grid: Vec::new(),
+            reward_penalty: 36.0,
+            online_rays: 1024,
+            online_bla_rays: 64,
+            field_cells_per_metre: 20.0,
+            field_rays_per_image: 64,
+            field_rank: 256,
         }
     }
 }
@@ -75,6 +99,12 @@ impl UqConfig {
         positive("lm_tolerance", self.lm_tolerance)?;
         in_range("perturbations", self.perturbations, 1, 1000)?;
         in_range("max_rays", self.max_rays, 1, 1 << 20)?;
+        in_range("reward_penalty", self.reward_penalty, 0.0, 1e9)?;
+        in_range("online_rays", self.online_rays, 1, 1 << 20)?;
+        in_range("online_bla_rays", self.online_bla_rays, 1, 1 << 16)?;
+        in_range("field_cells_per_metre", self.field_cells_per_metre, 1.0, 400.0)?;
+        in_range("field_rays_per_image", self.field_rays_per_image, 1, 1 << 16)?;
+        in_range("field_rank", self.field_rank, 1, 1 << 16)?;
         for (i, &a) in self.prior_precision_grid.iter().enumerate() {
             positive(&format!("prior_precision_grid[{i}]"), a)?;
         }

@@ -288,6 +288,85 @@ pub fn laplace_at<M: ResidualModel>(
     })
 }
 
+/// The summaries of the Laplace approximation without the covariance itself: what the online
+/// reward needs, at the cost of the Gram matrix on its smaller side (`m × m` when `m < P`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LaplaceSummary {
+    /// The prior precision α used.
+    pub prior_precision: f64,
+    /// `tr(Σ)/P`.
+    pub normalized_trace: f64,
+    /// `√(mean diag Σ)`.
+    pub rmv: f64,
+    /// Laplace log marginal likelihood at that α.
+    pub log_evidence: f64,
+    /// `(α, log evidence)` for every α of [`UqConfig::prior_precision_grid`].
+    pub evidence_grid: Vec<(f64, f64)>,
+    /// `m`, residuals at the mode.
+    pub residuals: usize,
+}
+
+/// [`laplace_at`]'s summaries (same values up to rounding) from the eigenvalues `e_k` of the
+/// Gram matrix on its smaller side (`k = min(m, P)` of them, the non-zero spectrum of `JᵀJ`):
+/// `tr Σ = Σ_k 1/(e_k/σ_n² + α) + (P − k)/α` and `log det H = Σ_k ln(e_k/σ_n² + α) + (P − k)·ln α`.
+/// With a view's few rays (`m ≪ P`) this costs an `m × m` eigen-decomposition instead of the
+/// `P × P` factorisation and inverse: the per-step BLA of the online reward.
+pub fn laplace_summary_at<M: ResidualModel>(
+    image: &str,
+    model: &mut M,
+    theta: &[f64],
+    cfg: &UqConfig,
+) -> Result<LaplaceSummary, UqError> {
+    let var = cfg.noise_std * cfg.noise_std;
+    let p = model.n_params();
+    let mut r = Vec::new();
+    let mut jac = Mat::zeros(0, 0);
+    model.residuals_and_jacobian(theta, &mut r, &mut jac);
+    let m = r.len();
+    let rr: f64 = r.iter().map(|v| v * v).sum();
+    let tt: f64 = theta.iter().map(|v| v * v).sum();
+    if !rr.is_finite() || !tt.is_finite() || jac.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
+        return Err(UqError::NonFinite { image: image.to_string(), what: "the residuals at the mode" });
+    }
+    let eig = StepSolver::new(&jac)
+        .gram
+        .self_adjoint_eigenvalues(Side::Lower)
+        .map_err(|_| UqError::NonFinite { image: image.to_string(), what: "the Gram matrix" })?;
+    let k = eig.len();
+    let log_det = |a: f64| eig.iter().map(|&e| (e.max(0.0) / var + a).ln()).sum::<f64>() + (p - k) as f64 * a.ln();
+    let evidence = |a: f64| {
+        -0.5 * rr / var - 0.5 * a * tt - 0.5 * m as f64 * (2.0 * std::f64::consts::PI * var).ln()
+            + 0.5 * p as f64 * a.ln()
+            - 0.5 * log_det(a)
+    };
+    let mut alpha = cfg.prior_precision;
+    let mut evidence_grid = Vec::new();
+    if !cfg.prior_precision_grid.is_empty() {
+        let mut best = (f64::NEG_INFINITY, alpha);
+        for &a in &cfg.prior_precision_grid {
+            let e = evidence(a);
+            evidence_grid.push((a, e));
+            if e > best.0 {
+                best = (e, a);
+            }
+        }
+        alpha = best.1;
+    }
+    let trace = eig.iter().map(|&e| 1.0 / (e.max(0.0) / var + alpha)).sum::<f64>() + (p - k) as f64 / alpha;
+    let normalized_trace = trace / p as f64;
+    if !normalized_trace.is_finite() {
+        return Err(UqError::NonFinite { image: image.to_string(), what: "the posterior covariance" });
+    }
+    Ok(LaplaceSummary {
+        prior_precision: alpha,
+        normalized_trace,
+        rmv: normalized_trace.sqrt(),
+        log_evidence: evidence(alpha),
+        evidence_grid,
+        residuals: m,
+    })
+}
+
 /// Residuals of a NeRF's rendered colours against reference colours, as functions of the
 /// `sigma_net` weights: `r[3i + c] = render(ray i)_c − reference_i,c`. Holds the model it sets
 /// the weights of.
@@ -349,6 +428,63 @@ pub struct BlaFit {
     pub laplace: Laplace,
 }
 
+/// The MAP part of the BLA of one view: the kept perturbation's fit, the rays it used and the
+/// model copy whose weights the fit varied.
+struct Mapped {
+    perturbation: usize,
+    perturbation_losses: Vec<f64>,
+    map: MapFit,
+    model: Nerf,
+    rays: Vec<RayInput>,
+    reference: Vec<[f32; 3]>,
+}
+
+/// For each of [`UqConfig::perturbations`] jittered copies of the sample positions, the rays
+/// that composite a sample (at most `max_rays`, an even stride) fitted from the trained weights
+/// to their MAP; the lowest-loss one is kept.
+fn map_over_perturbations(
+    nerf: &Nerf,
+    image: &str,
+    rays: &[RayInput],
+    reference: &[[f32; 3]],
+    cfg: &UqConfig,
+    max_rays: usize,
+) -> Result<Mapped, UqError> {
+    cfg.validate().map_err(|e| e.within("uq"))?;
+    check_reference(image, rays.len(), reference)?;
+    let theta0: Vec<f64> = nerf.sigma_net_params().iter().map(|&v| v as f64).collect();
+    let mut model = nerf.clone();
+    // (perturbation, its MAP, its rays and their references) of the lowest loss so far.
+    let mut best: Option<(usize, MapFit, Vec<RayInput>, Vec<[f32; 3]>)> = None;
+    let mut perturbation_losses = Vec::new();
+    for k in 0..cfg.perturbations {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            cfg.seed ^ (0xB1A0_0000 + k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        );
+        let jittered: Vec<RayInput> = rays.iter().map(|r| RayInput { jitter: rng.random::<f32>(), ..*r }).collect();
+        let samples = nerf.render_rays_samples(&jittered);
+        let hit: Vec<usize> = (0..rays.len()).filter(|&i| !samples.ray(i).1.is_empty()).collect();
+        if hit.is_empty() {
+            return Err(UqError::AllRaysMiss { image: image.to_string(), rays: rays.len() });
+        }
+        let n = hit.len().min(max_rays);
+        let pick: Vec<usize> = (0..n).map(|q| hit[q * hit.len() / n]).collect();
+        let sel_rays: Vec<RayInput> = pick.iter().map(|&i| jittered[i]).collect();
+        let sel_ref: Vec<[f32; 3]> = pick.iter().map(|&i| reference[i]).collect();
+        let mut res = NerfResiduals::new(&mut model, sel_rays, sel_ref);
+        let fit = lm_map(&mut res, &theta0, cfg);
+        let NerfResiduals { rays: sel_rays, reference: sel_ref, .. } = res;
+        perturbation_losses.push(fit.loss);
+        if best.as_ref().is_none_or(|b| fit.loss < b.1.loss) {
+            best = Some((k, fit, sel_rays, sel_ref));
+        }
+    }
+    let Some((perturbation, map, rays, reference)) = best else {
+        unreachable!("at least one perturbation (validated)")
+    };
+    Ok(Mapped { perturbation, perturbation_losses, map, model, rays, reference })
+}
+
 /// The BLA of one image: for each of [`UqConfig::perturbations`] jittered copies of the
 /// sample positions (per-ray lattice offset `U[0, 1)` steps, seeded by
 /// `(UqConfig::seed, perturbation)`), the rays that composite a sample (at most
@@ -366,46 +502,38 @@ pub fn bla_image(
     reference: &[[f32; 3]],
     cfg: &UqConfig,
 ) -> Result<BlaFit, UqError> {
-    cfg.validate().map_err(|e| e.within("uq"))?;
-    check_reference(image, rays.len(), reference)?;
-    let theta0: Vec<f64> = nerf.sigma_net_params().iter().map(|&v| v as f64).collect();
-    let mut model = nerf.clone();
-    // (perturbation, its MAP, its rays and their references) of the lowest loss so far.
-    struct Kept {
-        perturbation: usize,
-        map: MapFit,
-        rays: Vec<RayInput>,
-        reference: Vec<[f32; 3]>,
-    }
-    let mut best: Option<Kept> = None;
-    let mut perturbation_losses = Vec::new();
-    for k in 0..cfg.perturbations {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
-            cfg.seed ^ (0xB1A0_0000 + k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-        );
-        let jittered: Vec<RayInput> = rays.iter().map(|r| RayInput { jitter: rng.random::<f32>(), ..*r }).collect();
-        let samples = nerf.render_rays_samples(&jittered);
-        let hit: Vec<usize> = (0..rays.len()).filter(|&i| !samples.ray(i).1.is_empty()).collect();
-        if hit.is_empty() {
-            return Err(UqError::AllRaysMiss { image: image.to_string(), rays: rays.len() });
-        }
-        let n = hit.len().min(cfg.max_rays);
-        let pick: Vec<usize> = (0..n).map(|q| hit[q * hit.len() / n]).collect();
-        let sel_rays: Vec<RayInput> = pick.iter().map(|&i| jittered[i]).collect();
-        let sel_ref: Vec<[f32; 3]> = pick.iter().map(|&i| reference[i]).collect();
-        let mut res = NerfResiduals::new(&mut model, sel_rays, sel_ref);
-        let fit = lm_map(&mut res, &theta0, cfg);
-        let NerfResiduals { rays: sel_rays, reference: sel_ref, .. } = res;
-        perturbation_losses.push(fit.loss);
-        if best.as_ref().is_none_or(|b| fit.loss < b.map.loss) {
-            best = Some(Kept { perturbation: k, map: fit, rays: sel_rays, reference: sel_ref });
-        }
-    }
-    let Some(Kept { perturbation, map, rays: sel_rays, reference: sel_ref }) = best else {
-        unreachable!("at least one perturbation (validated)")
-    };
-    let n_rays = sel_rays.len();
-    let mut res = NerfResiduals::new(&mut model, sel_rays, sel_ref);
+    let Mapped { perturbation, perturbation_losses, map, mut model, rays, reference } =
+        map_over_perturbations(nerf, image, rays, reference, cfg, cfg.max_rays)?;
+    let n_rays = rays.len();
+    let mut res = NerfResiduals::new(&mut model, rays, reference);
     let laplace = laplace_at(image, &mut res, &map.theta, cfg)?;
     Ok(BlaFit { map, perturbation, perturbation_losses, rays: n_rays, laplace })
+}
+
+/// The BLA of a view without its covariance: [`bla_image`]'s MAP over the perturbations on at
+/// most `max_rays` rays, then [`laplace_summary_at`] (normalised trace, rmv, evidence). The
+/// online reward's per-step uncertainty.
+#[derive(Clone, Debug)]
+pub struct BlaSummary {
+    pub map: MapFit,
+    pub perturbation: usize,
+    pub rays: usize,
+    pub laplace: LaplaceSummary,
+}
+
+/// See [`BlaSummary`].
+pub fn bla_view(
+    nerf: &Nerf,
+    image: &str,
+    rays: &[RayInput],
+    reference: &[[f32; 3]],
+    cfg: &UqConfig,
+    max_rays: usize,
+) -> Result<BlaSummary, UqError> {
+    let Mapped { perturbation, map, mut model, rays, reference, .. } =
+        map_over_perturbations(nerf, image, rays, reference, cfg, max_rays)?;
+    let n_rays = rays.len();
+    let mut res = NerfResiduals::new(&mut model, rays, reference);
+    let laplace = laplace_summary_at(image, &mut res, &map.theta, cfg)?;
+    Ok(BlaSummary { map, perturbation, rays: n_rays, laplace })
 }

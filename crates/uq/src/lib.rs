@@ -49,7 +49,10 @@ pub mod ga;
 pub mod maps;
 
 pub use ause::{depth_ause, depth_errors, mean_ause, sparsification, Sparsification};
-pub use bla::{bla_image, laplace_at, lm_map, BlaFit, Laplace, MapFit, NerfResiduals, ResidualModel};
+pub use bla::{
+    bla_image, bla_view, laplace_at, laplace_summary_at, lm_map, BlaFit, BlaSummary, Laplace, LaplaceSummary, MapFit,
+    NerfResiduals, ResidualModel,
+};
 pub use config::UqConfig;
 pub use error::UqError;
 pub use ga::{ga_fit, ga_fit_samples, ga_image, ga_objective, GaExclusion, GaFit, GaRay};

@@ -8,7 +8,9 @@
 mod common;
 
 use faer::Mat;
-use nerfsv_uq::{bla_image, laplace_at, lm_map, NerfResiduals, ResidualModel, UqConfig, UqError};
+use nerfsv_uq::{
+    bla_image, bla_view, laplace_at, laplace_summary_at, lm_map, NerfResiduals, ResidualModel, UqConfig, UqError,
+};
 use rand::{RngExt, SeedableRng};
 
 /// `r(θ) = A·θ − y`.
@@ -187,6 +189,33 @@ fn the_prior_precision_grid_picks_the_highest_laplace_evidence() {
     }
 }
 
+/// The covariance-free summaries (eigenvalues of the Gram matrix on its smaller side) equal the
+/// dense Laplace approximation's, with fewer residuals than parameters and with more, with and
+/// without a grid of prior precisions.
+#[test]
+fn the_summary_from_the_gram_spectrum_equals_the_dense_laplace_approximation() {
+    let base = UqConfig { prior_precision: 0.7, noise_std: 0.2, lm_iterations: 20, ..UqConfig::default() };
+    for (m, p) in [(5, 40), (40, 6), (12, 12)] {
+        for grid in [vec![], vec![0.05, 0.5, 5.0]] {
+            let cfg = UqConfig { prior_precision_grid: grid, ..base.clone() };
+            let mut model = Linear::random(m, p, 11);
+            let fit = lm_map(&mut model, &vec![0.0; p], &cfg);
+            let dense = laplace_at("lin", &mut model, &fit.theta, &cfg).unwrap();
+            let summary = laplace_summary_at("lin", &mut model, &fit.theta, &cfg).unwrap();
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(1.0);
+            assert_eq!(summary.prior_precision, dense.prior_precision, "m {m} p {p}");
+            assert!(close(summary.normalized_trace, dense.normalized_trace), "{summary:?} vs {}", dense.normalized_trace);
+            assert!(close(summary.rmv, dense.rmv));
+            assert!(close(summary.log_evidence, dense.log_evidence), "{} vs {}", summary.log_evidence, dense.log_evidence);
+            assert_eq!(summary.evidence_grid.len(), dense.evidence_grid.len());
+            for (a, b) in summary.evidence_grid.iter().zip(&dense.evidence_grid) {
+                assert!(a.0 == b.0 && close(a.1, b.1), "{a:?} vs {b:?}");
+            }
+            assert_eq!(summary.residuals, m);
+        }
+    }
+}
+
 /// `r_k(θ) = exp(θ₀ x_k) + θ₁ sin(θ₂ x_k) − y_k`: curved enough that undamped Gauss–Newton
 /// overshoots from a far start.
 struct Curved {
@@ -285,6 +314,26 @@ fn bla_of_a_nerf_image_keeps_the_lowest_loss_perturbation_and_a_positive_definit
     let again = bla_image(&nerf, "r_3", &rays, &reference, &cfg).unwrap();
     assert_eq!(again.map, fit.map);
     assert_eq!(again.laplace.normalized_trace, lap.normalized_trace);
+}
+
+/// The view's BLA (the online reward's) is the image's BLA without the covariance: same MAP,
+/// same summaries.
+#[test]
+fn the_view_bla_matches_the_image_bla_without_its_covariance() {
+    let nerf = common::tiny_nerf();
+    let rays = common::view_rays(12);
+    let reference = shifted_reference(&rays);
+    let cfg = UqConfig { max_rays: 40, lm_iterations: 3, ..UqConfig::default() };
+    let image = bla_image(&nerf, "v", &rays, &reference, &cfg).unwrap();
+    let view = bla_view(&nerf, "v", &rays, &reference, &cfg, 40).unwrap();
+    assert_eq!(view.map, image.map);
+    assert_eq!((view.perturbation, view.rays), (image.perturbation, image.rays));
+    let rel = |a: f64, b: f64| (a - b).abs() / b.abs();
+    assert!(rel(view.laplace.normalized_trace, image.laplace.normalized_trace) < 1e-6);
+    assert!(rel(view.laplace.log_evidence, image.laplace.log_evidence) < 1e-6);
+    // Fewer rays, less data: more posterior variance.
+    let fewer = bla_view(&nerf, "v", &rays, &reference, &cfg, 8).unwrap();
+    assert!(fewer.laplace.normalized_trace > view.laplace.normalized_trace);
 }
 
 #[test]

@@ -24,8 +24,19 @@ fn uq_field_writes_the_field_its_slice_and_figures_and_a_field_of_another_model_
     for method in ["ga", "bla"] {
         let out = dir.path().join("fields").join(format!("field_{method}.safetensors"));
         let (ok, stdout, err) = nerfsv(&[
-            "uq", "field", "--method", method, "--model", s(&model), "--data", s(&ds), "--out", s(&out), "--config",
-            s(&cfg), "--json",
+            "uq",
+            "field",
+            "--method",
+            method,
+            "--model",
+            s(&model),
+            "--data",
+            s(&ds),
+            "--out",
+            s(&out),
+            "--config",
+            s(&cfg),
+            "--json",
         ]);
         assert!(ok, "{err}");
         let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"));
@@ -76,7 +87,15 @@ fn uq_field_writes_the_field_its_slice_and_figures_and_a_field_of_another_model_
     let empty = dir.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     let (ok, _, err) = nerfsv(&[
-        "uq", "field", "--method", "ga", "--model", s(&model), "--data", s(&empty), "--out",
+        "uq",
+        "field",
+        "--method",
+        "ga",
+        "--model",
+        s(&model),
+        "--data",
+        s(&empty),
+        "--out",
         s(&dir.path().join("x.safetensors")),
     ]);
     assert!(!ok && err.contains("transforms_train.json"), "{err}");

@@ -17,16 +17,26 @@
 //! the 3072): only the first `m = sh·e + sh` weights (2112) reach σ. So only the `m × m`
 //! block `Σ₁₁` of Σ matters, and it is the inverse of the Schur complement
 //! `S = (D₁₁ + αI) − D₁₂·(D₂₂ + αI)⁻¹·D₂₁ = αI + D̃` — the geometry weights marginalised
-//! exactly. With the eigen-decomposition `D̃ = V Λ Vᵀ` (λ descending), keeping `K =`
-//! [`UqConfig::field_rank`] eigenpairs,
+//! exactly ([`DensityPosterior`]). Two routes from there:
+//!
+//! - **exact** (the default, `K ≥ m`): `gᵀΣ₁₁g = |L⁻¹g|²` with `S = L·Lᵀ`, one triangular
+//!   solve with a batch of nodes' gradients as right-hand sides, `m²` flops per node;
+//! - **rank K** (`K =` [`UqConfig::field_rank`] `< m`): with `D̃ = V Λ Vᵀ` (λ descending),
 //!
 //!   `gᵀΣg ≈ |g|²/α − Σ_{k≤K} (v_kᵀg)²·(1/α − 1/(α + λ_k))`
 //!
-//! which is exact at `K = m` and decreases monotonically to the exact value as `K` grows (each
-//! term is ≥ 0): the rank-K value is an upper bound. Per node this is `2·m·K` flops (one
-//! batched matrix product) instead of a dense `m²`. Measured on the default model
-//! (BENCHMARKS.md, "Uncertainty field"): the relative error of `K = 256` against the dense
-//! value on nodes of non-negligible density is stated there.
+//!   exact at `K = m`, decreasing monotonically to the exact value as `K` grows (each term is
+//!   ≥ 0): an upper bound, `2·m·K` flops per node.
+//!
+//! The rank-K route is a poor approximation on a trained model: the data pin σ down in almost
+//! every direction a node's gradient takes (the posterior variance is a median 0.75 % of the
+//! prior-only `|g|²/α` on nodes of σ ≥ 1/m), so the prior-filled tail dominates. Measured on
+//! the default model (200 images × 64 rays, 2000 nodes of σ ≥ 1/m, relative error against the
+//! exact value, `cargo run --release -p nerfsv-uq --example field_rank_error`): K = 256 (98.5 %
+//! of the eigenvalue mass) median 2.84, p90 3.71, max 4.78; K = 1024 median 1.7e-2, p90
+//! 4.2e-2, max 7.1e-2. The exact route costs about twice K = 256 per node and the
+//! eigen-decomposition of the 2112² term about a second, so it is the default; the exact
+//! value agrees with `gᵀH⁻¹g` from the full 3072² Cholesky factor to 3e-12.
 //!
 //! **GA** ([`UncertaintyField::build_ga`]). Per training image, the closed-form GA fit
 //! ([`crate::ga_fit_samples`]) gives μ̂_d; each ray's own term of the image's σ̂² estimate,
@@ -279,6 +289,8 @@ pub struct DensityPosterior {
     pub eigenvalues: Vec<f64>,
     /// `[m, m]` the matching eigenvectors (columns).
     pub eigenvectors: Mat<f64>,
+    /// `[m, m]` the lower Cholesky factor `L` of `S = αI + D̃ = Σ₁₁⁻¹`.
+    pub cholesky: Mat<f64>,
 }
 
 impl DensityPosterior {
@@ -303,13 +315,21 @@ impl DensityPosterior {
         if !reduced.as_ref().is_all_finite() {
             return Err(bad("the data term"));
         }
+        let mut precision = reduced.clone();
+        for i in 0..m {
+            precision[(i, i)] += prior_precision;
+        }
+        let cholesky = Llt::new(precision.as_ref(), Side::Lower)
+            .map_err(|_| UqError::NotPositiveDefinite { image: "uncertainty field".into() })?
+            .L()
+            .to_owned();
         let eig = reduced.self_adjoint_eigen(Side::Lower).map_err(|_| bad("the data term's eigen-decomposition"))?;
         let s = eig.S().column_vector();
         let u = eig.U();
         // faer sorts ascending; keep descending.
         let eigenvalues: Vec<f64> = (0..m).rev().map(|k| s[k].max(0.0)).collect();
         let eigenvectors = Mat::from_fn(m, m, |i, k| u[(i, m - 1 - k)]);
-        Ok(Self { n_density_params: m, prior_precision, eigenvalues, eigenvectors })
+        Ok(Self { n_density_params: m, prior_precision, eigenvalues, eigenvectors, cholesky })
     }
 
     /// `Σ_{k≤K} λ_k / Σ λ_k` (1 for a zero data term).
@@ -331,10 +351,37 @@ impl DensityPosterior {
         out
     }
 
-    /// `gᵀΣg` at rank `K` (see the [module docs](self)) of each row of `grads` (`[n, P]`, the
-    /// `P ≥ m` columns of [`Nerf::density_param_gradients`]; columns past `m` must be 0 and are
-    /// not read). One `[n, m] × [m, K]` product.
+    /// `gᵀΣg` of each row of `grads` (`[n, P]`, the `P ≥ m` columns of
+    /// [`Nerf::density_param_gradients`]; columns past `m` must be 0 and are not read): exact
+    /// ([`variances_exact`](Self::variances_exact)) when `rank ≥ m`, else at rank `K`
+    /// ([`variances_low_rank`](Self::variances_low_rank)).
     pub fn variances(&self, grads: &[f32], n_params: usize, rank: usize) -> Vec<f64> {
+        if rank >= self.n_density_params {
+            self.variances_exact(grads, n_params)
+        } else {
+            self.variances_low_rank(grads, n_params, rank)
+        }
+    }
+
+    /// The exact `gᵀΣ₁₁g = |L⁻¹g|²` (`S = L·Lᵀ`) of each row of `grads` (as
+    /// [`variances`](Self::variances)): one triangular solve with the `n` gradients as
+    /// right-hand sides, `m²` flops per row (half of the eigen-form at `K = m`).
+    pub fn variances_exact(&self, grads: &[f32], n_params: usize) -> Vec<f64> {
+        let m = self.n_density_params;
+        assert!(n_params >= m && grads.len() % n_params == 0);
+        let n = grads.len() / n_params;
+        let mut rhs = Mat::from_fn(m, n, |j, i| grads[i * n_params + j] as f64);
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+            self.cholesky.as_ref(),
+            rhs.as_mut(),
+            Par::rayon(0),
+        );
+        (0..n).map(|i| rhs.col(i).iter().map(|v| v * v).sum()).collect()
+    }
+
+    /// `gᵀΣg` at rank `K` (see the [module docs](self)) of each row of `grads` (as
+    /// [`variances`](Self::variances)): one `[n, m] × [m, K]` product, `2·m·K` flops per row.
+    pub fn variances_low_rank(&self, grads: &[f32], n_params: usize, rank: usize) -> Vec<f64> {
         let m = self.n_density_params;
         assert!(n_params >= m && grads.len() % n_params == 0);
         let n = grads.len() / n_params;

@@ -122,7 +122,7 @@ fn bla_field_variance_at_a_node_equals_the_dense_quadratic_form() {
 }
 
 /// Rank K: an upper bound that decreases monotonically with K to the dense value, exactly
-/// reached at K = m (1e-9 relative, all in f64).
+/// reached at K = m (1e-9 relative, all in f64); the Cholesky route gives the dense value.
 #[test]
 fn rank_k_variance_decreases_with_k_to_the_dense_value() {
     let nerf = common::tiny_nerf();
@@ -139,7 +139,8 @@ fn rank_k_variance_decreases_with_k_to_the_dense_value() {
     let (_, grads) = nerf.density_param_gradients(&points);
     let p = nerf.field.sigma_net_range().len();
     let ranks = [4, 16, 64, 256, m];
-    let per_rank: Vec<Vec<f64>> = ranks.iter().map(|&k| post.variances(&grads, p, k)).collect();
+    let per_rank: Vec<Vec<f64>> = ranks.iter().map(|&k| post.variances_low_rank(&grads, p, k)).collect();
+    let exact_route = post.variances_exact(&grads, p);
     let mut strict = 0;
     for (n, _) in points.iter().enumerate() {
         let exact = quadratic_form(&grads[n * p..n * p + m], &dense);
@@ -149,6 +150,7 @@ fn rank_k_variance_decreases_with_k_to_the_dense_value() {
         }
         assert!(errors[0] >= -1e-9 * exact, "rank-K is an upper bound: {errors:?}");
         assert!(errors[ranks.len() - 1].abs() <= 1e-9 * exact, "point {n}: K = m error {errors:?}");
+        assert!((exact_route[n] - exact).abs() <= 1e-9 * exact, "point {n}: Cholesky route {}", exact_route[n]);
         if errors[0] > 1e-3 * exact {
             strict += 1;
         }

@@ -362,3 +362,82 @@ fn field_file_round_trips_and_bad_files_are_refused_by_name() {
     let missing = UncertaintyField::load(&dir.path().join("nope.safetensors")).unwrap_err();
     assert!(missing.to_string().contains("nope.safetensors"), "{missing}");
 }
+
+/// `(C, D̄)` of one ray in f64 from densities (composite as the renderer does).
+fn composite(sigma: &[f64], colours: &[[f32; 3]], t: &[f32], delta: f64, bg: [f32; 3]) -> ([f64; 4], f64) {
+    let (mut trans, mut c, mut depth) = (1.0f64, [0.0f64; 3], 0.0f64);
+    for i in 0..sigma.len() {
+        let w = trans * (1.0 - (-sigma[i] * delta).exp());
+        for ch in 0..3 {
+            c[ch] += w * colours[i][ch] as f64;
+        }
+        depth += w * t[i] as f64;
+        trans -= w;
+    }
+    let a = 1.0 - trans;
+    ([c[0] + trans * bg[0] as f64, c[1] + trans * bg[1] as f64, c[2] + trans * bg[2] as f64, depth / a], a)
+}
+
+/// BLA maps of a field with a constant `Var[σ] = v` are `√(v·Σ_i (∂q/∂σ_i)²)` with the
+/// derivatives taken by central differences of the composite (the densities recovered from the
+/// samples' weights), for the colour (mean over channels) and the distance (as z-depth), 1e-3.
+#[test]
+fn bla_maps_propagate_the_density_variance_with_the_composites_derivatives() {
+    let nerf = common::tiny_nerf();
+    let cam = cameras()[0];
+    let v = 0.7f32;
+    let geometry = nerfsv_uq::field_geometry(&nerf, 4.0).unwrap();
+    let n = geometry.len();
+    let field = UncertaintyField::from_parts(
+        FieldMethod::Bla,
+        geometry,
+        vec![1.0; n],
+        vec![v; n],
+        vec![1.0; n],
+        model_id(&nerf),
+        "m".into(),
+        FieldFigures::default(),
+    )
+    .unwrap();
+    let maps = field.maps(&nerf, &cam, BG);
+    let rays = camera_rays(&cam, BG);
+    let samples = nerf.render_rays_samples(&rays);
+    let delta = nerf.config.step_size as f64;
+    let mut checked = 0;
+    for p in 0..rays.len() {
+        let (c, w) = samples.ray(p);
+        let t = samples.ray_distances(p);
+        if w.is_empty() || samples.opacity[p] < 0.05 {
+            continue;
+        }
+        let mut trans = 1.0f64;
+        let sigma: Vec<f64> = w
+            .iter()
+            .map(|&wi| {
+                let a = wi as f64 / trans;
+                trans -= wi as f64;
+                -(1.0 - a).ln() / delta
+            })
+            .collect();
+        let (mut vc, mut vd) = (0.0f64, 0.0f64);
+        for i in 0..sigma.len() {
+            let h = 1e-4 * sigma[i].max(1.0);
+            let mut s = sigma.clone();
+            s[i] += h;
+            let (plus, _) = composite(&s, c, t, delta, BG);
+            s[i] -= 2.0 * h;
+            let (minus, _) = composite(&s, c, t, delta, BG);
+            let g: Vec<f64> = (0..4).map(|q| (plus[q] - minus[q]) / (2.0 * h)).collect();
+            vc += v as f64 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) / 3.0;
+            vd += v as f64 * g[3] * g[3];
+        }
+        let k = cam.intrinsics;
+        let z = cam.z_depth_factor((p as u32 % k.width) as f32 + 0.5, (p as u32 / k.width) as f32 + 0.5) as f64;
+        let (want_c, want_d) = (vc.sqrt(), vd.sqrt() * z);
+        let (got_c, got_d) = (maps.colour_std[p] as f64, maps.depth_std[p] as f64);
+        assert!((got_c - want_c).abs() <= 1e-3 * want_c + 1e-7, "pixel {p}: colour {got_c:e} vs {want_c:e}");
+        assert!((got_d - want_d).abs() <= 1e-3 * want_d + 1e-7, "pixel {p}: depth {got_d:e} vs {want_d:e}");
+        checked += 1;
+    }
+    assert!(checked > 20, "{checked} pixels checked");
+}

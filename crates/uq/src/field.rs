@@ -48,7 +48,10 @@
 //!
 //! **Lookups** ([`UncertaintyField::view_uncertainty`]) use only the grid: each pixel's ray is
 //! marched through the grid's box with a step of half a cell, composited with the grid's
-//! stored density (trilinear), `w_i = T_i·(1 − exp(−σ_i·Δt))`, stopping when `T < 1e-4`. The
+//! stored density (trilinear), `w_i = T_i·(1 − exp(−σ_i·Δt))`, stopping when `T < 1e-4`.
+//! As the NeRF skips empty space, so do lookups: a cell whose 8 corner densities are all below
+//! [`UncertaintyField::empty_density`] (the model's occupancy rule `σ·Δt_nerf < grid_threshold`,
+//! 0.74/m by default) composites nothing, and blocks of 8³ such cells are jumped over. The
 //! view's number is `√(Σ_rays Σ_i w_i·v(x_i) / Σ_rays Σ_i w_i)` in the units of GA's σ_d (a
 //! relative density standard deviation) for both methods: GA `v = σ̂²` (interpolated over the
 //! corners with data only; a sample with no data around it adds nothing), BLA
@@ -69,7 +72,7 @@
 //!
 //! **Files**: safetensors with tensors `density`, `variance`, `weight` (F32 `[nz, ny, nx]`) and
 //! metadata `format` = `nerfsv-uncertainty-field`, `format_version`, `method`, `origin`,
-//! `cell`, `dims` (as the collision grids), `checkpoint_id` ([`model_id`] of the model it was
+//! `cell`, `dims` (as the collision grids), `empty_density`, `checkpoint_id` ([`model_id`] of the model it was
 //! built from), `checkpoint` (that model's path, for messages) and `figures` (JSON). Written
 //! atomically; a field from another model is refused by [`UncertaintyField::check_checkpoint`].
 
@@ -185,9 +188,21 @@ pub struct UncertaintyField {
     /// That model's path when built (informational, for messages).
     pub checkpoint: String,
     pub figures: FieldFigures,
+    /// Lookups skip cells whose 8 corner densities are all below this (1/m), as the NeRF skips
+    /// empty space: built fields use the model's occupancy rule, `grid_threshold / step_size`
+    /// (σ·Δt < 0.01 at the marching step, 0.74/m by default); 0 skips nothing.
+    pub empty_density: f32,
     /// `[nodes]` the looked-up value `v` (GA σ̂², NaN without data; BLA relative variance).
     lookup: Vec<f32>,
+    /// `[nodes]` per cell (by its lowest node): every corner below `empty_density`.
+    cell_empty: Vec<bool>,
+    /// Per block of [`BLOCK`]³ cells (x fastest): every cell empty; and the block counts.
+    block_empty: Vec<bool>,
+    blocks: [usize; 3],
 }
+
+/// Cells per side of the blocks that lookups jump over when empty.
+const BLOCK: usize = 8;
 
 /// An identifier of a model's content: FNV-1a 64 (hex) of its config (JSON), step, seed, every
 /// parameter and the occupancy grid's densities. The same for a model and the checkpoint file
@@ -207,6 +222,12 @@ pub fn model_id(nerf: &Nerf) -> String {
         feed(&v.to_le_bytes());
     }
     format!("{h:016x}")
+}
+
+/// The density below which the NeRF treats space as empty: its occupancy rule
+/// `σ·Δt < grid_threshold` at its marching step Δt, as a density (1/m).
+pub fn empty_density(nerf: &Nerf) -> f32 {
+    nerf.config.grid_threshold / nerf.config.step_size
 }
 
 /// The grid of a field for `nerf`: its box at `cells_per_metre`.
@@ -505,7 +526,50 @@ impl UncertaintyField {
                 })
                 .collect(),
         };
-        Ok(Self { method, geometry, density, variance, weight, checkpoint_id, checkpoint, figures, lookup })
+        let mut field = Self {
+            method,
+            geometry,
+            density,
+            variance,
+            weight,
+            checkpoint_id,
+            checkpoint,
+            figures,
+            empty_density: 0.0,
+            lookup,
+            cell_empty: Vec::new(),
+            block_empty: Vec::new(),
+            blocks: [0; 3],
+        };
+        field.set_empty_density(0.0);
+        Ok(field)
+    }
+
+    /// Sets [`empty_density`](Self::empty_density) and the empty cells and blocks it implies.
+    pub fn set_empty_density(&mut self, empty_density: f32) {
+        let g = self.geometry;
+        let [nx, ny, nz] = g.dims;
+        let blocks = [0, 1, 2].map(|a| (g.dims[a] - 1).div_ceil(BLOCK));
+        let mut cell_empty = vec![true; g.len()];
+        let mut block_empty = vec![true; blocks[0] * blocks[1] * blocks[2]];
+        for k in 0..nz - 1 {
+            for j in 0..ny - 1 {
+                for i in 0..nx - 1 {
+                    let b = g.index(i, j, k);
+                    let full = [0, 1, nx, nx + 1, nx * ny, nx * ny + 1, nx * ny + nx, nx * ny + nx + 1]
+                        .iter()
+                        .any(|&o| self.density[b + o] >= empty_density);
+                    if full {
+                        cell_empty[b] = false;
+                        block_empty[i / BLOCK + blocks[0] * (j / BLOCK + blocks[1] * (k / BLOCK))] = false;
+                    }
+                }
+            }
+        }
+        self.empty_density = empty_density;
+        self.cell_empty = cell_empty;
+        self.block_empty = block_empty;
+        self.blocks = blocks;
     }
 
     /// The GA field of `nerf` from its training `views` (see the [module docs](self)); images
@@ -575,7 +639,7 @@ impl UncertaintyField {
         let mut figures = FieldFigures { images, rays: n_rays, ..Default::default() };
         summarise(&variance, &weight, &mut figures);
         figures.seconds = start.elapsed().as_secs_f64();
-        Self::from_parts(
+        let mut field = Self::from_parts(
             FieldMethod::Ga,
             geometry,
             density,
@@ -584,7 +648,9 @@ impl UncertaintyField {
             model_id(nerf),
             checkpoint.into(),
             figures,
-        )
+        )?;
+        field.set_empty_density(empty_density(nerf));
+        Ok(field)
     }
 
     /// The BLA field of `nerf` from its training `views` (cameras only; see the
@@ -630,7 +696,7 @@ impl UncertaintyField {
         };
         summarise(&variance, &weight, &mut figures);
         figures.seconds = start.elapsed().as_secs_f64();
-        Self::from_parts(
+        let mut field = Self::from_parts(
             FieldMethod::Bla,
             geometry,
             density,
@@ -639,7 +705,9 @@ impl UncertaintyField {
             model_id(nerf),
             checkpoint.into(),
             figures,
-        )
+        )?;
+        field.set_empty_density(empty_density(nerf));
+        Ok(field)
     }
 
     /// The looked-up value `v` at `p` (GA σ̂², BLA relative variance), `None` outside the grid
@@ -649,7 +717,9 @@ impl UncertaintyField {
         interp_masked(&self.lookup, &idx, &w)
     }
 
-    /// `(Σ_i w_i·v(x_i), Σ_i w_i)` of one ray marched through the grid (see the module docs).
+    /// `(Σ_i w_i·v(x_i), Σ_i w_i)` of one ray marched through the grid (see the module docs):
+    /// samples at `t0 + (n + ½)·Δt`, `Δt` half a cell; samples in empty cells add nothing, and
+    /// empty blocks are jumped over to the first lattice sample past them.
     fn ray_sums(&self, o: [f32; 3], d: [f32; 3]) -> (f64, f64) {
         let g = &self.geometry;
         let b = g.bounds();
@@ -657,22 +727,49 @@ impl UncertaintyField {
             return (0.0, 0.0);
         };
         let step = 0.5 * g.cell;
+        let block_side = g.cell * BLOCK as f32;
         let (mut num, mut den) = (0.0f64, 0.0f64);
         let mut trans = 1.0f32;
-        let mut t = t0 + 0.5 * step;
-        while t < t1 && trans >= LOOKUP_MIN_TRANSMITTANCE {
-            let x = [0, 1, 2].map(|a| o[a] + t * d[a]);
-            if let Some((idx, w)) = cell_of(g, x) {
-                let sigma = interp(&self.density, &idx, &w).max(0.0);
-                let alpha = 1.0 - (-sigma * step).exp();
-                let wi = trans * alpha;
-                if let Some(v) = interp_masked(&self.lookup, &idx, &w) {
-                    num += wi as f64 * v as f64;
-                    den += wi as f64;
-                }
-                trans *= 1.0 - alpha;
+        let mut n = 0u32;
+        loop {
+            let t = t0 + (n as f32 + 0.5) * step;
+            if t >= t1 || trans < LOOKUP_MIN_TRANSMITTANCE {
+                break;
             }
-            t += step;
+            let x = [0, 1, 2].map(|a| o[a] + t * d[a]);
+            let Some((idx, w)) = cell_of(g, x) else {
+                n += 1;
+                continue;
+            };
+            if self.cell_empty[idx[0]] {
+                let [ci, cj, ck] = g.coords(idx[0]);
+                let bi = [ci / BLOCK, cj / BLOCK, ck / BLOCK];
+                if self.block_empty[bi[0] + self.blocks[0] * (bi[1] + self.blocks[1] * bi[2])] {
+                    // Exit of the block's box along the ray, then the next lattice sample.
+                    let mut t_exit = f32::INFINITY;
+                    for a in 0..3 {
+                        let lo = g.origin[a] + bi[a] as f32 * block_side;
+                        let bound = if d[a] > 0.0 { lo + block_side } else { lo };
+                        if d[a] != 0.0 {
+                            t_exit = t_exit.min((bound - o[a]) / d[a]);
+                        }
+                    }
+                    let next = ((t_exit - t0) / step - 0.5).ceil();
+                    n = if next.is_finite() && next > n as f32 { next as u32 } else { n + 1 };
+                } else {
+                    n += 1;
+                }
+                continue;
+            }
+            let sigma = interp(&self.density, &idx, &w).max(0.0);
+            let alpha = 1.0 - (-sigma * step).exp();
+            let wi = trans * alpha;
+            if let Some(v) = interp_masked(&self.lookup, &idx, &w) {
+                num += wi as f64 * v as f64;
+                den += wi as f64;
+            }
+            trans *= 1.0 - alpha;
+            n += 1;
         }
         (num, den)
     }
@@ -818,6 +915,7 @@ impl UncertaintyField {
             ("checkpoint_id", self.checkpoint_id.clone()),
             ("checkpoint", self.checkpoint.clone()),
             ("figures", figures),
+            ("empty_density", format!("{}", self.empty_density)),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -904,6 +1002,15 @@ impl UncertaintyField {
             figures,
         )
         .map_err(|e| bad(e.to_string()))
+        .and_then(|mut f| {
+            let e = field("empty_density")?;
+            let v: f32 = e.trim().parse().map_err(|_| bad(format!("empty_density is {e:?}, expected a number")))?;
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad(format!("empty_density is {v}, expected a finite number ≥ 0")));
+            }
+            f.set_empty_density(v);
+            Ok(f)
+        })
     }
 }
 

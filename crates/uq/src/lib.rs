@@ -58,8 +58,8 @@ pub use bla::{bla_image, laplace_at, lm_map, BlaFit, Laplace, MapFit, NerfResidu
 pub use config::UqConfig;
 pub use error::UqError;
 pub use field::{
-    data_term, density_param_count, field_geometry, model_id, DensityPosterior, FieldFigures, FieldMethod,
-    TrainingView, UncertaintyField,
+    data_term, density_param_count, empty_density, field_geometry, model_id, DensityPosterior, FieldFigures,
+    FieldMethod, TrainingView, UncertaintyField,
 };
 pub use ga::{ga_fit, ga_fit_samples, ga_image, ga_objective, GaExclusion, GaFit, GaRay};
 pub use maps::{bla_maps, bla_maps_factored, ga_maps, ga_maps_from_samples, CovarianceFactor, UncertaintyMaps};

@@ -441,3 +441,48 @@ fn bla_maps_propagate_the_density_variance_with_the_composites_derivatives() {
     }
     assert!(checked > 20, "{checked} pixels checked");
 }
+
+/// Skipping empty space changes nothing where the empty cells hold no density: a field whose
+/// density is a ball (σ = 5/m within 0.5 m of a point, 0 elsewhere) gives the same view value
+/// (1e-9) with `empty_density` 0 (every cell marched) and 1/m (empty cells and blocks jumped),
+/// and a threshold above every density empties the view.
+#[test]
+fn empty_space_skipping_leaves_the_view_value_unchanged() {
+    let nerf = common::tiny_nerf();
+    let geometry = nerfsv_uq::field_geometry(&nerf, 20.0).unwrap();
+    let n = geometry.len();
+    let density: Vec<f32> = (0..n)
+        .map(|i| {
+            let [a, b, c] = geometry.coords(i);
+            let p = geometry.position_of(a, b, c);
+            if (p - Point3::new(0.2, -0.1, 0.1)).norm() < 0.5 {
+                5.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let variance: Vec<f32> = (0..n).map(|i| 0.01 + (i % 13) as f32 * 0.003).collect();
+    let mut field = UncertaintyField::from_parts(
+        FieldMethod::Ga,
+        geometry,
+        density,
+        variance,
+        vec![1.0; n],
+        model_id(&nerf),
+        "m".into(),
+        FieldFigures::default(),
+    )
+    .unwrap();
+    let pixels: Vec<[u32; 2]> = (0..8).flat_map(|j| (0..8).map(move |i| [i, j])).collect();
+    for cam in cameras() {
+        let all = field.view_uncertainty(&cam, &pixels, BG);
+        field.set_empty_density(1.0);
+        let skipping = field.view_uncertainty(&cam, &pixels, BG);
+        field.set_empty_density(0.0);
+        assert!(all > 0.1, "{all}");
+        assert!((all - skipping).abs() <= 1e-9 * all, "{all} marched, {skipping} skipping");
+    }
+    field.set_empty_density(6.0);
+    assert_eq!(field.view_uncertainty(&cameras()[0], &pixels, BG), 0.0);
+}

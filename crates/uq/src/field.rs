@@ -51,7 +51,7 @@
 //! stored density (trilinear), `w_i = T_i·(1 − exp(−σ_i·Δt))`, stopping when `T < 1e-4`.
 //! As the NeRF skips empty space, so do lookups: a cell whose 8 corner densities are all below
 //! [`UncertaintyField::empty_density`] (the model's occupancy rule `σ·Δt_nerf < grid_threshold`,
-//! 0.74/m by default) composites nothing, and blocks of 8³ such cells are jumped over. The
+//! 0.74/m by default) composites nothing, and blocks of 4³ such cells are jumped over. The
 //! view's number is `√(Σ_rays Σ_i w_i·v(x_i) / Σ_rays Σ_i w_i)` in the units of GA's σ_d (a
 //! relative density standard deviation) for both methods: GA `v = σ̂²` (interpolated over the
 //! corners with data only; a sample with no data around it adds nothing), BLA
@@ -202,7 +202,7 @@ pub struct UncertaintyField {
 }
 
 /// Cells per side of the blocks that lookups jump over when empty.
-const BLOCK: usize = 8;
+const BLOCK: usize = 4;
 
 /// An identifier of a model's content: FNV-1a 64 (hex) of its config (JSON), step, seed, every
 /// parameter and the occupancy grid's densities. The same for a model and the checkpoint file

@@ -61,7 +61,7 @@ pub struct UqConfig {
     /// Uncertainty field, BLA: eigen-directions of the (reduced) data term kept exactly; the
     /// rest of the posterior is taken at the prior. At or above the number m of weights that
     /// reach σ (2112 with the default model) the variance is exact, by a Cholesky factor, at
-    /// about twice the cost of K = 256 (the default, 4096); below, an upper bound that is far
+    /// about 2.6× the cost of K = 256 (the default, 4096); below, an upper bound that is far
     /// off on a trained model (K = 256: a median 284 % too large, BENCHMARKS.md).
     pub field_rank: usize,
 }

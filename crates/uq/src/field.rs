@@ -34,9 +34,9 @@
 //! the default model (200 images × 64 rays, 2000 nodes of σ ≥ 1/m, relative error against the
 //! exact value, `cargo run --release -p nerfsv-uq --example field_rank_error`): K = 256 (98.5 %
 //! of the eigenvalue mass) median 2.84, p90 3.71, max 4.78; K = 1024 median 1.7e-2, p90
-//! 4.2e-2, max 7.1e-2. The exact route costs about twice K = 256 per node and the
-//! eigen-decomposition of the 2112² term about a second, so it is the default; the exact
-//! value agrees with `gᵀH⁻¹g` from the full 3072² Cholesky factor to 3e-12.
+//! 4.2e-2, max 7.1e-2. The exact route costs about 2.6× K = 256 per node (137 against
+//! 52 µs) and the factorisations of the 2112² term a few seconds, so it is the default; the
+//! exact value agrees with `gᵀH⁻¹g` from the full 3072² Cholesky factor to 2e-12.
 //!
 //! **GA** ([`UncertaintyField::build_ga`]). Per training image, the closed-form GA fit
 //! ([`crate::ga_fit_samples`]) gives μ̂_d; each ray's own term of the image's σ̂² estimate,

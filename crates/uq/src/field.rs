@@ -322,7 +322,7 @@ impl DensityPosterior {
         assert!(data_term.ncols() == p && m <= p && m > 0, "data term {p}×{}, m = {m}", data_term.ncols());
         let bad = |what: &'static str| UqError::NonFinite { image: "uncertainty field".into(), what };
         let sym = |i: usize, j: usize| if i >= j { data_term[(i, j)] } else { data_term[(j, i)] };
-        let mut reduced = Mat::from_fn(m, m, |i, j| sym(i, j));
+        let mut reduced = Mat::from_fn(m, m, sym);
         if m < p {
             // D̃ = D₁₁ − D₁₂·(D₂₂ + αI)⁻¹·D₂₁: the other weights marginalised.
             let q = p - m;
@@ -389,7 +389,7 @@ impl DensityPosterior {
     /// right-hand sides, `m²` flops per row (half of the eigen-form at `K = m`).
     pub fn variances_exact(&self, grads: &[f32], n_params: usize) -> Vec<f64> {
         let m = self.n_density_params;
-        assert!(n_params >= m && grads.len() % n_params == 0);
+        assert!(n_params >= m && grads.len().is_multiple_of(n_params));
         let n = grads.len() / n_params;
         let mut rhs = Mat::from_fn(m, n, |j, i| grads[i * n_params + j] as f64);
         faer::linalg::triangular_solve::solve_lower_triangular_in_place(
@@ -404,7 +404,7 @@ impl DensityPosterior {
     /// [`variances`](Self::variances)): one `[n, m] × [m, K]` product, `2·m·K` flops per row.
     pub fn variances_low_rank(&self, grads: &[f32], n_params: usize, rank: usize) -> Vec<f64> {
         let m = self.n_density_params;
-        assert!(n_params >= m && grads.len() % n_params == 0);
+        assert!(n_params >= m && grads.len().is_multiple_of(n_params));
         let n = grads.len() / n_params;
         let k = rank.clamp(1, m);
         let alpha = self.prior_precision;

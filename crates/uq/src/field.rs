@@ -45,6 +45,10 @@
 //! samples with weight `w_i·b_c` (`w_i` the compositing weight, `b_c` the trilinear coefficient).
 //! A node's `variance` is the weighted mean `Σ w·σ̂² / Σ w` (a squared relative density
 //! standard deviation, unitless), 0 where no weight fell, and `weight = Σ w` (0: "no data").
+//! Images the paper excludes (σ_d ≤ 0 or ≥ 3) are kept: their rays' terms are evidence too. A
+//! ray that composites little (`s` tiny, e.g. grazing a stone's edge) can have a huge σ̂²; only
+//! its small weights damp it, so nodes seen only by such rays carry large values (on the
+//! default model: mean 181, maximum 1.2e7 over the 87 069 nodes with data).
 //!
 //! **Lookups** ([`UncertaintyField::view_uncertainty`]) use only the grid: each pixel's ray is
 //! marched through the grid's box with a step of half a cell, composited with the grid's

@@ -113,7 +113,7 @@ pub const LOOKUP_MIN_TRANSMITTANCE: f32 = 1e-4;
 pub const RELATIVE_DENSITY_FLOOR: f32 = 1e-6;
 /// Nodes per batch of the BLA variances (their gradients are `n × P` floats).
 const NODE_BATCH: usize = 2048;
-/// Rows of `J` per product into the data term.
+/// Rows of `J` per product into the data term (a multiple of 3: one ray's R, G, B rows).
 const ROW_BATCH: usize = 1536;
 /// Below this opacity a ray has no distance (as the renderer).
 const MIN_OPACITY: f32 = 1e-6;
@@ -444,7 +444,7 @@ pub fn data_term(
 ) -> (Mat<f64>, usize, usize) {
     let p = nerf.field.sigma_net_range().len();
     let mut d = Mat::<f64>::zeros(p, p);
-    let mut rows = Mat::<f64>::zeros(ROW_BATCH + 3 * cfg.field_rays_per_image, p);
+    let mut rows = Mat::<f64>::zeros(ROW_BATCH, p);
     let mut filled = 0;
     let scale = 1.0 / (cfg.noise_std * cfg.noise_std);
     let flush = |d: &mut Mat<f64>, rows: &Mat<f64>, filled: usize| {
@@ -474,23 +474,26 @@ pub fn data_term(
         }
         let n = hit.len().min(cfg.field_rays_per_image);
         let picked: Vec<_> = (0..n).map(|q| rays[hit[q * hit.len() / n]]).collect();
-        let jac = nerf.render_rays_sigma_jacobian(&picked);
-        for r in 0..picked.len() {
-            let src = jac.ray(r);
-            for c in 0..3 {
-                let row = &src[c * p..(c + 1) * p];
-                for (j, &x) in row.iter().enumerate() {
-                    rows[(filled, j)] = x as f64;
+        // Batches of rays: each ray's Jacobian is 4·P floats.
+        for batch in picked.chunks(ROW_BATCH / 3) {
+            let jac = nerf.render_rays_sigma_jacobian(batch);
+            for r in 0..batch.len() {
+                let src = jac.ray(r);
+                for c in 0..3 {
+                    let row = &src[c * p..(c + 1) * p];
+                    for (j, &x) in row.iter().enumerate() {
+                        rows[(filled, j)] = x as f64;
+                    }
+                    filled += 1;
+                    if filled == ROW_BATCH {
+                        flush(&mut d, &rows, filled);
+                        filled = 0;
+                    }
                 }
-                filled += 1;
             }
         }
         images += 1;
         n_rays += picked.len();
-        if filled >= ROW_BATCH {
-            flush(&mut d, &rows, filled);
-            filled = 0;
-        }
     }
     flush(&mut d, &rows, filled);
     progress(views.len(), views.len());

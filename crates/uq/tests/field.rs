@@ -486,3 +486,41 @@ fn empty_space_skipping_leaves_the_view_value_unchanged() {
     field.set_empty_density(6.0);
     assert_eq!(field.view_uncertainty(&cameras()[0], &pixels, BG), 0.0);
 }
+
+/// The data term accumulated in batches (rows flushed mid-image) equals `JᵀJ/σ_n²` of all the
+/// rows stacked, in one product (lower triangle, 1e-9 relative to its largest entry).
+#[test]
+fn data_term_in_batches_equals_one_product_of_all_rows() {
+    let nerf = common::tiny_nerf();
+    let k = Intrinsics::from_fov_x(32, 32, 60f32.to_radians());
+    let cams = [
+        Camera::look_at(Point3::new(0.0, -2.5, 0.3), Point3::origin(), Vector3::z(), k),
+        Camera::look_at(Point3::new(2.2, 1.0, 0.6), Point3::origin(), Vector3::z(), k),
+    ];
+    let cfg = UqConfig { field_rays_per_image: 5000, ..cfg() };
+    let refs: Vec<Vec<[f32; 3]>> = cams.iter().map(|c| vec![[0.5; 3]; c.intrinsics.pixels()]).collect();
+    let (d, images, rays) = data_term(&nerf, &views(&cams, &refs), BG, &cfg, &mut no_progress);
+    assert_eq!(images, 2);
+    assert!(3 * rays > 1536 + 3, "{rays} rays: the batches are not exercised");
+    let p = nerf.field.sigma_net_range().len();
+    let mut stacked: Vec<f32> = Vec::new();
+    for cam in &cams {
+        let all = camera_rays(cam, BG);
+        let samples = nerf.render_rays_samples(&all);
+        let hit: Vec<_> = (0..all.len()).filter(|&i| !samples.ray(i).1.is_empty()).map(|i| all[i]).collect();
+        let jac = nerf.render_rays_sigma_jacobian(&hit);
+        for r in 0..hit.len() {
+            stacked.extend_from_slice(&jac.ray(r)[..3 * p]);
+        }
+    }
+    let m = stacked.len() / p;
+    assert_eq!(m, 3 * rays);
+    let j = Mat::from_fn(m, p, |r, c| stacked[r * p + c] as f64);
+    let full = j.transpose() * &j * faer::Scale(1.0 / (cfg.noise_std * cfg.noise_std));
+    let scale = (0..p).map(|i| full[(i, i)]).fold(0.0f64, f64::max);
+    for a in 0..p {
+        for b in 0..=a {
+            assert!((d[(a, b)] - full[(a, b)]).abs() <= 1e-9 * scale, "({a}, {b}): {} vs {}", d[(a, b)], full[(a, b)]);
+        }
+    }
+}

@@ -23,6 +23,9 @@ const SLICE_TARGET_PX: usize = 480;
 
 #[derive(Args)]
 pub struct FieldArgs {
+    /// Which method's field: ga (each training ray's σ̂² splatted by compositing weight; about
+    /// 30 s on the default model) or bla (the linearised Var[σ(x)] under the posterior of all
+    /// training images; about 90 s).
     #[arg(long, value_enum)]
     pub method: MethodArg,
     /// Checkpoint written by `nerfsv train`.

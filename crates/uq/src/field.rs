@@ -234,12 +234,22 @@ pub fn empty_density(nerf: &Nerf) -> f32 {
     nerf.config.grid_threshold / nerf.config.step_size
 }
 
-/// The grid of a field for `nerf`: its box at `cells_per_metre`.
+/// The grid of a field for `nerf`: its box at `cells_per_metre`. Errors: a grid that cannot
+/// be made, or whose build would exceed the memory budget
+/// ([`nerfsv_scene::validate::MemoryBudget`], key `uq.field_cells_per_metre`).
 pub fn field_geometry(nerf: &Nerf, cells_per_metre: f64) -> Result<GridGeometry, UqError> {
     let c = &nerf.config;
     let bounds = Aabb::new(Point3::from(c.aabb_min), Point3::from(c.aabb_max));
-    GridGeometry::covering(&bounds, cells_per_metre as f32).map_err(|e| UqError::FieldGrid { message: e.to_string() })
+    let geometry = GridGeometry::covering(&bounds, cells_per_metre as f32)
+        .map_err(|e| UqError::FieldGrid { message: e.to_string() })?;
+    // Per node: density, variance, weight, lookup (f32), the GA sums (f64) and the position.
+    let bytes = nerfsv_scene::validate::bytes_for(geometry.len() as u64, BYTES_PER_NODE);
+    nerfsv_scene::validate::MemoryBudget::current().check("uq.field_cells_per_metre", bytes)?;
+    Ok(geometry)
 }
+
+/// Memory a field needs per node while it is built, bytes (for the memory budget).
+const BYTES_PER_NODE: u64 = 4 * 4 + 2 * 8 + 12 + 2;
 
 fn node_positions(g: &GridGeometry) -> Vec<[f32; 3]> {
     (0..g.len())

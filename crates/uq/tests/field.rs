@@ -524,3 +524,15 @@ fn data_term_in_batches_equals_one_product_of_all_rows() {
         }
     }
 }
+
+/// A resolution whose grid would not fit the memory budget is refused before anything is
+/// allocated, naming the key.
+#[test]
+fn a_field_over_the_memory_budget_is_refused_naming_the_key() {
+    let nerf = common::tiny_nerf();
+    // 400 cells/m over the 2 m box: 801³ nodes, about 23 GB.
+    nerfsv_scene::validate::MemoryBudget::set(1 << 30);
+    let err = nerfsv_uq::field_geometry(&nerf, 400.0).unwrap_err();
+    nerfsv_scene::validate::MemoryBudget::set(u64::MAX);
+    assert!(err.to_string().contains("uq.field_cells_per_metre"), "{err}");
+}

@@ -8,6 +8,12 @@
 //! Uses the trained model and the first test view of `NERFSV_BENCH_RUN` (default
 //! `runs/stonehenge`, made by `cargo run --release -- run`); without one, a freshly initialised
 //! model and a grey reference. `cargo bench --bench uq`.
+//!
+//! `uq_field/*`: one online lookup of the uncertainty field for a view (1024 pixels, an even
+//! 32×32 grid of the first test camera) from the GA and BLA fields in `RUN/uq_field/`
+//! (`nerfsv uq field --out RUN/uq_field/field_{ga,bla}.safetensors`; without them a GA field
+//! is built at 10 cells/m), against the exact per-view GA on the same 1024 rays (render with
+//! samples + closed-form fit). `cargo bench --bench uq -- uq_field`.
 
 use std::path::PathBuf;
 
@@ -17,7 +23,9 @@ use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Camera, Intrinsics};
-use nerfsv_uq::{bla_image, bla_maps, ga_image, ga_maps, CovarianceFactor, UqConfig};
+use nerfsv_uq::{
+    bla_image, bla_maps, ga_fit_samples, ga_image, ga_maps, CovarianceFactor, TrainingView, UncertaintyField, UqConfig,
+};
 
 fn uq(c: &mut Criterion) {
     std::env::set_var("MATMUL_NUM_THREADS", "1");
@@ -76,5 +84,68 @@ fn uq(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, uq);
+fn field(c: &mut Criterion) {
+    std::env::set_var("MATMUL_NUM_THREADS", "1");
+    let run = std::env::var_os("NERFSV_BENCH_RUN").map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
+    let bg = [1.0f32; 3];
+    let (Ok(nerf), Ok(test)) = (
+        Nerf::load(&run.join("nerf/checkpoint.safetensors")),
+        load_split(&run.join("dataset"), "test", LoadOptions::default()),
+    ) else {
+        eprintln!("uq_field: no trained run at {} (set NERFSV_BENCH_RUN): skipped", run.display());
+        return;
+    };
+    let f = &test.frames[0];
+    let k = f.camera.intrinsics;
+    let pixels: Vec<[u32; 2]> = (0..32u32)
+        .flat_map(|j| (0..32u32).map(move |i| [(2 * i + 1) * k.width / 64, (2 * j + 1) * k.height / 64]))
+        .collect();
+    let rays: Vec<_> = pixels.iter().map(|&[i, j]| nerfsv_nerf::RayInput::through_pixel(&f.camera, i, j, bg)).collect();
+    let reference: Vec<[f32; 3]> = pixels
+        .iter()
+        .map(|&[i, j]| {
+            let p = &f.image.rgba[4 * (j * k.width + i) as usize..][..4];
+            [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))
+        })
+        .collect();
+    let cfg = UqConfig::default();
+    let load = |m: &str| UncertaintyField::load(&run.join(format!("uq_field/field_{m}.safetensors"))).ok();
+    let ga_field = load("ga").unwrap_or_else(|| {
+        eprintln!("uq_field: no {}/uq_field/field_ga.safetensors: building one at 10 cells/m", run.display());
+        let train = load_split(&run.join("dataset"), "train", LoadOptions::default()).expect("train split");
+        let refs: Vec<Vec<[f32; 3]>> = train
+            .frames
+            .iter()
+            .map(|f| {
+                f.image.rgba.chunks_exact(4).map(|p| [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))).collect()
+            })
+            .collect();
+        let views: Vec<TrainingView> = train
+            .frames
+            .iter()
+            .zip(&refs)
+            .map(|(f, r)| TrainingView { name: &f.file_path, camera: &f.camera, reference: r })
+            .collect();
+        let coarse = UqConfig { field_cells_per_metre: 10.0, ..cfg.clone() };
+        UncertaintyField::build_ga(&nerf, "bench", &views, bg, &coarse, &mut |_, _| {}).expect("GA field")
+    });
+    let exact = ga_fit_samples("bench", &rays, &nerf.render_rays_samples(&rays), &reference, cfg.ga_sigma_max);
+    eprintln!(
+        "uq_field: exact GA σ_d {:.4}; field GA {:.4}",
+        exact.map_or(f64::NAN, |e| e.sigma_d),
+        ga_field.view_uncertainty(&f.camera, &pixels, bg)
+    );
+    let mut g = c.benchmark_group("uq_field");
+    g.bench_function("field_ga_view_1024px", |b| b.iter(|| ga_field.view_uncertainty(&f.camera, &pixels, bg)));
+    if let Some(bla_field) = load("bla") {
+        eprintln!("uq_field: field BLA {:.4}", bla_field.view_uncertainty(&f.camera, &pixels, bg));
+        g.bench_function("field_bla_view_1024px", |b| b.iter(|| bla_field.view_uncertainty(&f.camera, &pixels, bg)));
+    }
+    g.bench_function("exact_ga_view_1024px", |b| {
+        b.iter(|| ga_fit_samples("bench", &rays, &nerf.render_rays_samples(&rays), &reference, cfg.ga_sigma_max))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, uq, field);
 criterion_main!(benches);

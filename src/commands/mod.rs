@@ -5,6 +5,7 @@ pub mod run;
 pub mod scene;
 pub mod stress;
 pub mod uq;
+pub mod uq_field;
 
 use serde::Serialize;
 

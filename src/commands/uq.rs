@@ -25,7 +25,7 @@ use crate::progress::Reporter;
 /// The splits looked for, in this order.
 const SPLITS: [&str; 3] = ["train", "val", "test"];
 /// Background the reference images are composited on (and the rays carry), as `nerfsv render`.
-const BACKGROUND: [f32; 3] = [1.0, 1.0, 1.0];
+pub(crate) const BACKGROUND: [f32; 3] = [1.0, 1.0, 1.0];
 /// Figure size, pixels.
 const FIGURE: (u32, u32) = (1200, 560);
 
@@ -48,6 +48,11 @@ pub enum UqCommand {
     /// per-pixel depth uncertainty, per image of a split with ground-truth depth and on average.
     /// Images without ground-truth depth are skipped with a message, never scored on zeros.
     Ause(AuseArgs),
+    /// The uncertainty field: a voxel grid of density uncertainty over the model's box from the
+    /// train split (BLA: the linearised Var[σ(x)] under the posterior of all training images;
+    /// GA: per-ray σ̂² splatted by compositing weight), saved as safetensors with a PNG of its
+    /// slice at z = 0.3 m. Online `field` mode looks uncertainty up in it.
+    Field(super::uq_field::FieldArgs),
 }
 
 #[derive(Args)]
@@ -86,7 +91,7 @@ pub enum MethodArg {
 }
 
 impl MethodArg {
-    fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             MethodArg::Ga => "ga",
             MethodArg::Bla => "bla",
@@ -133,6 +138,7 @@ pub fn run(args: UqArgs) -> anyhow::Result<()> {
     match args.command {
         UqCommand::Offline(a) => offline(a),
         UqCommand::Ause(a) => ause(a),
+        UqCommand::Field(a) => super::uq_field::run(a),
     }
 }
 
@@ -326,7 +332,7 @@ struct Summary {
 }
 
 /// The uq settings of `--config` (top-level keys), validated, naming the file and the key.
-fn load_uq_config(path: Option<&Path>) -> anyhow::Result<UqConfig> {
+pub(crate) fn load_uq_config(path: Option<&Path>) -> anyhow::Result<UqConfig> {
     let Some(path) = path else { return Ok(UqConfig::default()) };
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let cfg: UqConfig = toml::from_str(&text).with_context(|| format!("{}: not a uq config", path.display()))?;
@@ -335,12 +341,12 @@ fn load_uq_config(path: Option<&Path>) -> anyhow::Result<UqConfig> {
 }
 
 /// Whether `dir` holds a transforms file for `split` (its own, or instant-ngp's shared one).
-fn has_split(dir: &Path, split: &str) -> bool {
+pub(crate) fn has_split(dir: &Path, split: &str) -> bool {
     dir.join(format!("transforms_{split}.json")).is_file() || dir.join("transforms.json").is_file()
 }
 
 /// The straight colours of `frame` composited on [`BACKGROUND`], `[pixels]`.
-fn reference(frame: &Frame) -> Vec<[f32; 3]> {
+pub(crate) fn reference(frame: &Frame) -> Vec<[f32; 3]> {
     frame.image.rgba.chunks_exact(4).map(|p| [0, 1, 2].map(|c| p[c] * p[3] + BACKGROUND[c] * (1.0 - p[3]))).collect()
 }
 

@@ -217,9 +217,11 @@ impl NgpField {
 /// Scratch buffers of [`NgpField::density_batch`] and [`NgpField::density_and_gradient_batch`].
 #[derive(Default, Debug)]
 pub struct DensityWorkspace {
-    enc: Vec<f32>,
-    h: Vec<f32>,
-    out: Vec<f32>,
+    /// `[n, 2·levels]`, `[n, sigma_hidden]` (after the ReLU), `[n, 1 + geo]`: the last batch's
+    /// activations (read by [`crate::density_gradient`]).
+    pub(crate) enc: Vec<f32>,
+    pub(crate) h: Vec<f32>,
+    pub(crate) out: Vec<f32>,
     d_h: Vec<f32>,
     d_enc: Vec<f32>,
     jac: Vec<f32>,

@@ -13,7 +13,8 @@
 //! [`train`](mod@train), [`render`], [`jacobian`] (rendered colour's derivatives with respect to
 //! ray origin and direction, for pose refinement), [`param_jacobian`] (composited samples and
 //! the derivatives of colour and distance with respect to the `sigma_net` weights, for the
-//! uncertainty stage), [`metrics`].
+//! uncertainty stage), [`density_gradient`] (the density at points and its derivatives with
+//! respect to the `sigma_net` weights, for the uncertainty field), [`metrics`].
 //!
 //! # Parameters and checkpoints
 //! All parameters are one flat vector, the concatenation of torch-ngp's tensors
@@ -49,6 +50,7 @@
 
 pub mod checkpoint;
 pub mod config;
+pub mod density_gradient;
 mod error;
 pub mod field_components;
 pub mod fields;

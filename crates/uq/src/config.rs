@@ -58,9 +58,11 @@ pub struct UqConfig {
     /// Uncertainty field, BLA: rays per training image whose Jacobians enter the posterior
     /// (default 64).
     pub field_rays_per_image: usize,
-    /// Uncertainty field, BLA: eigen-directions of the data term kept exactly; the rest of the
-    /// posterior is taken at the prior (default 256; the error against the dense value is
-    /// measured in BENCHMARKS.md).
+    /// Uncertainty field, BLA: eigen-directions of the (reduced) data term kept exactly; the
+    /// rest of the posterior is taken at the prior. At or above the number m of weights that
+    /// reach σ (2112 with the default model) the variance is exact, by a Cholesky factor, at
+    /// about 2.6× the cost of K = 256 (the default, 4096); below, an upper bound that is far
+    /// off on a trained model (K = 256: a median 284 % too large, BENCHMARKS.md).
     pub field_rank: usize,
 }
 
@@ -82,7 +84,7 @@ impl Default for UqConfig {
             online_bla_rays: 64,
             field_cells_per_metre: 20.0,
             field_rays_per_image: 64,
-            field_rank: 256,
+            field_rank: 4096,
         }
     }
 }

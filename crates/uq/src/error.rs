@@ -37,4 +37,20 @@ pub enum UqError {
     /// of a sparsification curve.
     #[error("{image}: {pixels} pixels with ground-truth depth and a finite uncertainty, at least {needed} needed")]
     TooFewPixels { image: String, pixels: usize, needed: usize },
+    /// The uncertainty field's grid could not be made (a bad box or resolution) or its arrays
+    /// do not match it.
+    #[error("uncertainty field grid: {message}")]
+    FieldGrid { message: String },
+    /// An uncertainty field file that cannot be read or written.
+    #[error("{}: {error}", path.display())]
+    FieldIo { path: std::path::PathBuf, error: std::io::Error },
+    /// A file that is not a valid uncertainty field (truncated, another format, a bad value).
+    #[error("{}: not a valid uncertainty field file: {message}", path.display())]
+    FieldFile { path: std::path::PathBuf, message: String },
+    /// An uncertainty field built from another model than the one in use.
+    #[error(
+        "{}: the uncertainty field was built from checkpoint {field_checkpoint} ({built_from}), but the model in use is checkpoint {checkpoint}; rebuild it with `nerfsv uq field`",
+        path.display()
+    )]
+    FieldCheckpoint { path: std::path::PathBuf, field_checkpoint: String, built_from: String, checkpoint: String },
 }

@@ -15,6 +15,10 @@
 //!   `σ_d·√s` (and `σ_d·√(Σw_i²t_i²)/A` for the distance), BLA's linearised `j Σ jᵀ` with the
 //!   rows of the `sigma_net` Jacobian, as `|j·L|²` (`Σ = L·Lᵀ`) in batched products; NaN where a
 //!   ray composites no sample.
+//! - [`field`]: the **uncertainty field**, the paper's proposed lookup table: a voxel grid of
+//!   density variance over the model's box (BLA: the linearised `Var[σ(x)] = ∇θσᵀΣ∇θσ` under
+//!   the posterior of all training images, low rank; GA: per-ray σ̂² splatted by compositing
+//!   weight), saved like the collision grids, with cheap per-view lookups and per-pixel maps.
 //! - [`ause`]: **calibration**, the area under the sparsification error of the depth error
 //!   against a per-pixel uncertainty (100 fractions, curves normalised by their shared maximum,
 //!   as Bayes' Rays evaluates it), per image and averaged; an image without ground-truth depth
@@ -45,6 +49,7 @@ pub mod ause;
 pub mod bla;
 mod config;
 mod error;
+pub mod field;
 pub mod ga;
 pub mod maps;
 
@@ -55,5 +60,9 @@ pub use bla::{
 };
 pub use config::UqConfig;
 pub use error::UqError;
+pub use field::{
+    data_term, density_param_count, empty_density, field_geometry, model_id, DensityPosterior, FieldFigures,
+    FieldMethod, TrainingView, UncertaintyField,
+};
 pub use ga::{ga_fit, ga_fit_samples, ga_image, ga_objective, GaExclusion, GaFit, GaRay};
 pub use maps::{bla_maps, bla_maps_factored, ga_maps, ga_maps_from_samples, CovarianceFactor, UncertaintyMaps};

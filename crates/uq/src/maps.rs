@@ -240,7 +240,7 @@ pub fn bla_ray_variances_into(
         a,
         BlockStructure::Rectangular,
         1.0,
-        Par::rayon(0),
+        crate::bla::dense_par(),
     );
     // |j·L|² = squared norm of each column of Lᵀ·Jᵀ.
     let prod = ws.prod.as_ref();

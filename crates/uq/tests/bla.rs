@@ -317,3 +317,24 @@ fn uq_config_reads_toml_refuses_unknown_keys_and_non_positive_values() {
     assert_eq!(e.to_string(), "prior_precision: must be a positive number, found -2");
     assert!(UqConfig::default().validate().is_ok());
 }
+
+/// The same image gives bit-identical BLA at any thread count (the stage files of `nerfsv run`
+/// promise it): the dense products and the factorisation split their work the same way however
+/// many threads run it.
+#[test]
+fn bla_of_a_nerf_image_is_bit_identical_at_one_and_three_threads() {
+    let nerf = common::tiny_nerf();
+    let rays = common::view_rays(12);
+    let reference = shifted_reference(&rays);
+    let cfg = UqConfig { max_rays: 40, lm_iterations: 2, perturbations: 2, ..UqConfig::default() };
+    let fit = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| bla_image(&nerf, "r_3", &rays, &reference, &cfg).unwrap())
+    };
+    let (a, b) = (fit(1), fit(3));
+    assert!(a.map == b.map, "the MAP differs between 1 and 3 threads");
+    assert_eq!(a.perturbation_losses, b.perturbation_losses);
+    assert_eq!(a.laplace.log_evidence.to_bits(), b.laplace.log_evidence.to_bits());
+    assert_eq!(a.laplace.normalized_trace.to_bits(), b.laplace.normalized_trace.to_bits());
+    assert!(a.laplace.covariance == b.laplace.covariance, "the covariance differs between 1 and 3 threads");
+}

@@ -151,12 +151,12 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let cfg = dir.path().join("run.toml");
-    let write_cfg = |steps: u32| {
+    let write_cfg = |steps: u32, ga_images: u32| {
         let text = format!(
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\n\
              [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
-             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n[uq_offline]\nbla_images_per_split = 1\n"
+             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n[uq_offline]\nbla_images_per_split = 1\nga_images_per_split = {ga_images}\n"
         );
         std::fs::write(&cfg, text).unwrap();
     };
@@ -167,7 +167,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
             serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
         (err, summary)
     };
-    write_cfg(3);
+    write_cfg(3, 50);
     let (first, summary) = run();
     assert!(!first.contains("up to date"), "{first}");
     assert_eq!(summary["nerf"]["steps"], 3);
@@ -179,8 +179,17 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     }
     assert_eq!(summary, again);
 
+    // Fewer GA images: only the uncertainty stage is redone (its key holds its config slice).
+    write_cfg(3, 2);
+    let (fewer, changed) = run();
+    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision", "flight", "stress"] {
+        assert!(fewer.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{fewer}");
+    }
+    assert!(!fewer.contains("uq: up to date"), "{fewer}");
+    assert_eq!(changed["uq"]["train"]["ga_images"], 2);
+
     // More training steps: the dataset and the ground-truth field stay, the rest is redone.
-    write_cfg(5);
+    write_cfg(5, 50);
     let (third, changed) = run();
     assert!(third.contains("dataset: up to date") && third.contains("collision: up to date"), "{third}");
     for stage in ["nerf", "eval", "uq"] {

@@ -36,7 +36,9 @@ pub enum UqCommand {
     /// error, removing pixels by decreasing depth uncertainty, and the oracle's, over 100
     /// fractions, both normalised by their shared maximum; 0 is perfect) of GA's or BLA's
     /// per-pixel depth uncertainty, per image of a split with ground-truth depth and on average.
-    /// Images without ground-truth depth are skipped with a message, never scored on zeros.
+    /// Images without ground-truth depth are skipped with a message, never scored on zeros; a
+    /// model whose box most of the split's cameras do not look at is refused, as `offline`
+    /// refuses it.
     Ause(AuseArgs),
 }
 

@@ -815,7 +815,7 @@ impl Stage for Uncertainty<'_> {
             done.set(done.get() + 1);
             cx.progress(done.get(), total, status);
         };
-        let quiet = |_: &str| {};
+        let note = |message: &str| cx.observer.note(Self::NAME, message);
         let (mut ga, mut bla, mut ause) = (Vec::new(), Vec::new(), Vec::new());
         for (name, split, ga_idx, bla_idx) in &chosen {
             if *name != "test" {
@@ -826,7 +826,7 @@ impl Stage for Uncertainty<'_> {
                             tick(&status)
                         }
                     };
-                    rows.extend(offline_split(&nerf, method, split, name, indices, None, self.uq, &progress, &quiet)?);
+                    rows.extend(offline_split(&nerf, method, split, name, indices, None, self.uq, &progress, &note)?);
                 }
                 continue;
             }
@@ -843,6 +843,9 @@ impl Stage for Uncertainty<'_> {
                         // No ground-truth depth: fitted for its row all the same.
                         None => fit_frame(&nerf, method, &frame.file_path, frame, None, self.uq)?,
                     };
+                    if let AuseOutcome::Skipped(e) = &outcome {
+                        note(&format!("{} depth AUSE skipped: {e}", method.name().to_uppercase()));
+                    }
                     rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
                     ause.push((method, index, frame.file_path.clone(), outcome));
                     tick(&status);

@@ -32,7 +32,7 @@
 
 use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
 use faer::linalg::solvers::Llt;
-use faer::{Accum, Mat, Par, Side};
+use faer::{Accum, Mat, Side};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, RaySamples, SigmaNetJacobians};
 use nerfsv_scene::validate::InvalidValue;

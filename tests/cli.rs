@@ -151,11 +151,12 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let cfg = dir.path().join("run.toml");
-    let write_cfg = |steps: u32| {
+    let write_cfg = |steps: u32, ga_images: u32| {
         let text = format!(
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\n\
-             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n"
+             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n[uq_offline]\nbla_images_per_split = 1\nga_images_per_split = {ga_images}\n"
         );
         std::fs::write(&cfg, text).unwrap();
     };
@@ -166,22 +167,34 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
             serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
         (err, summary)
     };
-    write_cfg(3);
+    write_cfg(3, 50);
     let (first, summary) = run();
     assert!(!first.contains("up to date"), "{first}");
     assert_eq!(summary["nerf"]["steps"], 3);
+    assert_uq_stage(&out, &summary["uq"]);
 
     let (second, again) = run();
-    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision", "flight", "stress"] {
+    for stage in ["dataset", "collision", "nerf", "eval", "uq", "nerf_collision", "flight", "stress"] {
         assert!(second.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{second}");
     }
     assert_eq!(summary, again);
 
+    // Fewer GA images: only the uncertainty stage is redone (its key holds its config slice).
+    write_cfg(3, 2);
+    let (fewer, changed) = run();
+    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision", "flight", "stress"] {
+        assert!(fewer.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{fewer}");
+    }
+    assert!(!fewer.contains("uq: up to date"), "{fewer}");
+    assert_eq!(changed["uq"]["train"]["ga_images"], 2);
+
     // More training steps: the dataset and the ground-truth field stay, the rest is redone.
-    write_cfg(5);
+    write_cfg(5, 50);
     let (third, changed) = run();
     assert!(third.contains("dataset: up to date") && third.contains("collision: up to date"), "{third}");
-    assert!(!third.contains("nerf: up to date") && !third.contains("eval: up to date"), "{third}");
+    for stage in ["nerf", "eval", "uq"] {
+        assert!(!third.contains(&format!("{stage}: up to date")), "{stage} should be redone:\n{third}");
+    }
     assert_eq!(changed["nerf"]["steps"], 5);
 
     // A run killed after its last checkpoint but before the stage completed resumes from it.
@@ -190,4 +203,54 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert!(fourth.contains("nerf: resuming the interrupted run"), "{fourth}");
     assert_eq!(resumed["eval"], changed["eval"], "resuming must end at the same model");
     assert_eq!(resumed["nerf"]["steps"], 5);
+}
+
+/// The offline uncertainty stage of the tiny run above (6 train, 1 val, 1 test views; BLA on one
+/// image per split): its figures in `summary.json` are finite and its files are there.
+fn assert_uq_stage(run: &std::path::Path, uq: &serde_json::Value) {
+    let number = |v: &serde_json::Value, key: &str| {
+        v[key].as_f64().unwrap_or_else(|| panic!("uq: {key} missing or not a number in {v}"))
+    };
+    for (split, views) in [("train", 6.0), ("val", 1.0), ("test", 1.0)] {
+        let s = &uq[split];
+        assert_eq!(number(s, "ga_images"), views, "{split}: {s}");
+        let (excluded, missed) = (number(s, "ga_excluded"), number(s, "ga_all_rays_miss"));
+        assert_eq!(missed, 0.0, "{split}: {s}");
+        let median = number(s, "ga_median_sigma_d");
+        assert!(median.is_finite() && median >= 0.0, "{split}: {s}");
+        // The mean leaves the excluded images out: it exists unless all of them are.
+        if excluded < views {
+            assert!(number(s, "ga_mean_sigma_d").is_finite() && number(s, "ga_mean_mu_d").is_finite(), "{split}: {s}");
+        }
+        assert_eq!(number(s, "bla_images"), 1.0, "{split}: {s}");
+        let (trace, rmv) = (number(s, "bla_mean_normalized_trace"), number(s, "bla_mean_rmv"));
+        // A weight's posterior variance is positive and at most the prior's, 1/α = 1.
+        assert!(trace > 0.0 && trace <= 1.0 + 1e-9, "{split}: {s}");
+        assert!((rmv - trace.sqrt()).abs() <= 1e-9, "{split}: {s}");
+    }
+    for method in ["ga", "bla"] {
+        assert_eq!(number(uq, &format!("ause_{method}_images")), 1.0, "{uq}");
+        let a = number(uq, &format!("ause_{method}"));
+        assert!((0.0..=1.0).contains(&a), "ause_{method} = {a}");
+    }
+    assert!(number(uq, "seconds") >= 0.0);
+    let dir = run.join("uq");
+    let lines = |name: &str| {
+        let text = std::fs::read_to_string(dir.join(name)).unwrap_or_else(|e| panic!("uq/{name}: {e}"));
+        text.lines().map(str::to_string).collect::<Vec<_>>()
+    };
+    let ga = lines("ga.csv");
+    assert!(ga[0].starts_with("split,index,file_path,mu_d,sigma_d,excluded"), "{ga:?}");
+    assert_eq!(ga.len(), 1 + 8, "{ga:?}");
+    let bla = lines("bla.csv");
+    assert!(bla[0].starts_with("split,index,file_path,normalized_trace,rmv"), "{bla:?}");
+    assert_eq!(bla.len(), 1 + 3, "{bla:?}");
+    let ause = lines("ause.csv");
+    assert_eq!(ause[0], "method,split,index,file_path,ause,pixels,skipped");
+    assert!(ause[1].starts_with("ga,test,0,") && ause[2].starts_with("bla,test,0,"), "{ause:?}");
+    for stem in ["uq_ga_sigma_d", "uq_ga_mu_sigma", "uq_bla_trace", "uq_bla_rmv", "uq_bla_trace_rmv"] {
+        for ext in ["png", "svg"] {
+            assert!(dir.join(format!("{stem}.{ext}")).is_file(), "uq/{stem}.{ext} missing");
+        }
+    }
 }

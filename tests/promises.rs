@@ -18,7 +18,8 @@ fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 2\nsupersample = 1\n[train]\nbatch_rays = 256\ncheckpoint_every_steps = 1\n\
              [sim.vision]\npixels = 16\niterations = 2\n\
-             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n"
+             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n[uq_offline]\nbla_images_per_split = 1\n"
         ),
     )
     .unwrap();
@@ -90,6 +91,7 @@ fn same_config_and_seed_give_byte_identical_files_at_one_and_two_threads() {
     let (fa, fb) = (files(&a), files(&b));
     assert!(fa.iter().any(|(p, _)| p.ends_with("checkpoint.safetensors")));
     assert!(fa.iter().any(|(p, _)| p.ends_with("nerf_sdf.safetensors")));
+    assert!(fa.iter().any(|(p, _)| p.ends_with("uq/bla.csv")) && fa.iter().any(|(p, _)| p.ends_with("uq/ause.csv")));
     assert_eq!(fa.len(), fb.len());
     for ((pa, ba), (pb, bb)) in fa.iter().zip(&fb) {
         assert_eq!(pa, pb);

@@ -322,3 +322,29 @@ fn ause_skips_images_without_ground_truth_depth_naming_them() {
     assert_eq!(skipped.len(), 2);
     assert!(skipped.iter().all(|m| m.as_str().unwrap().contains("r_")), "{skipped:?}");
 }
+
+/// A dataset whose test cameras all look past the model's box (each moved 100 m along x) is
+/// refused by `uq ause` as by `uq offline`, naming the transforms file, before any fit.
+#[test]
+fn ause_and_offline_refuse_a_model_whose_box_the_cameras_miss() {
+    let (ds, model) = ause_setup();
+    let dir = tempfile::tempdir().unwrap();
+    let copy = copy_splits(ds, &dir.path().join("ds"), &["train", "val", "test"]);
+    let transforms = copy.join("transforms_test.json");
+    let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&transforms).unwrap()).unwrap();
+    for f in t["frames"].as_array_mut().unwrap() {
+        let x = f["transform_matrix"][0][3].as_f64().unwrap();
+        f["transform_matrix"][0][3] = serde_json::json!(x + 100.0);
+    }
+    std::fs::write(&transforms, serde_json::to_string(&t).unwrap()).unwrap();
+    for method in ["ga", "bla"] {
+        let (ok, stdout, err) = ause(method, &copy);
+        assert!(!ok, "{method}: accepted cameras that miss the model: {stdout}");
+        assert!(err.contains("transforms_test.json") && err.contains("scene box"), "{method}: {err}");
+    }
+    let out = dir.path().join("out");
+    let base = ["uq", "offline", "--method", "ga", "--model", s(model), "--data", s(&copy), "--out", s(&out)];
+    let (ok, _, err) = nerfsv(&base);
+    assert!(!ok && err.contains("transforms_test.json") && err.contains("scene box"), "{err}");
+    assert!(!out.exists());
+}

@@ -13,7 +13,9 @@ use nerfsv_plot::palette::Rgb;
 use nerfsv_uq::{FieldMethod, TrainingView, UncertaintyField};
 use serde::Serialize;
 
-use crate::commands::uq::{has_split, load_uq_config, reference, MethodArg, BACKGROUND};
+use nerfsv_pipeline::uq::{has_split, reference, Method, BACKGROUND};
+
+use crate::commands::uq::{load_uq_config, MethodArg};
 use crate::progress::Reporter;
 
 /// Altitude of the PNG slice, metres (the drone flies at 0.15–0.5 m).
@@ -152,7 +154,7 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
         .map(|((f, r), n)| TrainingView { name: n, camera: &f.camera, reference: r })
         .collect();
     let reporter = Reporter::new(args.json);
-    let stage = format!("uq field {}", args.method.name());
+    let stage = format!("uq field {}", Method::from(args.method).name());
     let mut progress =
         |done: usize, total: usize| reporter.progress(&stage, done as u64, total as u64, "training images");
     let checkpoint = args.model.display().to_string();
@@ -178,7 +180,7 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
     }
     let f = &field.figures;
     let summary = Summary {
-        method: args.method.name(),
+        method: Method::from(args.method).name(),
         file: args.out.display().to_string(),
         png: png.as_ref().map(|_| png_path.display().to_string()),
         voxels: field.geometry.len(),

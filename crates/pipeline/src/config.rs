@@ -81,6 +81,36 @@ pub struct RunConfig {
     /// Uncertainty quantification: GA and BLA settings, the online rewards, the uncertainty
     /// field (the `[uq]` table).
     pub uq: nerfsv_uq::UqConfig,
+    /// How many images of each split the offline uncertainty stage (`RUN/uq/`) fits (the
+    /// `[uq_offline]` table).
+    pub uq_offline: UqOfflineConfig,
+}
+
+/// The offline uncertainty stage of `nerfsv run`: how many images of each split GA and BLA
+/// fit (an even stride through the split), the `[uq_offline]` table. The depth AUSE of each
+/// method is taken over its test images.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct UqOfflineConfig {
+    /// GA: images per split, at most (default 50; about 0.15 s per 100×100 image on two
+    /// cores, so every image of the default dataset would add a minute and a half).
+    pub ga_images_per_split: usize,
+    /// BLA: images per split, at most (default 2; about 5 s per image, twice that for the
+    /// test images, whose depth-uncertainty maps the AUSE needs); 0 skips BLA.
+    pub bla_images_per_split: usize,
+}
+
+impl Default for UqOfflineConfig {
+    fn default() -> Self {
+        Self { ga_images_per_split: 50, bla_images_per_split: 2 }
+    }
+}
+
+impl Validate for UqOfflineConfig {
+    fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("ga_images_per_split", self.ga_images_per_split, 1, 1_000_000)?;
+        in_range("bla_images_per_split", self.bla_images_per_split, 0, 1_000_000)
+    }
 }
 
 impl Default for RunConfig {
@@ -100,6 +130,7 @@ impl Default for RunConfig {
             flight_seed: 0,
             validation: nerfsv_validation::ValidationConfig::default(),
             uq: nerfsv_uq::UqConfig::default(),
+            uq_offline: UqOfflineConfig::default(),
         }
     }
 }
@@ -143,6 +174,7 @@ impl Validate for RunConfig {
         self.nerf_settings().validate()?;
         in_range("train_steps", self.train_steps, 1, MAX_TRAIN_STEPS)?;
         self.uq.validate().map_err(|e| e.within("uq"))?;
+        self.uq_offline.validate().map_err(|e| e.within("uq_offline"))?;
         if let Some(t) = self.nerf_density_threshold {
             positive("nerf_density_threshold", t as f64)?;
         }
@@ -185,6 +217,7 @@ mod tests {
             ("nerf_density_threshold = -1.0", "nerf_density_threshold", "-1"),
             ("[nerf]\ncolor_hidden = 0", "nerf.color_hidden", "0"),
             ("[train]\nlr = -0.5", "train.lr", "-0.5"),
+            ("[uq_offline]\nga_images_per_split = 0", "uq_offline.ga_images_per_split", "0"),
         ] {
             std::fs::write(&path, text).unwrap();
             let e = RunConfig::load(&path).unwrap_err().to_string();

@@ -57,8 +57,9 @@ pub mod flight;
 pub mod stage;
 pub mod stages;
 pub mod stress;
+pub mod uq;
 
-pub use config::{load_toml, NerfSettings, RunConfig, Validate};
+pub use config::{load_toml, NerfSettings, RunConfig, UqOfflineConfig, Validate};
 pub use stage::{Observer, Outcome, Runner, Silent, Stage, StageContext};
 
 /// Everything that can stop a stage; each variant names the file, stage or key involved.
@@ -84,6 +85,10 @@ pub enum PipelineError {
     Sim(#[from] nerfsv_sim::SimError),
     #[error(transparent)]
     Validation(#[from] nerfsv_validation::ValidationError),
+    #[error(transparent)]
+    Uq(#[from] nerfsv_uq::UqError),
+    #[error(transparent)]
+    Plot(#[from] nerfsv_plot::PlotError),
     #[error("stage {stage} reads stage {input}, which has not run before it")]
     MissingInput { stage: &'static str, input: &'static str },
     #[error("{}: is inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
@@ -166,6 +171,7 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     r.run(&stages::GroundTruthField { scene: &scene, cells_per_metre: cfg.cells_per_metre })?;
     r.run(&stages::Train { settings: &settings, steps: cfg.train_steps })?;
     r.run(&stages::Eval)?;
+    r.run(&uq::Uncertainty { uq: &cfg.uq, offline: &cfg.uq_offline })?;
     r.run(&stages::NerfField { density_threshold: cfg.nerf_density_threshold })?;
     r.run(&flight::FlightStage {
         scene: &scene,

@@ -40,6 +40,16 @@ use rand::{RngExt, SeedableRng};
 use crate::ga::check_reference;
 use crate::{UqConfig, UqError};
 
+/// Work items the dense products and factorisations are split into: a fixed split, not the
+/// pool's thread count, so an image's BLA has the same bits on any number of threads (faer's
+/// split of a product's inner dimension changes its summation order).
+const DENSE_TASKS: usize = 8;
+
+/// The parallelism of every dense faer call of this crate ([`DENSE_TASKS`]).
+pub(crate) fn dense_par() -> Par {
+    Par::rayon(DENSE_TASKS)
+}
+
 /// A least-squares model: residuals `r(θ)` and their Jacobian, the input of the BLA core.
 pub trait ResidualModel {
     /// `P`, the number of parameters.
@@ -96,7 +106,7 @@ impl StepSolver {
             b,
             BlockStructure::Rectangular,
             1.0,
-            Par::rayon(0),
+            dense_par(),
         );
         Self { gram, dual }
     }
@@ -112,10 +122,10 @@ impl StepSolver {
         if self.dual {
             // δ = (g − Jᵀ (JJᵀ + cI)⁻¹ J g) / β
             let mut v = Mat::zeros(jac.nrows(), 1);
-            matmul(v.as_mut(), Accum::Replace, jac.as_ref(), g.as_ref(), 1.0, Par::rayon(0));
+            matmul(v.as_mut(), Accum::Replace, jac.as_ref(), g.as_ref(), 1.0, dense_par());
             llt.solve_in_place(v.as_mut());
             let mut d = g.clone();
-            matmul(d.as_mut(), Accum::Add, jac.transpose(), v.as_ref(), -1.0, Par::rayon(0));
+            matmul(d.as_mut(), Accum::Add, jac.transpose(), v.as_ref(), -1.0, dense_par());
             Some(d * faer::Scale(1.0 / beta))
         } else {
             // δ = σ² (JᵀJ + cI)⁻¹ g
@@ -154,7 +164,7 @@ pub fn lm_map<M: ResidualModel>(model: &mut M, theta0: &[f64], cfg: &UqConfig) -
         // g = Jᵀr/σ² + αθ
         let rc = Mat::from_fn(r.len(), 1, |i, _| r[i]);
         let mut g = Mat::from_fn(p, 1, |i, _| alpha * theta[i]);
-        matmul(g.as_mut(), Accum::Add, jac.transpose(), rc.as_ref(), 1.0 / var, Par::rayon(0));
+        matmul(g.as_mut(), Accum::Add, jac.transpose(), rc.as_ref(), 1.0 / var, dense_par());
         let solver = StepSolver::new(&jac);
         let mut accepted = None;
         for _ in 0..MAX_RETRIES {
@@ -262,7 +272,7 @@ pub fn laplace_at<M: ResidualModel>(
         jac.as_ref(),
         BlockStructure::Rectangular,
         1.0 / var,
-        Par::rayon(0),
+        dense_par(),
     );
     for i in 0..p {
         h[(i, i)] += alpha;

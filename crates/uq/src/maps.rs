@@ -32,7 +32,7 @@
 
 use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
 use faer::linalg::solvers::Llt;
-use faer::{Accum, Mat, Par, Side};
+use faer::{Accum, Mat, Side};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, RaySamples, SigmaNetJacobians};
 use nerfsv_scene::validate::InvalidValue;
@@ -240,7 +240,7 @@ pub fn bla_ray_variances_into(
         a,
         BlockStructure::Rectangular,
         1.0,
-        Par::rayon(0),
+        crate::bla::dense_par(),
     );
     // |j·L|² = squared norm of each column of Lᵀ·Jᵀ.
     let prod = ws.prod.as_ref();

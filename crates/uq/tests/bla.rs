@@ -204,9 +204,18 @@ fn the_summary_from_the_gram_spectrum_equals_the_dense_laplace_approximation() {
             let summary = laplace_summary_at("lin", &mut model, &fit.theta, &cfg).unwrap();
             let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(1.0);
             assert_eq!(summary.prior_precision, dense.prior_precision, "m {m} p {p}");
-            assert!(close(summary.normalized_trace, dense.normalized_trace), "{summary:?} vs {}", dense.normalized_trace);
+            assert!(
+                close(summary.normalized_trace, dense.normalized_trace),
+                "{summary:?} vs {}",
+                dense.normalized_trace
+            );
             assert!(close(summary.rmv, dense.rmv));
-            assert!(close(summary.log_evidence, dense.log_evidence), "{} vs {}", summary.log_evidence, dense.log_evidence);
+            assert!(
+                close(summary.log_evidence, dense.log_evidence),
+                "{} vs {}",
+                summary.log_evidence,
+                dense.log_evidence
+            );
             assert_eq!(summary.evidence_grid.len(), dense.evidence_grid.len());
             for (a, b) in summary.evidence_grid.iter().zip(&dense.evidence_grid) {
                 assert!(a.0 == b.0 && close(a.1, b.1), "{a:?} vs {b:?}");
@@ -365,4 +374,25 @@ fn uq_config_reads_toml_refuses_unknown_keys_and_non_positive_values() {
     let e = UqConfig { prior_precision: -2.0, ..UqConfig::default() }.validate().unwrap_err();
     assert_eq!(e.to_string(), "prior_precision: must be a positive number, found -2");
     assert!(UqConfig::default().validate().is_ok());
+}
+
+/// The same image gives bit-identical BLA at any thread count (the stage files of `nerfsv run`
+/// promise it): the dense products and the factorisation split their work the same way however
+/// many threads run it.
+#[test]
+fn bla_of_a_nerf_image_is_bit_identical_at_one_and_three_threads() {
+    let nerf = common::tiny_nerf();
+    let rays = common::view_rays(12);
+    let reference = shifted_reference(&rays);
+    let cfg = UqConfig { max_rays: 40, lm_iterations: 2, perturbations: 2, ..UqConfig::default() };
+    let fit = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| bla_image(&nerf, "r_3", &rays, &reference, &cfg).unwrap())
+    };
+    let (a, b) = (fit(1), fit(3));
+    assert!(a.map == b.map, "the MAP differs between 1 and 3 threads");
+    assert_eq!(a.perturbation_losses, b.perturbation_losses);
+    assert_eq!(a.laplace.log_evidence.to_bits(), b.laplace.log_evidence.to_bits());
+    assert_eq!(a.laplace.normalized_trace.to_bits(), b.laplace.normalized_trace.to_bits());
+    assert!(a.laplace.covariance == b.laplace.covariance, "the covariance differs between 1 and 3 threads");
 }

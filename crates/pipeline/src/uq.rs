@@ -1,0 +1,966 @@
+//! The paper's offline uncertainty stage: GA and BLA on the images of a dataset's splits, a CSV
+//! row per image, per-split summaries and the paper's figures, and the depth AUSE of either
+//! method's per-pixel depth uncertainty. `nerfsv uq offline`, `nerfsv uq ause` and the
+//! [`Uncertainty`] stage of `nerfsv run` (`RUN/uq/`) all call these functions.
+
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::Instant;
+
+use nerfsv_dataset::{Frame, Split};
+use nerfsv_nerf::render::camera_rays;
+use nerfsv_nerf::{Nerf, RayInput};
+use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
+use nerfsv_uq::{
+    bla_image, bla_maps, depth_errors, ga_fit_samples, ga_image, ga_maps_from_samples, mean_ause, sparsification,
+    BlaFit, GaExclusion, GaFit, Sparsification, UqConfig, UqError,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::config::UqOfflineConfig;
+use crate::stage::{Stage, StageContext};
+use crate::stages::{load_dataset_split, Dataset, Train};
+use crate::PipelineError;
+
+/// The splits looked for, in this order.
+pub const SPLITS: [&str; 3] = ["train", "val", "test"];
+/// Background the reference images are composited on (and the rays carry), as `nerfsv render`.
+pub const BACKGROUND: [f32; 3] = [1.0, 1.0, 1.0];
+/// Figure size, pixels.
+pub const FIGURE: (u32, u32) = (1200, 560);
+
+/// The two methods of the paper.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Gaussian approximation (eq. 2–3).
+    Ga,
+    /// Bayesian Laplace approximation (eq. 4–9).
+    Bla,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Ga => "ga",
+            Method::Bla => "bla",
+        }
+    }
+}
+
+/// One image's result; `None`: every ray missed the model, so there is nothing to fit.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Fit {
+    Ga(Option<GaRow>),
+    Bla(Option<BlaRow>),
+}
+
+impl Fit {
+    /// The empty result of `method` (every ray missed).
+    fn missed(method: Method) -> Self {
+        match method {
+            Method::Ga => Fit::Ga(None),
+            Method::Bla => Fit::Bla(None),
+        }
+    }
+
+    /// Whether every ray missed the model.
+    pub fn all_rays_miss(&self) -> bool {
+        matches!(self, Fit::Ga(None) | Fit::Bla(None))
+    }
+}
+
+/// A GA row: the image's μ_d and σ_d.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GaRow {
+    pub mu_d: f64,
+    pub sigma_d: f64,
+    pub excluded: Option<GaExclusion>,
+    pub objective: f64,
+    pub rays: usize,
+    pub rays_without_samples: usize,
+}
+
+impl GaRow {
+    fn new(f: &GaFit, rays: usize) -> Self {
+        Self {
+            mu_d: f.mu_d,
+            sigma_d: f.sigma_d,
+            excluded: f.excluded,
+            objective: f.objective,
+            rays,
+            rays_without_samples: f.rays_without_samples,
+        }
+    }
+}
+
+/// A BLA row: the summaries of the image's posterior covariance.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlaRow {
+    pub normalized_trace: f64,
+    pub rmv: f64,
+    pub map_loss: f64,
+    pub initial_loss: f64,
+    pub perturbation: usize,
+    pub prior_precision: f64,
+    pub log_evidence: f64,
+    pub rays: usize,
+}
+
+impl BlaRow {
+    fn new(f: &BlaFit) -> Self {
+        Self {
+            normalized_trace: f.laplace.normalized_trace,
+            rmv: f.laplace.rmv,
+            map_loss: f.map.loss,
+            initial_loss: f.map.losses.first().copied().unwrap_or(f.map.loss),
+            perturbation: f.perturbation,
+            prior_precision: f.laplace.prior_precision,
+            log_evidence: f.laplace.log_evidence,
+            rays: f.rays,
+        }
+    }
+}
+
+/// One CSV row: an image of a split and its fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Row {
+    pub split: &'static str,
+    pub index: usize,
+    pub file_path: String,
+    pub fit: Fit,
+}
+
+/// Whether `dir` holds a transforms file for `split` (its own, or instant-ngp's shared one).
+pub fn has_split(dir: &Path, split: &str) -> bool {
+    dir.join(format!("transforms_{split}.json")).is_file() || dir.join("transforms.json").is_file()
+}
+
+/// The straight colours of `frame` composited on [`BACKGROUND`], `[pixels]`.
+pub fn reference(frame: &Frame) -> Vec<[f32; 3]> {
+    frame.image.rgba.chunks_exact(4).map(|p| [0, 1, 2].map(|c| p[c] * p[3] + BACKGROUND[c] * (1.0 - p[3]))).collect()
+}
+
+/// At most `n` of `items`, an even stride through them (all when `n` is `None` or larger).
+pub fn stride<T: Copy>(items: &[T], n: Option<usize>) -> Vec<T> {
+    let len = items.len();
+    let n = n.unwrap_or(len).min(len);
+    (0..n).map(|q| items[q * len / n.max(1)]).collect()
+}
+
+/// The fit of `method` to `rays` and their reference colours `refs`; an image whose rays all
+/// miss the model is an empty result, not an error.
+pub fn fit_image(
+    nerf: &Nerf,
+    method: Method,
+    name: &str,
+    rays: &[RayInput],
+    refs: &[[f32; 3]],
+    cfg: &UqConfig,
+) -> Result<Fit, UqError> {
+    let fit = match method {
+        Method::Ga => {
+            ga_image(nerf, name, rays, refs, cfg.ga_sigma_max).map(|f| Fit::Ga(Some(GaRow::new(&f, rays.len()))))
+        }
+        Method::Bla => bla_image(nerf, name, rays, refs, cfg).map(|f| Fit::Bla(Some(BlaRow::new(&f)))),
+    };
+    match fit {
+        Err(UqError::AllRaysMiss { .. }) => Ok(Fit::missed(method)),
+        other => other,
+    }
+}
+
+/// The fit of `method` to the pixels of `frame`: GA on at most `ga_rays` of them (an even
+/// stride; all when `None`), BLA on the rays that composite a sample (at most `cfg.max_rays`).
+pub fn fit_frame(
+    nerf: &Nerf,
+    method: Method,
+    name: &str,
+    frame: &Frame,
+    ga_rays: Option<usize>,
+    cfg: &UqConfig,
+) -> Result<Fit, UqError> {
+    let all_rays = camera_rays(&frame.camera, BACKGROUND);
+    let all_refs = reference(frame);
+    let (rays, refs) = match method {
+        // GA: an even stride through the pixels; BLA strides through the rays with samples.
+        Method::Ga if ga_rays.is_some() => {
+            let idx: Vec<usize> = stride(&(0..all_rays.len()).collect::<Vec<_>>(), ga_rays);
+            (idx.iter().map(|&i| all_rays[i]).collect(), idx.iter().map(|&i| all_refs[i]).collect())
+        }
+        _ => (all_rays, all_refs),
+    };
+    fit_image(nerf, method, name, &rays, &refs, cfg)
+}
+
+/// The fit of `method` to every pixel of `frame` and its per-pixel depth standard deviation
+/// (metres, `[pixels]`, NaN where a ray composites no sample); BLA linearised at its posterior
+/// mode. GA renders the view once for both.
+pub fn fit_with_depth_uncertainty(
+    nerf: &Nerf,
+    method: Method,
+    name: &str,
+    frame: &Frame,
+    cfg: &UqConfig,
+) -> Result<(Fit, Vec<f32>), UqError> {
+    let rays = camera_rays(&frame.camera, BACKGROUND);
+    let refs = reference(frame);
+    match method {
+        Method::Ga => {
+            let samples = nerf.render_rays_samples(&rays);
+            let fit = ga_fit_samples(name, &rays, &samples, &refs, cfg.ga_sigma_max)?;
+            let maps = ga_maps_from_samples(name, &frame.camera, &samples, fit.sigma_d)?;
+            Ok((Fit::Ga(Some(GaRow::new(&fit, rays.len()))), maps.depth_std))
+        }
+        Method::Bla => {
+            let fit = bla_image(nerf, name, &rays, &refs, cfg)?;
+            let mut at_mode = nerf.clone();
+            for (w, &v) in at_mode.sigma_net_params_mut().iter_mut().zip(&fit.map.theta) {
+                *w = v as f32;
+            }
+            let maps = bla_maps(&at_mode, name, &frame.camera, BACKGROUND, &fit.laplace.covariance)?;
+            Ok((Fit::Bla(Some(BlaRow::new(&fit))), maps.depth_std))
+        }
+    }
+}
+
+/// How an image's AUSE ended.
+#[derive(Debug)]
+pub enum AuseOutcome {
+    /// Its sparsification curve.
+    Scored(Sparsification),
+    /// Not scored, and why: no ground-truth depth, every ray missing the model, or too few
+    /// pixels with both a ground-truth depth and a finite uncertainty.
+    Skipped(UqError),
+}
+
+/// The depth AUSE of `method` on `frame` (named by its file path), and the fit made on the way
+/// (`None` when the image has no ground-truth depth: it is not fitted).
+pub fn ause_frame(
+    nerf: &Nerf,
+    method: Method,
+    frame: &Frame,
+    cfg: &UqConfig,
+) -> Result<(Option<Fit>, AuseOutcome), UqError> {
+    let name = frame.file_path.as_str();
+    let view = nerf.render_camera(&frame.camera, BACKGROUND);
+    let errors = match depth_errors(name, &view.depth, frame.depth.as_ref().map(|d| &d.metres[..])) {
+        Ok(e) => e,
+        Err(e @ UqError::NoGroundTruthDepth { .. }) => return Ok((None, AuseOutcome::Skipped(e))),
+        Err(e) => return Err(e),
+    };
+    let (fit, uncertainty) = match fit_with_depth_uncertainty(nerf, method, name, frame, cfg) {
+        Ok(f) => f,
+        Err(e @ UqError::AllRaysMiss { .. }) => return Ok((Some(Fit::missed(method)), AuseOutcome::Skipped(e))),
+        Err(e) => return Err(e),
+    };
+    match sparsification(name, &errors, &uncertainty) {
+        Ok(curve) => Ok((Some(fit), AuseOutcome::Scored(curve))),
+        Err(e @ UqError::TooFewPixels { .. }) => Ok((Some(fit), AuseOutcome::Skipped(e))),
+        Err(e) => Err(e),
+    }
+}
+
+/// One image's depth AUSE.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ImageAuse {
+    pub image: String,
+    pub ause: f64,
+    /// Pixels with a valid ground-truth depth and a finite uncertainty.
+    pub pixels: usize,
+}
+
+/// The depth AUSE of a set of images.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct AuseResult {
+    pub per_image: Vec<ImageAuse>,
+    /// Images skipped, with the reason.
+    pub skipped: Vec<String>,
+    pub mean_ause: Option<f64>,
+}
+
+/// The depth AUSE of `method` on each of `frames`, reporting each image scored to `progress`
+/// (done, total) and each one skipped to `note`.
+pub fn ause_frames(
+    nerf: &Nerf,
+    method: Method,
+    frames: &[Frame],
+    cfg: &UqConfig,
+    progress: &dyn Fn(usize, usize),
+    note: &dyn Fn(&str),
+) -> Result<AuseResult, PipelineError> {
+    let (mut out, mut scored) = (AuseResult::default(), Vec::new());
+    for (i, frame) in frames.iter().enumerate() {
+        progress(i, frames.len());
+        match ause_frame(nerf, method, frame, cfg)?.1 {
+            AuseOutcome::Scored(curve) => {
+                out.per_image.push(ImageAuse {
+                    image: frame.file_path.clone(),
+                    ause: curve.ause,
+                    pixels: curve.pixels,
+                });
+                scored.push(curve);
+            }
+            AuseOutcome::Skipped(e) => {
+                note(&format!("skipped: {e}"));
+                out.skipped.push(e.to_string());
+            }
+        }
+    }
+    progress(frames.len(), frames.len());
+    out.mean_ause = mean_ause(&scored);
+    Ok(out)
+}
+
+/// `method` on the images `indices` of `split` (named `name` in the rows), after checking
+/// that the model's box is in view of the split's cameras. Reports each image fitted to
+/// `progress` (done, total) and each one whose rays all miss to `note`.
+#[allow(clippy::too_many_arguments)]
+pub fn offline_split(
+    nerf: &Nerf,
+    method: Method,
+    split: &Split,
+    name: &'static str,
+    indices: &[usize],
+    ga_rays: Option<usize>,
+    cfg: &UqConfig,
+    progress: &dyn Fn(usize, usize),
+    note: &dyn Fn(&str),
+) -> Result<Vec<Row>, PipelineError> {
+    nerfsv_nerf::check_bounds(&nerf.config, split)?;
+    let total = indices.len();
+    progress(0, total);
+    let mut rows = Vec::with_capacity(total);
+    for (done, &index) in indices.iter().enumerate() {
+        let frame = split
+            .frames
+            .get(index)
+            .ok_or_else(|| PipelineError::Internal(format!("{}: no frame {index}", split.path.display())))?;
+        let image = format!("{}: frame {index} ({})", split.path.display(), frame.file_path);
+        let fit = fit_frame(nerf, method, &image, frame, ga_rays, cfg)?;
+        if fit.all_rays_miss() {
+            note(&format!("{image}: all rays miss the model; its row is left empty"));
+        }
+        rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
+        progress(done + 1, total);
+    }
+    Ok(rows)
+}
+
+/// A split's summary (GA fields or BLA fields).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SplitSummary {
+    pub images: usize,
+    /// Images whose rays all miss the model (a row with empty values; left out of the means).
+    pub all_rays_miss: usize,
+    /// GA: the paper's exclusions (σ_d ≤ 0 or σ_d ≥ ga_sigma_max), left out of the means.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub excluded: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_sigma_d: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_mu_d: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_trace: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_rmv: Option<f64>,
+}
+
+/// What `nerfsv uq offline` prints and writes to `uq_{method}.json`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OfflineSummary {
+    pub method: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub train: Option<SplitSummary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub val: Option<SplitSummary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub test: Option<SplitSummary>,
+    /// Splits whose transforms file is absent.
+    pub skipped_splits: Vec<&'static str>,
+    pub seconds: f64,
+}
+
+impl OfflineSummary {
+    /// The summaries of `rows` for each of `splits`.
+    pub fn new(method: Method, rows: &[Row], splits: &[&'static str], skipped_splits: Vec<&'static str>) -> Self {
+        let mut s = Self { method: method.name(), train: None, val: None, test: None, skipped_splits, seconds: 0.0 };
+        for name in splits {
+            let summary = summarise(rows.iter().filter(|r| r.split == *name), method);
+            match *name {
+                "train" => s.train = Some(summary),
+                "val" => s.val = Some(summary),
+                _ => s.test = Some(summary),
+            }
+        }
+        s
+    }
+
+    /// A few lines for a person: per split the images, exclusions and means.
+    pub fn describe(&self, out: &Path) -> String {
+        let mut text = String::new();
+        for (name, s) in [("train", &self.train), ("val", &self.val), ("test", &self.test)] {
+            let Some(s) = s else { continue };
+            let _ = match self.method {
+                "ga" => writeln!(
+                    text,
+                    "{name}: {} images, {} excluded, {} all rays miss; mean σ_d {}, mean μ_d {}",
+                    s.images,
+                    s.excluded.unwrap_or(0),
+                    s.all_rays_miss,
+                    short(s.mean_sigma_d),
+                    short(s.mean_mu_d)
+                ),
+                _ => writeln!(
+                    text,
+                    "{name}: {} images, {} all rays miss; mean normalised trace {}, mean rmv {}",
+                    s.images,
+                    s.all_rays_miss,
+                    short(s.mean_trace),
+                    short(s.mean_rmv)
+                ),
+            };
+        }
+        let _ = write!(text, "{:.1} s → {}", self.seconds, out.display());
+        text
+    }
+}
+
+/// A figure for a person: 4 decimals, or scientific notation outside [1e-3, 1e5).
+fn short(v: Option<f64>) -> String {
+    match v {
+        None => "n/a".to_string(),
+        Some(v) if (1e-3..1e5).contains(&v.abs()) => format!("{v:.4}"),
+        Some(v) => format!("{v:.4e}"),
+    }
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+fn median(mut values: Vec<f64>) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(values[n / 2]),
+        _ => Some(0.5 * (values[n / 2 - 1] + values[n / 2])),
+    }
+}
+
+fn ga_rows<'a>(rows: impl Iterator<Item = &'a Row>) -> impl Iterator<Item = &'a GaRow> {
+    rows.filter_map(|r| if let Fit::Ga(Some(g)) = &r.fit { Some(g) } else { None })
+}
+
+fn bla_rows<'a>(rows: impl Iterator<Item = &'a Row>) -> impl Iterator<Item = &'a BlaRow> {
+    rows.filter_map(|r| if let Fit::Bla(Some(b)) = &r.fit { Some(b) } else { None })
+}
+
+/// The summary of `rows` (one split's) for `method`; the means leave out the images whose rays
+/// all miss and, for GA, the excluded ones, as the paper does.
+pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method) -> SplitSummary {
+    let images = rows.clone().count();
+    let missed = rows.clone().filter(|r| r.fit.all_rays_miss()).count();
+    let mut s = SplitSummary {
+        images,
+        all_rays_miss: missed,
+        excluded: None,
+        mean_sigma_d: None,
+        mean_mu_d: None,
+        mean_trace: None,
+        mean_rmv: None,
+    };
+    match method {
+        Method::Ga => {
+            let fits: Vec<&GaRow> = ga_rows(rows).collect();
+            let kept: Vec<&&GaRow> = fits.iter().filter(|g| g.excluded.is_none()).collect();
+            s.excluded = Some(fits.len() - kept.len());
+            s.mean_sigma_d = mean(kept.iter().map(|g| g.sigma_d));
+            s.mean_mu_d = mean(kept.iter().map(|g| g.mu_d));
+        }
+        Method::Bla => {
+            let fits: Vec<&BlaRow> = bla_rows(rows).collect();
+            s.mean_trace = mean(fits.iter().map(|b| b.normalized_trace));
+            s.mean_rmv = mean(fits.iter().map(|b| b.rmv));
+        }
+    }
+    s
+}
+
+/// A CSV field, quoted when it holds a separator, a quote or a line break.
+pub fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn exclusion_name(e: Option<GaExclusion>) -> &'static str {
+    match e {
+        None => "",
+        Some(GaExclusion::AbsolutelyCertain) => "absolutely_certain",
+        Some(GaExclusion::AbsolutelyUncertain) => "absolutely_uncertain",
+    }
+}
+
+/// One row per image. An image whose rays all miss has empty values (GA: `excluded` is
+/// `all_rays_miss`; BLA: `note` is).
+pub fn csv(rows: &[Row], method: Method) -> String {
+    let mut out = String::new();
+    match method {
+        Method::Ga => out.push_str("split,index,file_path,mu_d,sigma_d,excluded,objective,rays,rays_without_samples\n"),
+        Method::Bla => out.push_str(
+            "split,index,file_path,normalized_trace,rmv,map_loss,initial_loss,perturbation,prior_precision,\
+             log_evidence,rays,note\n",
+        ),
+    }
+    for r in rows {
+        let _ = write!(out, "{},{},{},", r.split, r.index, csv_field(&r.file_path));
+        let _ = match &r.fit {
+            Fit::Ga(Some(g)) => writeln!(
+                out,
+                "{},{},{},{},{},{}",
+                g.mu_d,
+                g.sigma_d,
+                exclusion_name(g.excluded),
+                g.objective,
+                g.rays,
+                g.rays_without_samples
+            ),
+            Fit::Ga(None) => writeln!(out, ",,all_rays_miss,,,"),
+            Fit::Bla(Some(b)) => writeln!(
+                out,
+                "{},{},{},{},{},{},{},{},",
+                b.normalized_trace,
+                b.rmv,
+                b.map_loss,
+                b.initial_loss,
+                b.perturbation,
+                b.prior_precision,
+                b.log_evidence,
+                b.rays
+            ),
+            Fit::Bla(None) => writeln!(out, ",,,,,,,,all_rays_miss"),
+        };
+    }
+    out
+}
+
+/// A figure of a method.
+pub enum Figure {
+    Histogram(HistogramFigure),
+    Scatter(ScatterFigure),
+}
+
+/// Bins for histograms of at most `n` values per group.
+fn bins(n: usize) -> usize {
+    ((2.0 * (n as f64).sqrt()).round() as usize).clamp(5, 40)
+}
+
+/// The file stems of a method's figures, in the order [`figures`] makes them.
+pub fn figure_stems(method: Method) -> &'static [&'static str] {
+    match method {
+        Method::Ga => &["uq_ga_sigma_d", "uq_ga_mu_sigma"],
+        Method::Bla => &["uq_bla_trace", "uq_bla_rmv", "uq_bla_trace_rmv"],
+    }
+}
+
+/// The figures of a method: (file stem, figure). GA: σ_d histograms per split and the μ_d–σ_d
+/// scatter, excluded images left out (and counted in the titles); BLA: normalised trace and
+/// rmv histograms and their scatter.
+pub fn figures(rows: &[Row], splits: &[&'static str], method: Method, cfg: &UqConfig) -> Vec<(String, Figure)> {
+    let per_split = |value: &dyn Fn(&Row) -> Option<[f64; 2]>| -> Vec<(&'static str, Vec<[f64; 2]>)> {
+        splits.iter().map(|s| (*s, rows.iter().filter(|r| r.split == *s).filter_map(value).collect())).collect()
+    };
+    fn largest<L>(groups: &[(L, Vec<[f64; 2]>)]) -> usize {
+        groups.iter().map(|(_, v)| v.len()).max().unwrap_or(0)
+    }
+    fn hist<L: ToString>(groups: &[(L, Vec<[f64; 2]>)], axis: usize, title: String, x_title: &str) -> Figure {
+        Figure::Histogram(HistogramFigure {
+            title,
+            x_title: x_title.to_string(),
+            groups: groups
+                .iter()
+                .map(|(s, v)| Group { label: s.to_string(), values: v.iter().map(|p| p[axis]).collect() })
+                .collect(),
+            bins: bins(largest(groups)),
+        })
+    }
+    let scatter = |groups: &[(&'static str, Vec<[f64; 2]>)], title: String, x: &str, y: &str| {
+        Figure::Scatter(ScatterFigure {
+            title,
+            x_title: x.to_string(),
+            y_title: y.to_string(),
+            groups: groups.iter().map(|(s, v)| PointGroup { label: s.to_string(), points: v.clone() }).collect(),
+        })
+    };
+    let stems = figure_stems(method);
+    match method {
+        Method::Ga => {
+            // The paper's statistics leave the excluded images out.
+            let kept = per_split(&|r| match &r.fit {
+                Fit::Ga(Some(g)) if g.excluded.is_none() => Some([g.mu_d, g.sigma_d]),
+                _ => None,
+            });
+            let excluded = rows.iter().filter(|r| matches!(&r.fit, Fit::Ga(Some(g)) if g.excluded.is_some())).count();
+            let note = if excluded > 0 {
+                format!(" ({excluded} excluded: σ_d ≤ 0 or ≥ {})", cfg.ga_sigma_max)
+            } else {
+                String::new()
+            };
+            // Histogram panels say how many of their split's images were left out.
+            let labelled: Vec<(String, Vec<[f64; 2]>)> = kept
+                .iter()
+                .map(|(s, v)| {
+                    let n = rows
+                        .iter()
+                        .filter(|r| r.split == *s && matches!(&r.fit, Fit::Ga(Some(g)) if g.excluded.is_some()))
+                        .count();
+                    let label = if n > 0 { format!("{s} ({n} excluded)") } else { s.to_string() };
+                    (label, v.clone())
+                })
+                .collect();
+            vec![
+                (stems[0].into(), hist(&labelled, 1, format!("GA: σ_d per image{note}"), "σ_d")),
+                (stems[1].into(), scatter(&kept, format!("GA: μ_d and σ_d per image{note}"), "μ_d", "σ_d")),
+            ]
+        }
+        Method::Bla => {
+            let fits = per_split(&|r| match &r.fit {
+                Fit::Bla(Some(b)) => Some([b.normalized_trace, b.rmv]),
+                _ => None,
+            });
+            vec![
+                (stems[0].into(), hist(&fits, 0, "BLA: normalised trace per image".into(), "normalised trace tr(Σ)/P")),
+                (stems[1].into(), hist(&fits, 1, "BLA: root-mean-variance per image".into(), "rmv")),
+                (
+                    stems[2].into(),
+                    scatter(&fits, "BLA: normalised trace and rmv per image".into(), "normalised trace tr(Σ)/P", "rmv"),
+                ),
+            ]
+        }
+    }
+}
+
+/// The figures of a method as files: `STEM.png` and `STEM.svg` for each, in memory.
+pub fn figure_files(
+    rows: &[Row],
+    splits: &[&'static str],
+    method: Method,
+    cfg: &UqConfig,
+) -> Result<Vec<(String, Vec<u8>)>, PipelineError> {
+    let mut files = Vec::new();
+    for (stem, fig) in figures(rows, splits, method, cfg) {
+        let (png, svg) = match &fig {
+            Figure::Histogram(h) => (
+                nerfsv_plot::histograms_png(h, FIGURE.0, FIGURE.1)?,
+                nerfsv_plot::histograms_svg(h, FIGURE.0, FIGURE.1)?,
+            ),
+            Figure::Scatter(s) => {
+                (nerfsv_plot::scatter_png(s, FIGURE.0, FIGURE.1)?, nerfsv_plot::scatter_svg(s, FIGURE.0, FIGURE.1)?)
+            }
+        };
+        files.push((format!("{stem}.png"), png));
+        files.push((format!("{stem}.svg"), svg.into_bytes()));
+    }
+    Ok(files)
+}
+
+/// Writes `files` (name, bytes) into `dir` (created if needed), each atomically, all or
+/// nothing: if one cannot be written, those already written are removed again.
+pub fn write_files(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<(), PipelineError> {
+    std::fs::create_dir_all(dir).map_err(|e| PipelineError::io(dir, e))?;
+    nerfsv_scene::io::remove_stale_temporaries_in(dir);
+    for (k, (name, bytes)) in files.iter().enumerate() {
+        let path = dir.join(name);
+        if let Err(e) = nerfsv_scene::io::atomic_write_bytes(&path, bytes) {
+            for (done, _) in &files[..k] {
+                let _ = std::fs::remove_file(dir.join(done));
+            }
+            return Err(PipelineError::io(path, e));
+        }
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// The stage.
+
+/// The offline uncertainty stage of `nerfsv run`: GA on the images of every split (at most
+/// `ga_images_per_split` each, an even stride), BLA on `bla_images_per_split` of each, and the
+/// depth AUSE of both on their test images. `RUN/uq/` holds `ga.csv` and `bla.csv` (the columns
+/// of `nerfsv uq offline`), `ause.csv` (a row per test image and method) and the figures of
+/// `nerfsv uq offline` (PNG and SVG).
+pub struct Uncertainty<'a> {
+    pub uq: &'a UqConfig,
+    pub offline: &'a UqOfflineConfig,
+}
+
+/// One split's figures of the uncertainty stage.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UqSplitFigures {
+    /// Images GA was run on, and those of them excluded (σ_d ≤ 0 or ≥ `uq.ga_sigma_max`) or
+    /// whose rays all miss the model.
+    pub ga_images: usize,
+    pub ga_excluded: usize,
+    pub ga_all_rays_miss: usize,
+    /// Mean σ_d and μ_d over the images kept (the paper's statistics).
+    pub ga_mean_sigma_d: Option<f64>,
+    pub ga_mean_mu_d: Option<f64>,
+    /// Median σ_d over every fitted image, excluded ones included (where the split sits
+    /// against the exclusion bound).
+    pub ga_median_sigma_d: Option<f64>,
+    /// Images BLA was run on, and their mean normalised trace and rmv.
+    pub bla_images: usize,
+    pub bla_mean_normalized_trace: Option<f64>,
+    pub bla_mean_rmv: Option<f64>,
+}
+
+/// What the uncertainty stage reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UqFigures {
+    pub train: UqSplitFigures,
+    pub val: UqSplitFigures,
+    pub test: UqSplitFigures,
+    /// Mean depth AUSE of GA over its test images, and how many were scored.
+    pub ause_ga: Option<f64>,
+    pub ause_ga_images: usize,
+    /// Mean depth AUSE of BLA over its test images, and how many were scored.
+    pub ause_bla: Option<f64>,
+    pub ause_bla_images: usize,
+    pub seconds: f64,
+}
+
+impl Uncertainty<'_> {
+    pub const GA_CSV: &'static str = "ga.csv";
+    pub const BLA_CSV: &'static str = "bla.csv";
+    pub const AUSE_CSV: &'static str = "ause.csv";
+}
+
+fn split_figures(rows: &[Row], split: &str) -> UqSplitFigures {
+    let of = |r: &&Row| r.split == split;
+    let ga = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Ga(_))), Method::Ga);
+    let bla = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Bla(_))), Method::Bla);
+    UqSplitFigures {
+        ga_images: ga.images,
+        ga_excluded: ga.excluded.unwrap_or(0),
+        ga_all_rays_miss: ga.all_rays_miss,
+        ga_mean_sigma_d: ga.mean_sigma_d,
+        ga_mean_mu_d: ga.mean_mu_d,
+        ga_median_sigma_d: median(ga_rows(rows.iter().filter(of)).map(|g| g.sigma_d).collect()),
+        bla_images: bla.images,
+        bla_mean_normalized_trace: bla.mean_trace,
+        bla_mean_rmv: bla.mean_rmv,
+    }
+}
+
+/// `ause.csv`: a row per (method, test image): its AUSE and pixels, or why it was skipped.
+fn ause_csv(rows: &[(Method, usize, String, AuseOutcome)]) -> String {
+    let mut out = String::from("method,split,index,file_path,ause,pixels,skipped\n");
+    for (method, index, file_path, outcome) in rows {
+        let _ = write!(out, "{},test,{index},{},", method.name(), csv_field(file_path));
+        let _ = match outcome {
+            AuseOutcome::Scored(c) => writeln!(out, "{},{},", c.ause, c.pixels),
+            AuseOutcome::Skipped(e) => writeln!(out, ",,{}", csv_field(&e.to_string())),
+        };
+    }
+    out
+}
+
+impl Stage for Uncertainty<'_> {
+    const NAME: &'static str = "uq";
+    const VERSION: u32 = 1;
+    const OUTPUTS: &'static [&'static str] = &[
+        Self::GA_CSV,
+        Self::BLA_CSV,
+        Self::AUSE_CSV,
+        "uq_ga_sigma_d.png",
+        "uq_ga_sigma_d.svg",
+        "uq_ga_mu_sigma.png",
+        "uq_ga_mu_sigma.svg",
+        "uq_bla_trace.png",
+        "uq_bla_trace.svg",
+        "uq_bla_rmv.png",
+        "uq_bla_rmv.svg",
+        "uq_bla_trace_rmv.png",
+        "uq_bla_trace_rmv.svg",
+    ];
+    const INPUTS: &'static [&'static str] = &[Dataset::NAME, Train::NAME];
+    type Figures = UqFigures;
+
+    fn config(&self) -> impl Serialize {
+        (self.uq, self.offline)
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<UqFigures, PipelineError> {
+        let start = Instant::now();
+        let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
+        let data = cx.input_dir(Dataset::NAME);
+        let (ga_n, bla_n) = (self.offline.ga_images_per_split, self.offline.bla_images_per_split);
+        let splits = SPLITS.map(|name| load_dataset_split(&data, name, 1));
+        let mut chosen = Vec::new();
+        for (name, split) in SPLITS.into_iter().zip(splits) {
+            let split = split?;
+            let all: Vec<usize> = (0..split.frames.len()).collect();
+            let (ga_idx, bla_idx) = (stride(&all, Some(ga_n)), stride(&all, Some(bla_n)));
+            chosen.push((name, split, ga_idx, bla_idx));
+        }
+        // Progress counts the images fitted, over all splits and both methods.
+        let total = chosen.iter().map(|(_, _, g, b)| g.len() + b.len()).sum::<usize>() as u64;
+        let done = std::cell::Cell::new(0u64);
+        let tick = |status: &str| {
+            done.set(done.get() + 1);
+            cx.progress(done.get(), total, status);
+        };
+        let note = |message: &str| cx.observer.note(Self::NAME, message);
+        let (mut ga, mut bla, mut ause) = (Vec::new(), Vec::new(), Vec::new());
+        for (name, split, ga_idx, bla_idx) in &chosen {
+            if *name != "test" {
+                for (method, indices, rows) in [(Method::Ga, ga_idx, &mut ga), (Method::Bla, bla_idx, &mut bla)] {
+                    let status = format!("{} {name}", method.name().to_uppercase());
+                    let progress = |d: usize, _: usize| {
+                        if d > 0 {
+                            tick(&status)
+                        }
+                    };
+                    rows.extend(offline_split(&nerf, method, split, name, indices, None, self.uq, &progress, &note)?);
+                }
+                continue;
+            }
+            // The test split: each image's fit also gives the depth-uncertainty map its AUSE
+            // ranks, so GA and BLA are fitted once per image.
+            nerfsv_nerf::check_bounds(&nerf.config, split)?;
+            for (method, indices, rows) in [(Method::Ga, ga_idx, &mut ga), (Method::Bla, bla_idx, &mut bla)] {
+                let status = format!("{} test, depth AUSE", method.name().to_uppercase());
+                for &index in indices {
+                    let frame = &split.frames[index];
+                    let (fit, outcome) = ause_frame(&nerf, method, frame, self.uq)?;
+                    let fit = match fit {
+                        Some(f) => f,
+                        // No ground-truth depth: fitted for its row all the same.
+                        None => fit_frame(&nerf, method, &frame.file_path, frame, None, self.uq)?,
+                    };
+                    if let AuseOutcome::Skipped(e) = &outcome {
+                        note(&format!("{} depth AUSE skipped: {e}", method.name().to_uppercase()));
+                    }
+                    rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
+                    ause.push((method, index, frame.file_path.clone(), outcome));
+                    tick(&status);
+                }
+            }
+        }
+        let mean_of = |method: Method| {
+            let scored: Vec<Sparsification> = ause
+                .iter()
+                .filter(|(m, ..)| *m == method)
+                .filter_map(|(.., o)| if let AuseOutcome::Scored(c) = o { Some(c.clone()) } else { None })
+                .collect();
+            (mean_ause(&scored), scored.len())
+        };
+        let ((ause_ga, ause_ga_images), (ause_bla, ause_bla_images)) = (mean_of(Method::Ga), mean_of(Method::Bla));
+
+        let mut files = vec![
+            (Self::GA_CSV.to_string(), csv(&ga, Method::Ga).into_bytes()),
+            (Self::BLA_CSV.to_string(), csv(&bla, Method::Bla).into_bytes()),
+            (Self::AUSE_CSV.to_string(), ause_csv(&ause).into_bytes()),
+        ];
+        files.extend(figure_files(&ga, &SPLITS, Method::Ga, self.uq)?);
+        files.extend(figure_files(&bla, &SPLITS, Method::Bla, self.uq)?);
+        write_files(&cx.dir, &files)?;
+        let rows: Vec<Row> = ga.into_iter().chain(bla).collect();
+        Ok(UqFigures {
+            train: split_figures(&rows, "train"),
+            val: split_figures(&rows, "val"),
+            test: split_figures(&rows, "test"),
+            ause_ga,
+            ause_ga_images,
+            ause_bla,
+            ause_bla_images,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+
+    fn describe(f: &UqFigures) -> String {
+        let splits = [&f.train, &f.val, &f.test];
+        let ga: usize = splits.iter().map(|s| s.ga_images).sum();
+        let bla: usize = splits.iter().map(|s| s.bla_images).sum();
+        format!(
+            "GA on {ga} images (test mean σ_d {}), BLA on {bla} (test mean trace {}); depth AUSE GA {} over {}, BLA {} over {}; {:.1} s",
+            short(f.test.ga_mean_sigma_d),
+            short(f.test.bla_mean_normalized_trace),
+            short(f.ause_ga),
+            f.ause_ga_images,
+            short(f.ause_bla),
+            f.ause_bla_images,
+            f.seconds
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rays from far outside the model's box, pointing away from it.
+    fn missing_rays() -> (Vec<RayInput>, Vec<[f32; 3]>) {
+        let ray =
+            RayInput { origin: [10.0, 10.0, 10.0], direction: [1.0, 0.0, 0.0], background: BACKGROUND, jitter: 0.0 };
+        (vec![ray; 6], vec![[0.5; 3]; 6])
+    }
+
+    #[test]
+    fn an_image_whose_rays_all_miss_gets_an_empty_row_and_a_count_not_an_error() {
+        let nerf = Nerf::new(nerfsv_nerf::NerfConfig::default(), 0).unwrap();
+        let (rays, refs) = missing_rays();
+        let cfg = UqConfig::default();
+        for method in [Method::Ga, Method::Bla] {
+            let fit = fit_image(&nerf, method, "r_3", &rays, &refs, &cfg).unwrap();
+            assert!(fit.all_rays_miss());
+            let rows = vec![Row { split: "test", index: 3, file_path: "./test/r_3".into(), fit }];
+            let text = csv(&rows, method);
+            let line = text.lines().nth(1).unwrap();
+            assert!(line.starts_with("test,3,./test/r_3,") && line.contains("all_rays_miss"), "{line}");
+            assert_eq!(line.split(',').count(), text.lines().next().unwrap().split(',').count(), "{line}");
+            let s = summarise(rows.iter(), method);
+            assert_eq!((s.images, s.all_rays_miss), (1, 1));
+            assert!(s.mean_sigma_d.is_none() && s.mean_trace.is_none());
+        }
+    }
+
+    #[test]
+    fn csv_fields_with_commas_or_quotes_are_quoted() {
+        assert_eq!(csv_field("./train/r_0"), "./train/r_0");
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"x\""), "\"say \"\"x\"\"\"");
+    }
+
+    #[test]
+    fn stride_takes_an_even_spread_of_at_most_n() {
+        let v: Vec<usize> = (0..10).collect();
+        assert_eq!(stride(&v, Some(5)), [0, 2, 4, 6, 8]);
+        assert_eq!(stride(&v, Some(2)), [0, 5]);
+        assert_eq!(stride(&v, Some(20)), v);
+        assert_eq!(stride(&v, None), v);
+        assert_eq!(stride(&v, Some(0)), Vec::<usize>::new());
+    }
+
+    fn ga(split: &'static str, sigma_d: f64, excluded: bool) -> Row {
+        let excluded = excluded.then_some(GaExclusion::AbsolutelyUncertain);
+        let g = GaRow { mu_d: 1.0, sigma_d, excluded, objective: 0.0, rays: 4, rays_without_samples: 0 };
+        Row { split, index: 0, file_path: "r_0".into(), fit: Fit::Ga(Some(g)) }
+    }
+
+    #[test]
+    fn split_figures_leave_exclusions_out_of_the_mean_but_not_the_median() {
+        let rows = [ga("test", 1.0, false), ga("test", 2.0, false), ga("test", 4.0, true), ga("val", 9.0, true)];
+        let f = split_figures(&rows, "test");
+        assert_eq!((f.ga_images, f.ga_excluded, f.ga_all_rays_miss, f.bla_images), (3, 1, 0, 0));
+        assert_eq!(f.ga_mean_sigma_d, Some(1.5));
+        assert_eq!(f.ga_median_sigma_d, Some(2.0));
+        assert_eq!(f.bla_mean_rmv, None);
+        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
+    }
+}

@@ -8,12 +8,11 @@ use anyhow::Context;
 use clap::Args;
 use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
+use nerfsv_pipeline::uq::{has_split, reference, Method, BACKGROUND};
 use nerfsv_pipeline::{refuse_output_inside, Observer};
 use nerfsv_plot::palette::Rgb;
 use nerfsv_uq::{FieldMethod, TrainingView, UncertaintyField};
 use serde::Serialize;
-
-use nerfsv_pipeline::uq::{has_split, reference, Method, BACKGROUND};
 
 use crate::commands::uq::{load_uq_config, MethodArg};
 use crate::progress::Reporter;

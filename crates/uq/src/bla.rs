@@ -449,6 +449,13 @@ struct Mapped {
     reference: Vec<[f32; 3]>,
 }
 
+/// One perturbation's MAP with the rays and references it was fitted on.
+struct Candidate {
+    map: MapFit,
+    rays: Vec<RayInput>,
+    reference: Vec<[f32; 3]>,
+}
+
 /// For each of [`UqConfig::perturbations`] jittered copies of the sample positions, the rays
 /// that composite a sample (at most `max_rays`, an even stride) fitted from the trained weights
 /// to their MAP; the lowest-loss one is kept.
@@ -464,8 +471,8 @@ fn map_over_perturbations(
     check_reference(image, rays.len(), reference)?;
     let theta0: Vec<f64> = nerf.sigma_net_params().iter().map(|&v| v as f64).collect();
     let mut model = nerf.clone();
-    // (perturbation, its MAP, its rays and their references) of the lowest loss so far.
-    let mut best: Option<(usize, MapFit, Vec<RayInput>, Vec<[f32; 3]>)> = None;
+    // The perturbation of the lowest loss so far, with its MAP, rays and references.
+    let mut best: Option<(usize, Candidate)> = None;
     let mut perturbation_losses = Vec::new();
     for k in 0..cfg.perturbations {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
@@ -485,11 +492,11 @@ fn map_over_perturbations(
         let fit = lm_map(&mut res, &theta0, cfg);
         let NerfResiduals { rays: sel_rays, reference: sel_ref, .. } = res;
         perturbation_losses.push(fit.loss);
-        if best.as_ref().is_none_or(|b| fit.loss < b.1.loss) {
-            best = Some((k, fit, sel_rays, sel_ref));
+        if best.as_ref().is_none_or(|(_, b)| fit.loss < b.map.loss) {
+            best = Some((k, Candidate { map: fit, rays: sel_rays, reference: sel_ref }));
         }
     }
-    let Some((perturbation, map, rays, reference)) = best else {
+    let Some((perturbation, Candidate { map, rays, reference })) = best else {
         unreachable!("at least one perturbation (validated)")
     };
     Ok(Mapped { perturbation, perturbation_losses, map, model, rays, reference })

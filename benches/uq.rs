@@ -24,7 +24,8 @@ use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Camera, Intrinsics};
 use nerfsv_uq::{
-    bla_image, bla_maps, ga_fit_samples, ga_image, ga_maps, CovarianceFactor, TrainingView, UncertaintyField, UqConfig,
+    bla_image, bla_maps, bla_view, ga_fit_samples, ga_image, ga_maps, CovarianceFactor, TrainingView, UncertaintyField,
+    UqConfig,
 };
 
 fn uq(c: &mut Criterion) {
@@ -143,6 +144,17 @@ fn field(c: &mut Criterion) {
     }
     g.bench_function("exact_ga_view_1024px", |b| {
         b.iter(|| ga_fit_samples("bench", &rays, &nerf.render_rays_samples(&rays), &reference, cfg.ga_sigma_max))
+    });
+    // Exact BLA of the same view as the online reward runs it: MAP over the perturbations on
+    // `online_bla_rays` of its rays, then the Laplace summary from the Gram spectrum.
+    let bla = bla_view(&nerf, "bench", &rays, &reference, &cfg, cfg.online_bla_rays);
+    eprintln!(
+        "uq_field: exact BLA rmv·trace {:.4e}",
+        bla.map_or(f64::NAN, |s| s.laplace.rmv * s.laplace.normalized_trace)
+    );
+    g.sample_size(10);
+    g.bench_function("exact_bla_view_64rays", |b| {
+        b.iter(|| bla_view(&nerf, "bench", &rays, &reference, &cfg, cfg.online_bla_rays))
     });
     g.finish();
 }

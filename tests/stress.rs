@@ -235,3 +235,86 @@ fn bad_studies_are_refused_by_name_and_write_nothing() {
     let (ok, _, err) = stress(&model, &field, &out, &["--resume"], "2");
     assert!(!ok && err.contains("--resume") && !out.exists(), "{err}");
 }
+
+/// The rows of a rollouts CSV as (sampler, population, index, step) → the named columns.
+fn columns(path: &Path, names: &[&str]) -> Vec<(String, Vec<String>)> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let at: Vec<usize> = names.iter().map(|n| header.iter().position(|h| h == n).unwrap()).collect();
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[..5].join(","), at.iter().map(|&i| f[i].to_owned()).collect())
+        })
+        .collect()
+}
+
+#[test]
+fn a_reward_measures_every_flown_step_changes_only_what_cem_ranks_and_a_field_drives_it_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let cfg = config(dir.path(), "study.toml", 4, "[uq]\nonline_rays = 16\nonline_bla_rays = 8\n");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let (ok, stdout, err) = stress(&model, &field, &out, &[&["--config", s(&cfg), "--json"], extra].concat(), "2");
+        assert!(ok, "{name}: {err}");
+        let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        (out, v)
+    };
+    let (plain, _) = run("plain", &["--sampler", "cem"]);
+    let (measured, _) = run("measured", &["--sampler", "cem", "--measure", "ga"]);
+    let (rewarded, v) = run("rewarded", &["--sampler", "cem", "--reward", "ga"]);
+    let cols = ["score", "clearance", "uncertainty", "reward"];
+    let (p, m, r) = (
+        columns(&plain.join("rollouts.csv"), &cols),
+        columns(&measured.join("rollouts.csv"), &cols),
+        columns(&rewarded.join("rollouts.csv"), &cols),
+    );
+    // Measuring changes no flight; every flown step has a value, steps not flown none.
+    assert_eq!(p.len(), m.len());
+    for ((kp, vp), (km, vm)) in p.iter().zip(&m) {
+        assert_eq!((kp, &vp[..2]), (km, &vm[..2]), "measuring changed a flight");
+        assert!(vp[2].is_empty(), "plain run measured: {vp:?}");
+        let flown = vm[1] != "NaN";
+        assert_eq!(vm[2].parse::<f64>().is_ok_and(f64::is_finite), flown, "{km}: {vm:?}");
+    }
+    // Population 0 is drawn from the prior in both: the same rollouts, now with a reward; CEM's
+    // later populations follow the rewards' elites.
+    let pop = |rows: &[(String, Vec<String>)], k: &str| -> Vec<Vec<String>> {
+        rows.iter().filter(|(key, _)| key.starts_with(&format!("cem,{k},"))).map(|(_, v)| v[..3].to_vec()).collect()
+    };
+    assert_eq!(pop(&m, "0"), pop(&r, "0"));
+    assert!(r.iter().all(|(_, v)| v[3].parse::<f64>().is_ok_and(f64::is_finite)), "a rollout without a reward");
+    assert!(m.iter().all(|(_, v)| v[3].is_empty()), "--measure recorded a reward");
+    assert!(v["avg_uncertainty"].as_f64().is_some_and(|u| u > 0.0), "{v}");
+    let table = std::fs::read_to_string(rewarded.join("table.csv")).unwrap();
+    let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+    let row: Vec<&str> = table.lines().nth(1).unwrap().split(',').collect();
+    let col = |n: &str| row[header.iter().position(|h| *h == n).unwrap()];
+    assert_eq!((col("uncertainty"), col("mode"), col("reward")), ("ga", "exact", "ga"), "{table}");
+    assert!(col("avg_reward").parse::<f64>().is_ok(), "{table}");
+
+    // Field mode: a GA field of the same model drives the same study; a field is needed, and
+    // one of another method is refused by name.
+    let uq_cfg = dir.path().join("uq.toml");
+    std::fs::write(&uq_cfg, "field_cells_per_metre = 5.0\nfield_rays_per_image = 16\n").unwrap();
+    let ga_field = dir.path().join("field_ga.safetensors");
+    let bla_field = dir.path().join("field_bla.safetensors");
+    let ds = dir.path().join("ds");
+    for (method, path) in [("ga", &ga_field), ("bla", &bla_field)] {
+        let args = ["uq", "field", "--method", method, "--model", s(&model), "--data", s(&ds)];
+        let (ok, _, err) = common::nerfsv(&[&args[..], &["--out", s(path), "--config", s(&uq_cfg)]].concat());
+        assert!(ok, "{err}");
+    }
+    let (fielded, v) =
+        run("field", &["--sampler", "mc", "--reward", "ga", "--uncertainty", "field", "--field", s(&ga_field)]);
+    assert!(v["avg_uncertainty"].as_f64().is_some_and(f64::is_finite), "{v}");
+    assert!(fielded.join("table.csv").is_file());
+    let out = dir.path().join("refused");
+    let (ok, _, err) = stress(&model, &field, &out, &["--reward", "ga", "--uncertainty", "field"], "2");
+    assert!(!ok && err.contains("--field") && !out.exists(), "{err}");
+    let args = ["--reward", "ga", "--uncertainty", "field", "--field", s(&bla_field)];
+    let (ok, _, err) = stress(&model, &field, &out, &args, "2");
+    assert!(!ok && err.contains("field_bla.safetensors") && err.contains("bla") && !out.exists(), "{err}");
+}

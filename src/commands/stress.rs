@@ -3,10 +3,11 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::refuse_output_inside;
-use nerfsv_pipeline::stress::{stress, Sampler, StressSetup, JOURNAL, STRESS_JSON};
+use nerfsv_pipeline::stress::{stress, OnlineSettings, Sampler, StressSetup, JOURNAL, STRESS_JSON};
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::WorldKind;
-use nerfsv_validation::Journal;
+use nerfsv_uq::{model_id, UncertaintyField};
+use nerfsv_validation::{Journal, UqMethod, UqMode};
 
 use crate::commands::fly::{load_config, DroneArgs};
 
@@ -16,6 +17,31 @@ pub enum SamplerArg {
     Mc,
     /// Cross-Entropy Method (`validation.cem`), then importance sampling from its final proposal.
     Cem,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum UqMethodArg {
+    /// Gaussian Approximation: the view's σ_d (eq. 10).
+    Ga,
+    /// Bayesian Laplace Approximation: the view's rmv · normalised trace (eq. 11).
+    Bla,
+}
+
+impl From<UqMethodArg> for UqMethod {
+    fn from(m: UqMethodArg) -> Self {
+        match m {
+            UqMethodArg::Ga => UqMethod::Ga,
+            UqMethodArg::Bla => UqMethod::Bla,
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum UqModeArg {
+    /// GA or BLA on the view's rays against the ground truth's render of them (as the paper).
+    Exact,
+    /// Look the uncertainty up along the same rays in an uncertainty field (`--field`).
+    Field,
 }
 
 #[derive(Args)]
@@ -29,6 +55,24 @@ pub struct StressArgs {
     /// in the other world and compare (confusion matrix, clearance differences).
     #[arg(long)]
     pub replay: bool,
+    /// Rank CEM's samples by this method's reward (eq. 10 `log p − penalty·σ_d` for GA, eq. 11
+    /// `log p − penalty·rmv·trace·n` for BLA; `[uq] reward_penalty`, `perturbations`), measuring
+    /// its uncertainty at every step. Monte Carlo never ranks: it records the reward.
+    #[arg(long, value_enum, conflicts_with = "measure")]
+    pub reward: Option<UqMethodArg>,
+    /// Measure this method's uncertainty at every step without ranking by it (the rows "without
+    /// reward" of Tables 1–2).
+    #[arg(long, value_enum)]
+    pub measure: Option<UqMethodArg>,
+    /// How the per-step uncertainty is measured (with --reward or --measure): `exact` fits the
+    /// view's `[uq] online_rays` pixels (BLA: `online_bla_rays` of them); `field` looks them up
+    /// in --field.
+    #[arg(long, value_enum, default_value = "exact")]
+    pub uncertainty: UqModeArg,
+    /// The uncertainty field of --model built by the same method (`nerfsv uq field`), for
+    /// `--uncertainty field`.
+    #[arg(long)]
+    pub field: Option<PathBuf>,
     /// Run seed (default: the config's `validation.seed`).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -61,7 +105,24 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         cfg.validation.seed = seed;
     }
     let d = &args.drone;
-    refuse_output_inside(&args.out, &d.inputs())?;
+    let mut inputs = d.inputs();
+    if let Some(f) = &args.field {
+        inputs.push(("--field", f));
+    }
+    refuse_output_inside(&args.out, &inputs)?;
+    let online = args.reward.map(|m| (m, true)).or(args.measure.map(|m| (m, false))).map(|(m, reward)| {
+        let mode = match args.uncertainty {
+            UqModeArg::Exact => UqMode::Exact,
+            UqModeArg::Field => UqMode::Field,
+        };
+        OnlineSettings { method: m.into(), mode, reward }
+    });
+    match (online.map(|o| o.mode), &args.field) {
+        (Some(UqMode::Field), None) => anyhow::bail!("--uncertainty field needs --field FILE (`nerfsv uq field`)"),
+        (None, Some(_)) => anyhow::bail!("--field is read only with --reward or --measure and --uncertainty field"),
+        (Some(UqMode::Exact), Some(_)) => anyhow::bail!("--field is read only with --uncertainty field"),
+        _ => {}
+    }
     let journal = args.out.join(JOURNAL).join(WorldKind::from(d.world).name());
     if args.resume && !Journal::exists(&journal) {
         anyhow::bail!("{}: --resume needs the folder of an interrupted stress run", args.out.display());
@@ -73,6 +134,22 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         SamplerArg::Cem => Sampler::Cem,
     };
     let (scene, worlds) = d.load()?;
+    let field = match (&args.field, online) {
+        (Some(path), Some(o)) => {
+            let field = UncertaintyField::load(path)?;
+            field.check_checkpoint(path, &model_id(&worlds.nerf))?;
+            if field.method != o.method.field_method() {
+                anyhow::bail!(
+                    "{}: a {} uncertainty field, but the run measures {}",
+                    path.display(),
+                    field.method.name(),
+                    o.method.name()
+                );
+            }
+            Some(field)
+        }
+        _ => None,
+    };
     let flight = worlds.plan(&cfg.sim).context("planning the flight")?;
     let setup = StressSetup {
         inputs: &worlds,
@@ -87,6 +164,9 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         estimator: d.estimator.into(),
         samplers: &[sampler],
         replay: args.replay,
+        online,
+        uq: &cfg.uq,
+        field: field.as_ref(),
     };
     // Everything the rollouts depend on: a --resume into results of anything else is refused.
     let key = format!(
@@ -103,6 +183,9 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
                 sampler,
                 file_hash(&d.model)?,
                 d.nerf_field.as_deref().map(file_hash).transpose()?,
+                online,
+                online.map(|_| &cfg.uq),
+                args.field.as_deref().map(file_hash).transpose()?,
             ))?
             .as_bytes()
         )

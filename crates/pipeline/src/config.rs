@@ -84,6 +84,46 @@ pub struct RunConfig {
     /// How many images of each split the offline uncertainty stage (`RUN/uq/`) fits (the
     /// `[uq_offline]` table).
     pub uq_offline: UqOfflineConfig,
+    /// The online uncertainty stage (`RUN/online/`): which methods' reward studies run and
+    /// their sizes (the `[online]` table).
+    pub online: OnlineConfig,
+}
+
+/// The online uncertainty stage of `nerfsv run`, the `[online]` table: for each method, MC
+/// and CEM measuring every step's uncertainty, and CEM ranked by the method's reward (the rows
+/// with and without reward of Tables 1–2). The CEM populations are `[validation.cem]`'s.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OnlineConfig {
+    /// Methods whose study runs: `"ga"`, `"bla"` (default both; empty skips them).
+    pub methods: Vec<nerfsv_validation::UqMethod>,
+    /// Monte Carlo rollouts of each study: the first ones of the stress stage's MC.
+    pub mc_rollouts: usize,
+    /// Importance samples drawn after each study's CEM.
+    pub is_samples: usize,
+}
+
+impl Default for OnlineConfig {
+    fn default() -> Self {
+        Self {
+            methods: vec![nerfsv_validation::UqMethod::Ga, nerfsv_validation::UqMethod::Bla],
+            mc_rollouts: 50,
+            is_samples: 20,
+        }
+    }
+}
+
+impl Validate for OnlineConfig {
+    fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("mc_rollouts", self.mc_rollouts, 1, 100_000_000)?;
+        in_range("is_samples", self.is_samples, 1, 100_000_000)?;
+        let mut seen = self.methods.clone();
+        seen.dedup();
+        if seen.len() != self.methods.len() {
+            return Err(InvalidValue::new("methods", "must not name a method twice", format!("{:?}", self.methods)));
+        }
+        Ok(())
+    }
 }
 
 /// The offline uncertainty stage of `nerfsv run`: how many images of each split GA and BLA
@@ -131,6 +171,7 @@ impl Default for RunConfig {
             validation: nerfsv_validation::ValidationConfig::default(),
             uq: nerfsv_uq::UqConfig::default(),
             uq_offline: UqOfflineConfig::default(),
+            online: OnlineConfig::default(),
         }
     }
 }
@@ -175,6 +216,7 @@ impl Validate for RunConfig {
         in_range("train_steps", self.train_steps, 1, MAX_TRAIN_STEPS)?;
         self.uq.validate().map_err(|e| e.within("uq"))?;
         self.uq_offline.validate().map_err(|e| e.within("uq_offline"))?;
+        self.online.validate().map_err(|e| e.within("online"))?;
         if let Some(t) = self.nerf_density_threshold {
             positive("nerf_density_threshold", t as f64)?;
         }
@@ -218,6 +260,8 @@ mod tests {
             ("[nerf]\ncolor_hidden = 0", "nerf.color_hidden", "0"),
             ("[train]\nlr = -0.5", "train.lr", "-0.5"),
             ("[uq_offline]\nga_images_per_split = 0", "uq_offline.ga_images_per_split", "0"),
+            ("[online]\nmc_rollouts = 0", "online.mc_rollouts", "0"),
+            ("[online]\nmethods = [\"ga\", \"ga\"]", "online.methods", "Ga"),
         ] {
             std::fs::write(&path, text).unwrap();
             let e = RunConfig::load(&path).unwrap_err().to_string();

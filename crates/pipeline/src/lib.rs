@@ -54,12 +54,13 @@ use serde::Serialize;
 
 pub mod config;
 pub mod flight;
+pub mod online;
 pub mod stage;
 pub mod stages;
 pub mod stress;
 pub mod uq;
 
-pub use config::{load_toml, NerfSettings, RunConfig, UqOfflineConfig, Validate};
+pub use config::{load_toml, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate};
 pub use stage::{Observer, Outcome, Runner, Silent, Stage, StageContext};
 
 /// Everything that can stop a stage; each variant names the file, stage or key involved.
@@ -188,6 +189,16 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
         prior: &prior,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
+    })?;
+    r.run(&online::OnlineStage {
+        scene: &scene,
+        sim: &cfg.sim,
+        validation: &cfg.validation,
+        prior: &prior,
+        intrinsics: cfg.camera_intrinsics(),
+        render: cfg.dataset.render_settings(),
+        uq: &cfg.uq,
+        online: &cfg.online,
     })?;
     let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
     stage::write_json(&summary_path(&cfg.out), &summary)?;

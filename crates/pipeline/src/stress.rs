@@ -10,12 +10,15 @@ use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
+use nerfsv_scene::Camera;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
+use nerfsv_uq::{UncertaintyField, UqConfig};
 use nerfsv_validation::{
-    compare, cross_entropy, drone_disturbances, monte_carlo, replay_all, table_row, Agreement, Confusion, DroneSystem,
-    Journal, Prior, Recorder, RolloutRecord, TableRow, ValidationConfig, ValidationError, SAMPLER_CEM, SAMPLER_IS,
-    SAMPLER_MC,
+    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, table_row, Agreement,
+    Confusion, DroneSystem, ExactUncertainty, FieldUncertainty, Journal, Prior, Recorder, Reward, RolloutRecord,
+    TableRow, UncertaintyReward, UqMethod, UqMode, ValidationConfig, ValidationError, ViewUncertainty, SAMPLER_CEM,
+    SAMPLER_IS, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -214,11 +217,40 @@ impl SamplerFigures {
     }
 }
 
+/// Per-step uncertainty in a stress run: which method measures it, how, and whether CEM ranks
+/// its samples by the method's reward (eq. 10 or 11; MC's rollouts only record it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OnlineSettings {
+    pub method: UqMethod,
+    pub mode: UqMode,
+    pub reward: bool,
+}
+
+impl OnlineSettings {
+    pub fn describe(&self) -> String {
+        format!(
+            "{} uncertainty ({} mode){}",
+            self.method.name().to_uppercase(),
+            self.mode.name(),
+            if self.reward { ", CEM ranked by its reward" } else { "" }
+        )
+    }
+}
+
 /// Everything a stress run reports (`stress.json`, and the stress stage's figures).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StressFigures {
     pub world: WorldKind,
     pub estimator: EstimatorKind,
+    /// The per-step uncertainty measured, if any.
+    #[serde(default)]
+    pub online: Option<OnlineSettings>,
+    /// Views whose uncertainty this invocation measured, and the wall-clock seconds they took
+    /// inside the parallel rollouts (timings).
+    #[serde(default)]
+    pub uncertainty_views: usize,
+    #[serde(default)]
+    pub uncertainty_seconds: f64,
     /// Where the disturbances were replayed, if they were.
     pub replay_world: Option<WorldKind>,
     pub samplers: Vec<SamplerFigures>,
@@ -233,6 +265,14 @@ pub struct StressFigures {
 impl StressFigures {
     pub fn describe(&self) -> String {
         let mut s = format!("{} rollouts in {:.0} s", self.rollouts, self.seconds);
+        if let Some(o) = &self.online {
+            s.push_str(&format!(
+                "; {}: {} views, {:.1} ms each",
+                o.describe(),
+                self.uncertainty_views,
+                1e3 * self.uncertainty_seconds / self.uncertainty_views.max(1) as f64
+            ));
+        }
         for f in &self.samplers {
             s.push_str("\n    ");
             s.push_str(&f.describe());
@@ -255,6 +295,12 @@ pub struct StressSetup<'a> {
     pub estimator: EstimatorKind,
     pub samplers: &'a [Sampler],
     pub replay: bool,
+    /// Measure each step's uncertainty (and rank CEM by its reward), or not.
+    pub online: Option<OnlineSettings>,
+    /// GA and BLA settings, the online pixels and the reward's penalty.
+    pub uq: &'a UqConfig,
+    /// The uncertainty field `UqMode::Field` looks the uncertainty up in.
+    pub field: Option<&'a UncertaintyField>,
 }
 
 /// Files a stress run writes (besides the journal and the most likely failures).
@@ -275,6 +321,23 @@ pub fn replay_csv(world: WorldKind) -> String {
 /// (the paper's confusion matrices are over MC's and CEM's own rollouts).
 fn searched(records: &[RolloutRecord]) -> impl Iterator<Item = &RolloutRecord> {
     records.iter().filter(|r| r.sampler != SAMPLER_IS)
+}
+
+/// Times a [`ViewUncertainty`]'s views.
+struct Timed<'a> {
+    inner: &'a dyn ViewUncertainty,
+    views: AtomicU64,
+    nanos: AtomicU64,
+}
+
+impl ViewUncertainty for Timed<'_> {
+    fn view_uncertainty(&self, camera: &Camera) -> f64 {
+        let start = Instant::now();
+        let value = self.inner.view_uncertainty(camera);
+        self.nanos.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.views.fetch_add(1, Ordering::Relaxed);
+        value
+    }
 }
 
 /// Counts finished rollouts for progress, passing everything to the journal.
@@ -341,7 +404,38 @@ pub fn stress(
         observer,
         status: String::new(),
     };
-    let system = DroneSystem { sim: &sim, world: search_world.as_ref(), estimator: setup.estimator };
+    // Online uncertainty: exact mode compares the NeRF with the ground truth's render of the view.
+    let gt_world = if setup.world == WorldKind::Gt { search_world.as_ref() } else { replay_world.as_ref() };
+    let pixels = online_pixels(&setup.intrinsics, setup.uq);
+    let meter: Option<Box<dyn ViewUncertainty + '_>> = match setup.online {
+        None => None,
+        Some(o) => Some(match o.mode {
+            UqMode::Exact => Box::new(ExactUncertainty {
+                method: o.method,
+                nerf: &setup.inputs.nerf,
+                reference: gt_world,
+                pixels,
+                background: sim.background,
+                cfg: setup.uq,
+            }),
+            UqMode::Field => {
+                let field = setup.field.ok_or_else(|| {
+                    PipelineError::Internal("field mode needs an uncertainty field (`nerfsv uq field`)".into())
+                })?;
+                Box::new(FieldUncertainty { field, pixels, background: sim.background })
+            }
+        }),
+    };
+    let timed = meter.as_deref().map(|inner| Timed { inner, views: AtomicU64::new(0), nanos: AtomicU64::new(0) });
+    let scorer = setup.online.filter(|o| o.reward).map(|o| UncertaintyReward::new(o.method, setup.uq));
+    let score = scorer.map(|s| move |r: &RolloutRecord| s.reward(r));
+    let reward: Option<Reward> = score.as_ref().map(|f| f as Reward);
+    let system = DroneSystem {
+        sim: &sim,
+        world: search_world.as_ref(),
+        estimator: setup.estimator,
+        uncertainty: timed.as_ref().map(|t| t as &dyn ViewUncertainty),
+    };
     let v = setup.validation;
     if resume {
         observer.note(STAGE, &format!("{} of {planned} rollouts were already flown", journal.len()));
@@ -353,13 +447,17 @@ pub fn stress(
         progress(counting.done.load(Ordering::Relaxed), total, &counting.status);
         match sampler {
             Sampler::Mc => {
-                let r = monte_carlo(&system, setup.prior, &v.monte_carlo, v.seed, &counting)?;
+                let mut r = monte_carlo(&system, setup.prior, &v.monte_carlo, v.seed, &counting)?;
+                // Monte Carlo never ranks: the reward is only recorded.
+                if let Some(s) = scorer {
+                    r.records.iter_mut().for_each(|rec| rec.reward = Some(s.reward(rec)));
+                }
                 let se = (r.probability * (1.0 - r.probability) / r.records.len() as f64).sqrt();
                 estimates.push((r.probability, se, r.interval));
                 records.extend(r.records);
             }
             Sampler::Cem => {
-                let r = cross_entropy(&system, setup.prior, &v.cem, v.seed, None, &counting)?;
+                let r = cross_entropy(&system, setup.prior, &v.cem, v.seed, reward, &counting)?;
                 let e = r.estimate;
                 estimates.push((e.probability, e.standard_error, e.interval));
                 records.extend(r.records);
@@ -378,7 +476,8 @@ pub fn stress(
             status: format!("replaying in {}-sim", replay_kind.name()),
         };
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
-        let system = DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator };
+        let system =
+            DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator, uncertainty: None };
         let originals: Vec<RolloutRecord> = searched(&records).cloned().collect();
         let replays = replay_all(&system, &originals, &replaying)?;
         if resume {
@@ -465,12 +564,15 @@ pub fn stress(
             table: rows,
         });
     }
-    write_table(&out.join(TABLE_CSV), setup.world, &table)?;
+    write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
     let seconds = start.elapsed().as_secs_f64();
     let flown = counting.fresh.load(Ordering::Relaxed);
     Ok(StressFigures {
         world: setup.world,
         estimator: setup.estimator,
+        online: setup.online,
+        uncertainty_views: timed.as_ref().map_or(0, |t| t.views.load(Ordering::Relaxed) as usize),
+        uncertainty_seconds: timed.as_ref().map_or(0.0, |t| t.nanos.load(Ordering::Relaxed) as f64 * 1e-9),
         replay_world: setup.replay.then_some(replay_kind),
         samplers,
         rollouts: records.len() + replays.as_ref().map_or(0, Vec::len),
@@ -517,21 +619,33 @@ fn write_failure(
 }
 
 /// The Tables 1–2 rows as CSV: `world,sampler,rollouts,collision_rate,avg_collision_step,
-/// avg_log_likelihood,avg_uncertainty` (empty where undefined).
-fn write_table(path: &Path, world: WorldKind, rows: &[TableRow]) -> Result<(), PipelineError> {
+/// avg_log_likelihood,avg_uncertainty,uncertainty,mode,reward,avg_reward` (empty where
+/// undefined; `uncertainty` the method measured, `reward` the method CEM ranked by).
+fn write_table(
+    path: &Path,
+    world: WorldKind,
+    online: Option<OnlineSettings>,
+    rows: &[TableRow],
+) -> Result<(), PipelineError> {
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
-    let mut s =
-        String::from("world,sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty\n");
+    let method = online.map_or("", |o| o.method.name());
+    let mode = online.map_or("", |o| o.mode.name());
+    let reward = online.filter(|o| o.reward).map_or("", |o| o.method.name());
+    let mut s = String::from(
+        "world,sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty,uncertainty,mode,\
+         reward,avg_reward\n",
+    );
     for r in rows {
         s.push_str(&format!(
-            "{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{method},{mode},{reward},{}\n",
             world.name(),
             r.sampler,
             r.rollouts,
             r.collision_rate,
             opt(r.avg_collision_step),
             r.avg_log_likelihood,
-            opt(r.avg_uncertainty)
+            opt(r.avg_uncertainty),
+            opt(r.avg_reward)
         ));
     }
     nerfsv_scene::io::atomic_write_bytes(path, s.as_bytes()).map_err(|e| PipelineError::io(path, e))
@@ -554,7 +668,7 @@ impl StressStage<'_> {
 
 impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
-    const VERSION: u32 = 1;
+    const VERSION: u32 = 2;
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
     const RESUMABLE: bool = true;
@@ -580,6 +694,9 @@ impl Stage for StressStage<'_> {
             estimator: EstimatorKind::Vision,
             samplers: &Self::SAMPLERS,
             replay: true,
+            online: None,
+            uq: &UqConfig::default(),
+            field: None,
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.

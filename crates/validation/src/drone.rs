@@ -1,6 +1,9 @@
 //! The drone as a [`System`]: one rollout of a [`Simulator`] in a [`World`] with an estimator.
 
+use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
+
+use crate::online::ViewUncertainty;
 
 use crate::system::{Outcome, System};
 
@@ -9,6 +12,9 @@ pub struct DroneSystem<'a> {
     pub sim: &'a Simulator<'a>,
     pub world: &'a dyn World,
     pub estimator: EstimatorKind,
+    /// Measures each flown step's uncertainty (`Outcome::step_uncertainty`), if given: the view
+    /// of the camera at the step's final true pose.
+    pub uncertainty: Option<&'a dyn ViewUncertainty>,
 }
 
 /// A rollout's disturbances, one row per step, as the simulator takes them (components beyond
@@ -30,7 +36,7 @@ impl System for DroneSystem<'_> {
     /// a collision); a step's score is its own minimum, its position the true one at its end.
     /// Substeps whose box left the field's grid have no clearance and do not count; a step with
     /// none scores +∞. Steps not flown (after a crash that ended the rollout) score NaN and
-    /// have NaN positions.
+    /// have NaN positions (and, when measured, NaN uncertainty).
     fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
         let mut step_scores = vec![f64::NAN; self.sim.steps];
@@ -45,12 +51,26 @@ impl System for DroneSystem<'_> {
             // The substeps come in order: the last one of a step is its end.
             step_positions[s.step] = s.truth.position.into();
         }
+        let step_uncertainty = match self.uncertainty {
+            None => Vec::new(),
+            Some(u) => {
+                let mut values = vec![f64::NAN; self.sim.steps];
+                // The last substep of each step flown: the camera's pose when it takes the image.
+                for (i, s) in r.substeps.iter().enumerate() {
+                    if r.substeps.get(i + 1).is_none_or(|n| n.step != s.step) {
+                        let camera = drone_camera(self.sim.intrinsics, &s.truth.position, &s.truth.rotation);
+                        values[s.step] = u.view_uncertainty(&camera);
+                    }
+                }
+                values
+            }
+        };
         Outcome {
             score: r.min_clearance.map_or(f64::INFINITY, f64::from),
             collision_step: r.first_collision.map(|e| e.step),
             step_scores,
             step_positions,
-            step_uncertainty: Vec::new(),
+            step_uncertainty,
         }
     }
 }

@@ -37,6 +37,7 @@ mod drone;
 mod error;
 mod gaussian;
 mod journal;
+mod online;
 mod record;
 mod sampler;
 mod seed;
@@ -49,6 +50,10 @@ pub use drone::{drone_disturbances, DroneSystem};
 pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};
+pub use online::{
+    auroc, disagreement_auroc, online_pixels, DisagreementAuroc, ExactUncertainty, FieldUncertainty, UncertaintyReward,
+    UqMethod, UqMode, ViewUncertainty,
+};
 pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,

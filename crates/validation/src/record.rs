@@ -71,10 +71,12 @@ impl RolloutRecord {
         (self.log_p - self.log_q).exp()
     }
 
-    /// Mean uncertainty over the steps, if measured.
+    /// Mean uncertainty over the steps with a finite value (steps not flown, or whose view could
+    /// not be measured, are NaN); `None` when there is none.
     pub fn mean_uncertainty(&self) -> Option<f64> {
-        let u = &self.step_uncertainty;
-        (!u.is_empty()).then(|| u.iter().sum::<f64>() / u.len() as f64)
+        let (sum, n) =
+            self.step_uncertainty.iter().filter(|u| u.is_finite()).fold((0.0, 0usize), |(s, n), u| (s + u, n + 1));
+        (n > 0).then(|| sum / n as f64)
     }
 
     /// The key that identifies a rollout within a run: (sampler, population, index).

@@ -19,6 +19,8 @@ pub struct TableRow {
     /// Mean over the rollouts of their mean per-step uncertainty; `None` when none was
     /// measured.
     pub avg_uncertainty: Option<f64>,
+    /// Mean reward over the rollouts that carry one; `None` when none does.
+    pub avg_reward: Option<f64>,
 }
 
 /// The row of `sampler` over `records` (only the records of that sampler count); `None` when
@@ -37,6 +39,7 @@ pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
         avg_collision_step: (!steps.is_empty()).then(|| steps.iter().sum::<f64>() / steps.len() as f64),
         avg_log_likelihood: rows.iter().map(|r| r.log_p).sum::<f64>() / n,
         avg_uncertainty: mean(rows.iter().filter_map(|r| r.mean_uncertainty())),
+        avg_reward: mean(rows.iter().filter_map(|r| r.reward)),
     })
 }
 
@@ -89,6 +92,13 @@ mod tests {
         measured[0].step_uncertainty = vec![1.0, 3.0];
         measured[2].step_uncertainty = vec![4.0];
         assert_eq!(table_row("mc", &measured).unwrap().avg_uncertainty, Some(3.0));
+        // Steps without a value (NaN) are left out of a rollout's mean.
+        measured[2].step_uncertainty = vec![4.0, f64::NAN];
+        assert_eq!(table_row("mc", &measured).unwrap().avg_uncertainty, Some(3.0));
+        assert_eq!(table_row("mc", &measured).unwrap().avg_reward, None);
+        measured[1].reward = Some(-4.0);
+        measured[3].reward = Some(-6.0);
+        assert_eq!(table_row("mc", &measured).unwrap().avg_reward, Some(-5.0));
         let none = table_row("mc", &records[1..2]).unwrap();
         assert_eq!((none.collision_rate, none.avg_collision_step), (0.0, None));
         assert!(table_row("cem-is", &records).is_none());

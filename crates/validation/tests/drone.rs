@@ -4,7 +4,9 @@
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{plan_flight, EstimatorKind, GroundTruthWorld, SimConfig};
-use nerfsv_validation::{monte_carlo, replay, DroneSystem, MonteCarloConfig, Prior, System, DRONE_STD};
+use nerfsv_validation::{
+    monte_carlo, replay, DroneSystem, MonteCarloConfig, Prior, System, ViewUncertainty, DRONE_STD,
+};
 
 #[test]
 fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
@@ -17,7 +19,7 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
     let flight = plan_flight(&cfg, &gt.sdf, (nerf.config.aabb_min, nerf.config.aabb_max)).unwrap();
     let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(16, 16, 0.8));
     let world = GroundTruthWorld { scene: &scene, field: &gt.sdf, render: RenderSettings::default() };
-    let system = DroneSystem { sim: &sim, world: &world, estimator: EstimatorKind::Truth };
+    let system = DroneSystem { sim: &sim, world: &world, estimator: EstimatorKind::Truth, uncertainty: None };
     assert_eq!((system.steps(), system.dim()), (6, 12));
     let undisturbed = system.run(&vec![vec![0.0; 12]; 6], 0);
     assert!(!undisturbed.failed() && undisturbed.score.is_finite(), "{undisturbed:?}");
@@ -36,4 +38,26 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
     let again = replay(&system, &prior, &prior.to_proposal(), failure, None);
     // Bit for bit, NaNs included (which `==` would call unequal).
     assert_eq!(format!("{again:?}"), format!("{failure:?}"));
+
+    // With a view uncertainty, each flown step carries the value of the camera at the step's
+    // final true pose (here: its height, which `step_positions` also records), steps not flown
+    // NaN; the flight itself is unchanged.
+    struct Height;
+    impl ViewUncertainty for Height {
+        fn view_uncertainty(&self, camera: &nerfsv_scene::Camera) -> f64 {
+            camera.c2w[(2, 3)] as f64
+        }
+    }
+    let measured = DroneSystem { uncertainty: Some(&Height), ..system };
+    let m = measured.run(&failure.disturbances, failure.seed);
+    assert_eq!(format!("{:?}", m.step_scores), format!("{:?}", failure.step_scores));
+    assert_eq!(m.step_uncertainty.len(), 6);
+    for (t, (u, p)) in m.step_uncertainty.iter().zip(&m.step_positions).enumerate() {
+        if t <= crash {
+            // The camera sits at the body centre.
+            assert!((u - p[2]).abs() < 1e-6, "step {t}: {u} against {}", p[2]);
+        } else {
+            assert!(u.is_nan(), "step {t} was not flown: {u}");
+        }
+    }
 }

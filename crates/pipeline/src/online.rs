@@ -1,0 +1,271 @@
+//! The online uncertainty stage of `nerfsv run` (`RUN/online/`): the paper's Tables 1–2 rows
+//! with and without reward, for GA and BLA, and how well the per-step uncertainty predicts
+//! where NeRF-sim and GT-sim disagree.
+//!
+//! For each method of `[online] methods` (folder `online/{ga,bla}/`):
+//! - `plain/`: Monte Carlo and CEM in NeRF-sim with the vision estimator, as the stress stage
+//!   flies them (the same seeds, so the same rollouts: the first `mc_rollouts` of its MC and all
+//!   of its CEM populations), now measuring each step's uncertainty. These are the rows without
+//!   reward.
+//! - `reward/`: CEM again, ranking its samples by the method's reward (eq. 10 or 11).
+//! - Monte Carlo draws from the prior and never ranks, so a reward changes none of its rollouts:
+//!   its row with reward is the plain MC rollouts with the reward averaged (`avg_reward`), not a
+//!   second flight of the same rollouts.
+//! - The per-step uncertainty of `plain/` against the stress stage's GT-sim replay of the same
+//!   rollouts: the AUROC of a disagreeing step (and trajectory).
+//!
+//! The uncertainty is measured in exact mode (GA or BLA on the view's rays against the
+//! ground-truth render of the same pixels); `nerfsv stress --uncertainty field` looks it up in
+//! an uncertainty field instead.
+
+use std::path::Path;
+
+use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::{EstimatorKind, SimConfig, WorldKind};
+use nerfsv_uq::UqConfig;
+use nerfsv_validation::{
+    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, Prior, RolloutRecord, UncertaintyReward, UqMethod,
+    UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::config::OnlineConfig;
+use crate::flight::FlightInputs;
+use crate::stage::{Stage, StageContext};
+use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
+use crate::stress::{replay_csv, stress, OnlineSettings, Sampler, StressFigures, StressSetup, ROLLOUTS_CSV};
+use crate::PipelineError;
+
+/// The stage's combined table.
+pub const ONLINE_TABLE_CSV: &str = "table.csv";
+
+/// One row of Tables 1–2.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OnlineRow {
+    pub method: UqMethod,
+    pub sampler: String,
+    /// Whether the samples were ranked by (MC: scored with) the method's reward.
+    pub reward: bool,
+    pub rollouts: usize,
+    pub collision_rate: f64,
+    /// Counted from 1, as in the paper.
+    pub avg_collision_step: Option<f64>,
+    pub avg_log_likelihood: f64,
+    pub avg_uncertainty: Option<f64>,
+    /// Mean reward (eq. 10 or 11) over the rollouts, with or without ranking by it.
+    pub avg_reward: Option<f64>,
+}
+
+/// One method's study.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MethodStudy {
+    pub method: UqMethod,
+    pub rows: Vec<OnlineRow>,
+    /// Views whose uncertainty was measured (both runs) and the mean wall-clock milliseconds
+    /// per view (a timing: not part of what a seed reproduces).
+    pub views: usize,
+    pub ms_per_view: f64,
+    /// The per-step uncertainty of the plain rollouts against the stress stage's replays.
+    pub disagreement: DisagreementAuroc,
+    /// P(fail) by importance sampling after CEM, without and with reward (the reward changes
+    /// the proposal, not the estimator's target).
+    pub p_fail: f64,
+    pub p_fail_reward: f64,
+}
+
+/// What the online stage reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OnlineFigures {
+    pub mode: UqMode,
+    pub studies: Vec<MethodStudy>,
+}
+
+impl OnlineFigures {
+    pub fn describe(&self) -> String {
+        let opt = |v: Option<f64>, p: usize| v.map_or("n/a".to_owned(), |v| format!("{v:.p$}"));
+        let mut s = String::new();
+        for m in &self.studies {
+            s.push_str(&format!(
+                "{} ({} mode, {:.0} ms per view; AUROC of a NeRF/GT disagreement: step {} of {} disagreeing, \
+                 trajectory {} of {}):",
+                m.method.name().to_uppercase(),
+                self.mode.name(),
+                m.ms_per_view,
+                opt(m.disagreement.step_auroc, 2),
+                m.disagreement.disagreeing_steps,
+                opt(m.disagreement.trajectory_auroc, 2),
+                m.disagreement.disagreeing_trajectories,
+            ));
+            for r in &m.rows {
+                s.push_str(&format!(
+                    "\n      {:<6} {:<9} {:>4} rollouts: collision rate {:.3}, avg step {}, avg log-likelihood {:.2}, \
+                     avg uncertainty {}, avg reward {}",
+                    r.sampler,
+                    if r.reward { "reward" } else { "no reward" },
+                    r.rollouts,
+                    r.collision_rate,
+                    opt(r.avg_collision_step, 2),
+                    r.avg_log_likelihood,
+                    opt(r.avg_uncertainty, 4),
+                    opt(r.avg_reward, 2),
+                ));
+            }
+            s.push_str("\n    ");
+        }
+        s.trim_end().to_owned()
+    }
+}
+
+/// The online stage: see the [module docs](self).
+pub struct OnlineStage<'a> {
+    pub scene: &'a Scene,
+    pub sim: &'a SimConfig,
+    pub validation: &'a ValidationConfig,
+    pub prior: &'a Prior,
+    pub intrinsics: Intrinsics,
+    pub render: RenderSettings,
+    pub uq: &'a UqConfig,
+    pub online: &'a OnlineConfig,
+}
+
+impl OnlineStage<'_> {
+    /// The validation settings of the study: the run's, with `[online]`'s sizes.
+    fn validation(&self) -> ValidationConfig {
+        let mut v = self.validation.clone();
+        v.monte_carlo.rollouts = self.online.mc_rollouts;
+        v.cem.is_samples = self.online.is_samples;
+        v
+    }
+}
+
+impl Stage for OnlineStage<'_> {
+    const NAME: &'static str = "online";
+    const VERSION: u32 = 1;
+    const OUTPUTS: &'static [&'static str] = &[ONLINE_TABLE_CSV];
+    const INPUTS: &'static [&'static str] =
+        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, crate::stress::STAGE];
+    const RESUMABLE: bool = true;
+    type Figures = OnlineFigures;
+
+    fn config(&self) -> impl Serialize {
+        (&self.scene.name, self.sim, self.validation(), self.intrinsics, self.render.supersample, self.uq, self.online)
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
+        let inputs = FlightInputs::from_run(cx.root)?;
+        let flight = inputs.plan(self.sim)?;
+        let validation = self.validation();
+        let replays_path = cx.input_dir(crate::stress::STAGE).join(replay_csv(WorldKind::Gt));
+        let replays = read_records(&replays_path)?;
+        let mut studies = Vec::new();
+        for &method in &self.online.methods {
+            let dir = cx.dir.join(method.name());
+            let run = |samplers: &[Sampler], reward: bool, name: &str| -> Result<StressFigures, PipelineError> {
+                let setup = StressSetup {
+                    inputs: &inputs,
+                    flight: &flight,
+                    scene: self.scene,
+                    sim: self.sim,
+                    validation: &validation,
+                    prior: self.prior,
+                    intrinsics: self.intrinsics,
+                    render: self.render,
+                    world: WorldKind::Nerf,
+                    estimator: EstimatorKind::Vision,
+                    samplers,
+                    replay: false,
+                    online: Some(OnlineSettings { method, mode: UqMode::Exact, reward }),
+                    uq: self.uq,
+                    field: None,
+                };
+                let out = dir.join(name);
+                std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
+                stress(&setup, &out, &format!("online {} {name}", method.name()), cx.resume, cx.observer)
+            };
+            let plain = run(&[Sampler::Mc, Sampler::Cem], false, "plain")?;
+            let rewarded = run(&[Sampler::Cem], true, "reward")?;
+            let plain_records = read_records(&dir.join("plain").join(ROLLOUTS_CSV))?;
+            let reward_records = read_records(&dir.join("reward").join(ROLLOUTS_CSV))?;
+            let scorer = UncertaintyReward::new(method, self.uq);
+            let scored: Vec<RolloutRecord> =
+                plain_records.iter().map(|r| RolloutRecord { reward: Some(scorer.reward(r)), ..r.clone() }).collect();
+            let mut rows = Vec::new();
+            for (records, sampler, reward) in [
+                (&scored, SAMPLER_MC, false),
+                (&scored, SAMPLER_MC, true),
+                (&scored, SAMPLER_CEM, false),
+                (&reward_records, SAMPLER_CEM, true),
+                (&scored, SAMPLER_IS, false),
+                (&reward_records, SAMPLER_IS, true),
+            ] {
+                if let Some(row) = table_row(sampler, records) {
+                    rows.push(OnlineRow {
+                        method,
+                        sampler: sampler.to_owned(),
+                        reward,
+                        rollouts: row.rollouts,
+                        collision_rate: row.collision_rate,
+                        avg_collision_step: row.avg_collision_step,
+                        avg_log_likelihood: row.avg_log_likelihood,
+                        avg_uncertainty: row.avg_uncertainty,
+                        avg_reward: row.avg_reward,
+                    });
+                }
+            }
+            let searched: Vec<RolloutRecord> = plain_records.into_iter().filter(|r| r.sampler != SAMPLER_IS).collect();
+            let views = plain.uncertainty_views + rewarded.uncertainty_views;
+            let seconds = plain.uncertainty_seconds + rewarded.uncertainty_seconds;
+            let cem_p = |f: &StressFigures| {
+                f.samplers.iter().find(|s| s.sampler == Sampler::Cem).map_or(f64::NAN, |s| s.p_fail)
+            };
+            studies.push(MethodStudy {
+                method,
+                rows,
+                views,
+                ms_per_view: 1e3 * seconds / views.max(1) as f64,
+                disagreement: disagreement_auroc(&searched, &replays),
+                p_fail: cem_p(&plain),
+                p_fail_reward: cem_p(&rewarded),
+            });
+        }
+        let figures = OnlineFigures { mode: UqMode::Exact, studies };
+        write_table(&cx.dir.join(ONLINE_TABLE_CSV), &figures)?;
+        Ok(figures)
+    }
+
+    fn describe(f: &OnlineFigures) -> String {
+        f.describe()
+    }
+}
+
+fn read_records(path: &Path) -> Result<Vec<RolloutRecord>, PipelineError> {
+    read_csv_file(path).map_err(|e| PipelineError::Internal(format!("{}: {e}", path.display())))
+}
+
+/// Tables 1–2 as CSV: `method,mode,sampler,reward,rollouts,collision_rate,avg_collision_step,
+/// avg_log_likelihood,avg_uncertainty,avg_reward` (empty where undefined).
+fn write_table(path: &Path, f: &OnlineFigures) -> Result<(), PipelineError> {
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    let mut s = String::from(
+        "method,mode,sampler,reward,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty,\
+         avg_reward\n",
+    );
+    for m in &f.studies {
+        for r in &m.rows {
+            s.push_str(&format!(
+                "{},{},{},{},{},{},{},{},{},{}\n",
+                m.method.name(),
+                f.mode.name(),
+                r.sampler,
+                r.reward,
+                r.rollouts,
+                r.collision_rate,
+                opt(r.avg_collision_step),
+                r.avg_log_likelihood,
+                opt(r.avg_uncertainty),
+                opt(r.avg_reward)
+            ));
+        }
+    }
+    nerfsv_scene::io::atomic_write_bytes(path, s.as_bytes()).map_err(|e| PipelineError::io(path, e))
+}

@@ -156,7 +156,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\n\
              [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
-             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n[uq_offline]\nbla_images_per_split = 1\nga_images_per_split = {ga_images}\n"
+             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n[uq_offline]\nbla_images_per_split = 1\nga_images_per_split = {ga_images}\n"
         );
         std::fs::write(&cfg, text).unwrap();
     };
@@ -172,9 +172,10 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert!(!first.contains("up to date"), "{first}");
     assert_eq!(summary["nerf"]["steps"], 3);
     assert_uq_stage(&out, &summary["uq"]);
+    assert_online_stage(&out, &summary["online"]);
 
     let (second, again) = run();
-    for stage in ["dataset", "collision", "nerf", "eval", "uq", "nerf_collision", "flight", "stress"] {
+    for stage in ["dataset", "collision", "nerf", "eval", "uq", "nerf_collision", "flight", "stress", "online"] {
         assert!(second.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{second}");
     }
     assert_eq!(summary, again);
@@ -182,7 +183,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     // Fewer GA images: only the uncertainty stage is redone (its key holds its config slice).
     write_cfg(3, 2);
     let (fewer, changed) = run();
-    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision", "flight", "stress"] {
+    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision", "flight", "stress", "online"] {
         assert!(fewer.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{fewer}");
     }
     assert!(!fewer.contains("uq: up to date"), "{fewer}");
@@ -203,6 +204,45 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert!(fourth.contains("nerf: resuming the interrupted run"), "{fourth}");
     assert_eq!(resumed["eval"], changed["eval"], "resuming must end at the same model");
     assert_eq!(resumed["nerf"]["steps"], 5);
+}
+
+/// The online stage of the tiny run above (4 MC rollouts, CEM 2 × 4): for GA and BLA, the rows
+/// with and without reward of Tables 1–2 with a measured uncertainty, and the AUROC counts.
+fn assert_online_stage(run: &std::path::Path, online: &serde_json::Value) {
+    assert_eq!(online["mode"], "exact", "{online}");
+    let studies = online["studies"].as_array().unwrap_or_else(|| panic!("online: {online}"));
+    assert_eq!(studies.iter().map(|m| m["method"].as_str().unwrap()).collect::<Vec<_>>(), ["ga", "bla"]);
+    for m in studies {
+        let rows = m["rows"].as_array().unwrap();
+        let label: Vec<(String, bool, u64)> = rows
+            .iter()
+            .map(|r| {
+                (
+                    r["sampler"].as_str().unwrap().to_owned(),
+                    r["reward"].as_bool().unwrap(),
+                    r["rollouts"].as_u64().unwrap(),
+                )
+            })
+            .collect();
+        assert_eq!(
+            label,
+            [("mc".into(), false, 4), ("mc".into(), true, 4), ("cem".into(), false, 8), ("cem".into(), true, 8)],
+            "{m}"
+        );
+        for r in rows {
+            assert!(r["avg_uncertainty"].as_f64().is_some_and(|u| u.is_finite() && u >= 0.0), "{r}");
+        }
+        // MC never ranks: its rows with and without reward are the same rollouts.
+        assert_eq!(rows[0]["collision_rate"], rows[1]["collision_rate"]);
+        assert!(rows[1]["avg_reward"].is_number() && rows[3]["avg_reward"].is_number(), "{m}");
+        let d = &m["disagreement"];
+        assert_eq!(d["trajectories"], 12, "every MC and CEM rollout is paired with its replay: {d}");
+        assert!(d["steps"].as_u64().unwrap() >= 12, "{d}");
+        assert!(m["views"].as_u64().unwrap() > 0 && m["ms_per_view"].as_f64().unwrap() > 0.0, "{m}");
+    }
+    let table = std::fs::read_to_string(run.join("online/table.csv")).unwrap();
+    assert!(table.starts_with("method,mode,sampler,reward,rollouts,collision_rate"), "{table}");
+    assert_eq!(table.lines().count(), 1 + 8, "{table}");
 }
 
 /// The offline uncertainty stage of the tiny run above (6 train, 1 val, 1 test views; BLA on one

@@ -167,6 +167,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         online,
         uq: &cfg.uq,
         field: field.as_ref(),
+        stage: nerfsv_pipeline::stress::STAGE,
     };
     // Everything the rollouts depend on: a --resume into results of anything else is refused.
     let key = format!(

@@ -97,9 +97,12 @@ pub struct RunConfig {
 pub struct OnlineConfig {
     /// Methods whose study runs: `"ga"`, `"bla"` (default both; empty skips them).
     pub methods: Vec<nerfsv_validation::UqMethod>,
-    /// Monte Carlo rollouts of each study: the first ones of the stress stage's MC.
+    /// Monte Carlo rollouts of each study: the first ones of the stress stage's MC (at most as
+    /// many as it flies).
     pub mc_rollouts: usize,
-    /// Importance samples drawn after each study's CEM.
+    /// Importance samples drawn after each study's CEM (which always ends with a batch); the
+    /// study reports no failure probability from them (the stress stage estimates it), so the
+    /// default is 1.
     pub is_samples: usize,
 }
 

@@ -13,6 +13,9 @@
 //!   second flight of the same rollouts.
 //! - The per-step uncertainty of `plain/` against the stress stage's GT-sim replay of the same
 //!   rollouts: the AUROC of a disagreeing step (and trajectory).
+//! - CEM ends with an importance-sampling batch (`[online] is_samples`, default 1); the study
+//!   reports no failure probability (the stress stage estimates it), so its rows are CEM's
+//!   populations only, as the paper's tables. The batch's rollouts are in `rollouts.csv`.
 //!
 //! The uncertainty is measured in exact mode (GA or BLA on the view's rays against the
 //! ground-truth render of the same pixels); `nerfsv stress --uncertainty field` looks it up in
@@ -67,10 +70,6 @@ pub struct MethodStudy {
     pub ms_per_view: f64,
     /// The per-step uncertainty of the plain rollouts against the stress stage's replays.
     pub disagreement: DisagreementAuroc,
-    /// P(fail) by importance sampling after CEM, without and with reward (the reward changes
-    /// the proposal, not the estimator's target).
-    pub p_fail: f64,
-    pub p_fail_reward: f64,
 }
 
 /// What the online stage reports.
@@ -132,7 +131,8 @@ impl OnlineStage<'_> {
     /// The validation settings of the study: the run's, with `[online]`'s sizes.
     fn validation(&self) -> ValidationConfig {
         let mut v = self.validation.clone();
-        v.monte_carlo.rollouts = self.online.mc_rollouts;
+        // The first rollouts of the stress stage's MC: never more than it flew (and replayed).
+        v.monte_carlo.rollouts = self.online.mc_rollouts.min(self.validation.monte_carlo.rollouts);
         v.cem.is_samples = self.online.is_samples;
         v
     }
@@ -177,6 +177,7 @@ impl Stage for OnlineStage<'_> {
                     online: Some(OnlineSettings { method, mode: UqMode::Exact, reward }),
                     uq: self.uq,
                     field: None,
+                    stage: Self::NAME,
                 };
                 let out = dir.join(name);
                 std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
@@ -195,8 +196,6 @@ impl Stage for OnlineStage<'_> {
                 (&scored, SAMPLER_MC, true),
                 (&scored, SAMPLER_CEM, false),
                 (&reward_records, SAMPLER_CEM, true),
-                (&scored, SAMPLER_IS, false),
-                (&reward_records, SAMPLER_IS, true),
             ] {
                 if let Some(row) = table_row(sampler, records) {
                     rows.push(OnlineRow {
@@ -215,17 +214,12 @@ impl Stage for OnlineStage<'_> {
             let searched: Vec<RolloutRecord> = plain_records.into_iter().filter(|r| r.sampler != SAMPLER_IS).collect();
             let views = plain.uncertainty_views + rewarded.uncertainty_views;
             let seconds = plain.uncertainty_seconds + rewarded.uncertainty_seconds;
-            let cem_p = |f: &StressFigures| {
-                f.samplers.iter().find(|s| s.sampler == Sampler::Cem).map_or(f64::NAN, |s| s.p_fail)
-            };
             studies.push(MethodStudy {
                 method,
                 rows,
                 views,
                 ms_per_view: 1e3 * seconds / views.max(1) as f64,
                 disagreement: disagreement_auroc(&searched, &replays),
-                p_fail: cem_p(&plain),
-                p_fail_reward: cem_p(&rewarded),
             });
         }
         let figures = OnlineFigures { mode: UqMode::Exact, studies };
@@ -239,7 +233,7 @@ impl Stage for OnlineStage<'_> {
 }
 
 fn read_records(path: &Path) -> Result<Vec<RolloutRecord>, PipelineError> {
-    read_csv_file(path).map_err(|e| PipelineError::Internal(format!("{}: {e}", path.display())))
+    Ok(read_csv_file(path)?)
 }
 
 /// Tables 1–2 as CSV: `method,mode,sampler,reward,rollouts,collision_rate,avg_collision_step,

@@ -301,6 +301,8 @@ pub struct StressSetup<'a> {
     pub uq: &'a UqConfig,
     /// The uncertainty field `UqMode::Field` looks the uncertainty up in.
     pub field: Option<&'a UncertaintyField>,
+    /// The name progress and notes are reported under ([`STAGE`], or the calling stage's).
+    pub stage: &'static str,
 }
 
 /// Files a stress run writes (besides the journal and the most likely failures).
@@ -347,6 +349,7 @@ struct Counting<'a> {
     fresh: AtomicU64,
     total: u64,
     observer: &'a dyn Observer,
+    stage: &'static str,
     status: String,
 }
 
@@ -363,7 +366,7 @@ impl Recorder for Counting<'_> {
         self.journal.record(r)?;
         self.fresh.fetch_add(1, Ordering::Relaxed);
         let done = self.done.fetch_add(1, Ordering::Relaxed) + 1;
-        self.observer.progress(STAGE, done, self.total, &self.status);
+        self.observer.progress(self.stage, done, self.total, &self.status);
         Ok(())
     }
 }
@@ -376,7 +379,7 @@ impl Recorder for Counting<'_> {
 ///
 /// `key` identifies everything the rollouts depend on; with `resume`, the journal in `out` must
 /// carry the same key and its rollouts are not flown again. Progress and notes go to `observer`
-/// under the name [`STAGE`].
+/// under the name `setup.stage`.
 pub fn stress(
     setup: &StressSetup,
     out: &Path,
@@ -384,7 +387,7 @@ pub fn stress(
     resume: bool,
     observer: &dyn Observer,
 ) -> Result<StressFigures, PipelineError> {
-    let progress = |done: u64, total: u64, status: &str| observer.progress(STAGE, done, total, status);
+    let progress = |done: u64, total: u64, status: &str| observer.progress(setup.stage, done, total, status);
     let start = Instant::now();
     let sim = setup.flight.simulator(setup.sim, &setup.inputs.nerf, setup.intrinsics);
     let search_world = world(setup.world, setup.inputs, setup.scene, setup.render);
@@ -402,6 +405,7 @@ pub fn stress(
         fresh: AtomicU64::new(0),
         total,
         observer,
+        stage: setup.stage,
         status: String::new(),
     };
     // Online uncertainty: exact mode compares the NeRF with the ground truth's render of the view.
@@ -438,7 +442,7 @@ pub fn stress(
     };
     let v = setup.validation;
     if resume {
-        observer.note(STAGE, &format!("{} of {planned} rollouts were already flown", journal.len()));
+        observer.note(setup.stage, &format!("{} of {planned} rollouts were already flown", journal.len()));
     }
     let mut records = Vec::with_capacity(planned);
     let mut estimates = Vec::new();
@@ -473,6 +477,7 @@ pub fn stress(
             fresh: AtomicU64::new(0),
             total,
             observer,
+            stage: setup.stage,
             status: format!("replaying in {}-sim", replay_kind.name()),
         };
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
@@ -481,8 +486,10 @@ pub fn stress(
         let originals: Vec<RolloutRecord> = searched(&records).cloned().collect();
         let replays = replay_all(&system, &originals, &replaying)?;
         if resume {
-            observer
-                .note(STAGE, &format!("{} of {} replays were already flown", replay_journal.len(), originals.len()));
+            observer.note(
+                setup.stage,
+                &format!("{} of {} replays were already flown", replay_journal.len(), originals.len()),
+            );
         }
         counting.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
         Some(replays)
@@ -697,6 +704,7 @@ impl Stage for StressStage<'_> {
             online: None,
             uq: &UqConfig::default(),
             field: None,
+            stage: STAGE,
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.

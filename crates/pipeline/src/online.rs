@@ -67,7 +67,7 @@ pub struct MethodStudy {
     /// Views whose uncertainty was measured (both runs) and the mean wall-clock milliseconds
     /// per view (a timing: not part of what a seed reproduces).
     pub views: usize,
-    pub ms_per_view: f64,
+    pub milliseconds_per_view: f64,
     /// The per-step uncertainty of the plain rollouts against the stress stage's replays.
     pub disagreement: DisagreementAuroc,
 }
@@ -89,7 +89,7 @@ impl OnlineFigures {
                  trajectory {} of {}):",
                 m.method.name().to_uppercase(),
                 self.mode.name(),
-                m.ms_per_view,
+                m.milliseconds_per_view,
                 opt(m.disagreement.step_auroc, 2),
                 m.disagreement.disagreeing_steps,
                 opt(m.disagreement.trajectory_auroc, 2),
@@ -218,7 +218,7 @@ impl Stage for OnlineStage<'_> {
                 method,
                 rows,
                 views,
-                ms_per_view: 1e3 * seconds / views.max(1) as f64,
+                milliseconds_per_view: 1e3 * seconds / views.max(1) as f64,
                 disagreement: disagreement_auroc(&searched, &replays),
             });
         }

@@ -111,7 +111,7 @@ impl Default for OnlineConfig {
         Self {
             methods: vec![nerfsv_validation::UqMethod::Ga, nerfsv_validation::UqMethod::Bla],
             mc_rollouts: 50,
-            is_samples: 20,
+            is_samples: 1,
         }
     }
 }

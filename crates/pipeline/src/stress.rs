@@ -448,6 +448,9 @@ pub fn stress(
     let mut estimates = Vec::new();
     for &sampler in setup.samplers {
         counting.status = format!("{} in {}-sim", sampler.name().to_uppercase(), setup.world.name());
+        if let Some(o) = &setup.online {
+            counting.status.push_str(&format!(", {}", o.describe()));
+        }
         progress(counting.done.load(Ordering::Relaxed), total, &counting.status);
         match sampler {
             Sampler::Mc => {

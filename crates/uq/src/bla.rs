@@ -194,6 +194,86 @@ pub fn lm_map<M: ResidualModel>(model: &mut M, theta0: &[f64], cfg: &UqConfig) -
     MapFit { theta, loss, losses, rejected }
 }
 
+/// `Σ = H⁻¹` and `log det H` for `H = JᵀJ/σ² + αI` by the Cholesky factor of `H` (`P × P`):
+/// `P³/3` flops for the factor and `2P³/3` for the inverse.
+fn covariance_direct(image: &str, jac: &Mat<f64>, var: f64, alpha: f64) -> Result<(Mat<f64>, f64), UqError> {
+    let p = jac.ncols();
+    let mut h = Mat::zeros(p, p);
+    triangular_matmul(
+        h.as_mut(),
+        BlockStructure::TriangularLower,
+        Accum::Replace,
+        jac.transpose(),
+        BlockStructure::Rectangular,
+        jac.as_ref(),
+        BlockStructure::Rectangular,
+        1.0 / var,
+        dense_par(),
+    );
+    for i in 0..p {
+        h[(i, i)] += alpha;
+    }
+    let llt =
+        Llt::new(h.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
+    let l = llt.L();
+    let log_det_h = 2.0 * (0..p).map(|i| l[(i, i)].ln()).sum::<f64>();
+    Ok((llt.inverse(), log_det_h))
+}
+
+/// The same for `m < P` residuals by the Woodbury identity on the `m × m` side: with
+/// `U = J/σ` and `K = αI_m + UUᵀ = L_K·L_Kᵀ`, `W = L_K⁻¹U`,
+///
+/// `Σ = (αI_P + UᵀU)⁻¹ = (I − WᵀW)/α` and `log det H = (P − m)·log α + log det K`
+///
+/// (the matrix determinant lemma): `m²P` flops for `K` and for `W`, `mP²` for the symmetric
+/// `WᵀW`, against `≈ P³ + mP²` directly — about a sixth of them at the default 768 residuals and
+/// 3072 weights. Exact in exact arithmetic; the subtraction costs `λ/α` ulps of relative
+/// accuracy in a direction the data pin down with curvature `λ`.
+fn covariance_woodbury(image: &str, jac: &Mat<f64>, var: f64, alpha: f64) -> Result<(Mat<f64>, f64), UqError> {
+    let (m, p) = (jac.nrows(), jac.ncols());
+    let mut k = Mat::zeros(m, m);
+    triangular_matmul(
+        k.as_mut(),
+        BlockStructure::TriangularLower,
+        Accum::Replace,
+        jac.as_ref(),
+        BlockStructure::Rectangular,
+        jac.transpose(),
+        BlockStructure::Rectangular,
+        1.0 / var,
+        dense_par(),
+    );
+    for i in 0..m {
+        k[(i, i)] += alpha;
+    }
+    let llt =
+        Llt::new(k.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
+    let l = llt.L();
+    let log_det_h = 2.0 * (0..m).map(|i| l[(i, i)].ln()).sum::<f64>() + (p - m) as f64 * alpha.ln();
+    let scale = 1.0 / var.sqrt();
+    let mut w = Mat::from_fn(m, p, |i, j| jac[(i, j)] * scale);
+    faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, w.as_mut(), dense_par());
+    let mut sigma = Mat::zeros(p, p);
+    triangular_matmul(
+        sigma.as_mut(),
+        BlockStructure::TriangularLower,
+        Accum::Replace,
+        w.transpose(),
+        BlockStructure::Rectangular,
+        w.as_ref(),
+        BlockStructure::Rectangular,
+        -1.0 / alpha,
+        dense_par(),
+    );
+    for j in 0..p {
+        sigma[(j, j)] += 1.0 / alpha;
+        for i in 0..j {
+            sigma[(i, j)] = sigma[(j, i)];
+        }
+    }
+    Ok((sigma, log_det_h))
+}
+
 /// The Gaussian posterior at a mode.
 #[derive(Clone, Debug)]
 pub struct Laplace {
@@ -261,27 +341,8 @@ pub fn laplace_at<M: ResidualModel>(
         }
         alpha = best.1;
     }
-    // H = JᵀJ/σ² + αI (lower triangle), Cholesky, Σ = H⁻¹.
-    let mut h = Mat::zeros(p, p);
-    triangular_matmul(
-        h.as_mut(),
-        BlockStructure::TriangularLower,
-        Accum::Replace,
-        jac.transpose(),
-        BlockStructure::Rectangular,
-        jac.as_ref(),
-        BlockStructure::Rectangular,
-        1.0 / var,
-        dense_par(),
-    );
-    for i in 0..p {
-        h[(i, i)] += alpha;
-    }
-    let llt =
-        Llt::new(h.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
-    let l = llt.L();
-    let log_det_h = 2.0 * (0..p).map(|i| l[(i, i)].ln()).sum::<f64>();
-    let covariance = llt.inverse();
+    let (covariance, log_det_h) =
+        if m < p { covariance_woodbury(image, &jac, var, alpha)? } else { covariance_direct(image, &jac, var, alpha)? };
     let trace: f64 = (0..p).map(|i| covariance[(i, i)]).sum();
     let normalized_trace = trace / p as f64;
     if !normalized_trace.is_finite() {

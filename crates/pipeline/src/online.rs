@@ -27,8 +27,8 @@ use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, SimConfig, WorldKind};
 use nerfsv_uq::UqConfig;
 use nerfsv_validation::{
-    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, Prior, RolloutRecord, UncertaintyReward, UqMethod,
-    UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, Prior, RolloutRecord, TableRow, UncertaintyReward,
+    UqMethod, UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -42,21 +42,14 @@ use crate::PipelineError;
 /// The stage's combined table.
 pub const ONLINE_TABLE_CSV: &str = "table.csv";
 
-/// One row of Tables 1–2.
+/// One row of Tables 1–2: the method, whether its reward ranked (MC: scored) the samples, and
+/// the sampler's row (`avg_reward` with or without ranking by it).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OnlineRow {
     pub method: UqMethod,
-    pub sampler: String,
-    /// Whether the samples were ranked by (MC: scored with) the method's reward.
     pub reward: bool,
-    pub rollouts: usize,
-    pub collision_rate: f64,
-    /// Counted from 1, as in the paper.
-    pub avg_collision_step: Option<f64>,
-    pub avg_log_likelihood: f64,
-    pub avg_uncertainty: Option<f64>,
-    /// Mean reward (eq. 10 or 11) over the rollouts, with or without ranking by it.
-    pub avg_reward: Option<f64>,
+    #[serde(flatten)]
+    pub row: TableRow,
 }
 
 /// One method's study.
@@ -95,12 +88,12 @@ impl OnlineFigures {
                 opt(m.disagreement.trajectory_auroc, 2),
                 m.disagreement.disagreeing_trajectories,
             ));
-            for r in &m.rows {
+            for OnlineRow { reward, row: r, .. } in &m.rows {
                 s.push_str(&format!(
                     "\n      {:<6} {:<9} {:>4} rollouts: collision rate {:.3}, avg step {}, avg log-likelihood {:.2}, \
                      avg uncertainty {}, avg reward {}",
                     r.sampler,
-                    if r.reward { "reward" } else { "no reward" },
+                    if *reward { "reward" } else { "no reward" },
                     r.rollouts,
                     r.collision_rate,
                     opt(r.avg_collision_step, 2),
@@ -198,17 +191,7 @@ impl Stage for OnlineStage<'_> {
                 (&reward_records, SAMPLER_CEM, true),
             ] {
                 if let Some(row) = table_row(sampler, records) {
-                    rows.push(OnlineRow {
-                        method,
-                        sampler: sampler.to_owned(),
-                        reward,
-                        rollouts: row.rollouts,
-                        collision_rate: row.collision_rate,
-                        avg_collision_step: row.avg_collision_step,
-                        avg_log_likelihood: row.avg_log_likelihood,
-                        avg_uncertainty: row.avg_uncertainty,
-                        avg_reward: row.avg_reward,
-                    });
+                    rows.push(OnlineRow { method, reward, row });
                 }
             }
             let searched: Vec<RolloutRecord> = plain_records.into_iter().filter(|r| r.sampler != SAMPLER_IS).collect();
@@ -245,13 +228,13 @@ fn write_table(path: &Path, f: &OnlineFigures) -> Result<(), PipelineError> {
          avg_reward\n",
     );
     for m in &f.studies {
-        for r in &m.rows {
+        for OnlineRow { reward, row: r, .. } in &m.rows {
             s.push_str(&format!(
                 "{},{},{},{},{},{},{},{},{},{}\n",
                 m.method.name(),
                 f.mode.name(),
                 r.sampler,
-                r.reward,
+                reward,
                 r.rollouts,
                 r.collision_rate,
                 opt(r.avg_collision_step),

@@ -197,27 +197,39 @@ pub fn lm_map<M: ResidualModel>(model: &mut M, theta0: &[f64], cfg: &UqConfig) -
 /// `Σ = H⁻¹` and `log det H` for `H = JᵀJ/σ² + αI` by the Cholesky factor of `H` (`P × P`):
 /// `P³/3` flops for the factor and `2P³/3` for the inverse.
 fn covariance_direct(image: &str, jac: &Mat<f64>, var: f64, alpha: f64) -> Result<(Mat<f64>, f64), UqError> {
-    let p = jac.ncols();
-    let mut h = Mat::zeros(p, p);
+    let h = lower_product(jac.transpose(), jac.as_ref(), 1.0 / var, alpha);
+    let (llt, log_det_h) = cholesky(image, &h)?;
+    Ok((llt.inverse(), log_det_h))
+}
+
+/// The lower triangle of `scale·a·b + shift·I` (`a·b` symmetric), in [`dense_par`] tasks.
+fn lower_product(a: faer::MatRef<f64>, b: faer::MatRef<f64>, scale: f64, shift: f64) -> Mat<f64> {
+    let n = a.nrows();
+    let mut out = Mat::zeros(n, n);
     triangular_matmul(
-        h.as_mut(),
+        out.as_mut(),
         BlockStructure::TriangularLower,
         Accum::Replace,
-        jac.transpose(),
+        a,
         BlockStructure::Rectangular,
-        jac.as_ref(),
+        b,
         BlockStructure::Rectangular,
-        1.0 / var,
+        scale,
         dense_par(),
     );
-    for i in 0..p {
-        h[(i, i)] += alpha;
+    for i in 0..n {
+        out[(i, i)] += shift;
     }
+    out
+}
+
+/// The Cholesky factor of the symmetric `a` (lower triangle read) and `log det a`.
+fn cholesky(image: &str, a: &Mat<f64>) -> Result<(Llt<f64>, f64), UqError> {
     let llt =
-        Llt::new(h.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
+        Llt::new(a.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
     let l = llt.L();
-    let log_det_h = 2.0 * (0..p).map(|i| l[(i, i)].ln()).sum::<f64>();
-    Ok((llt.inverse(), log_det_h))
+    let log_det = 2.0 * (0..a.nrows()).map(|i| l[(i, i)].ln()).sum::<f64>();
+    Ok((llt, log_det))
 }
 
 /// The same for `m < P` residuals by the Woodbury identity on the `m × m` side: with
@@ -231,42 +243,14 @@ fn covariance_direct(image: &str, jac: &Mat<f64>, var: f64, alpha: f64) -> Resul
 /// accuracy in a direction the data pin down with curvature `λ`.
 fn covariance_woodbury(image: &str, jac: &Mat<f64>, var: f64, alpha: f64) -> Result<(Mat<f64>, f64), UqError> {
     let (m, p) = (jac.nrows(), jac.ncols());
-    let mut k = Mat::zeros(m, m);
-    triangular_matmul(
-        k.as_mut(),
-        BlockStructure::TriangularLower,
-        Accum::Replace,
-        jac.as_ref(),
-        BlockStructure::Rectangular,
-        jac.transpose(),
-        BlockStructure::Rectangular,
-        1.0 / var,
-        dense_par(),
-    );
-    for i in 0..m {
-        k[(i, i)] += alpha;
-    }
-    let llt =
-        Llt::new(k.as_ref(), Side::Lower).map_err(|_| UqError::NotPositiveDefinite { image: image.to_string() })?;
-    let l = llt.L();
-    let log_det_h = 2.0 * (0..m).map(|i| l[(i, i)].ln()).sum::<f64>() + (p - m) as f64 * alpha.ln();
+    let k = lower_product(jac.as_ref(), jac.transpose(), 1.0 / var, alpha);
+    let (llt, log_det_k) = cholesky(image, &k)?;
+    let log_det_h = log_det_k + (p - m) as f64 * alpha.ln();
     let scale = 1.0 / var.sqrt();
     let mut w = Mat::from_fn(m, p, |i, j| jac[(i, j)] * scale);
-    faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, w.as_mut(), dense_par());
-    let mut sigma = Mat::zeros(p, p);
-    triangular_matmul(
-        sigma.as_mut(),
-        BlockStructure::TriangularLower,
-        Accum::Replace,
-        w.transpose(),
-        BlockStructure::Rectangular,
-        w.as_ref(),
-        BlockStructure::Rectangular,
-        -1.0 / alpha,
-        dense_par(),
-    );
+    faer::linalg::triangular_solve::solve_lower_triangular_in_place(llt.L(), w.as_mut(), dense_par());
+    let mut sigma = lower_product(w.transpose(), w.as_ref(), -1.0 / alpha, 1.0 / alpha);
     for j in 0..p {
-        sigma[(j, j)] += 1.0 / alpha;
         for i in 0..j {
             sigma[(i, j)] = sigma[(j, i)];
         }
@@ -303,46 +287,15 @@ pub fn laplace_at<M: ResidualModel>(
     theta: &[f64],
     cfg: &UqConfig,
 ) -> Result<Laplace, UqError> {
-    let var = cfg.noise_std * cfg.noise_std;
-    let p = model.n_params();
-    let mut r = Vec::new();
-    let mut jac = Mat::zeros(0, 0);
-    model.residuals_and_jacobian(theta, &mut r, &mut jac);
-    let m = r.len();
-    let rr: f64 = r.iter().map(|v| v * v).sum();
-    let tt: f64 = theta.iter().map(|v| v * v).sum();
-    if !rr.is_finite() || !tt.is_finite() {
-        return Err(UqError::NonFinite { image: image.to_string(), what: "the residuals at the mode" });
-    }
-    // log p(y | α) ≈ −½rr/σ² − ½α·tt − (m/2)·log(2πσ²) + (P/2)·log α − ½·log det H(α).
-    let evidence = |alpha: f64, log_det_h: f64| {
-        -0.5 * rr / var - 0.5 * alpha * tt - 0.5 * m as f64 * (2.0 * std::f64::consts::PI * var).ln()
-            + 0.5 * p as f64 * alpha.ln()
-            - 0.5 * log_det_h
+    let mode = Mode::at(image, model, theta, cfg)?;
+    let (alpha, evidence_grid) = if cfg.prior_precision_grid.is_empty() {
+        (cfg.prior_precision, Vec::new())
+    } else {
+        mode.choose_prior_precision(&mode.spectrum(image)?, cfg)
     };
-    let mut evidence_grid = Vec::new();
-    let mut alpha = cfg.prior_precision;
-    if !cfg.prior_precision_grid.is_empty() {
-        // Eigenvalues of the Gram matrix on its smaller side: the non-zero ones of JᵀJ.
-        let solver = StepSolver::new(&jac);
-        let eig = solver
-            .gram
-            .self_adjoint_eigenvalues(Side::Lower)
-            .map_err(|_| UqError::NonFinite { image: image.to_string(), what: "the Gram matrix" })?;
-        let k = eig.len();
-        let mut best = (f64::NEG_INFINITY, alpha);
-        for &a in &cfg.prior_precision_grid {
-            let log_det = eig.iter().map(|&e| (e.max(0.0) / var + a).ln()).sum::<f64>() + (p - k) as f64 * a.ln();
-            let e = evidence(a, log_det);
-            evidence_grid.push((a, e));
-            if e > best.0 {
-                best = (e, a);
-            }
-        }
-        alpha = best.1;
-    }
+    let (var, p, m, jac) = (mode.var, mode.p, mode.m, &mode.jac);
     let (covariance, log_det_h) =
-        if m < p { covariance_woodbury(image, &jac, var, alpha)? } else { covariance_direct(image, &jac, var, alpha)? };
+        if m < p { covariance_woodbury(image, jac, var, alpha)? } else { covariance_direct(image, jac, var, alpha)? };
     let trace: f64 = (0..p).map(|i| covariance[(i, i)]).sum();
     let normalized_trace = trace / p as f64;
     if !normalized_trace.is_finite() {
@@ -353,10 +306,74 @@ pub fn laplace_at<M: ResidualModel>(
         prior_precision: alpha,
         normalized_trace,
         rmv: normalized_trace.sqrt(),
-        log_evidence: evidence(alpha, log_det_h),
+        log_evidence: mode.evidence(alpha, log_det_h),
         evidence_grid,
         residuals: m,
     })
+}
+
+/// The model at a mode: residuals and Jacobian, and what the evidence needs of them.
+struct Mode {
+    jac: Mat<f64>,
+    /// `|r|²` and `|θ|²`.
+    rr: f64,
+    tt: f64,
+    /// σ_n², `P` and `m`.
+    var: f64,
+    p: usize,
+    m: usize,
+}
+
+impl Mode {
+    fn at<M: ResidualModel>(image: &str, model: &mut M, theta: &[f64], cfg: &UqConfig) -> Result<Self, UqError> {
+        let mut r = Vec::new();
+        let mut jac = Mat::zeros(0, 0);
+        model.residuals_and_jacobian(theta, &mut r, &mut jac);
+        let rr: f64 = r.iter().map(|v| v * v).sum();
+        let tt: f64 = theta.iter().map(|v| v * v).sum();
+        if !rr.is_finite() || !tt.is_finite() || jac.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
+            return Err(UqError::NonFinite { image: image.to_string(), what: "the residuals at the mode" });
+        }
+        let var = cfg.noise_std * cfg.noise_std;
+        Ok(Self { jac, rr, tt, var, p: model.n_params(), m: r.len() })
+    }
+
+    /// The eigenvalues of the Gram matrix on its smaller side: the non-zero ones of `JᵀJ`.
+    fn spectrum(&self, image: &str) -> Result<Vec<f64>, UqError> {
+        StepSolver::new(&self.jac)
+            .gram
+            .self_adjoint_eigenvalues(Side::Lower)
+            .map_err(|_| UqError::NonFinite { image: image.to_string(), what: "the Gram matrix" })
+    }
+
+    /// `log det H(α)` from the spectrum.
+    fn log_det(&self, eig: &[f64], alpha: f64) -> f64 {
+        eig.iter().map(|&e| (e.max(0.0) / self.var + alpha).ln()).sum::<f64>()
+            + (self.p - eig.len()) as f64 * alpha.ln()
+    }
+
+    /// `log p(y | α) ≈ −½rr/σ² − ½α·tt − (m/2)·log(2πσ²) + (P/2)·log α − ½·log det H(α)`.
+    fn evidence(&self, alpha: f64, log_det_h: f64) -> f64 {
+        let var = self.var;
+        -0.5 * self.rr / var - 0.5 * alpha * self.tt - 0.5 * self.m as f64 * (2.0 * std::f64::consts::PI * var).ln()
+            + 0.5 * self.p as f64 * alpha.ln()
+            - 0.5 * log_det_h
+    }
+
+    /// α of the grid with the highest evidence, and `(α, evidence)` for every α of the grid
+    /// (`cfg.prior_precision` and an empty grid without one).
+    fn choose_prior_precision(&self, eig: &[f64], cfg: &UqConfig) -> (f64, Vec<(f64, f64)>) {
+        let mut best = (f64::NEG_INFINITY, cfg.prior_precision);
+        let mut grid = Vec::new();
+        for &a in &cfg.prior_precision_grid {
+            let e = self.evidence(a, self.log_det(eig, a));
+            grid.push((a, e));
+            if e > best.0 {
+                best = (e, a);
+            }
+        }
+        (best.1, grid)
+    }
 }
 
 /// The summaries of the Laplace approximation without the covariance itself: what the online
@@ -388,41 +405,10 @@ pub fn laplace_summary_at<M: ResidualModel>(
     theta: &[f64],
     cfg: &UqConfig,
 ) -> Result<LaplaceSummary, UqError> {
-    let var = cfg.noise_std * cfg.noise_std;
-    let p = model.n_params();
-    let mut r = Vec::new();
-    let mut jac = Mat::zeros(0, 0);
-    model.residuals_and_jacobian(theta, &mut r, &mut jac);
-    let m = r.len();
-    let rr: f64 = r.iter().map(|v| v * v).sum();
-    let tt: f64 = theta.iter().map(|v| v * v).sum();
-    if !rr.is_finite() || !tt.is_finite() || jac.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
-        return Err(UqError::NonFinite { image: image.to_string(), what: "the residuals at the mode" });
-    }
-    let eig = StepSolver::new(&jac)
-        .gram
-        .self_adjoint_eigenvalues(Side::Lower)
-        .map_err(|_| UqError::NonFinite { image: image.to_string(), what: "the Gram matrix" })?;
-    let k = eig.len();
-    let log_det = |a: f64| eig.iter().map(|&e| (e.max(0.0) / var + a).ln()).sum::<f64>() + (p - k) as f64 * a.ln();
-    let evidence = |a: f64| {
-        -0.5 * rr / var - 0.5 * a * tt - 0.5 * m as f64 * (2.0 * std::f64::consts::PI * var).ln()
-            + 0.5 * p as f64 * a.ln()
-            - 0.5 * log_det(a)
-    };
-    let mut alpha = cfg.prior_precision;
-    let mut evidence_grid = Vec::new();
-    if !cfg.prior_precision_grid.is_empty() {
-        let mut best = (f64::NEG_INFINITY, alpha);
-        for &a in &cfg.prior_precision_grid {
-            let e = evidence(a);
-            evidence_grid.push((a, e));
-            if e > best.0 {
-                best = (e, a);
-            }
-        }
-        alpha = best.1;
-    }
+    let mode = Mode::at(image, model, theta, cfg)?;
+    let eig = mode.spectrum(image)?;
+    let (alpha, evidence_grid) = mode.choose_prior_precision(&eig, cfg);
+    let (var, p, k) = (mode.var, mode.p, eig.len());
     let trace = eig.iter().map(|&e| 1.0 / (e.max(0.0) / var + alpha)).sum::<f64>() + (p - k) as f64 / alpha;
     let normalized_trace = trace / p as f64;
     if !normalized_trace.is_finite() {
@@ -432,9 +418,9 @@ pub fn laplace_summary_at<M: ResidualModel>(
         prior_precision: alpha,
         normalized_trace,
         rmv: normalized_trace.sqrt(),
-        log_evidence: evidence(alpha),
+        log_evidence: mode.evidence(alpha, mode.log_det(&eig, alpha)),
         evidence_grid,
-        residuals: m,
+        residuals: mode.m,
     })
 }
 

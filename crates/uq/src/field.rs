@@ -653,19 +653,24 @@ impl UncertaintyField {
         let variance: Vec<f32> =
             num.iter().zip(&den).map(|(&n, &d)| if d > 0.0 { (n / d) as f32 } else { 0.0 }).collect();
         let weight: Vec<f32> = den.iter().map(|&d| d as f32).collect();
-        let mut figures = FieldFigures { images, rays: n_rays, ..Default::default() };
+        let figures = FieldFigures { images, rays: n_rays, ..Default::default() };
+        Self::finish(nerf, checkpoint, FieldMethod::Ga, geometry, [density, variance, weight], figures, start)
+    }
+
+    /// The field of `nerf` from its arrays, with the figures summarised and timed from `start`.
+    fn finish(
+        nerf: &Nerf,
+        checkpoint: &str,
+        method: FieldMethod,
+        geometry: GridGeometry,
+        [density, variance, weight]: [Vec<f32>; 3],
+        mut figures: FieldFigures,
+        start: Instant,
+    ) -> Result<Self, UqError> {
         summarise(&variance, &weight, &mut figures);
         figures.seconds = start.elapsed().as_secs_f64();
-        let mut field = Self::from_parts(
-            FieldMethod::Ga,
-            geometry,
-            density,
-            variance,
-            weight,
-            model_id(nerf),
-            checkpoint.into(),
-            figures,
-        )?;
+        let mut field =
+            Self::from_parts(method, geometry, density, variance, weight, model_id(nerf), checkpoint.into(), figures)?;
         field.set_empty_density(empty_density(nerf));
         Ok(field)
     }
@@ -702,7 +707,7 @@ impl UncertaintyField {
             variance.extend(posterior.variances(&g, p, rank).into_iter().map(|v| v as f32));
         }
         let weight = vec![1.0f32; geometry.len()];
-        let mut figures = FieldFigures {
+        let figures = FieldFigures {
             images,
             rays: n_rays,
             rank: Some(rank),
@@ -711,20 +716,7 @@ impl UncertaintyField {
             posterior_seconds: Some(posterior_seconds),
             ..Default::default()
         };
-        summarise(&variance, &weight, &mut figures);
-        figures.seconds = start.elapsed().as_secs_f64();
-        let mut field = Self::from_parts(
-            FieldMethod::Bla,
-            geometry,
-            density,
-            variance,
-            weight,
-            model_id(nerf),
-            checkpoint.into(),
-            figures,
-        )?;
-        field.set_empty_density(empty_density(nerf));
-        Ok(field)
+        Self::finish(nerf, checkpoint, FieldMethod::Bla, geometry, [density, variance, weight], figures, start)
     }
 
     /// The looked-up value `v` at `p` (GA σ̂², BLA relative variance), `None` outside the grid

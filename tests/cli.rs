@@ -241,7 +241,7 @@ fn assert_online_stage(run: &std::path::Path, online: &serde_json::Value) {
         assert!(m["views"].as_u64().unwrap() > 0 && m["milliseconds_per_view"].as_f64().unwrap() > 0.0, "{m}");
     }
     let table = std::fs::read_to_string(run.join("online/table.csv")).unwrap();
-    assert!(table.starts_with("method,mode,sampler,reward,rollouts,collision_rate"), "{table}");
+    assert!(table.starts_with("method,mode,reward,sampler,rollouts,collision_rate"), "{table}");
     assert_eq!(table.lines().count(), 1 + 8, "{table}");
 }
 

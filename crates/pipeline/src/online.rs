@@ -219,29 +219,13 @@ fn read_records(path: &Path) -> Result<Vec<RolloutRecord>, PipelineError> {
     Ok(read_csv_file(path)?)
 }
 
-/// Tables 1–2 as CSV: `method,mode,sampler,reward,rollouts,collision_rate,avg_collision_step,
-/// avg_log_likelihood,avg_uncertainty,avg_reward` (empty where undefined).
+/// Tables 1–2 as CSV: `method,mode,reward,` then [`TableRow::CSV_HEADER`] (empty where
+/// undefined).
 fn write_table(path: &Path, f: &OnlineFigures) -> Result<(), PipelineError> {
-    let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
-    let mut s = String::from(
-        "method,mode,sampler,reward,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty,\
-         avg_reward\n",
-    );
+    let mut s = format!("method,mode,reward,{}\n", TableRow::CSV_HEADER);
     for m in &f.studies {
-        for OnlineRow { reward, row: r, .. } in &m.rows {
-            s.push_str(&format!(
-                "{},{},{},{},{},{},{},{},{},{}\n",
-                m.method.name(),
-                f.mode.name(),
-                r.sampler,
-                reward,
-                r.rollouts,
-                r.collision_rate,
-                opt(r.avg_collision_step),
-                r.avg_log_likelihood,
-                opt(r.avg_uncertainty),
-                opt(r.avg_reward)
-            ));
+        for OnlineRow { reward, row, .. } in &m.rows {
+            s.push_str(&format!("{},{},{reward},{}\n", m.method.name(), f.mode.name(), row.csv()));
         }
     }
     nerfsv_scene::io::atomic_write_bytes(path, s.as_bytes()).map_err(|e| PipelineError::io(path, e))

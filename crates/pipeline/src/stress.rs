@@ -628,35 +628,21 @@ fn write_failure(
     Ok(replayed)
 }
 
-/// The Tables 1–2 rows as CSV: `world,sampler,rollouts,collision_rate,avg_collision_step,
-/// avg_log_likelihood,avg_uncertainty,uncertainty,mode,reward,avg_reward` (empty where
-/// undefined; `uncertainty` the method measured, `reward` the method CEM ranked by).
+/// The Tables 1–2 rows as CSV: `world,` [`TableRow::CSV_HEADER`] `,uncertainty,mode,reward`
+/// (empty where undefined; `uncertainty` the method measured, `reward` the method CEM ranked
+/// by).
 fn write_table(
     path: &Path,
     world: WorldKind,
     online: Option<OnlineSettings>,
     rows: &[TableRow],
 ) -> Result<(), PipelineError> {
-    let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
     let method = online.map_or("", |o| o.method.name());
     let mode = online.map_or("", |o| o.mode.name());
     let reward = online.filter(|o| o.reward).map_or("", |o| o.method.name());
-    let mut s = String::from(
-        "world,sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty,uncertainty,mode,\
-         reward,avg_reward\n",
-    );
+    let mut s = format!("world,{},uncertainty,mode,reward\n", TableRow::CSV_HEADER);
     for r in rows {
-        s.push_str(&format!(
-            "{},{},{},{},{},{},{},{method},{mode},{reward},{}\n",
-            world.name(),
-            r.sampler,
-            r.rollouts,
-            r.collision_rate,
-            opt(r.avg_collision_step),
-            r.avg_log_likelihood,
-            opt(r.avg_uncertainty),
-            opt(r.avg_reward)
-        ));
+        s.push_str(&format!("{},{},{method},{mode},{reward}\n", world.name(), r.csv()));
     }
     nerfsv_scene::io::atomic_write_bytes(path, s.as_bytes()).map_err(|e| PipelineError::io(path, e))
 }

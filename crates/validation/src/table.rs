@@ -23,6 +23,27 @@ pub struct TableRow {
     pub avg_reward: Option<f64>,
 }
 
+impl TableRow {
+    /// The columns of [`TableRow::csv`].
+    pub const CSV_HEADER: &'static str =
+        "sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty,avg_reward";
+
+    /// The row as CSV fields (no line end), empty where undefined.
+    pub fn csv(&self) -> String {
+        let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+        format!(
+            "{},{},{},{},{},{},{}",
+            self.sampler,
+            self.rollouts,
+            self.collision_rate,
+            opt(self.avg_collision_step),
+            self.avg_log_likelihood,
+            opt(self.avg_uncertainty),
+            opt(self.avg_reward)
+        )
+    }
+}
+
 /// The row of `sampler` over `records` (only the records of that sampler count); `None` when
 /// there are none.
 pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {

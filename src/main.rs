@@ -12,11 +12,13 @@ use clap::{Parser, Subcommand};
 /// Safety validation of a vision-based quadcopter flying through a Neural Radiance Field.
 ///
 /// Start with `nerfsv run`: on the default Stonehenge scene it renders the dataset, builds the
-/// ground-truth collision field, trains and evaluates the NeRF, builds the NeRF's collision
-/// field, flies the drone along its planned path in NeRF-sim and GT-sim, and stress-tests it
-/// (Monte Carlo and the Cross-Entropy Method in NeRF-sim, replayed in GT-sim), into
-/// `runs/stonehenge/` (figures in `summary.json`). The other subcommands run one
-/// stage each, for your own datasets and checkpoints.
+/// ground-truth collision field, trains and evaluates the NeRF, measures its uncertainty image
+/// by image (GA, BLA, depth AUSE), builds the NeRF's collision field, flies the drone along its
+/// planned path in NeRF-sim and GT-sim, stress-tests it (Monte Carlo and the Cross-Entropy
+/// Method in NeRF-sim, replayed in GT-sim), and repeats the search measuring every step's
+/// uncertainty and ranking by the paper's rewards, into `runs/stonehenge/` (figures in
+/// `summary.json`). The other subcommands run one stage each, for your own datasets and
+/// checkpoints.
 #[derive(Parser)]
 #[command(name = "nerfsv", version, about, long_about)]
 struct Cli {
@@ -48,7 +50,8 @@ enum Command {
     /// estimate the failure probability, and replay the rollouts in the other world.
     Stress(commands::stress::StressArgs),
     /// Uncertainty of a trained NeRF: `uq offline` runs GA or BLA on every image of a dataset
-    /// (CSV and figures).
+    /// (CSV and figures), `uq ause` scores them against ground-truth depth, `uq field` builds the
+    /// uncertainty field.
     Uq(commands::uq::UqArgs),
 }
 

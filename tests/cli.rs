@@ -238,7 +238,10 @@ fn assert_online_stage(run: &std::path::Path, online: &serde_json::Value) {
         let d = &m["disagreement"];
         assert_eq!(d["trajectories"], 12, "every MC and CEM rollout is paired with its replay: {d}");
         assert!(d["steps"].as_u64().unwrap() >= 12, "{d}");
-        assert!(m["views"].as_u64().unwrap() > 0 && m["milliseconds_per_view"].as_f64().unwrap() > 0.0, "{m}");
+        assert!(
+            m["views"].as_u64().unwrap() > 0 && m["milliseconds_per_view"].as_f64().is_some_and(|t| t > 0.0),
+            "{m}"
+        );
     }
     let table = std::fs::read_to_string(run.join("online/table.csv")).unwrap();
     assert!(table.starts_with("method,mode,reward,sampler,rollouts,collision_rate"), "{table}");

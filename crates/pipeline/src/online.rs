@@ -57,10 +57,11 @@ pub struct OnlineRow {
 pub struct MethodStudy {
     pub method: UqMethod,
     pub rows: Vec<OnlineRow>,
-    /// Views whose uncertainty was measured (both runs) and the mean wall-clock milliseconds
-    /// per view (a timing: not part of what a seed reproduces).
+    /// Views whose uncertainty this invocation measured (both runs; a resumed stage does not
+    /// measure the rollouts it recalls) and their mean wall-clock milliseconds (a timing: not
+    /// part of what a seed reproduces; `None` without a view).
     pub views: usize,
-    pub milliseconds_per_view: f64,
+    pub milliseconds_per_view: Option<f64>,
     /// The per-step uncertainty of the plain rollouts against the stress stage's replays.
     pub disagreement: DisagreementAuroc,
 }
@@ -78,11 +79,11 @@ impl OnlineFigures {
         let mut s = String::new();
         for m in &self.studies {
             s.push_str(&format!(
-                "{} ({} mode, {:.0} ms per view; AUROC of a NeRF/GT disagreement: step {} of {} disagreeing, \
+                "{} ({} mode, {} ms per view; AUROC of a NeRF/GT disagreement: step {} of {} disagreeing, \
                  trajectory {} of {}):",
                 m.method.name().to_uppercase(),
                 self.mode.name(),
-                m.milliseconds_per_view,
+                opt(m.milliseconds_per_view, 0),
                 opt(m.disagreement.step_auroc, 2),
                 m.disagreement.disagreeing_steps,
                 opt(m.disagreement.trajectory_auroc, 2),
@@ -201,7 +202,7 @@ impl Stage for OnlineStage<'_> {
                 method,
                 rows,
                 views,
-                milliseconds_per_view: 1e3 * seconds / views.max(1) as f64,
+                milliseconds_per_view: (views > 0).then(|| 1e3 * seconds / views as f64),
                 disagreement: disagreement_auroc(&searched, &replays),
             });
         }

@@ -34,6 +34,9 @@ struct Cli {
 enum Command {
     /// Run the whole pipeline into a run folder (default config: the embedded Stonehenge scene).
     Run(commands::run::RunArgs),
+    /// Print the default run config as TOML, every key with its documentation
+    /// (`nerfsv config --default > my.toml`, then `nerfsv run my.toml`).
+    Config(commands::config::ConfigArgs),
     /// Render a built-in ground-truth scene into a Blender-format dataset.
     Scene(commands::scene::SceneArgs),
     /// Train a NeRF on a Blender-format dataset (checkpoints in safetensors; --resume continues).
@@ -66,6 +69,7 @@ fn main() -> ExitCode {
     }
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
+        Command::Config(a) => commands::config::run(a),
         Command::Scene(a) => commands::scene::run(a),
         Command::Collision(a) => commands::collision::run(a),
         Command::Fly(a) => commands::fly::run(a),

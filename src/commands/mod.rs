@@ -1,4 +1,5 @@
 pub mod collision;
+pub mod config;
 pub mod fly;
 pub mod nerf;
 pub mod run;

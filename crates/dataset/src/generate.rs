@@ -25,9 +25,11 @@ pub struct GenerateOptions {
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
-    /// Views per split: train, val, test.
+    /// Views of the training split.
     pub train: usize,
+    /// Views of the validation split.
     pub val: usize,
+    /// Views of the test split.
     pub test: usize,
     /// Horizontal field of view in radians.
     pub camera_angle_x: f32,

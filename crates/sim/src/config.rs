@@ -13,7 +13,9 @@ use crate::planner::PlannerConfig;
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraConfig {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
     /// Horizontal field of view, radians.
     pub camera_angle_x: f32,
@@ -49,9 +51,13 @@ pub struct SimConfig {
     /// End a rollout at its first collision (the drone has crashed: nothing after it is
     /// flown, its remaining steps have no clearance); `false` flies on through geometry.
     pub stop_at_collision: bool,
+    /// The quadrotor: mass, inertia, gravity, integration step.
     pub drone: DroneParams,
+    /// The geometric tracking controller's gains.
     pub controller: ControllerGains,
+    /// The path planner on the NeRF's collision field.
     pub planner: PlannerConfig,
+    /// The vision-based state estimator (photometric alignment against the NeRF).
     pub vision: VisionConfig,
     /// The drone camera; default: the dataset's intrinsics.
     pub camera: Option<CameraConfig>,

@@ -1,0 +1,213 @@
+//! `nerfsv config --default`: the embedded default run config as TOML, every key preceded by
+//! its documentation (what it is, its unit) taken from the doc comments of the config structs
+//! themselves, so the file and the code cannot drift apart. Saved to a file, it is a starting
+//! point for `nerfsv run my.toml` and loads back to exactly the default.
+
+use anyhow::Context;
+use clap::Args;
+use nerfsv_pipeline::RunConfig;
+
+#[derive(Args)]
+pub struct ConfigArgs {
+    /// Print the embedded default run config (what `nerfsv run` uses without a file) as TOML,
+    /// every key with its documentation.
+    #[arg(long, required = true)]
+    pub default: bool,
+}
+
+/// The sources of the config structs, read for their doc comments.
+const SOURCES: &[&str] = &[
+    include_str!("../../crates/pipeline/src/config.rs"),
+    include_str!("../../crates/dataset/src/generate.rs"),
+    include_str!("../../crates/nerf/src/config.rs"),
+    include_str!("../../crates/sim/src/config.rs"),
+    include_str!("../../crates/sim/src/dynamics.rs"),
+    include_str!("../../crates/sim/src/controller.rs"),
+    include_str!("../../crates/sim/src/planner.rs"),
+    include_str!("../../crates/sim/src/estimator.rs"),
+    include_str!("../../crates/validation/src/config.rs"),
+    include_str!("../../crates/uq/src/config.rs"),
+];
+
+/// The struct behind each table of the run config (`""` is the top level).
+const TABLES: &[(&str, &str)] = &[
+    ("", "RunConfig"),
+    ("dataset", "GenerateOptions"),
+    ("nerf", "NerfConfig"),
+    ("train", "TrainConfig"),
+    ("sim", "SimConfig"),
+    ("sim.drone", "DroneParams"),
+    ("sim.controller", "ControllerGains"),
+    ("sim.planner", "PlannerConfig"),
+    ("sim.vision", "VisionConfig"),
+    ("sim.camera", "CameraConfig"),
+    ("validation", "ValidationConfig"),
+    ("validation.disturbance", "DisturbanceConfig"),
+    ("validation.monte_carlo", "MonteCarloConfig"),
+    ("validation.cem", "CemConfig"),
+    ("uq", "UqConfig"),
+    ("uq_offline", "UqOfflineConfig"),
+    ("online", "OnlineConfig"),
+];
+
+/// Comment lines are wrapped at this width.
+const WIDTH: usize = 96;
+
+pub fn run(args: ConfigArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.default, "nothing to print: say --default");
+    print!("{}", default_toml()?);
+    Ok(())
+}
+
+/// The fields of `pub struct {name}` in [`SOURCES`] with their doc comments (joined into one
+/// line, intra-doc link brackets dropped), in declaration order; `None` when no source has it.
+fn struct_fields(name: &str) -> Option<Vec<(String, String)>> {
+    let header = format!("pub struct {name} {{");
+    let source = SOURCES.iter().find(|s| s.contains(&header))?;
+    let body = &source[source.find(&header)? + header.len()..];
+    let body = &body[..body.find("\n}")?];
+    let mut fields = Vec::new();
+    let mut doc: Vec<&str> = Vec::new();
+    for line in body.lines() {
+        let t = line.trim();
+        if let Some(d) = t.strip_prefix("///") {
+            doc.push(d.trim());
+        } else if t.starts_with("#[") || t.is_empty() {
+            continue;
+        } else {
+            if let Some((field, _)) = t.strip_prefix("pub ").and_then(|rest| rest.split_once(':')) {
+                let text = doc.join(" ").replace("[`", "`").replace("`]", "`");
+                fields.push((field.trim().to_owned(), text.trim().to_owned()));
+            }
+            doc.clear();
+        }
+    }
+    Some(fields)
+}
+
+/// `text` as `# ` comment lines of at most [`WIDTH`] characters.
+fn comment(text: &str, out: &mut String) {
+    let mut line = String::from("#");
+    for word in text.split_whitespace() {
+        if line.len() + 1 + word.len() > WIDTH && line.len() > 1 {
+            out.push_str(&line);
+            out.push('\n');
+            line = String::from("#");
+        }
+        line.push(' ');
+        line.push_str(word);
+    }
+    out.push_str(&line);
+    out.push('\n');
+}
+
+/// The default config as commented TOML.
+pub fn default_toml() -> anyhow::Result<String> {
+    let value = toml::Table::try_from(RunConfig::default()).context("serialising the default config")?;
+    let mut out = String::new();
+    comment(
+        "The default nerfsv run config (`nerfsv config --default`): what `nerfsv run` uses without a \
+         file. Every key is optional; a file that sets some of them keeps the defaults below for the rest. \
+         Values are the defaults.",
+        &mut out,
+    );
+    table("", &value, None, &mut out)?;
+    Ok(out)
+}
+
+/// Writes the table at `path` (its header after a blank line, unless it is the top level; its
+/// own documentation `doc` above the header), its keys in declaration order, then its
+/// sub-tables.
+fn table(path: &str, value: &toml::Table, doc: Option<&str>, out: &mut String) -> anyhow::Result<()> {
+    let name = TABLES
+        .iter()
+        .find(|(p, _)| *p == path)
+        .map(|(_, n)| *n)
+        .with_context(|| format!("no struct is known for the table [{path}]"))?;
+    let fields = struct_fields(name).with_context(|| format!("struct {name} not found in the config sources"))?;
+    if !path.is_empty() {
+        out.push('\n');
+        if let Some(d) = doc.filter(|d| !d.is_empty()) {
+            comment(d, out);
+        }
+        out.push_str(&format!("[{path}]\n"));
+    }
+    let mut tables = Vec::new();
+    for (field, text) in &fields {
+        match value.get(field) {
+            Some(toml::Value::Table(t)) => tables.push((field, text, t)),
+            Some(v) => {
+                comment(text, out);
+                let mut one = toml::Table::new();
+                one.insert(field.clone(), shortest(v));
+                out.push_str(&toml::to_string(&one).with_context(|| format!("formatting {path}.{field}"))?);
+            }
+            None => {
+                comment(&format!("{text} Optional, unset by default: `{field} = …`."), out);
+            }
+        }
+    }
+    if let Some(extra) = value.keys().find(|k| !fields.iter().any(|(f, _)| f == *k)) {
+        anyhow::bail!("[{path}] {extra}: a key of the default config that struct {name} does not declare");
+    }
+    for (field, text, t) in tables {
+        let sub = if path.is_empty() { field.clone() } else { format!("{path}.{field}") };
+        table(&sub, t, Some(text), out)?;
+    }
+    Ok(())
+}
+
+/// `v` with every float that is exactly an `f32` written as that `f32`'s shortest decimal (the
+/// `f32` fields serialise through `f64`: `0.8` would print as `0.800000011920929`). The value
+/// read back into the `f32` field is the same; the test below checks the whole file loads back.
+fn shortest(v: &toml::Value) -> toml::Value {
+    match v {
+        toml::Value::Float(x) if (*x as f32) as f64 == *x => {
+            toml::Value::Float((*x as f32).to_string().parse().unwrap_or(*x))
+        }
+        toml::Value::Array(a) => toml::Value::Array(a.iter().map(shortest).collect()),
+        other => other.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_key_of_the_default_config_is_documented() {
+        let mut missing = Vec::new();
+        for (path, name) in TABLES {
+            let fields = struct_fields(name).unwrap_or_else(|| panic!("struct {name} not found"));
+            assert!(!fields.is_empty(), "struct {name} has no fields");
+            for (field, doc) in fields {
+                if doc.is_empty() {
+                    missing.push(format!("[{path}] {field} ({name})"));
+                }
+            }
+        }
+        assert!(missing.is_empty(), "undocumented config keys: {missing:#?}");
+    }
+
+    #[test]
+    fn the_commented_default_loads_back_to_the_embedded_default() {
+        let text = default_toml().unwrap();
+        let back: RunConfig = toml::from_str(&text).unwrap_or_else(|e| panic!("{e}\n{text}"));
+        assert_eq!(serde_json::to_value(&back).unwrap(), serde_json::to_value(RunConfig::default()).unwrap());
+        // Every key line has a comment right above it (a header may sit between for tables).
+        let lines: Vec<&str> = text.lines().collect();
+        for (i, l) in lines.iter().enumerate() {
+            if !l.is_empty() && !l.starts_with('#') && !l.starts_with('[') {
+                assert!(i > 0 && lines[i - 1].starts_with('#'), "no comment above {l:?}");
+            }
+        }
+        assert!(text.contains("[validation.cem]\n") && text.contains("[online]\n"), "{text}");
+    }
+
+    #[test]
+    fn comments_wrap_at_the_width() {
+        let mut out = String::new();
+        comment(&"word ".repeat(60), &mut out);
+        assert!(out.lines().count() > 2 && out.lines().all(|l| l.len() <= WIDTH && l.starts_with("# ")), "{out}");
+    }
+}

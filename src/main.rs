@@ -37,6 +37,8 @@ enum Command {
     /// Print the default run config as TOML, every key with its documentation
     /// (`nerfsv config --default > my.toml`, then `nerfsv run my.toml`).
     Config(commands::config::ConfigArgs),
+    /// Rebuild a run folder's HTML report (`RUN_DIR/report/index.html`) from its stage outputs.
+    Report(commands::report_page::ReportArgs),
     /// Render a built-in ground-truth scene into a Blender-format dataset.
     Scene(commands::scene::SceneArgs),
     /// Train a NeRF on a Blender-format dataset (checkpoints in safetensors; --resume continues).
@@ -70,6 +72,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
         Command::Config(a) => commands::config::run(a),
+        Command::Report(a) => commands::report_page::run(a),
         Command::Scene(a) => commands::scene::run(a),
         Command::Collision(a) => commands::collision::run(a),
         Command::Fly(a) => commands::fly::run(a),

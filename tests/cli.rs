@@ -173,6 +173,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert_eq!(summary["nerf"]["steps"], 3);
     assert_uq_stage(&out, &summary["uq"]);
     assert_online_stage(&out, &summary["online"]);
+    assert_report(&out, &first);
 
     let (second, again) = run();
     for stage in ["dataset", "collision", "nerf", "eval", "uq", "nerf_collision", "flight", "stress", "online"] {
@@ -204,6 +205,43 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert!(fourth.contains("nerf: resuming the interrupted run"), "{fourth}");
     assert_eq!(resumed["eval"], changed["eval"], "resuming must end at the same model");
     assert_eq!(resumed["nerf"]["steps"], 5);
+}
+
+/// The report of the tiny run above: the page has every section, every picture it shows is
+/// beside it, the tables and summary are copied, and the run's last line names the page.
+fn assert_report(run: &std::path::Path, stderr: &str) {
+    let dir = run.join("report");
+    let index = dir.join("index.html");
+    assert!(stderr.contains(&format!("report: {}", index.display())), "{stderr}");
+    let html = std::fs::read_to_string(&index).unwrap();
+    for heading in [
+        "Stages",
+        "The NeRF against the ground truth",
+        "Collision fields",
+        "Nominal flights",
+        "Stress tests",
+        "Tables 1–2",
+        "Offline uncertainty",
+        "Run config",
+    ] {
+        assert!(html.contains(heading), "{heading} missing from the report");
+    }
+    assert!(!html.contains("has not run in this folder"), "a stage is missing from the report");
+    let images: Vec<&str> = html.split("<img src=\"").skip(1).map(|s| s.split('"').next().unwrap()).collect();
+    // The comparison, two flights and five uncertainty figures (the tiny drone does not crash,
+    // so there is no most likely failure to show).
+    assert!(images.len() >= 8, "{images:?}");
+    for img in images {
+        let bytes = std::fs::read(dir.join(img)).unwrap_or_else(|e| panic!("report/{img}: {e}"));
+        assert_eq!(&bytes[1..4], b"PNG", "report/{img}");
+    }
+    for f in ["summary.json", "stress_table.csv", "online_table.csv", "ause.csv", "config.toml"] {
+        assert!(dir.join(f).is_file(), "report/{f} missing");
+    }
+    // The config shown is the run's (without the run folder) and loads as a run config.
+    let config = std::fs::read_to_string(dir.join("config.toml")).unwrap();
+    let back: nerfsv_pipeline::RunConfig = toml::from_str(&config).unwrap();
+    assert_eq!(back.train_steps, 3);
 }
 
 /// The online stage of the tiny run above (4 MC rollouts, CEM 2 × 4): for GA and BLA, the rows

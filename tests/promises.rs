@@ -26,8 +26,8 @@ fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
     cfg
 }
 
-/// Every file under `root` (relative path → bytes), skipping the records and summary, which
-/// hold timings.
+/// Every file under `root` (relative path → bytes), skipping the records, the summary and the
+/// report's page, which hold timings.
 fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     let mut out = Vec::new();
     let mut stack = vec![root.to_path_buf()];
@@ -36,7 +36,9 @@ fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
             let p = e.path();
             if p.is_dir() {
                 stack.push(p);
-            } else if !["stage.json", "summary.json", "train_stats.json"].contains(&e.file_name().to_str().unwrap()) {
+            } else if !["stage.json", "summary.json", "train_stats.json", "index.html"]
+                .contains(&e.file_name().to_str().unwrap())
+            {
                 out.push((p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
             }
         }

@@ -27,7 +27,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         cfg.out = out;
     }
     let summary = nerfsv_pipeline::run(&cfg, &Reporter::new(args.json))?;
+    let index = cfg.out.join(nerfsv_pipeline::report::REPORT).join(nerfsv_pipeline::report::INDEX);
     crate::commands::report(args.json, &summary, || {
-        format!("run folder: {} (figures in {})", cfg.out.display(), nerfsv_pipeline::SUMMARY)
+        format!(
+            "run folder: {} (figures in {})\nreport: {}",
+            cfg.out.display(),
+            nerfsv_pipeline::SUMMARY,
+            index.display()
+        )
     })
 }

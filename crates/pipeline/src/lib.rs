@@ -55,6 +55,7 @@ use serde::Serialize;
 pub mod config;
 pub mod flight;
 pub mod online;
+pub mod report;
 pub mod stage;
 pub mod stages;
 pub mod stress;
@@ -202,7 +203,17 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     })?;
     let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
     stage::write_json(&summary_path(&cfg.out), &summary)?;
+    report::write_report(&cfg.out, Some(&config_toml(cfg)?))?;
     Ok(summary)
+}
+
+/// `cfg` as TOML without its run folder (the report shows it; a copied run folder's report
+/// stays right).
+pub fn config_toml(cfg: &RunConfig) -> Result<String, PipelineError> {
+    let mut table = toml::Table::try_from(cfg)
+        .map_err(|e| PipelineError::Internal(format!("the run config is not serialisable as TOML: {e}")))?;
+    table.remove("out");
+    toml::to_string(&table).map_err(|e| PipelineError::Internal(format!("the run config as TOML: {e}")))
 }
 
 /// `summary.json` of run folder `root`.

@@ -1,0 +1,432 @@
+//! The report of a run folder (`RUN/report/`): one self-contained HTML page of the study's
+//! tables and pictures, built from what the stages left (their `stage.json` records, figures
+//! and CSVs), with the pictures copied beside it, `summary.json` and the tables as CSV.
+//!
+//! It is cheap (no computation, a few file copies) and is rebuilt at the end of every
+//! `nerfsv run` and by `nerfsv report RUN_DIR`, so it always shows the folder's current stage
+//! outputs. A stage that has not run leaves its section out with a line saying so.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+use crate::stage::RECORD;
+use crate::{summary_path, PipelineError};
+
+/// The report's folder under the run folder, and its page.
+pub const REPORT: &str = "report";
+pub const INDEX: &str = "index.html";
+/// The run config the report shows, written beside the page (without the run folder's path).
+pub const CONFIG: &str = "config.toml";
+
+/// The stages in run order, with a line on what each does.
+const STAGES: &[(&str, &str)] = &[
+    ("dataset", "ground-truth renders of the scene (train, val, test)"),
+    ("collision", "ground-truth signed collision field"),
+    ("nerf", "NeRF training"),
+    ("eval", "test-split PSNR, SSIM, depth error"),
+    ("uq", "offline uncertainty: GA, BLA, depth AUSE"),
+    ("nerf_collision", "the NeRF's collision field"),
+    ("flight", "nominal flights in both worlds"),
+    ("stress", "Monte Carlo and CEM in NeRF-sim, replayed in GT-sim"),
+    ("online", "per-step uncertainty and the rewards (Tables 1–2)"),
+];
+
+/// Pictures copied into the report, `(stage, file, caption)`.
+const PICTURES: &[(&str, &str, &str)] = &[
+    ("eval", "compare.png", "Test views: ground truth (left) beside the NeRF (right)"),
+    ("flight", "trajectory_gt_vision.png", "Nominal flight in GT-sim, vision estimator"),
+    ("flight", "trajectory_nerf_vision.png", "Nominal flight in NeRF-sim, vision estimator"),
+    ("stress", "most_likely_failure_mc_nerf.png", "MC's most likely failure in NeRF-sim"),
+    ("stress", "most_likely_failure_mc_gt.png", "The same disturbances in GT-sim"),
+    ("stress", "most_likely_failure_cem_nerf.png", "CEM's most likely failure in NeRF-sim"),
+    ("stress", "most_likely_failure_cem_gt.png", "The same disturbances in GT-sim"),
+    ("uq", "uq_ga_sigma_d.png", "GA: σ_d per image and split"),
+    ("uq", "uq_ga_mu_sigma.png", "GA: μ_d against σ_d"),
+    ("uq", "uq_bla_trace.png", "BLA: normalised trace per image and split"),
+    ("uq", "uq_bla_rmv.png", "BLA: rmv per image and split"),
+    ("uq", "uq_bla_trace_rmv.png", "BLA: normalised trace against rmv"),
+];
+
+/// Tables copied as CSV, `(stage, file, name in the report)`.
+const TABLES: &[(&str, &str, &str)] = &[
+    ("stress", "table.csv", "stress_table.csv"),
+    ("online", "table.csv", "online_table.csv"),
+    ("uq", "ause.csv", "ause.csv"),
+    ("uq", "ga.csv", "uq_ga.csv"),
+    ("uq", "bla.csv", "uq_bla.csv"),
+];
+
+/// What the report holds.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ReportFigures {
+    pub index: PathBuf,
+    pub pictures: usize,
+    pub tables: usize,
+    /// Stages without a record in the folder (their sections say so).
+    pub missing_stages: Vec<String>,
+}
+
+/// Builds `root/report/` from the run folder `root` (which must hold a `summary.json`);
+/// `config` is the run config as TOML, if known (else a `report/config.toml` already there is
+/// shown).
+pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, PipelineError> {
+    let summary_file = summary_path(root);
+    let text = std::fs::read_to_string(&summary_file).map_err(|e| PipelineError::io(&summary_file, e))?;
+    let summary: Value = serde_json::from_str(&text)
+        .map_err(|e| PipelineError::Internal(format!("{}: not a run summary: {e}", summary_file.display())))?;
+    let dir = root.join(REPORT);
+    std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
+    let write = |name: &str, bytes: &[u8]| {
+        let path = dir.join(name);
+        nerfsv_scene::io::atomic_write_bytes(&path, bytes).map_err(|e| PipelineError::io(&path, e))
+    };
+    if let Some(c) = config {
+        write(CONFIG, c.as_bytes())?;
+    }
+    let config = std::fs::read_to_string(dir.join(CONFIG)).ok();
+    write("summary.json", text.as_bytes())?;
+    let mut tables = Vec::new();
+    for (stage, file, name) in TABLES {
+        if let Ok(bytes) = std::fs::read(root.join(stage).join(file)) {
+            write(name, &bytes)?;
+            tables.push(*name);
+        }
+    }
+    let mut pictures = Vec::new();
+    for (stage, file, caption) in PICTURES {
+        if let Ok(bytes) = std::fs::read(root.join(stage).join(file)) {
+            let name = if file.starts_with(stage) { file.to_string() } else { format!("{stage}_{file}") };
+            write(&name, &bytes)?;
+            pictures.push((*stage, name, *caption));
+        }
+    }
+    let mut seconds = Vec::new();
+    let mut missing = Vec::new();
+    for (stage, what) in STAGES {
+        let record = std::fs::read_to_string(root.join(stage).join(RECORD))
+            .ok()
+            .and_then(|t| serde_json::from_str::<Value>(&t).ok());
+        match record.and_then(|r| r["seconds"].as_f64()) {
+            Some(s) => seconds.push((*stage, *what, s)),
+            None => missing.push(stage.to_string()),
+        }
+    }
+    let html = page(&summary, config.as_deref(), &seconds, &pictures, &tables);
+    write(INDEX, html.as_bytes())?;
+    Ok(ReportFigures {
+        index: dir.join(INDEX),
+        pictures: pictures.len(),
+        tables: tables.len(),
+        missing_stages: missing,
+    })
+}
+
+/// `s` with the HTML special characters escaped.
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// A number for a table: `digits` decimals, or "–" when absent.
+fn num(v: &Value, digits: usize) -> String {
+    v.as_f64().map_or("–".into(), |x| format!("{x:.digits$}"))
+}
+
+/// A percentage of a fraction.
+fn pct(v: &Value) -> String {
+    v.as_f64().map_or("–".into(), |x| format!("{:.1} %", 100.0 * x))
+}
+
+fn table(out: &mut String, header: &[&str], rows: &[Vec<String>]) {
+    out.push_str("<table><thead><tr>");
+    for h in header {
+        let _ = write!(out, "<th>{}</th>", esc(h));
+    }
+    out.push_str("</tr></thead><tbody>");
+    for r in rows {
+        out.push_str("<tr>");
+        for c in r {
+            let _ = write!(out, "<td>{}</td>", esc(c));
+        }
+        out.push_str("</tr>");
+    }
+    out.push_str("</tbody></table>\n");
+}
+
+fn figure(out: &mut String, file: &str, caption: &str) {
+    let _ = writeln!(
+        out,
+        "<figure><img src=\"{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>",
+        esc(file),
+        esc(caption),
+        esc(caption)
+    );
+}
+
+fn page(
+    summary: &Value,
+    config: Option<&str>,
+    seconds: &[(&str, &str, f64)],
+    pictures: &[(&str, String, &str)],
+    tables: &[&str],
+) -> String {
+    let mut o = String::new();
+    o.push_str(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>nerfsv report</title>\n<style>\n\
+         body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}\n\
+         table{border-collapse:collapse;margin:0.8em 0;font-size:0.9em;max-width:100%}\n\
+         th,td{border:1px solid #bbb;padding:0.25em 0.6em;text-align:right}\n\
+         th{background:#eee}td:first-child,th:first-child{text-align:left}\n\
+         figure{display:inline-block;margin:0.5em;max-width:100%;vertical-align:top}\n\
+         img{max-width:100%;height:auto;border:1px solid #ddd}figcaption{font-size:0.85em;color:#555}\n\
+         pre{background:#f6f6f6;padding:0.8em;overflow:auto;max-height:30em;font-size:0.8em}\n\
+         .missing{color:#a00}\n</style></head><body>\n<h1>nerfsv report</h1>\n",
+    );
+    let _ = writeln!(o, "<p>Run folder: <code>{}</code></p>", esc(summary["run"].as_str().unwrap_or("?")));
+    let section = |o: &mut String, stage: &str, title: &str| -> bool {
+        let _ = writeln!(o, "<h2>{}</h2>", esc(title));
+        if summary.get(stage).is_none() {
+            let _ = writeln!(o, "<p class=\"missing\">The {} stage has not run in this folder.</p>", esc(stage));
+            return false;
+        }
+        true
+    };
+    let pictures_of = |o: &mut String, stage: &str| {
+        for (_, file, caption) in pictures.iter().filter(|(s, ..)| *s == stage) {
+            figure(o, file, caption);
+        }
+    };
+
+    o.push_str("<h2>Stages</h2>\n");
+    let rows: Vec<Vec<String>> =
+        seconds.iter().map(|(s, what, t)| vec![s.to_string(), what.to_string(), format!("{t:.1}")]).collect();
+    table(&mut o, &["stage", "what", "seconds (when it last ran)"], &rows);
+
+    if section(&mut o, "eval", "The NeRF against the ground truth") {
+        let e = &summary["eval"];
+        table(
+            &mut o,
+            &["test images", "PSNR (dB)", "SSIM", "median depth error (m)"],
+            &[vec![num(&e["images"], 0), num(&e["psnr"], 2), num(&e["ssim"], 3), num(&e["depth_median_abs_err_m"], 4)]],
+        );
+        pictures_of(&mut o, "eval");
+    }
+    if section(&mut o, "nerf_collision", "Collision fields: the NeRF's against the ground truth") {
+        let a = &summary["nerf_collision"]["agreement_with_ground_truth"];
+        table(
+            &mut o,
+            &["occupancy IoU", "IoU in the flight band", "|SDF diff| mean (m)", "|SDF diff| p95 (m)"],
+            &[vec![
+                num(&a["iou"], 3),
+                num(&a["band_iou"], 3),
+                num(&a["band_mean_abs_diff"], 4),
+                num(&a["band_p95_abs_diff"], 4),
+            ]],
+        );
+    }
+    if section(&mut o, "flight", "Nominal flights") {
+        let rows: Vec<Vec<String>> = summary["flight"]["flights"]
+            .as_array()
+            .map(|fs| {
+                fs.iter()
+                    .map(|f| {
+                        vec![
+                            format!(
+                                "{}-sim, {}",
+                                f["world"].as_str().unwrap_or("?"),
+                                f["estimator"].as_str().unwrap_or("?")
+                            ),
+                            f["collided"].as_bool().map_or("–".into(), |c| if c { "yes" } else { "no" }.into()),
+                            num(&f["min_clearance_m"], 3),
+                            num(&f["mean_position_error_m"], 4),
+                            num(&f["mean_rotation_error_deg"], 2),
+                        ]
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        table(
+            &mut o,
+            &["flight", "collided", "min clearance (m)", "mean position error (m)", "mean rotation error (°)"],
+            &rows,
+        );
+        pictures_of(&mut o, "flight");
+    }
+    if section(&mut o, "stress", "Stress tests: failure probability and NeRF-sim against GT-sim") {
+        let samplers = summary["stress"]["samplers"].as_array().cloned().unwrap_or_default();
+        let rows: Vec<Vec<String>> = samplers
+            .iter()
+            .map(|s| {
+                let i = &s["p_fail_interval"];
+                vec![
+                    s["sampler"].as_str().unwrap_or("?").to_uppercase(),
+                    num(&s["rollouts"], 0),
+                    pct(&s["collision_rate"]),
+                    num(&s["avg_collision_step"], 2),
+                    num(&s["avg_log_likelihood"], 2),
+                    format!("{} ± {}", num(&s["p_fail"], 3), num(&s["p_fail_se"], 3)),
+                    format!("[{}, {}]", num(&i[0], 3), num(&i[1], 3)),
+                ]
+            })
+            .collect();
+        table(
+            &mut o,
+            &[
+                "sampler",
+                "rollouts",
+                "collision rate",
+                "avg. collision step",
+                "avg. log-likelihood",
+                "P(fail) ± SE",
+                "95 % interval",
+            ],
+            &rows,
+        );
+        let rows: Vec<Vec<String>> = samplers
+            .iter()
+            .filter(|s| s["confusion"].is_object())
+            .map(|s| {
+                let c = &s["confusion"];
+                let t = &c["trajectories"];
+                let d = &c["clearance_difference_m"];
+                vec![
+                    s["sampler"].as_str().unwrap_or("?").to_uppercase(),
+                    num(&t["true_positive"], 0),
+                    num(&t["false_positive"], 0),
+                    num(&t["false_negative"], 0),
+                    num(&t["true_negative"], 0),
+                    num(&c["accuracy"], 3),
+                    num(&c["precision"], 3),
+                    num(&c["recall"], 3),
+                    format!("{} / {} / {}", num(&d["median"], 4), num(&d["p90"], 4), num(&d["max"], 4)),
+                ]
+            })
+            .collect();
+        o.push_str("<p>Confusion of NeRF-sim (prediction) against GT-sim (truth) over each search's rollouts, failure positive:</p>\n");
+        table(
+            &mut o,
+            &[
+                "sampler",
+                "TP",
+                "FP",
+                "FN",
+                "TN",
+                "accuracy",
+                "precision",
+                "recall",
+                "|Δclearance| median / p90 / max (m)",
+            ],
+            &rows,
+        );
+        pictures_of(&mut o, "stress");
+    }
+    if section(&mut o, "online", "Tables 1–2: uncertainty in the search, with and without reward") {
+        let online = &summary["online"];
+        for m in online["studies"].as_array().cloned().unwrap_or_default() {
+            let method = m["method"].as_str().unwrap_or("?").to_uppercase();
+            let d = &m["disagreement"];
+            let _ = writeln!(
+                o,
+                "<h3>{} ({} mode)</h3><p>AUROC of the step's uncertainty for a NeRF-sim/GT-sim disagreement: {} ({} of {} steps \
+                 disagree); of a rollout's mean: {} ({} of {}).</p>",
+                esc(&method),
+                esc(online["mode"].as_str().unwrap_or("?")),
+                num(&d["step_auroc"], 3),
+                num(&d["disagreeing_steps"], 0),
+                num(&d["steps"], 0),
+                num(&d["trajectory_auroc"], 3),
+                num(&d["disagreeing_trajectories"], 0),
+                num(&d["trajectories"], 0),
+            );
+            let rows: Vec<Vec<String>> = m["rows"]
+                .as_array()
+                .map(|rs| {
+                    rs.iter()
+                        .map(|r| {
+                            vec![
+                                r["sampler"].as_str().unwrap_or("?").to_uppercase(),
+                                if r["reward"].as_bool() == Some(true) { "yes" } else { "no" }.into(),
+                                num(&r["rollouts"], 0),
+                                pct(&r["collision_rate"]),
+                                num(&r["avg_collision_step"], 2),
+                                num(&r["avg_log_likelihood"], 2),
+                                num(&r["avg_uncertainty"], 4),
+                                num(&r["avg_reward"], 2),
+                            ]
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            table(
+                &mut o,
+                &[
+                    "sampler",
+                    "reward",
+                    "rollouts",
+                    "collision rate",
+                    "avg. collision step",
+                    "avg. log-likelihood",
+                    "avg. uncertainty",
+                    "avg. reward",
+                ],
+                &rows,
+            );
+        }
+    }
+    if section(&mut o, "uq", "Offline uncertainty per image, and its calibration") {
+        let u = &summary["uq"];
+        let rows: Vec<Vec<String>> = ["train", "val", "test"]
+            .iter()
+            .map(|s| {
+                let x = &u[*s];
+                vec![
+                    s.to_string(),
+                    num(&x["ga_images"], 0),
+                    num(&x["ga_excluded"], 0),
+                    num(&x["ga_mean_sigma_d"], 3),
+                    num(&x["ga_median_sigma_d"], 3),
+                    num(&x["bla_images"], 0),
+                    num(&x["bla_mean_normalized_trace"], 4),
+                    num(&x["bla_mean_rmv"], 4),
+                ]
+            })
+            .collect();
+        table(
+            &mut o,
+            &[
+                "split",
+                "GA images",
+                "excluded (σ_d ≥ 3)",
+                "mean σ_d",
+                "median σ_d",
+                "BLA images",
+                "mean normalised trace",
+                "mean rmv",
+            ],
+            &rows,
+        );
+        table(
+            &mut o,
+            &["method", "test images", "depth AUSE (0 is perfect)"],
+            &[
+                vec!["GA".into(), num(&u["ause_ga_images"], 0), num(&u["ause_ga"], 3)],
+                vec!["BLA".into(), num(&u["ause_bla_images"], 0), num(&u["ause_bla"], 3)],
+            ],
+        );
+        pictures_of(&mut o, "uq");
+    }
+    o.push_str("<h2>Run config</h2>\n");
+    match config {
+        Some(c) => {
+            let _ = writeln!(o, "<pre>{}</pre>", esc(c));
+        }
+        None => o.push_str("<p class=\"missing\">No config was recorded with this report.</p>\n"),
+    }
+    o.push_str("<p>Files: <a href=\"summary.json\">summary.json</a>");
+    for name in tables {
+        let _ = write!(o, ", <a href=\"{0}\">{0}</a>", esc(name));
+    }
+    o.push_str(".</p>\n</body></html>\n");
+    o
+}

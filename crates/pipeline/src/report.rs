@@ -147,7 +147,10 @@ fn table(out: &mut String, header: &[&str], rows: &[Vec<String>]) {
     for r in rows {
         out.push_str("<tr>");
         for c in r {
-            let _ = write!(out, "<td>{}</td>", esc(c));
+            // Numbers align right, words left.
+            let numeric = c.trim_end_matches(" %").parse::<f64>().is_ok() || c == "–";
+            let class = if numeric { "" } else { " class=\"t\"" };
+            let _ = write!(out, "<td{class}>{}</td>", esc(c));
         }
         out.push_str("</tr>");
     }
@@ -177,7 +180,7 @@ fn page(
          body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}\n\
          table{border-collapse:collapse;margin:0.8em 0;font-size:0.9em;max-width:100%}\n\
          th,td{border:1px solid #bbb;padding:0.25em 0.6em;text-align:right}\n\
-         th{background:#eee}td:first-child,th:first-child{text-align:left}\n\
+         th{background:#eee;text-align:left}td:first-child,td.t{text-align:left}\n\
          figure{display:inline-block;margin:0.5em;max-width:100%;vertical-align:top}\n\
          img{max-width:100%;height:auto;border:1px solid #ddd}figcaption{font-size:0.85em;color:#555}\n\
          pre{background:#f6f6f6;padding:0.8em;overflow:auto;max-height:30em;font-size:0.8em}\n\

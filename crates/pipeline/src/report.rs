@@ -58,6 +58,46 @@ const TABLES: &[(&str, &str, &str)] = &[
     ("uq", "bla.csv", "uq_bla.csv"),
 ];
 
+/// The clearance-difference histograms the report draws.
+const CLEARANCE_PNG: &str = "stress_clearance_difference.png";
+
+/// Histograms of |clearance in NeRF-sim − in GT-sim| (mm) per sampler, per trajectory and per
+/// step, from the stress stage's rollouts and their replays; `None` without them.
+fn clearance_figure(root: &Path) -> Option<Vec<u8>> {
+    let dir = root.join(crate::stress::STAGE);
+    let records = nerfsv_validation::read_csv_file(&dir.join(crate::stress::ROLLOUTS_CSV)).ok()?;
+    let replays =
+        nerfsv_validation::read_csv_file(&dir.join(crate::stress::replay_csv(nerfsv_sim::WorldKind::Gt))).ok()?;
+    let mut groups = Vec::new();
+    for sampler in [nerfsv_validation::SAMPLER_MC, nerfsv_validation::SAMPLER_CEM] {
+        let ours: Vec<_> = records.iter().filter(|r| r.sampler == sampler).cloned().collect();
+        let theirs: Vec<_> = replays.iter().filter(|r| r.sampler == sampler).cloned().collect();
+        let Ok(a) = nerfsv_validation::compare(&ours, &theirs) else { continue };
+        let mm = |v: &[f64]| v.iter().map(|x| 1e3 * x).collect::<Vec<f64>>();
+        let name = sampler.to_uppercase();
+        groups.push(nerfsv_plot::Group {
+            label: format!("{name}, per trajectory"),
+            values: mm(&a.clearance_difference.values),
+        });
+        groups.push(nerfsv_plot::Group {
+            label: format!("{name}, per step"),
+            values: mm(&a.step_clearance_difference.values),
+        });
+    }
+    groups.retain(|g| !g.values.is_empty());
+    if groups.is_empty() {
+        return None;
+    }
+    let fig = nerfsv_plot::HistogramFigure {
+        title: "NeRF-sim against GT-sim: |Δ minimum clearance| on the same disturbances".into(),
+        x_title: "|clearance difference| (mm)".into(),
+        y_title: "count".into(),
+        groups,
+        bins: 30,
+    };
+    nerfsv_plot::histograms_png(&fig, 1100, 700).ok()
+}
+
 /// What the report holds.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct ReportFigures {
@@ -101,6 +141,14 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
             write(&name, &bytes)?;
             pictures.push((*stage, name, *caption));
         }
+    }
+    if let Some(png) = clearance_figure(root) {
+        write(CLEARANCE_PNG, &png)?;
+        pictures.push((
+            "stress",
+            CLEARANCE_PNG.to_owned(),
+            "|clearance in NeRF-sim − in GT-sim| on the same disturbances",
+        ));
     }
     let mut seconds = Vec::new();
     let mut missing = Vec::new();

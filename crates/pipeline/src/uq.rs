@@ -582,6 +582,7 @@ pub fn figures(rows: &[Row], splits: &[&'static str], method: Method, cfg: &UqCo
         Figure::Histogram(HistogramFigure {
             title,
             x_title: x_title.to_string(),
+            y_title: "images".into(),
             groups: groups
                 .iter()
                 .map(|(s, v)| Group { label: s.to_string(), values: v.iter().map(|p| p[axis]).collect() })

@@ -44,6 +44,8 @@ pub struct HistogramFigure {
     pub title: String,
     /// The quantity, with its unit if any (`σ_d`).
     pub x_title: String,
+    /// What the bars count (`images`), on the first panel's axis.
+    pub y_title: String,
     pub groups: Vec<Group>,
     /// Number of bins (at least 1) spanning the finite values of all groups.
     pub bins: usize,
@@ -250,7 +252,7 @@ fn draw_histograms<DB: Canvas>(
         // The bins span the values; the axes leave a little room either side.
         let pad = 0.02 * (hi - lo);
         let axes = Axes { rect, x: [lo - pad, hi + pad], y: [0.0, 1.08 * peak] };
-        let mut style = layout.axes_style(&x_title, if k == 0 { "images" } else { "" }, &rect);
+        let mut style = layout.axes_style(&x_title, if k == 0 { fig.y_title.as_str() } else { "" }, &rect);
         // Counts are whole: no more ticks than 0..=peak, so that their step is at least 1.
         style.max_y_ticks = style.max_y_ticks.min(peak as usize + 1);
         axes.draw_grid(root, &style, palette::GRID)?;

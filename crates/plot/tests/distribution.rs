@@ -33,6 +33,7 @@ fn three_splits() -> HistogramFigure {
     HistogramFigure {
         title: "σ_d per image".into(),
         x_title: "σ_d".into(),
+        y_title: "images".into(),
         groups: vec![
             Group { label: "train".into(), values: spread(20, 1.0) },
             Group { label: "val".into(), values: val },

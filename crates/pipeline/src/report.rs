@@ -58,6 +58,63 @@ const TABLES: &[(&str, &str, &str)] = &[
     ("uq", "bla.csv", "uq_bla.csv"),
 ];
 
+/// The collision-field slices the report draws.
+const FIELDS_PNG: &str = "nerf_collision_slices.png";
+/// The difference panel's colours saturate at this many metres.
+const FIELD_DIFFERENCE_CLIP_M: f64 = 0.05;
+
+/// Slices of the ground-truth and the NeRF's signed fields at the planned path's mean altitude
+/// (over the flight band of the grid: the ground truth's nodes in x and y) and their difference
+/// NeRF − GT, clipped at ±[`FIELD_DIFFERENCE_CLIP_M`]; `None` without both fields.
+fn field_slices_figure(root: &Path, summary: &Value) -> Option<Vec<u8>> {
+    let gt = nerfsv_collision::SdfGrid::load(root.join("collision/gt_sdf.safetensors")).ok()?;
+    let nerf = nerfsv_collision::SdfGrid::load(root.join("nerf_collision/nerf_sdf.safetensors")).ok()?;
+    let zs: Vec<f64> = summary["flight"]["waypoints"].as_array()?.iter().filter_map(|w| w[2].as_f64()).collect();
+    let z = if zs.is_empty() { 0.18 } else { zs.iter().sum::<f64>() / zs.len() as f64 };
+    let g = gt.geometry;
+    let [nx, ny, _] = g.dims;
+    let sample = |f: &nerfsv_collision::SdfGrid, i: usize, j: usize| -> f64 {
+        let mut q = g.position_of(i, j, 0);
+        q.z = z as f32;
+        f.geometry.trilinear(&f.data, &q).in_grid().map_or(f64::NAN, f64::from)
+    };
+    let mut values = [Vec::with_capacity(nx * ny), Vec::with_capacity(nx * ny), Vec::with_capacity(nx * ny)];
+    for j in 0..ny {
+        for i in 0..nx {
+            let (a, b) = (sample(&gt, i, j), sample(&nerf, i, j));
+            values[0].push(a);
+            values[1].push(b);
+            values[2].push((b - a).clamp(-FIELD_DIFFERENCE_CLIP_M, FIELD_DIFFERENCE_CLIP_M));
+        }
+    }
+    let [gt_v, nerf_v, diff_v] = values;
+    let panel = |caption: String, colour_title: &str, values: Vec<f64>, scale| nerfsv_plot::Heatmap {
+        caption,
+        x_title: "x (m)".into(),
+        y_title: "y (m)".into(),
+        colour_title: colour_title.into(),
+        origin: [f64::from(g.origin.x), f64::from(g.origin.y)],
+        cell: [f64::from(g.cell); 2],
+        dims: [nx, ny],
+        values,
+        scale,
+    };
+    let fig = nerfsv_plot::HeatmapFigure {
+        title: format!("Signed distance at z = {z:.2} m"),
+        panels: vec![
+            panel("ground truth".into(), "signed distance (m)", gt_v, nerfsv_plot::ColourScale::Linear),
+            panel("NeRF".into(), "signed distance (m)", nerf_v, nerfsv_plot::ColourScale::Linear),
+            panel(
+                format!("NeRF − ground truth (clipped at ±{:.0} cm)", 100.0 * FIELD_DIFFERENCE_CLIP_M),
+                "difference (m)",
+                diff_v,
+                nerfsv_plot::ColourScale::Diverging,
+            ),
+        ],
+    };
+    nerfsv_plot::heatmap_png(&fig, 1500, 500).ok()
+}
+
 /// The clearance-difference histograms the report draws.
 const CLEARANCE_PNG: &str = "stress_clearance_difference.png";
 
@@ -141,6 +198,14 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
             write(&name, &bytes)?;
             pictures.push((*stage, name, *caption));
         }
+    }
+    if let Some(png) = field_slices_figure(root, &summary) {
+        write(FIELDS_PNG, &png)?;
+        pictures.push((
+            "nerf_collision",
+            FIELDS_PNG.to_owned(),
+            "Signed distance at flight altitude: ground truth, NeRF, and their difference",
+        ));
     }
     if let Some(png) = clearance_figure(root) {
         write(CLEARANCE_PNG, &png)?;

@@ -48,6 +48,7 @@ pub mod distribution;
 mod error;
 mod font;
 mod geometry;
+pub mod heatmap;
 pub mod palette;
 mod render;
 mod stroke;
@@ -59,6 +60,7 @@ pub use distribution::{
     histograms_png, histograms_svg, scatter_png, scatter_svg, Group, HistogramFigure, PointGroup, ScatterFigure,
 };
 pub use error::PlotError;
+pub use heatmap::{heatmap_png, ColourScale, Heatmap, HeatmapFigure};
 pub use render::{encode_png, MAX_SIDE};
 pub use trajectory::{
     top_down_view, trajectory_png, trajectory_svg, FieldSlice, TopDownView, Track, TrackKind, TrajectoryFigure,

@@ -42,6 +42,11 @@ const PICTURES: &[(&str, &str, &str)] = &[
     ("stress", "most_likely_failure_mc_gt.png", "The same disturbances in GT-sim"),
     ("stress", "most_likely_failure_cem_nerf.png", "CEM's most likely failure in NeRF-sim"),
     ("stress", "most_likely_failure_cem_gt.png", "The same disturbances in GT-sim"),
+    (
+        "uq",
+        "uq_maps.png",
+        "Per pixel, on one test view: the NeRF's depth error and GA's and BLA's depth standard deviations",
+    ),
     ("uq", "uq_ga_sigma_d.png", "GA: σ_d per image and split"),
     ("uq", "uq_ga_mu_sigma.png", "GA: μ_d against σ_d"),
     ("uq", "uq_bla_trace.png", "BLA: normalised trace per image and split"),

@@ -771,9 +771,52 @@ fn ause_csv(rows: &[(Method, usize, String, AuseOutcome)]) -> String {
     out
 }
 
+/// The per-pixel figure of the first test image the stage fits with both methods (or GA
+/// alone): the NeRF's depth error against the ground truth beside GA's and BLA's depth standard
+/// deviations, on log scales (`uq/uq_maps.png`; written when the test split has an image with
+/// ground-truth depth).
+pub const MAPS_PNG: &str = "uq_maps.png";
+
+/// See [`MAPS_PNG`]; `None` when `frame` has no ground-truth depth or every ray misses.
+pub fn maps_figure(nerf: &Nerf, frame: &Frame, bla: bool, cfg: &UqConfig) -> Result<Option<Vec<u8>>, PipelineError> {
+    let name = frame.file_path.as_str();
+    let view = nerf.render_camera(&frame.camera, BACKGROUND);
+    let Ok(errors) = depth_errors(name, &view.depth, frame.depth.as_ref().map(|d| &d.metres[..])) else {
+        return Ok(None);
+    };
+    let k = frame.camera.intrinsics;
+    let panel = |caption: String, values: Vec<f64>| nerfsv_plot::Heatmap {
+        caption,
+        x_title: "column (px)".into(),
+        y_title: "row from the bottom (px)".into(),
+        colour_title: "metres (log scale)".into(),
+        // Row 0 of the image is its top.
+        origin: [0.0, f64::from(k.height) - 1.0],
+        cell: [1.0, -1.0],
+        dims: [k.width as usize, k.height as usize],
+        values,
+        scale: nerfsv_plot::ColourScale::Log,
+    };
+    let mut panels = vec![panel("|NeRF depth − ground truth|".into(), errors.iter().map(|&e| f64::from(e)).collect())];
+    let methods: &[Method] = if bla { &[Method::Ga, Method::Bla] } else { &[Method::Ga] };
+    for &method in methods {
+        match fit_with_depth_uncertainty(nerf, method, name, frame, cfg) {
+            Ok((_, std)) => panels.push(panel(
+                format!("{} depth standard deviation", method.name().to_uppercase()),
+                std.iter().map(|&v| f64::from(v)).collect(),
+            )),
+            Err(UqError::AllRaysMiss { .. }) => return Ok(None),
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let fig = nerfsv_plot::HeatmapFigure { title: format!("Per-pixel depth error and uncertainty, {name}"), panels };
+    let width = 500 * fig.panels.len() as u32;
+    Ok(Some(nerfsv_plot::heatmap_png(&fig, width, 470)?))
+}
+
 impl Stage for Uncertainty<'_> {
     const NAME: &'static str = "uq";
-    const VERSION: u32 = 1;
+    const VERSION: u32 = 2;
     const OUTPUTS: &'static [&'static str] = &[
         Self::GA_CSV,
         Self::BLA_CSV,
@@ -870,6 +913,15 @@ impl Stage for Uncertainty<'_> {
         ];
         files.extend(figure_files(&ga, &SPLITS, Method::Ga, self.uq)?);
         files.extend(figure_files(&bla, &SPLITS, Method::Bla, self.uq)?);
+        // The maps of the first test image BLA fitted (else GA's first).
+        if let Some((_, split, ga_idx, bla_idx)) = chosen.iter().find(|(n, ..)| *n == "test") {
+            if let Some(&index) = bla_idx.first().or(ga_idx.first()) {
+                cx.progress(done.get(), total, "per-pixel maps");
+                if let Some(png) = maps_figure(&nerf, &split.frames[index], !bla_idx.is_empty(), self.uq)? {
+                    files.push((MAPS_PNG.to_string(), png));
+                }
+            }
+        }
         write_files(&cx.dir, &files)?;
         let rows: Vec<Row> = ga.into_iter().chain(bla).collect();
         Ok(UqFigures {

@@ -216,10 +216,17 @@ fn colour_bar<DB: Canvas>(
     root.draw(&Rectangle::new([(bar.x0, bar.y0), (bar.x1 - 1, bar.y1 - 1)], ink.stroke_width(1)))?;
     // Ticks: plotters' round numbers in scaled units (decades on a log scale).
     let axes = Axes { rect: bar, x: [0.0, 1.0], y: range };
-    let ticks: Vec<f64> = if p.scale == ColourScale::Log {
-        (range[0].ceil() as i64..=range[1].floor() as i64).map(|e| e as f64).collect()
-    } else {
-        plotters::coord::types::RangedCoordf64::from(range[0]..range[1]).key_points(6)
+    let key_points = |n| plotters::coord::types::RangedCoordf64::from(range[0]..range[1]).key_points(n);
+    let decades: Vec<f64> = (range[0].ceil() as i64..=range[1].floor() as i64).map(|e| e as f64).collect();
+    // A log scale ticks its decades, or, spanning fewer than two, 1-2-5 multiples of them.
+    let log_decades = p.scale == ColourScale::Log && decades.len() >= 2;
+    let ticks: Vec<f64> = match p.scale {
+        ColourScale::Log if log_decades => decades,
+        ColourScale::Log => (range[0].floor() as i64..=range[1].ceil() as i64)
+            .flat_map(|e| [1.0, 2.0, 5.0].map(|m: f64| (m * 10f64.powi(e as i32)).log10()))
+            .filter(|t| (range[0]..=range[1]).contains(t))
+            .collect(),
+        _ => key_points(6),
     };
     let label = Text::new(10.5 * s, palette::INK_SOFT).align(Align::Left);
     for t in ticks {
@@ -227,7 +234,11 @@ fn colour_bar<DB: Canvas>(
         let t = if t.abs() < 1e-9 * (range[1] - range[0]) { 0.0 } else { t };
         let (_, py) = axes.map([0.0, t]);
         root.draw(&PathElement::new(vec![(bar.x1 - 1, py), (bar.x1 + 3, py)], ink))?;
-        let text = if p.scale == ColourScale::Log { format!("1e{}", t as i64) } else { short(t) };
+        let text = match p.scale {
+            ColourScale::Log if log_decades => format!("1e{}", t as i64),
+            ColourScale::Log => short(10f64.powf(t)),
+            _ => short(t),
+        };
         label.draw(root, &text, (bar.x1 + 6, py))?;
     }
     Text::new(11.5 * s, palette::INK).align(Align::Centre).up().draw(

@@ -10,7 +10,6 @@ use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::uq::{has_split, reference, Method, BACKGROUND};
 use nerfsv_pipeline::{refuse_output_inside, Observer};
-use nerfsv_plot::palette::Rgb;
 use nerfsv_uq::{FieldMethod, TrainingView, UncertaintyField};
 use serde::Serialize;
 
@@ -19,8 +18,8 @@ use crate::progress::Reporter;
 
 /// Altitude of the PNG slice, metres (the drone flies at 0.15–0.5 m).
 pub const SLICE_ALTITUDE: f32 = 0.3;
-/// Pixels per grid node of the slice PNG, at most (the image is kept near 480 px wide).
-const SLICE_TARGET_PX: usize = 480;
+/// The slice figure's size, pixels.
+const SLICE_SIZE: (u32, u32) = (640, 520);
 
 #[derive(Args)]
 pub struct FieldArgs {
@@ -81,48 +80,52 @@ fn slice_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}_z{SLICE_ALTITUDE:.2}.png"))
 }
 
-/// The slice at [`SLICE_ALTITUDE`] as a PNG: `√v` (GA σ_d, BLA relative density std) per node
-/// on a log colour scale from its 2nd to 98th percentile (dark blue → yellow), grey without
-/// data, +y up. `None` when the altitude is outside the grid.
+/// The slice at [`SLICE_ALTITUDE`] as a PNG: `√v` per node (GA σ_d, BLA relative density
+/// standard deviation: the units [`UncertaintyField::view_uncertainty`] reports) on a log colour
+/// scale, clipped to its 2nd–98th percentile (a few rays that composite little give GA nodes
+/// huge values), metre axes, grey where there is no data. `None` when the altitude is outside
+/// the grid.
 fn slice_png(field: &UncertaintyField) -> anyhow::Result<Option<Vec<u8>>> {
     let g = &field.geometry;
     let [nx, ny, _] = g.dims;
-    let values: Vec<f32> = (0..nx * ny)
-        .map(|n| {
-            let p = g.position_of(n % nx, n / nx, 0);
-            field.value_at([p.x, p.y, SLICE_ALTITUDE]).map_or(f32::NAN, |v| v.max(0.0).sqrt())
-        })
-        .collect();
     if g.bounds().min.z > SLICE_ALTITUDE || g.bounds().max.z < SLICE_ALTITUDE {
         return Ok(None);
     }
-    let mut logs: Vec<f32> = values.iter().filter(|v| v.is_finite() && **v > 0.0).map(|v| v.log10()).collect();
-    logs.sort_by(f32::total_cmp);
-    let (lo, hi) = if logs.is_empty() {
-        (0.0, 1.0)
-    } else {
-        (logs[logs.len() * 2 / 100], logs[(logs.len() * 98 / 100).min(logs.len() - 1)])
+    let values: Vec<f64> = (0..nx * ny)
+        .map(|n| {
+            let p = g.position_of(n % nx, n / nx, 0);
+            field.value_at([p.x, p.y, SLICE_ALTITUDE]).map_or(f64::NAN, |v| f64::from(v.max(0.0)).sqrt())
+        })
+        .collect();
+    let mut positive: Vec<f64> = values.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
+    positive.sort_by(f64::total_cmp);
+    let values = match (
+        positive.get(positive.len() * 2 / 100),
+        positive.get((positive.len() * 98 / 100).min(positive.len().saturating_sub(1))),
+    ) {
+        (Some(&lo), Some(&hi)) => values.iter().map(|&v| if v > 0.0 { v.clamp(lo, hi) } else { v }).collect(),
+        _ => values,
     };
-    let ramp = [Rgb(13, 8, 135), Rgb(126, 3, 168), Rgb(204, 71, 120), Rgb(248, 149, 64), Rgb(240, 249, 33)];
-    let colour = |v: f32| -> Rgb {
-        if !v.is_finite() || v <= 0.0 {
-            return Rgb(190, 190, 190);
-        }
-        let t = (((v.log10() - lo) / (hi - lo).max(1e-6)) as f64).clamp(0.0, 1.0) * (ramp.len() - 1) as f64;
-        let i = (t.floor() as usize).min(ramp.len() - 2);
-        ramp[i].lerp(ramp[i + 1], t - i as f64)
+    let method = field.method.name().to_uppercase();
+    let quantity = match field.method {
+        FieldMethod::Ga => "σ_d (relative density std)",
+        FieldMethod::Bla => "relative density std √Var[σ]/σ",
     };
-    let s = (SLICE_TARGET_PX / nx.max(ny)).max(1);
-    let (w, h) = (nx * s, ny * s);
-    let mut rgb = vec![0u8; w * h * 3];
-    for row in 0..h {
-        let j = ny - 1 - row / s;
-        for col in 0..w {
-            let c = colour(values[col / s + nx * j]).to_array();
-            rgb[(row * w + col) * 3..(row * w + col) * 3 + 3].copy_from_slice(&c);
-        }
-    }
-    Ok(Some(nerfsv_plot::encode_png(&rgb, w as u32, h as u32)?))
+    let fig = nerfsv_plot::HeatmapFigure {
+        title: format!("{method} uncertainty field at z = {SLICE_ALTITUDE:.2} m"),
+        panels: vec![nerfsv_plot::Heatmap {
+            caption: format!("{quantity}, 2nd–98th percentile"),
+            x_title: "x (m)".into(),
+            y_title: "y (m)".into(),
+            colour_title: format!("{quantity} (log scale)"),
+            origin: [f64::from(g.origin.x), f64::from(g.origin.y)],
+            cell: [f64::from(g.cell); 2],
+            dims: [nx, ny],
+            values,
+            scale: nerfsv_plot::ColourScale::Log,
+        }],
+    };
+    Ok(Some(nerfsv_plot::heatmap_png(&fig, SLICE_SIZE.0, SLICE_SIZE.1)?))
 }
 
 pub fn run(args: FieldArgs) -> anyhow::Result<()> {

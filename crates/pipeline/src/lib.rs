@@ -183,24 +183,16 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
         seed: cfg.flight_seed,
     })?;
     let prior = cfg.disturbance_prior()?;
-    r.run(&stress::StressStage {
+    let search = stress::StressStage {
         scene: &scene,
         sim: &cfg.sim,
         validation: &cfg.validation,
         prior: &prior,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
-    })?;
-    r.run(&online::OnlineStage {
-        scene: &scene,
-        sim: &cfg.sim,
-        validation: &cfg.validation,
-        prior: &prior,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
-        uq: &cfg.uq,
-        online: &cfg.online,
-    })?;
+    };
+    r.run(&search)?;
+    r.run(&online::OnlineStage { search: &search, uq: &cfg.uq, online: &cfg.online })?;
     let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
     stage::write_json(&summary_path(&cfg.out), &summary)?;
     report::write_report(&cfg.out, Some(&config_toml(cfg)?))?;

@@ -23,11 +23,10 @@
 
 use std::path::Path;
 
-use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{EstimatorKind, SimConfig, WorldKind};
+use nerfsv_sim::{EstimatorKind, WorldKind};
 use nerfsv_uq::UqConfig;
 use nerfsv_validation::{
-    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, Prior, RolloutRecord, TableRow, UncertaintyReward,
+    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, UncertaintyReward,
     UqMethod, UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
@@ -36,7 +35,9 @@ use crate::config::OnlineConfig;
 use crate::flight::FlightInputs;
 use crate::stage::{Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
-use crate::stress::{replay_csv, stress, OnlineSettings, Sampler, StressFigures, StressSetup, ROLLOUTS_CSV};
+use crate::stress::{
+    replay_csv, stress, OnlineSettings, Sampler, StressFigures, StressSetup, StressStage, ROLLOUTS_CSV,
+};
 use crate::PipelineError;
 
 /// The stage's combined table.
@@ -111,12 +112,8 @@ impl OnlineFigures {
 
 /// The online stage: see the [module docs](self).
 pub struct OnlineStage<'a> {
-    pub scene: &'a Scene,
-    pub sim: &'a SimConfig,
-    pub validation: &'a ValidationConfig,
-    pub prior: &'a Prior,
-    pub intrinsics: Intrinsics,
-    pub render: RenderSettings,
+    /// The stress stage whose searches this one repeats (scene, drone, adversary, camera).
+    pub search: &'a StressStage<'a>,
     pub uq: &'a UqConfig,
     pub online: &'a OnlineConfig,
 }
@@ -124,9 +121,9 @@ pub struct OnlineStage<'a> {
 impl OnlineStage<'_> {
     /// The validation settings of the study: the run's, with `[online]`'s sizes.
     fn validation(&self) -> ValidationConfig {
-        let mut v = self.validation.clone();
+        let mut v = self.search.validation.clone();
         // The first rollouts of the stress stage's MC: never more than it flew (and replayed).
-        v.monte_carlo.rollouts = self.online.mc_rollouts.min(self.validation.monte_carlo.rollouts);
+        v.monte_carlo.rollouts = self.online.mc_rollouts.min(self.search.validation.monte_carlo.rollouts);
         v.cem.is_samples = self.online.is_samples;
         v
     }
@@ -142,12 +139,14 @@ impl Stage for OnlineStage<'_> {
     type Figures = OnlineFigures;
 
     fn config(&self) -> impl Serialize {
-        (&self.scene.name, self.sim, self.validation(), self.intrinsics, self.render.supersample, self.uq, self.online)
+        let s = self.search;
+        (&s.scene.name, s.sim, self.validation(), s.intrinsics, s.render.supersample, self.uq, self.online)
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
         let inputs = FlightInputs::from_run(cx.root)?;
-        let flight = inputs.plan(self.sim)?;
+        let s = self.search;
+        let flight = inputs.plan(s.sim)?;
         let validation = self.validation();
         let replays_path = cx.input_dir(crate::stress::STAGE).join(replay_csv(WorldKind::Gt));
         let replays = read_records(&replays_path)?;
@@ -158,12 +157,12 @@ impl Stage for OnlineStage<'_> {
                 let setup = StressSetup {
                     inputs: &inputs,
                     flight: &flight,
-                    scene: self.scene,
-                    sim: self.sim,
+                    scene: s.scene,
+                    sim: s.sim,
                     validation: &validation,
-                    prior: self.prior,
-                    intrinsics: self.intrinsics,
-                    render: self.render,
+                    prior: s.prior,
+                    intrinsics: s.intrinsics,
+                    render: s.render,
                     world: WorldKind::Nerf,
                     estimator: EstimatorKind::Vision,
                     samplers,

@@ -335,3 +335,24 @@ fn assert_uq_stage(run: &std::path::Path, uq: &serde_json::Value) {
         }
     }
 }
+
+#[test]
+fn report_refuses_a_folder_without_a_summary_and_names_the_stages_a_run_lacks() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, _, err) = nerfsv(&["report", dir.path().to_str().unwrap()]);
+    assert!(!ok && err.contains("not a run folder") && err.contains("summary.json"), "{err}");
+    assert!(!dir.path().join("report").exists(), "a refused report wrote something");
+    // A summary of a run that stopped before its stages: every section says it has not run.
+    std::fs::write(dir.path().join("summary.json"), r#"{"run": "partial"}"#).unwrap();
+    let (ok, stdout, err) = nerfsv(&["report", dir.path().to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(v["pictures"], 0);
+    assert_eq!(v["missing_stages"].as_array().unwrap().len(), 9, "{v}");
+    let html = std::fs::read_to_string(dir.path().join("report/index.html")).unwrap();
+    assert_eq!(html.matches("has not run in this folder").count(), 6, "{html}");
+    // A summary that is not JSON is named.
+    std::fs::write(dir.path().join("summary.json"), "{").unwrap();
+    let (ok, _, err) = nerfsv(&["report", dir.path().to_str().unwrap()]);
+    assert!(!ok && err.contains("summary.json") && err.contains("not a run summary"), "{err}");
+}

@@ -7,6 +7,11 @@
 //!   weights from the whole trajectory's likelihood ratio exp(Σ_t [ln p − ln q_t]) (the original
 //!   code used each step's own ratio, which biases the estimate), weighted refit — ending with
 //!   an importance-sampling estimate of the failure probability and its standard error.
+//! - Online uncertainty ([`ViewUncertainty`]): each flown step's camera view measured by GA or
+//!   BLA against the ground truth's render ([`ExactUncertainty`]) or looked up in an
+//!   uncertainty field ([`FieldUncertainty`]); the paper's rewards of eq. 10–11
+//!   ([`UncertaintyReward`]) for CEM's ranking; [`disagreement_auroc`], how well the per-step
+//!   uncertainty predicts where NeRF-sim and GT-sim disagree.
 //! - Every rollout's stream comes from [`rollout_seed`]`(run seed, sampler, population, index)`
 //!   and is recorded in a [`RolloutRecord`], so any single rollout [`replay`]s; [`write_csv`]
 //!   lays records out one row per (rollout, step).

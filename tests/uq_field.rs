@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 
 use common::{nerfsv, s};
-use nerfsv_uq::{model_id, FieldMethod, UncertaintyField, UqError};
+use nerfsv_uq::{model_id, Method, UncertaintyField, UqError};
 
 /// A coarse grid (5 cells/m: 11³ nodes over the ±1 m box) and a low rank keep BLA quick.
 fn config(dir: &Path) -> std::path::PathBuf {
@@ -54,7 +54,7 @@ fn uq_field_writes_the_field_its_slice_and_figures_and_a_field_of_another_model_
             assert!(v["rank"].is_null());
         }
         let field = UncertaintyField::load(&out).unwrap();
-        let expected = if method == "ga" { FieldMethod::Ga } else { FieldMethod::Bla };
+        let expected = if method == "ga" { Method::Ga } else { Method::Bla };
         assert_eq!(field.method, expected);
         assert_eq!(field.geometry.dims, [11, 11, 11]);
         assert_eq!(v["checkpoint_id"], field.checkpoint_id.as_str());

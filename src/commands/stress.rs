@@ -6,8 +6,9 @@ use nerfsv_pipeline::refuse_output_inside;
 use nerfsv_pipeline::stress::{stress, OnlineSettings, Sampler, StressSetup, JOURNAL, STRESS_JSON};
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::WorldKind;
+use nerfsv_uq::Method;
 use nerfsv_uq::{model_id, UncertaintyField};
-use nerfsv_validation::{Journal, UqMethod, UqMode};
+use nerfsv_validation::{Journal, UqMode};
 
 use crate::commands::fly::{load_config, DroneArgs};
 
@@ -27,11 +28,11 @@ pub enum UqMethodArg {
     Bla,
 }
 
-impl From<UqMethodArg> for UqMethod {
+impl From<UqMethodArg> for Method {
     fn from(m: UqMethodArg) -> Self {
         match m {
-            UqMethodArg::Ga => UqMethod::Ga,
-            UqMethodArg::Bla => UqMethod::Bla,
+            UqMethodArg::Ga => Method::Ga,
+            UqMethodArg::Bla => Method::Bla,
         }
     }
 }
@@ -138,7 +139,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         (Some(path), Some(o)) => {
             let field = UncertaintyField::load(path)?;
             field.check_checkpoint(path, &model_id(&worlds.nerf))?;
-            if field.method != o.method.field_method() {
+            if field.method != o.method {
                 anyhow::bail!(
                     "{}: a {} uncertainty field, but the run measures {}",
                     path.display(),
@@ -194,7 +195,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let reporter = crate::progress::Reporter::new(args.json);
-    let figures = stress(&setup, &args.out, &key, args.resume, &reporter)?;
+    let (figures, _) = stress(&setup, &args.out, &key, args.resume, &reporter)?;
     nerfsv_pipeline::stage::write_json(&args.out.join(STRESS_JSON), &figures)?;
     let one = &figures.samplers[0];
     crate::commands::report(args.json, one, || figures.describe())

@@ -10,7 +10,7 @@ use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::uq::{has_split, reference, Method, BACKGROUND};
 use nerfsv_pipeline::{refuse_output_inside, Observer};
-use nerfsv_uq::{FieldMethod, TrainingView, UncertaintyField};
+use nerfsv_uq::{TrainingView, UncertaintyField};
 use serde::Serialize;
 
 use crate::commands::uq::{load_uq_config, MethodArg};
@@ -108,8 +108,8 @@ fn slice_png(field: &UncertaintyField) -> anyhow::Result<Option<Vec<u8>>> {
     };
     let method = field.method.name().to_uppercase();
     let quantity = match field.method {
-        FieldMethod::Ga => "σ_d (relative density std)",
-        FieldMethod::Bla => "relative density std √Var[σ]/σ",
+        Method::Ga => "σ_d (relative density std)",
+        Method::Bla => "relative density std √Var[σ]/σ",
     };
     let fig = nerfsv_plot::HeatmapFigure {
         title: format!("{method} uncertainty field at z = {SLICE_ALTITUDE:.2} m"),
@@ -164,7 +164,7 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
         MethodArg::Ga => UncertaintyField::build_ga(&nerf, &checkpoint, &views, BACKGROUND, &cfg, &mut progress)?,
         MethodArg::Bla => UncertaintyField::build_bla(&nerf, &checkpoint, &views, BACKGROUND, &cfg, &mut progress)?,
     };
-    debug_assert_eq!(field.method == FieldMethod::Ga, args.method == MethodArg::Ga);
+    debug_assert_eq!(field.method, Method::from(args.method));
     // Both files are made before either is written.
     let png = slice_png(&field)?;
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {

@@ -96,7 +96,7 @@ pub struct RunConfig {
 #[serde(default, deny_unknown_fields)]
 pub struct OnlineConfig {
     /// Methods whose study runs: `"ga"`, `"bla"` (default both; empty skips them).
-    pub methods: Vec<nerfsv_validation::UqMethod>,
+    pub methods: Vec<nerfsv_uq::Method>,
     /// Monte Carlo rollouts of each study: the first ones of the stress stage's MC (at most as
     /// many as it flies).
     pub mc_rollouts: usize,
@@ -108,11 +108,7 @@ pub struct OnlineConfig {
 
 impl Default for OnlineConfig {
     fn default() -> Self {
-        Self {
-            methods: vec![nerfsv_validation::UqMethod::Ga, nerfsv_validation::UqMethod::Bla],
-            mc_rollouts: 50,
-            is_samples: 1,
-        }
+        Self { methods: vec![nerfsv_uq::Method::Ga, nerfsv_uq::Method::Bla], mc_rollouts: 50, is_samples: 1 }
     }
 }
 

@@ -24,10 +24,10 @@
 use std::path::Path;
 
 use nerfsv_sim::{EstimatorKind, WorldKind};
-use nerfsv_uq::UqConfig;
+use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
     disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, UncertaintyReward,
-    UqMethod, UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -35,9 +35,7 @@ use crate::config::OnlineConfig;
 use crate::flight::FlightInputs;
 use crate::stage::{Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
-use crate::stress::{
-    replay_csv, stress, OnlineSettings, Sampler, StressFigures, StressSetup, StressStage, ROLLOUTS_CSV,
-};
+use crate::stress::{replay_csv, stress, OnlineSettings, Sampler, StressSetup, StressStage};
 use crate::PipelineError;
 
 /// The stage's combined table.
@@ -47,7 +45,7 @@ pub const ONLINE_TABLE_CSV: &str = "table.csv";
 /// the sampler's row (`avg_reward` with or without ranking by it).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OnlineRow {
-    pub method: UqMethod,
+    pub method: Method,
     pub reward: bool,
     #[serde(flatten)]
     pub row: TableRow,
@@ -56,7 +54,7 @@ pub struct OnlineRow {
 /// One method's study.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MethodStudy {
-    pub method: UqMethod,
+    pub method: Method,
     pub rows: Vec<OnlineRow>,
     /// Views whose uncertainty this invocation measured (both runs; a resumed stage does not
     /// measure the rollouts it recalls) and their mean wall-clock milliseconds (a timing: not
@@ -153,7 +151,7 @@ impl Stage for OnlineStage<'_> {
         let mut studies = Vec::new();
         for &method in &self.online.methods {
             let dir = cx.dir.join(method.name());
-            let run = |samplers: &[Sampler], reward: bool, name: &str| -> Result<StressFigures, PipelineError> {
+            let run = |samplers: &[Sampler], reward: bool, name: &str| {
                 let setup = StressSetup {
                     inputs: &inputs,
                     flight: &flight,
@@ -176,10 +174,8 @@ impl Stage for OnlineStage<'_> {
                 std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
                 stress(&setup, &out, &format!("online {} {name}", method.name()), cx.resume, cx.observer)
             };
-            let plain = run(&[Sampler::Mc, Sampler::Cem], false, "plain")?;
-            let rewarded = run(&[Sampler::Cem], true, "reward")?;
-            let plain_records = read_records(&dir.join("plain").join(ROLLOUTS_CSV))?;
-            let reward_records = read_records(&dir.join("reward").join(ROLLOUTS_CSV))?;
+            let (plain, plain_records) = run(&[Sampler::Mc, Sampler::Cem], false, "plain")?;
+            let (rewarded, reward_records) = run(&[Sampler::Cem], true, "reward")?;
             let scorer = UncertaintyReward::new(method, self.uq);
             let scored: Vec<RolloutRecord> =
                 plain_records.iter().map(|r| RolloutRecord { reward: Some(scorer.reward(r)), ..r.clone() }).collect();

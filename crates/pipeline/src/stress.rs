@@ -13,12 +13,12 @@ use std::time::Instant;
 use nerfsv_scene::Camera;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
-use nerfsv_uq::{UncertaintyField, UqConfig};
+use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, table_row, Agreement,
     Confusion, DroneSystem, ExactUncertainty, FieldUncertainty, Journal, Prior, Recorder, Reward, RolloutRecord,
-    TableRow, UncertaintyReward, UqMethod, UqMode, ValidationConfig, ValidationError, ViewUncertainty, SAMPLER_CEM,
-    SAMPLER_IS, SAMPLER_MC,
+    TableRow, UncertaintyReward, UqMode, ValidationConfig, ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS,
+    SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -221,7 +221,7 @@ impl SamplerFigures {
 /// its samples by the method's reward (eq. 10 or 11; MC's rollouts only record it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct OnlineSettings {
-    pub method: UqMethod,
+    pub method: Method,
     pub mode: UqMode,
     pub reward: bool,
 }
@@ -266,12 +266,11 @@ impl StressFigures {
     pub fn describe(&self) -> String {
         let mut s = format!("{} rollouts in {:.0} s", self.rollouts, self.seconds);
         if let Some(o) = &self.online {
-            s.push_str(&format!(
-                "; {}: {} views, {:.1} ms each",
-                o.describe(),
-                self.uncertainty_views,
-                1e3 * self.uncertainty_seconds / self.uncertainty_views.max(1) as f64
-            ));
+            s.push_str(&format!("; {}: {} views", o.describe(), self.uncertainty_views));
+            // A resumed run recalls its rollouts and measures no view.
+            if self.uncertainty_views > 0 {
+                s.push_str(&format!(", {:.1} ms each", 1e3 * self.uncertainty_seconds / self.uncertainty_views as f64));
+            }
         }
         for f in &self.samplers {
             s.push_str("\n    ");
@@ -380,13 +379,15 @@ impl Recorder for Counting<'_> {
 /// `key` identifies everything the rollouts depend on; with `resume`, the journal in `out` must
 /// carry the same key and its rollouts are not flown again. Progress and notes go to `observer`
 /// under the name `setup.stage`.
+///
+/// Returns the figures and the searches' records (what [`ROLLOUTS_CSV`] holds).
 pub fn stress(
     setup: &StressSetup,
     out: &Path,
     key: &str,
     resume: bool,
     observer: &dyn Observer,
-) -> Result<StressFigures, PipelineError> {
+) -> Result<(StressFigures, Vec<RolloutRecord>), PipelineError> {
     let progress = |done: u64, total: u64, status: &str| observer.progress(setup.stage, done, total, status);
     let start = Instant::now();
     let sim = setup.flight.simulator(setup.sim, &setup.inputs.nerf, setup.intrinsics);
@@ -577,7 +578,7 @@ pub fn stress(
     write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
     let seconds = start.elapsed().as_secs_f64();
     let flown = counting.fresh.load(Ordering::Relaxed);
-    Ok(StressFigures {
+    let figures = StressFigures {
         world: setup.world,
         estimator: setup.estimator,
         online: setup.online,
@@ -588,7 +589,8 @@ pub fn stress(
         rollouts: records.len() + replays.as_ref().map_or(0, Vec::len),
         seconds,
         rollouts_per_second: flown as f64 / seconds.max(1e-9),
-    })
+    };
+    Ok((figures, records))
 }
 
 /// The most likely failure's disturbances, and its flight in the search's world (and, when
@@ -697,7 +699,7 @@ impl Stage for StressStage<'_> {
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
-        stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)
+        Ok(stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)?.0)
     }
 
     fn describe(f: &StressFigures) -> String {

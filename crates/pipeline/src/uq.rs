@@ -11,6 +11,7 @@ use nerfsv_dataset::{Frame, Split};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, RayInput};
 use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
+pub use nerfsv_uq::Method;
 use nerfsv_uq::{
     bla_image, bla_maps, depth_errors, ga_fit_samples, ga_image, ga_maps_from_samples, mean_ause, sparsification,
     BlaFit, GaExclusion, GaFit, Sparsification, UqConfig, UqError,
@@ -28,25 +29,6 @@ pub const SPLITS: [&str; 3] = ["train", "val", "test"];
 pub const BACKGROUND: [f32; 3] = [1.0, 1.0, 1.0];
 /// Figure size, pixels.
 pub const FIGURE: (u32, u32) = (1200, 560);
-
-/// The two methods of the paper.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// Gaussian approximation (eq. 2–3).
-    Ga,
-    /// Bayesian Laplace approximation (eq. 4–9).
-    Bla,
-}
-
-impl Method {
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Ga => "ga",
-            Method::Bla => "bla",
-        }
-    }
-}
 
 /// One image's result; `None`: every ray missed the model, so there is nothing to fit.
 #[derive(Clone, Debug, PartialEq)]

@@ -3,6 +3,27 @@
 use nerfsv_scene::validate::{in_range, positive, InvalidValue};
 use serde::{Deserialize, Serialize};
 
+/// The two methods of the paper: which one a fit, a field, an online measurement or a reward
+/// uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Gaussian approximation (eq. 2–3).
+    Ga,
+    /// Bayesian Laplace approximation (eq. 4–9).
+    Bla,
+}
+
+impl Method {
+    /// `"ga"` or `"bla"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Ga => "ga",
+            Method::Bla => "bla",
+        }
+    }
+}
+
 /// Settings of the Gaussian approximation and the Bayesian Laplace approximation.
 ///
 /// ```

@@ -101,7 +101,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::ga::{ga_fit_samples, GaRay};
 use crate::maps::UncertaintyMaps;
-use crate::{UqConfig, UqError};
+use crate::{Method, UqConfig, UqError};
 
 /// `format` of a field file.
 pub const FIELD_FORMAT: &str = "nerfsv-uncertainty-field";
@@ -117,26 +117,6 @@ const NODE_BATCH: usize = 2048;
 const ROW_BATCH: usize = 1536;
 /// Below this opacity a ray has no distance (as the renderer).
 const MIN_OPACITY: f32 = 1e-6;
-
-/// Which offline method a field comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FieldMethod {
-    /// Gaussian approximation: weighted mean of per-ray σ̂² (unitless).
-    Ga,
-    /// Bayesian Laplace approximation: `Var[σ(x)]` (1/m²).
-    Bla,
-}
-
-impl FieldMethod {
-    /// `"ga"` or `"bla"`.
-    pub fn name(self) -> &'static str {
-        match self {
-            FieldMethod::Ga => "ga",
-            FieldMethod::Bla => "bla",
-        }
-    }
-}
 
 /// How a field was built (stored in its file).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -178,7 +158,9 @@ pub struct TrainingView<'a> {
 /// A voxel grid of density uncertainty (see the [module docs](self)).
 #[derive(Clone, Debug, PartialEq)]
 pub struct UncertaintyField {
-    pub method: FieldMethod,
+    /// The method it was built by: GA's `variance` is the weighted mean of per-ray σ̂²
+    /// (unitless), BLA's `Var[σ(x)]` (1/m²).
+    pub method: Method,
     /// Nodes over the model's box.
     pub geometry: GridGeometry,
     /// `[nodes]` σ of the NeRF at each node, 1/m.
@@ -515,7 +497,7 @@ impl UncertaintyField {
     /// the geometry's node count.
     #[allow(clippy::too_many_arguments)]
     pub fn from_parts(
-        method: FieldMethod,
+        method: Method,
         geometry: GridGeometry,
         density: Vec<f32>,
         variance: Vec<f32>,
@@ -531,10 +513,8 @@ impl UncertaintyField {
             }
         }
         let lookup = match method {
-            FieldMethod::Ga => {
-                variance.iter().zip(&weight).map(|(&v, &w)| if w > 0.0 { v } else { f32::NAN }).collect()
-            }
-            FieldMethod::Bla => variance
+            Method::Ga => variance.iter().zip(&weight).map(|(&v, &w)| if w > 0.0 { v } else { f32::NAN }).collect(),
+            Method::Bla => variance
                 .iter()
                 .zip(&density)
                 .map(|(&v, &s)| {
@@ -654,14 +634,14 @@ impl UncertaintyField {
             num.iter().zip(&den).map(|(&n, &d)| if d > 0.0 { (n / d) as f32 } else { 0.0 }).collect();
         let weight: Vec<f32> = den.iter().map(|&d| d as f32).collect();
         let figures = FieldFigures { images, rays: n_rays, ..Default::default() };
-        Self::finish(nerf, checkpoint, FieldMethod::Ga, geometry, [density, variance, weight], figures, start)
+        Self::finish(nerf, checkpoint, Method::Ga, geometry, [density, variance, weight], figures, start)
     }
 
     /// The field of `nerf` from its arrays, with the figures summarised and timed from `start`.
     fn finish(
         nerf: &Nerf,
         checkpoint: &str,
-        method: FieldMethod,
+        method: Method,
         geometry: GridGeometry,
         [density, variance, weight]: [Vec<f32>; 3],
         mut figures: FieldFigures,
@@ -716,7 +696,7 @@ impl UncertaintyField {
             posterior_seconds: Some(posterior_seconds),
             ..Default::default()
         };
-        Self::finish(nerf, checkpoint, FieldMethod::Bla, geometry, [density, variance, weight], figures, start)
+        Self::finish(nerf, checkpoint, Method::Bla, geometry, [density, variance, weight], figures, start)
     }
 
     /// The looked-up value `v` at `p` (GA σ̂², BLA relative variance), `None` outside the grid
@@ -831,7 +811,7 @@ impl UncertaintyField {
                 let opacity = samples.opacity[p];
                 let z = camera.z_depth_factor((p as u32 % k.width) as f32 + 0.5, (p as u32 / k.width) as f32 + 0.5);
                 let (var_c, var_d) = match self.method {
-                    FieldMethod::Ga => {
+                    Method::Ga => {
                         // The ray's weighted mean stands in for samples without data.
                         let (mut sv, mut sw) = (0.0f64, 0.0f64);
                         for (&wi, &t) in w.iter().zip(ts) {
@@ -853,7 +833,7 @@ impl UncertaintyField {
                         }
                         (vc, vd / (opacity as f64).powi(2))
                     }
-                    FieldMethod::Bla => {
+                    Method::Bla => {
                         let k_end = 1.0 - opacity as f64;
                         let colour = samples.rgb[p];
                         let dist = samples.distance[p] as f64;
@@ -963,8 +943,8 @@ impl UncertaintyField {
             return Err(bad(format!("format_version is {version:?}, expected {FIELD_FORMAT_VERSION:?}")));
         }
         let method = match field("method")?.as_str() {
-            "ga" => FieldMethod::Ga,
-            "bla" => FieldMethod::Bla,
+            "ga" => Method::Ga,
+            "bla" => Method::Bla,
             other => return Err(bad(format!("method is {other:?}, expected \"ga\" or \"bla\""))),
         };
         fn list<T: std::str::FromStr>(s: &str) -> Option<[T; 3]> {

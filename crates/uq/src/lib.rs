@@ -58,11 +58,11 @@ pub use bla::{
     bla_image, bla_view, laplace_at, laplace_summary_at, lm_map, BlaFit, BlaSummary, Laplace, LaplaceSummary, MapFit,
     NerfResiduals, ResidualModel,
 };
-pub use config::UqConfig;
+pub use config::{Method, UqConfig};
 pub use error::UqError;
 pub use field::{
     data_term, density_param_count, empty_density, field_geometry, model_id, DensityPosterior, FieldFigures,
-    FieldMethod, TrainingView, UncertaintyField,
+    TrainingView, UncertaintyField,
 };
 pub use ga::{ga_fit, ga_fit_samples, ga_image, ga_objective, GaExclusion, GaFit, GaRay};
 pub use maps::{bla_maps, bla_maps_factored, ga_maps, ga_maps_from_samples, CovarianceFactor, UncertaintyMaps};

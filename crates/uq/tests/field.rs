@@ -13,7 +13,7 @@ use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::Nerf;
 use nerfsv_scene::{Camera, Intrinsics};
 use nerfsv_uq::{
-    data_term, density_param_count, ga_maps_from_samples, model_id, DensityPosterior, FieldFigures, FieldMethod,
+    data_term, density_param_count, ga_maps_from_samples, model_id, DensityPosterior, FieldFigures, Method,
     TrainingView, UncertaintyField, UqConfig, UqError,
 };
 
@@ -91,7 +91,7 @@ fn bla_field_variance_at_a_node_equals_the_dense_quadratic_form() {
     let cfg = cfg();
     let refs: Vec<Vec<[f32; 3]>> = cams.iter().map(|c| vec![[0.5; 3]; c.intrinsics.pixels()]).collect();
     let field = UncertaintyField::build_bla(&nerf, "tiny", &views(&cams, &refs), BG, &cfg, &mut no_progress).unwrap();
-    assert_eq!(field.method, FieldMethod::Bla);
+    assert_eq!(field.method, Method::Bla);
     assert_eq!(field.geometry.dims, [9, 9, 9]);
     assert_eq!(field.figures.rank, Some(density_param_count(&nerf)));
     assert!(field.figures.rays > 100, "{:?}", field.figures);
@@ -212,12 +212,12 @@ fn ga_splat_of_rays_with_a_constant_variance_gives_it_at_every_node_with_weight(
     assert!((u - c.sqrt()).abs() < 1e-4, "{u}");
 }
 
-fn constant_field(nerf: &Nerf, method: FieldMethod, c: f32) -> UncertaintyField {
+fn constant_field(nerf: &Nerf, method: Method, c: f32) -> UncertaintyField {
     let geometry = nerfsv_uq::field_geometry(nerf, 4.0).unwrap();
     let density: Vec<f32> = (0..geometry.len()).map(|n| 0.5 + (n % 7) as f32).collect::<Vec<_>>();
     let variance = match method {
-        FieldMethod::Ga => vec![c; geometry.len()],
-        FieldMethod::Bla => density.iter().map(|s| c * s * s).collect(),
+        Method::Ga => vec![c; geometry.len()],
+        Method::Bla => density.iter().map(|s| c * s * s).collect(),
     };
     let weight = vec![1.0; geometry.len()];
     UncertaintyField::from_parts(
@@ -239,7 +239,7 @@ fn constant_field(nerf: &Nerf, method: FieldMethod, c: f32) -> UncertaintyField 
 fn view_uncertainty_of_a_constant_field_is_its_square_root() {
     let nerf = common::tiny_nerf();
     let pixels: Vec<[u32; 2]> = (0..8).flat_map(|j| (0..8).map(move |i| [i, j])).collect();
-    for method in [FieldMethod::Ga, FieldMethod::Bla] {
+    for method in [Method::Ga, Method::Bla] {
         let field = constant_field(&nerf, method, 0.09);
         let u = field.view_uncertainty(&cameras()[0], &pixels, BG);
         assert!((u - 0.3).abs() < 1e-5, "{method:?}: {u}");
@@ -252,9 +252,9 @@ fn view_uncertainty_of_a_constant_field_is_its_square_root() {
         assert_eq!(field.view_uncertainty(&away, &pixels, BG), 0.0);
     }
     // No data anywhere (GA, weight 0): nothing composites.
-    let mut empty = constant_field(&nerf, FieldMethod::Ga, 0.09);
+    let mut empty = constant_field(&nerf, Method::Ga, 0.09);
     empty = UncertaintyField::from_parts(
-        FieldMethod::Ga,
+        Method::Ga,
         empty.geometry,
         empty.density,
         empty.variance,
@@ -273,7 +273,7 @@ fn view_uncertainty_of_a_constant_field_is_its_square_root() {
 fn maps_of_a_constant_ga_field_are_ga_maps_with_that_sigma_d() {
     let nerf = common::tiny_nerf();
     let cam = cameras()[0];
-    let field = constant_field(&nerf, FieldMethod::Ga, 0.09);
+    let field = constant_field(&nerf, Method::Ga, 0.09);
     let maps = field.maps(&nerf, &cam, BG);
     let samples = nerf.render_rays_samples(&camera_rays(&cam, BG));
     let ga = ga_maps_from_samples("v", &cam, &samples, 0.3).unwrap();
@@ -291,10 +291,10 @@ fn maps_of_a_constant_ga_field_are_ga_maps_with_that_sigma_d() {
     }
     assert!(finite > 20, "{finite}");
 
-    let bla = constant_field(&nerf, FieldMethod::Bla, 0.09);
+    let bla = constant_field(&nerf, Method::Bla, 0.09);
     let mut bla4 = bla.clone();
     bla4 = UncertaintyField::from_parts(
-        FieldMethod::Bla,
+        Method::Bla,
         bla4.geometry,
         bla4.density,
         bla4.variance.iter().map(|v| 4.0 * v).collect(),
@@ -389,7 +389,7 @@ fn bla_maps_propagate_the_density_variance_with_the_composites_derivatives() {
     let geometry = nerfsv_uq::field_geometry(&nerf, 4.0).unwrap();
     let n = geometry.len();
     let field = UncertaintyField::from_parts(
-        FieldMethod::Bla,
+        Method::Bla,
         geometry,
         vec![1.0; n],
         vec![v; n],
@@ -464,7 +464,7 @@ fn empty_space_skipping_leaves_the_view_value_unchanged() {
         .collect();
     let variance: Vec<f32> = (0..n).map(|i| 0.01 + (i % 13) as f32 * 0.003).collect();
     let mut field = UncertaintyField::from_parts(
-        FieldMethod::Ga,
+        Method::Ga,
         geometry,
         density,
         variance,

@@ -40,7 +40,9 @@ impl System for DroneSystem<'_> {
     fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
         let mut step_scores = vec![f64::NAN; self.sim.steps];
-        let mut step_positions = vec![[f64::NAN; 3]; self.sim.steps];
+        // The substeps come in order: the last one of a step is its end, where the camera takes
+        // the step's image.
+        let mut step_ends = vec![None; self.sim.steps];
         for s in &r.substeps {
             if step_scores[s.step].is_nan() {
                 step_scores[s.step] = f64::INFINITY;
@@ -48,22 +50,19 @@ impl System for DroneSystem<'_> {
             if let Some(c) = s.clearance {
                 step_scores[s.step] = step_scores[s.step].min(c as f64);
             }
-            // The substeps come in order: the last one of a step is its end.
-            step_positions[s.step] = s.truth.position.into();
+            step_ends[s.step] = Some(&s.truth);
         }
+        let step_positions = step_ends.iter().map(|t| t.map_or([f64::NAN; 3], |t| t.position.into())).collect();
         let step_uncertainty = match self.uncertainty {
             None => Vec::new(),
-            Some(u) => {
-                let mut values = vec![f64::NAN; self.sim.steps];
-                // The last substep of each step flown: the camera's pose when it takes the image.
-                for (i, s) in r.substeps.iter().enumerate() {
-                    if r.substeps.get(i + 1).is_none_or(|n| n.step != s.step) {
-                        let camera = drone_camera(self.sim.intrinsics, &s.truth.position, &s.truth.rotation);
-                        values[s.step] = u.view_uncertainty(&camera);
-                    }
-                }
-                values
-            }
+            Some(u) => step_ends
+                .iter()
+                .map(|t| {
+                    t.map_or(f64::NAN, |t| {
+                        u.view_uncertainty(&drone_camera(self.sim.intrinsics, &t.position, &t.rotation))
+                    })
+                })
+                .collect(),
         };
         Outcome {
             score: r.min_clearance.map_or(f64::INFINITY, f64::from),

@@ -57,7 +57,7 @@ pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};
 pub use online::{
     auroc, disagreement_auroc, online_pixels, DisagreementAuroc, ExactUncertainty, FieldUncertainty, UncertaintyReward,
-    UqMethod, UqMode, ViewUncertainty,
+    UqMode, ViewUncertainty,
 };
 pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{

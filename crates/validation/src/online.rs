@@ -21,7 +21,7 @@ use nerfsv_scene::{Camera, Intrinsics};
 use nerfsv_sim::estimator::stratified_pixels;
 use nerfsv_sim::world::pixel_rays;
 use nerfsv_sim::World;
-use nerfsv_uq::{bla_view, ga_image, FieldMethod, UncertaintyField, UqConfig};
+use nerfsv_uq::{bla_view, ga_image, Method, UncertaintyField, UqConfig};
 use serde::{Deserialize, Serialize};
 
 use crate::record::RolloutRecord;
@@ -34,31 +34,6 @@ pub trait ViewUncertainty: Sync {
     /// The uncertainty of the image `camera` takes; NaN when it cannot be measured (every ray
     /// misses the model). Steps with NaN are left out of a rollout's mean.
     fn view_uncertainty(&self, camera: &Camera) -> f64;
-}
-
-/// GA or BLA: which method measures the uncertainty and which reward (eq. 10 or 11) uses it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum UqMethod {
-    Ga,
-    Bla,
-}
-
-impl UqMethod {
-    pub fn name(self) -> &'static str {
-        match self {
-            UqMethod::Ga => "ga",
-            UqMethod::Bla => "bla",
-        }
-    }
-
-    /// The field built by the same method.
-    pub fn field_method(self) -> FieldMethod {
-        match self {
-            UqMethod::Ga => FieldMethod::Ga,
-            UqMethod::Bla => FieldMethod::Bla,
-        }
-    }
 }
 
 /// Exact or field: how a view's uncertainty is measured.
@@ -88,7 +63,7 @@ pub fn online_pixels(intrinsics: &Intrinsics, cfg: &UqConfig) -> Vec<[u32; 2]> {
 /// Exact mode: GA or BLA of the NeRF's render of the view against the ground-truth render of
 /// the same pixels.
 pub struct ExactUncertainty<'a> {
-    pub method: UqMethod,
+    pub method: Method,
     pub nerf: &'a Nerf,
     /// The world whose images are the reference: the ground truth.
     pub reference: &'a dyn World,
@@ -105,10 +80,8 @@ impl ViewUncertainty for ExactUncertainty<'_> {
         let rays = pixel_rays(camera, &self.pixels, self.background);
         let reference = self.reference.observe(camera, &self.pixels, self.background);
         let value = match self.method {
-            UqMethod::Ga => {
-                ga_image(self.nerf, "step view", &rays, &reference, self.cfg.ga_sigma_max).map(|f| f.sigma_d)
-            }
-            UqMethod::Bla => bla_view(self.nerf, "step view", &rays, &reference, self.cfg, self.cfg.online_bla_rays)
+            Method::Ga => ga_image(self.nerf, "step view", &rays, &reference, self.cfg.ga_sigma_max).map(|f| f.sigma_d),
+            Method::Bla => bla_view(self.nerf, "step view", &rays, &reference, self.cfg, self.cfg.online_bla_rays)
                 .map(|s| s.laplace.rmv * s.laplace.normalized_trace),
         };
         value.unwrap_or(f64::NAN)
@@ -137,22 +110,22 @@ impl ViewUncertainty for FieldUncertainty<'_> {
 /// A rollout with no measured step is not penalised.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct UncertaintyReward {
-    pub method: UqMethod,
+    pub method: Method,
     pub penalty: f64,
     pub perturbations: usize,
 }
 
 impl UncertaintyReward {
     /// The reward of `cfg`'s penalty and perturbations for `method`.
-    pub fn new(method: UqMethod, cfg: &UqConfig) -> Self {
+    pub fn new(method: Method, cfg: &UqConfig) -> Self {
         Self { method, penalty: cfg.reward_penalty, perturbations: cfg.perturbations }
     }
 
     pub fn reward(&self, record: &RolloutRecord) -> f64 {
         let u = record.mean_uncertainty().unwrap_or(0.0);
         let scale = match self.method {
-            UqMethod::Ga => 1.0,
-            UqMethod::Bla => self.perturbations as f64,
+            Method::Ga => 1.0,
+            Method::Bla => self.perturbations as f64,
         };
         record.log_p - self.penalty * u * scale
     }

@@ -69,8 +69,9 @@ const FIELDS_PNG: &str = "nerf_collision_slices.png";
 const FIELD_DIFFERENCE_CLIP_M: f64 = 0.05;
 
 /// Slices of the ground-truth and the NeRF's signed fields at the planned path's mean altitude
-/// (over the flight band of the grid: the ground truth's nodes in x and y) and their difference
-/// NeRF − GT, clipped at ±[`FIELD_DIFFERENCE_CLIP_M`]; `None` without both fields.
+/// (0.18 m without a flight stage), sampled at the ground-truth grid's nodes in x and y, and
+/// their difference NeRF − GT, clipped at ±[`FIELD_DIFFERENCE_CLIP_M`]; `None` without both
+/// fields.
 fn field_slices_figure(root: &Path, summary: &Value) -> Option<Vec<u8>> {
     let gt = nerfsv_collision::SdfGrid::load(root.join("collision/gt_sdf.safetensors")).ok()?;
     let nerf = nerfsv_collision::SdfGrid::load(root.join("nerf_collision/nerf_sdf.safetensors")).ok()?;
@@ -179,20 +180,20 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
     let summary: Value = serde_json::from_str(&text)
         .map_err(|e| PipelineError::Internal(format!("{}: not a run summary: {e}", summary_file.display())))?;
     let dir = root.join(REPORT);
-    std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
-    let write = |name: &str, bytes: &[u8]| {
-        let path = dir.join(name);
-        nerfsv_scene::io::atomic_write_bytes(&path, bytes).map_err(|e| PipelineError::io(&path, e))
+    // Everything is gathered first and written all or nothing (`uq::write_files`).
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+    let config = match config {
+        Some(c) => {
+            files.push((CONFIG.to_owned(), c.as_bytes().to_vec()));
+            Some(c.to_owned())
+        }
+        None => std::fs::read_to_string(dir.join(CONFIG)).ok(),
     };
-    if let Some(c) = config {
-        write(CONFIG, c.as_bytes())?;
-    }
-    let config = std::fs::read_to_string(dir.join(CONFIG)).ok();
-    write("summary.json", text.as_bytes())?;
+    files.push(("summary.json".to_owned(), text.into_bytes()));
     let mut tables = Vec::new();
     for (stage, file, name) in TABLES {
         if let Ok(bytes) = std::fs::read(root.join(stage).join(file)) {
-            write(name, &bytes)?;
+            files.push((name.to_string(), bytes));
             tables.push(*name);
         }
     }
@@ -200,25 +201,29 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
     for (stage, file, caption) in PICTURES {
         if let Ok(bytes) = std::fs::read(root.join(stage).join(file)) {
             let name = if file.starts_with(stage) { file.to_string() } else { format!("{stage}_{file}") };
-            write(&name, &bytes)?;
+            files.push((name.clone(), bytes));
             pictures.push((*stage, name, *caption));
         }
     }
-    if let Some(png) = field_slices_figure(root, &summary) {
-        write(FIELDS_PNG, &png)?;
-        pictures.push((
+    let drawn = [
+        (
             "nerf_collision",
-            FIELDS_PNG.to_owned(),
+            FIELDS_PNG,
             "Signed distance at flight altitude: ground truth, NeRF, and their difference",
-        ));
-    }
-    if let Some(png) = clearance_figure(root) {
-        write(CLEARANCE_PNG, &png)?;
-        pictures.push((
+            field_slices_figure(root, &summary),
+        ),
+        (
             "stress",
-            CLEARANCE_PNG.to_owned(),
+            CLEARANCE_PNG,
             "|clearance in NeRF-sim − in GT-sim| on the same disturbances",
-        ));
+            clearance_figure(root),
+        ),
+    ];
+    for (stage, name, caption, png) in drawn {
+        if let Some(png) = png {
+            files.push((name.to_owned(), png));
+            pictures.push((stage, name.to_owned(), caption));
+        }
     }
     let mut seconds = Vec::new();
     let mut missing = Vec::new();
@@ -232,7 +237,8 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
         }
     }
     let html = page(&summary, config.as_deref(), &seconds, &pictures, &tables);
-    write(INDEX, html.as_bytes())?;
+    files.push((INDEX.to_owned(), html.into_bytes()));
+    crate::uq::write_files(&dir, &files)?;
     Ok(ReportFigures {
         index: dir.join(INDEX),
         pictures: pictures.len(),

@@ -74,9 +74,7 @@ impl RolloutRecord {
     /// Mean uncertainty over the steps with a finite value (steps not flown, or whose view could
     /// not be measured, are NaN); `None` when there is none.
     pub fn mean_uncertainty(&self) -> Option<f64> {
-        let (sum, n) =
-            self.step_uncertainty.iter().filter(|u| u.is_finite()).fold((0.0, 0usize), |(s, n), u| (s + u, n + 1));
-        (n > 0).then(|| sum / n as f64)
+        crate::table::mean(self.step_uncertainty.iter().copied().filter(|u| u.is_finite()))
     }
 
     /// The key that identifies a rollout within a run: (sampler, population, index).

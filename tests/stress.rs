@@ -330,4 +330,15 @@ fn a_reward_measures_every_flown_step_changes_only_what_cem_ranks_and_a_field_dr
     let args = ["--reward", "ga", "--uncertainty", "field", "--field", s(&bla_field)];
     let (ok, _, err) = stress(&model, &field, &out, &args, "2");
     assert!(!ok && err.contains("field_bla.safetensors") && err.contains("bla") && !out.exists(), "{err}");
+    // A field of another model (the same data, another seed) is refused naming the file.
+    let other = dir.path().join("other");
+    let nerf_cfg = dir.path().join("nerf.toml");
+    let train =
+        ["train", "--data", s(&ds), "--out", s(&other), "--steps", "2", "--seed", "9", "--config", s(&nerf_cfg)];
+    let (ok, _, err) = common::nerfsv(&train);
+    assert!(ok, "{err}");
+    let other_model = other.join("checkpoint.safetensors");
+    let args = ["--reward", "ga", "--uncertainty", "field", "--field", s(&ga_field)];
+    let (ok, _, err) = stress(&other_model, &field, &out, &args, "2");
+    assert!(!ok && err.contains("field_ga.safetensors") && !out.exists(), "{err}");
 }

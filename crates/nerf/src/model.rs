@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use crate::config::NerfConfig;
 use crate::fields::{ChunkWorkspace, DensityWorkspace, NgpField, RayInput};
 use crate::model_components::occupancy_grid::OccupancyGrid;
+use crate::model_components::ray_samplers::{march_segment, ray_aabb};
 
 /// Points per parallel task of density queries.
 const DENSITY_CHUNK: usize = 4096;
@@ -147,6 +148,29 @@ impl Nerf {
             .sum();
         out.samples = samples;
         out
+    }
+
+    /// Whether [`render_rays`](Self::render_rays) composites at least one sample of `ray`
+    /// (its jitter included), without evaluating the networks: the ray meets an occupied cell of
+    /// the occupancy grid inside the box on its marching lattice. The first sample of a ray is
+    /// always composited (the early-stop transmittance is below 1), so this is exactly "has a
+    /// sample": the rays a fit on the `sigma_net` weights can use.
+    pub fn ray_composites_a_sample(&self, ray: &RayInput) -> bool {
+        let g = &self.grid;
+        let (t0, t1) = ray_aabb(ray.origin, ray.direction, g.aabb_min, g.aabb_max).unwrap_or((0.0, -1.0));
+        if t1 <= t0 {
+            return false;
+        }
+        let step = self.config.step_size;
+        let mut ts = Vec::with_capacity(1);
+        march_segment(ray.origin, ray.direction, g, step, t0 + ray.jitter * step, t1, 1, &mut ts);
+        !ts.is_empty()
+    }
+
+    /// The indices (increasing) of the `rays` for which
+    /// [`ray_composites_a_sample`](Self::ray_composites_a_sample) holds; parallel.
+    pub fn rays_compositing_a_sample(&self, rays: &[RayInput]) -> Vec<usize> {
+        (0..rays.len()).into_par_iter().filter(|&i| self.ray_composites_a_sample(&rays[i])).collect()
     }
 
     /// [`ChunkWorkspace::forward`] with the rendering settings of this model.

@@ -125,15 +125,18 @@ pub struct SigmaNetJacobians {
     pub samples: RaySamples,
     /// `P`, the number of `sigma_net` weights (columns of `jacobian`).
     pub n_params: usize,
-    /// `[r, 4, P]` row-major: per ray, `∂R/∂θ`, `∂G/∂θ`, `∂B/∂θ` (colour, 1 per unit weight) and
-    /// `∂D̄/∂θ` (m per unit weight).
+    /// Rows per ray: 4 ([`Nerf::render_rays_sigma_jacobian`]) or 3, the colour's alone
+    /// ([`Nerf::render_rays_colour_sigma_jacobian`]).
+    pub outputs: usize,
+    /// `[r, outputs, P]` row-major: per ray, `∂R/∂θ`, `∂G/∂θ`, `∂B/∂θ` (colour, 1 per unit
+    /// weight) and, with 4 outputs, `∂D̄/∂θ` (m per unit weight).
     pub jacobian: Vec<f32>,
 }
 
 impl SigmaNetJacobians {
-    /// `[4, P]` rows of ray `i` (R, G, B, distance).
+    /// `[outputs, P]` rows of ray `i` (R, G, B, and distance with 4 outputs).
     pub fn ray(&self, i: usize) -> &[f32] {
-        let s = JACOBIAN_OUTPUTS * self.n_params;
+        let s = self.outputs * self.n_params;
         &self.jacobian[i * s..(i + 1) * s]
     }
 }
@@ -164,8 +167,17 @@ thread_local! {
 
 impl ParamJacobianWorkspace {
     /// The reverse pass of ray `ri` of the chunk `ws` (after its forward), writing
-    /// `out: [4, P]` (overwritten) and the ray's weights into `self.w`.
-    fn ray_backward(&mut self, nerf: &Nerf, ws: &ChunkWorkspace, ri: usize, j0: usize, out: &mut [f32]) {
+    /// `out: [outputs, P]` (overwritten; `outputs` 4, or 3 without the distance) and the ray's
+    /// weights into `self.w`. The colour rows do not depend on `outputs`.
+    fn ray_backward(
+        &mut self,
+        nerf: &Nerf,
+        ws: &ChunkWorkspace,
+        ri: usize,
+        j0: usize,
+        outputs: usize,
+        out: &mut [f32],
+    ) {
         let field = &nerf.field;
         let params = &nerf.params;
         let (e, sh, o, ch) = (field.enc_dim, field.sigma_hidden, 1 + field.geo, field.color_hidden);
@@ -179,7 +191,7 @@ impl ParamJacobianWorkspace {
             return;
         }
         self.d_out0.clear();
-        self.d_out0.resize(JACOBIAN_OUTPUTS * k * o, 0.0);
+        self.d_out0.resize(outputs * k * o, 0.0);
         // Composite backward: density adjoints of the three colours and of the distance.
         let opacity = ws.opacity[ri];
         let t_k = 1.0 - opacity;
@@ -200,7 +212,7 @@ impl ParamJacobianWorkspace {
             }
             let ti = ws.t_o[a + i];
             d_after -= w * ti;
-            if opacity > 1e-6 {
+            if outputs == JACOBIAN_OUTPUTS && opacity > 1e-6 {
                 self.d_out0[(3 * k + i) * o] = dt * (t_next * ti - d_after - dist * t_k) / opacity * ds;
             }
             self.w.push(w);
@@ -250,10 +262,10 @@ impl ParamJacobianWorkspace {
             self.h0[i * sh..(i + 1) * sh].copy_from_slice(&ws.h0[s * sh..(s + 1) * sh]);
             self.enc[i * e..(i + 1) * e].copy_from_slice(&ws.enc[s * e..(s + 1) * e]);
         }
-        let rows = JACOBIAN_OUTPUTS * k;
+        let rows = outputs * k;
         self.d_h0.resize(rows * sh, 0.0);
         linear_backward_input(&self.d_out0, field.w(params, 2), &mut self.d_h0, rows, sh, o);
-        for q in 0..JACOBIAN_OUTPUTS {
+        for q in 0..outputs {
             for i in 0..k {
                 let h = &self.h0[i * sh..(i + 1) * sh];
                 let row = &mut self.d_h0[(q * k + i) * sh..(q * k + i + 1) * sh];
@@ -341,8 +353,19 @@ impl Nerf {
     /// most. Parallel over chunks of [`PARAM_JACOBIAN_CHUNK`] rays; bit-identical for any rayon
     /// thread count.
     pub fn render_rays_sigma_jacobian(&self, rays: &[RayInput]) -> SigmaNetJacobians {
+        self.sigma_jacobian(rays, JACOBIAN_OUTPUTS)
+    }
+
+    /// [`render_rays_sigma_jacobian`](Self::render_rays_sigma_jacobian) without the distance
+    /// rows: `3·P` floats per ray, the same colour rows bit for bit, a quarter less of the
+    /// reverse pass through `sigma_net`. What a fit to colours needs.
+    pub fn render_rays_colour_sigma_jacobian(&self, rays: &[RayInput]) -> SigmaNetJacobians {
+        self.sigma_jacobian(rays, 3)
+    }
+
+    fn sigma_jacobian(&self, rays: &[RayInput], outputs: usize) -> SigmaNetJacobians {
         let n_p = self.field.sigma_net_range().len();
-        let row = JACOBIAN_OUTPUTS * n_p;
+        let row = outputs * n_p;
         let mut jacobian = vec![0.0f32; rays.len() * row];
         let chunks: Vec<ChunkSamples> = jacobian
             .par_chunks_mut(PARAM_JACOBIAN_CHUNK * row)
@@ -353,7 +376,7 @@ impl Nerf {
                     let mut c = ChunkSamples::default();
                     chunk_composites(ws, rs.len(), &mut c, true);
                     for (ri, out) in jac.chunks_exact_mut(row).enumerate() {
-                        pw.ray_backward(self, ws, ri, c.start[ri] as usize, out);
+                        pw.ray_backward(self, ws, ri, c.start[ri] as usize, outputs, out);
                         debug_assert_eq!(&pw.w[..], &c.sample_weight[c.start[ri] as usize..c.start[ri + 1] as usize]);
                     }
                     c
@@ -364,6 +387,6 @@ impl Nerf {
         for (n, c) in chunks.into_iter().enumerate() {
             samples.extend_from_chunk(c, n * PARAM_JACOBIAN_CHUNK);
         }
-        SigmaNetJacobians { samples, n_params: n_p, jacobian }
+        SigmaNetJacobians { samples, n_params: n_p, outputs, jacobian }
     }
 }

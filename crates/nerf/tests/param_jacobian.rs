@@ -144,3 +144,21 @@ fn composited_samples_rebuild_the_render_and_are_thread_count_independent() {
     assert!(jac.ray(7).iter().all(|&v| v == 0.0));
     assert!(jac.ray(3).iter().any(|&v| v != 0.0));
 }
+
+/// The colour-only Jacobian is the full one without its distance rows, bit for bit, with the
+/// same composited samples.
+#[test]
+fn colour_sigma_jacobian_is_the_full_one_without_the_distance_rows() {
+    let nerf = model();
+    let rays = rays(6, 0.7);
+    let full = nerf.render_rays_sigma_jacobian(&rays);
+    let colour = nerf.render_rays_colour_sigma_jacobian(&rays);
+    let p = full.n_params;
+    assert_eq!((full.outputs, colour.outputs, colour.n_params), (4, 3, p));
+    assert_eq!(colour.jacobian.len(), rays.len() * 3 * p);
+    assert_eq!(colour.samples, full.samples);
+    for i in 0..rays.len() {
+        assert_eq!(colour.ray(i), &full.ray(i)[..3 * p], "ray {i}");
+        assert!(full.ray(i)[3 * p..].iter().any(|&v| v != 0.0), "ray {i}: the distance row must be non-zero to tell");
+    }
+}

@@ -80,3 +80,44 @@ fn eval_report_reads_back_as_the_same_typed_figures() {
     let back: EvalReport = serde_json::from_str(&text).unwrap();
     assert_eq!(back, report);
 }
+
+/// `ray_composites_a_sample` (marching only) agrees with the render on every ray: rays that
+/// miss the box, rays through a grid with only a few occupied cells (so many meet none of them),
+/// rays starting inside the box, and rays whose jitter decides whether the lattice touches a
+/// one-cell-thick occupied slab.
+#[test]
+fn a_ray_composites_a_sample_exactly_when_the_render_gives_it_one() {
+    use nerfsv_nerf::RayInput;
+    use rand::{RngExt, SeedableRng};
+    let mut nerf = Nerf::new(tiny_config(), 3).unwrap();
+    let res = nerf.grid.resolution;
+    nerf.grid.occupied.fill(0);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    for _ in 0..res * res {
+        let c = [rng.random_range(0..res), rng.random_range(0..res), rng.random_range(0..res)];
+        let i = nerf.grid.index(c);
+        nerf.grid.occupied[i] = 1;
+    }
+    let rays: Vec<RayInput> = (0..4000)
+        .map(|_| {
+            let origin = [0, 1, 2].map(|_| rng.random_range(-2.5f32..2.5));
+            let d = [0, 1, 2].map(|_| rng.random_range(-1.0f32..1.0));
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-3);
+            RayInput { origin, direction: d.map(|x| x / n), background: [1.0; 3], jitter: rng.random() }
+        })
+        .collect();
+    let out = nerf.render_rays_samples(&rays);
+    let (mut hits, mut misses) = (0, 0);
+    for (i, r) in rays.iter().enumerate() {
+        let rendered = !out.ray(i).1.is_empty();
+        assert_eq!(nerf.ray_composites_a_sample(r), rendered, "ray {i}: {r:?}");
+        if rendered {
+            hits += 1;
+        } else {
+            misses += 1;
+        }
+    }
+    assert!(hits > 400 && misses > 400, "both kinds must occur: {hits} hits, {misses} misses");
+    let listed: Vec<usize> = (0..rays.len()).filter(|&i| !out.ray(i).1.is_empty()).collect();
+    assert_eq!(nerf.rays_compositing_a_sample(&rays), listed);
+}

@@ -461,13 +461,27 @@ impl ResidualModel for NerfResiduals<'_> {
 
     fn residuals_and_jacobian(&mut self, theta: &[f64], r: &mut Vec<f64>, jacobian: &mut Mat<f64>) {
         self.set(theta);
-        let out = self.nerf.render_rays_sigma_jacobian(&self.rays);
+        let out = self.nerf.render_rays_colour_sigma_jacobian(&self.rays);
         r.clear();
         for (c, t) in out.samples.rgb.iter().zip(&self.reference) {
             r.extend((0..3).map(|ch| c[ch] as f64 - t[ch] as f64));
         }
-        let p = out.n_params;
-        *jacobian = Mat::from_fn(r.len(), p, |row, col| out.ray(row / 3)[(row % 3) * p + col] as f64);
+        let (m, p) = (r.len(), out.n_params);
+        if (jacobian.nrows(), jacobian.ncols()) != (m, p) {
+            *jacobian = Mat::zeros(m, p);
+        }
+        // Column-major `J` from the row-major per-ray rows, in blocks of columns so that the
+        // reads run along rows and each column's writes stay sequential.
+        const BLOCK: usize = 64;
+        for c0 in (0..p).step_by(BLOCK) {
+            let c1 = (c0 + BLOCK).min(p);
+            for row in 0..m {
+                let src = &out.ray(row / 3)[(row % 3) * p..][c0..c1];
+                for (col, &v) in (c0..c1).zip(src) {
+                    jacobian[(row, col)] = v as f64;
+                }
+            }
+        }
     }
 }
 
@@ -526,8 +540,7 @@ fn map_over_perturbations(
             cfg.seed ^ (0xB1A0_0000 + k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
         );
         let jittered: Vec<RayInput> = rays.iter().map(|r| RayInput { jitter: rng.random::<f32>(), ..*r }).collect();
-        let samples = nerf.render_rays_samples(&jittered);
-        let hit: Vec<usize> = (0..rays.len()).filter(|&i| !samples.ray(i).1.is_empty()).collect();
+        let hit = nerf.rays_compositing_a_sample(&jittered);
         if hit.is_empty() {
             return Err(UqError::AllRaysMiss { image: image.to_string(), rays: rays.len() });
         }

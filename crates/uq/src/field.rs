@@ -459,8 +459,7 @@ pub fn data_term(
     for (v, view) in views.iter().enumerate() {
         progress(v, views.len());
         let rays = camera_rays(view.camera, background);
-        let samples = nerf.render_rays_samples(&rays);
-        let hit: Vec<usize> = (0..rays.len()).filter(|&i| !samples.ray(i).1.is_empty()).collect();
+        let hit = nerf.rays_compositing_a_sample(&rays);
         if hit.is_empty() {
             continue;
         }

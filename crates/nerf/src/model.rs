@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use crate::config::NerfConfig;
 use crate::fields::{ChunkWorkspace, DensityWorkspace, NgpField, RayInput};
 use crate::model_components::occupancy_grid::OccupancyGrid;
-use crate::model_components::ray_samplers::{march_segment, ray_aabb};
+use crate::model_components::ray_samplers::march_ray;
 
 /// Points per parallel task of density queries.
 const DENSITY_CHUNK: usize = 4096;
@@ -156,15 +156,8 @@ impl Nerf {
     /// always composited (the early-stop transmittance is below 1), so this is exactly "has a
     /// sample": the rays a fit on the `sigma_net` weights can use.
     pub fn ray_composites_a_sample(&self, ray: &RayInput) -> bool {
-        let g = &self.grid;
-        let (t0, t1) = ray_aabb(ray.origin, ray.direction, g.aabb_min, g.aabb_max).unwrap_or((0.0, -1.0));
-        if t1 <= t0 {
-            return false;
-        }
-        let step = self.config.step_size;
         let mut ts = Vec::with_capacity(1);
-        march_segment(ray.origin, ray.direction, g, step, t0 + ray.jitter * step, t1, 1, &mut ts);
-        !ts.is_empty()
+        march_ray(ray.origin, ray.direction, &self.grid, self.config.step_size, 1, ray.jitter, &mut ts) > 0
     }
 
     /// The indices (increasing) of the `rays` for which

@@ -3,8 +3,8 @@
 //! - `sim/truth_rollouts`: 64 rollouts of the default flight (6 steps × 8 substeps, the body box
 //!   checked against the ground-truth field at every substep) with random disturbances and the
 //!   `truth` estimator, in parallel over rollouts; throughput in substeps.
-//! - `sim/vision_step_{nerf,gt}`: one vision-estimator update (observe 256 pixels, then at most
-//!   9 renders, the pose Jacobians only at accepted poses, stopping once converged) in each
+//! - `sim/vision_step_{nerf,gt}`: one vision-estimator update (observe 256 pixels, then the
+//!   configured renders, the pose Jacobians only at accepted poses, stopping once converged) in each
 //!   world, at the path's waypoints. Needs a trained run folder:
 //!   `NERFSV_BENCH_RUN` (default `runs/stonehenge`, made by `cargo run --release -- run`).
 //!
@@ -61,6 +61,12 @@ fn vision_steps(c: &mut Criterion) {
             (truth, predicted)
         })
         .collect();
+    // The filter's prediction covariance right after a step's disturbance: the paper's prior.
+    let prior = |p: &State| {
+        let mut b = nerfsv_sim::Belief::new(*p, &cfg.sim.vision.initial_std);
+        b.disturb(&cfg.sim.vision.disturbance_std);
+        nerfsv_sim::PosePrior { position: p.position, rotation: p.rotation, information: b.pose_information() }
+    };
     let mut g = c.benchmark_group("sim");
     g.sample_size(10);
     g.throughput(Throughput::Elements(poses.len() as u64));
@@ -72,7 +78,7 @@ fn vision_steps(c: &mut Criterion) {
                 poses
                     .iter()
                     .enumerate()
-                    .map(|(k, (t, p))| sim.observe_and_refine(world, t, p, k as u64).renders)
+                    .map(|(k, (t, p))| sim.observe_and_refine(world, t, &prior(p), k as u64).renders)
                     .sum::<usize>()
             })
         });

@@ -180,6 +180,14 @@ impl GridGeometry {
         GridQuery::InGrid(y0 + (y1 - y0) * tz)
     }
 
+    /// The least of the 8 node values of the cell holding `p`.
+    pub fn cell_min(&self, data: &[f32], p: &Point3<f32>) -> GridQuery<f32> {
+        let Some(([i, j, k], _)) = self.locate(p) else {
+            return GridQuery::OutOfGrid;
+        };
+        GridQuery::InGrid(self.corners(data, i, j, k).into_iter().fold(f32::INFINITY, f32::min))
+    }
+
     /// Gradient (per metre) of the trilinear interpolant of `data` at `p`.
     pub fn trilinear_gradient(&self, data: &[f32], p: &Point3<f32>) -> GridQuery<Vector3<f32>> {
         let Some(([i, j, k], [tx, ty, tz])) = self.locate(p) else {

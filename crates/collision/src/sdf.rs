@@ -272,6 +272,12 @@ impl SdfGrid {
         self.geometry.trilinear(&self.data, &p)
     }
 
+    /// The least signed distance at the 8 nodes of the cell holding `p` (≤ 0: the cell touches
+    /// geometry), `OutOfGrid` off the grid.
+    pub fn cell_min(&self, p: Point3<f32>) -> GridQuery<f32> {
+        self.geometry.cell_min(&self.data, &p)
+    }
+
     /// Gradient of the field at `p` (≈ the outward unit normal of the nearest surface): central
     /// differences of [`SdfGrid::distance`] over ±1 cell, which smooths the per-cell gradient of
     /// the trilinear interpolant; on an axis where `p ± cell` leaves the grid, that interpolant's

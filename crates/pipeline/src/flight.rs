@@ -31,9 +31,19 @@ pub struct FlightFigures {
     /// Step and substep where the body first left the world's field grid, if it did.
     pub left_grid_step: Option<usize>,
     pub min_clearance_m: Option<f32>,
+    /// Step and substep where the true state stopped being finite (the rollout ended there).
+    pub diverged_step: Option<usize>,
     pub reached_goal: bool,
     pub goal_distance_m: f64,
+    /// Steps flown.
     pub steps: usize,
+    /// Camera images the estimator used, and how many of their fits the innovation gate refused.
+    pub images: usize,
+    pub rejected_images: usize,
+    /// Mean normalised estimation error squared of the 12-D state after the image updates (12
+    /// for a consistent filter; none without images).
+    pub mean_nees: Option<f64>,
+    /// The estimate's errors after the image updates (0 for the truth estimator).
     pub mean_position_error_m: f64,
     pub mean_rotation_error_deg: f64,
     pub max_position_error_m: f64,
@@ -44,7 +54,8 @@ pub struct FlightFigures {
 
 impl FlightFigures {
     pub fn new(world: WorldKind, estimator: EstimatorKind, r: &Rollout, seconds: f64) -> Self {
-        let max = |f: fn(&nerfsv_sim::StepEstimate) -> f64| r.estimates.iter().map(f).fold(0.0, f64::max);
+        let max = |f: fn(&nerfsv_sim::ImageUpdate) -> f64| r.updates.iter().map(f).fold(0.0, f64::max);
+        let n = r.updates.len();
         Self {
             world,
             estimator,
@@ -53,14 +64,18 @@ impl FlightFigures {
             collision_substep: r.first_collision.map(|e| e.substep),
             left_grid_step: r.left_grid.map(|e| e.step),
             min_clearance_m: r.min_clearance,
+            diverged_step: r.diverged.map(|e| e.step),
             reached_goal: r.reached_goal,
             goal_distance_m: r.goal_distance_m,
-            steps: r.estimates.len(),
+            steps: r.steps_flown(),
+            images: n,
+            rejected_images: r.updates.iter().filter(|u| !u.accepted).count(),
+            mean_nees: (n > 0).then(|| r.updates.iter().map(|u| u.nees).sum::<f64>() / n as f64),
             mean_position_error_m: r.mean_position_error_m(),
             mean_rotation_error_deg: r.mean_rotation_error_deg(),
             max_position_error_m: max(|e| e.position_error_m),
             max_rotation_error_deg: max(|e| e.rotation_error_deg),
-            seconds_per_step: seconds / r.estimates.len().max(1) as f64,
+            seconds_per_step: seconds / r.steps_flown().max(1) as f64,
         }
     }
 

@@ -8,6 +8,7 @@ use crate::controller::ControllerGains;
 use crate::dynamics::DroneParams;
 use crate::estimator::VisionConfig;
 use crate::planner::PlannerConfig;
+use crate::rollout::Collision;
 
 /// The drone camera's intrinsics, when they differ from the dataset's.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -48,6 +49,10 @@ pub struct SimConfig {
     pub substeps: usize,
     /// The flight reaches its goal when it ends this close to it, metres.
     pub goal_tolerance_m: f64,
+    /// What counts as a crash: `"body_box"` (default: the body box, turned with the drone,
+    /// touches geometry of the signed field) or `"centre_cell"` (the paper's: the drone's centre
+    /// lies in a field cell that touches geometry).
+    pub collision: Collision,
     /// End a rollout at its first collision (the drone has crashed: nothing after it is
     /// flown, its remaining steps have no clearance); `false` flies on through geometry.
     pub stop_at_collision: bool,
@@ -73,6 +78,7 @@ impl Default for SimConfig {
             steps: 6,
             substeps: 8,
             goal_tolerance_m: 0.1,
+            collision: Collision::BodyBox,
             stop_at_collision: true,
             drone: DroneParams::default(),
             controller: ControllerGains::default(),

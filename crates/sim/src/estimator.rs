@@ -1,23 +1,23 @@
-//! State estimators: `truth` (the controller sees the true state) and `vision` (the drone's
-//! camera image refines the predicted pose against the NeRF by photometric alignment).
+//! State estimators: `truth` (the controller sees the true state) and `vision` (a filter whose
+//! measurement is the drone's camera image aligned against the NeRF).
 //!
-//! The vision estimator, at the end of every step (and, with `images_per_step` > 1, at evenly
-//! spread substeps within it):
-//! 1. *predicts*: the previous estimate was propagated through the dynamics with the actions
-//!    the controller applied (the disturbance is unknown to it);
-//! 2. *observes*: the camera image at the true pose, read at `pixels` stratified random pixels
-//!    (a seeded choice per step);
-//! 3. *refines* the 6-DoF pose by Levenberg–Marquardt on
-//!    `Σ_pixels ρ(‖C(pose, pixel) − I(pixel)‖ / σ_I) + ‖prior residual‖²`, where `C` is the
-//!    NeRF's rendered colour, `ρ` the Huber loss, and the prior residual is
-//!    `((p − p̂)/σ_p, log(R·R̂ᵀ)/σ_R)` around the prediction `(p̂, R̂)`. The derivatives of the
-//!    rendered colours with respect to the pose are analytic: the NeRF's colour Jacobians with
-//!    respect to each ray's origin and direction ([`Nerf::render_rays_jacobian`]) chained with
-//!    `∂o/∂δp = I`, `∂d/∂δθ = −[d]×` for a world-frame perturbation `p ← p + δp`,
-//!    `R ← exp([δθ]×)·R`;
-//! 4. *corrects the rates* like an α–β filter: the pose correction divided by the time since
-//!    the previous image, times `velocity_gain`, is added to the velocity (world) and angular velocity
-//!    (body) estimates, so a velocity disturbance is not left uncorrected for ever.
+//! The vision estimator keeps a [`Belief`](crate::filter::Belief) over the full 12-D state
+//! (see [`crate::filter`]); at every camera image it:
+//! 1. *observes*: the camera image at the true pose, read at `pixels` stratified random pixels
+//!    (a seeded choice per image);
+//! 2. *chooses a start*: the prediction and, with `start_candidates` > 0, the poses ±1σ along the
+//!    principal axes of the prediction's pose covariance, each rendered once (forward only) and
+//!    scored at the coarsest pyramid level; the cheapest starts the search (a wider basin);
+//! 3. *fits* the 6-DoF pose by Levenberg–Marquardt on
+//!    `Σ_blocks ρ(‖C(pose) − I‖ / σ_I) + eᵀ·P_pp⁻¹·e`, where `C` is the NeRF's rendered colour,
+//!    `ρ` the Huber loss, and `e = (p − p̂, log(R·R̂ᵀ))` the pose's difference from the
+//!    prediction, whose covariance `P_pp` is the filter's (the Mahalanobis prior of
+//!    NeRF-Navigation's estimator). The derivatives of the rendered colours with respect to the
+//!    pose are analytic: the NeRF's colour Jacobians with respect to each ray's origin and
+//!    direction ([`Nerf::render_rays_jacobian`]) chained with `∂o/∂δp = I`, `∂d/∂δθ = −[d]×`
+//!    for a world-frame perturbation `p ← p + δp`, `R ← exp([δθ]×)·R`;
+//! 4. hands the fit and its photometric Gauss–Newton Hessian to the filter, which gates it and
+//!    corrects the whole state (velocity and rates through the cross-covariances).
 
 use nalgebra::{Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
 use nerfsv_nerf::jacobian::RayRender;
@@ -55,32 +55,47 @@ impl EstimatorKind {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct VisionConfig {
-    /// Pixels of the image compared with the NeRF per step.
+    /// Pixels of each camera image compared with the NeRF.
     pub pixels: usize,
-    /// Renders per update, the first included: each renders the pixels once, with
-    /// derivatives, and evaluates one Levenberg–Marquardt step.
+    /// Renders of the pose search per image, the first included (start candidates come on
+    /// top): each renders the pixels once and evaluates one Levenberg–Marquardt step.
     pub iterations: usize,
     /// Pyramid levels `[coarsest, finest]`: level `l` compares colours averaged over blocks of
     /// `2^l × 2^l` neighbouring strata; the renders are split evenly from coarse to fine.
     /// Level 0 (single pixels) fits texture the NeRF may not have; the default stops at 1.
     pub levels: [u32; 2],
-    /// Standard deviation of a colour channel's photometric error, `[0, 1]` units.
+    /// Standard deviation of a colour channel's photometric error, `[0, 1]` units: the weight of
+    /// the image against the prediction in the fit, and the scale of the fit's information.
+    /// Default 0.3, far above the colour noise of a converged NeRF-sim fit (≈ 0.001): the fit's
+    /// residuals are not independent pixel noise (a fit that stopped short, or the NeRF against
+    /// ground-truth images, errs alike over whole regions), and with 0.05 the filter took
+    /// such fits as certain (mean NEES in the thousands on the default study; with 0.3, ≈ 30).
     pub photometric_sigma: f64,
     /// Huber threshold on a pixel's colour error, in multiples of `photometric_sigma`.
     pub huber: f64,
-    /// Standard deviation of the predicted position, metres.
-    pub prior_position_m: f64,
-    /// Standard deviation of the predicted rotation, degrees.
-    pub prior_rotation_deg: f64,
-    /// Fraction of the pose correction per duration since the previous image added to the
-    /// velocity estimates.
-    pub velocity_gain: f64,
-    /// Camera images per step, spread evenly over its substeps, the last at the step's end.
-    /// Each is a full update (the step's pose search and rate correction). With 1 (the paper's
-    /// setting) a disturbance is unobserved for the whole step; under the paper's disturbances
-    /// 4 images per step (with 8 substeps) keep the prediction inside the alignment's basin, at
-    /// about four times the cost per step.
+    /// Standard deviations of the per-step disturbance the filter expects (its process noise,
+    /// added at each step's start), in the disturbance's order: position (m), velocity (m/s),
+    /// attitude (rad, world axes), body rates (rad/s). Default: the paper's disturbance prior,
+    /// which the stress tests sample from (`[validation] prior`).
+    pub disturbance_std: [f64; 12],
+    /// Standard deviations of the initial estimate's error (same order): the drone starts at rest
+    /// at a known start.
+    pub initial_std: [f64; 12],
+    /// Camera images per step, spread evenly over its substeps; the first right after the
+    /// step's disturbance (the paper's order: disturb, observe, estimate, act). Default 4 (one
+    /// every 0.2 s with the default 8 substeps of 0.1 s): with one image per step the body-rate
+    /// kick of a step is not observable apart from its attitude kick, and the tilt it leaves
+    /// grows unseen for the whole step.
     pub images_per_step: usize,
+    /// Poses tried before the search besides the prediction: ±1σ along this many principal axes
+    /// of the prediction's pose covariance, each one forward render scored at the coarsest level.
+    pub start_candidates: usize,
+    /// The innovation gate: a fit whose squared Mahalanobis distance from the prediction (under
+    /// the prediction's pose covariance) exceeds this is rejected and the prediction kept.
+    /// Default 22.46, the 99.9 % quantile of χ²(6).
+    pub gate_chi2: f64,
+    /// Factor on the covariance after a rejected fit.
+    pub gate_inflation: f64,
     /// `[metres, degrees]`: the search stops at the finest level when the step it proposes
     /// moves the pose less than this in both position and rotation, and leaves a coarser level
     /// at four times it. `[0, 0]` (default) spends every render: at 0.5 mm / 0.03° the NeRF-sim
@@ -101,14 +116,16 @@ impl Default for VisionConfig {
     fn default() -> Self {
         Self {
             pixels: 256,
-            iterations: 9,
+            iterations: 5,
             levels: [2, 1],
-            photometric_sigma: 0.05,
+            photometric_sigma: 0.3,
             huber: 2.0,
-            prior_position_m: 0.05,
-            prior_rotation_deg: 3.0,
-            velocity_gain: 0.5,
-            images_per_step: 1,
+            disturbance_std: crate::dynamics::Disturbance::PAPER_STD,
+            initial_std: [1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3],
+            images_per_step: 4,
+            start_candidates: 0,
+            gate_chi2: 22.46,
+            gate_inflation: 2.0,
             stop_step: [0.0, 0.0],
             jacobian_min_weight: 0.0,
         }
@@ -123,13 +140,59 @@ impl VisionConfig {
         in_range("levels[1]", self.levels[1], 0, self.levels[0])?;
         in_range("photometric_sigma", self.photometric_sigma, 1e-4, 10.0)?;
         in_range("huber", self.huber, 0.1, 1e6)?;
-        positive("prior_position_m", self.prior_position_m)?;
-        positive("prior_rotation_deg", self.prior_rotation_deg)?;
-        in_range("velocity_gain", self.velocity_gain, 0.0, 1.0)?;
+        for i in 0..12 {
+            in_range(&format!("disturbance_std[{i}]"), self.disturbance_std[i], 0.0, 10.0)?;
+            in_range(&format!("initial_std[{i}]"), self.initial_std[i], 1e-9, 10.0)?;
+        }
         in_range("images_per_step", self.images_per_step, 1, 1000)?;
+        in_range("start_candidates", self.start_candidates, 0, 6)?;
+        positive("gate_chi2", self.gate_chi2)?;
+        in_range("gate_inflation", self.gate_inflation, 1.0, 1e6)?;
         non_negative("stop_step[0]", self.stop_step[0])?;
         non_negative("stop_step[1]", self.stop_step[1])?;
         in_range("jacobian_min_weight", self.jacobian_min_weight, 0.0, 1.0)
+    }
+}
+
+/// What the fit knows before the image: the predicted pose and the information (inverse
+/// covariance) of its error `(δp, δθ)`, world frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PosePrior {
+    pub position: Vector3<f64>,
+    pub rotation: Matrix3<f64>,
+    pub information: Matrix6<f64>,
+}
+
+impl PosePrior {
+    /// Independent errors of `position_m` metres per axis and `rotation_deg` degrees per axis.
+    pub fn isotropic(position: Vector3<f64>, rotation: Matrix3<f64>, position_m: f64, rotation_deg: f64) -> Self {
+        let w = Vector6::from_fn(|i, _| if i < 3 { position_m.powi(-2) } else { rotation_deg.to_radians().powi(-2) });
+        Self { position, rotation, information: Matrix6::from_diagonal(&w) }
+    }
+
+    /// The prior's pose moved by `(δp, δθ)`.
+    fn moved(&self, d: &Vector6<f64>) -> (Vector3<f64>, Matrix3<f64>) {
+        let dr = Vector3::new(d[3], d[4], d[5]);
+        (self.position + Vector3::new(d[0], d[1], d[2]), crate::dynamics::reorthonormalise(&(so3_exp(&dr) * self.rotation)))
+    }
+
+    /// `±√λ·v` for the `n` largest eigenpairs `(λ, v)` of the prior covariance.
+    fn principal_offsets(&self, n: usize) -> Vec<Vector6<f64>> {
+        if n == 0 {
+            return Vec::new();
+        }
+        let Some(cov) = self.information.try_inverse() else { return Vec::new() };
+        let eig = ((cov + cov.transpose()) * 0.5).symmetric_eigen();
+        let mut order: Vec<usize> = (0..6).collect();
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        order
+            .into_iter()
+            .take(n)
+            .flat_map(|i| {
+                let v = eig.eigenvectors.column(i) * eig.eigenvalues[i].max(0.0).sqrt();
+                [v.into_owned(), -v]
+            })
+            .collect()
     }
 }
 
@@ -138,7 +201,16 @@ impl VisionConfig {
 pub struct PoseFit {
     pub position: Vector3<f64>,
     pub rotation: Matrix3<f64>,
-    /// Renders spent (forward passes over the pixels, the one at the prediction included).
+    /// The photometric term's Gauss–Newton Hessian `JᵀWJ` (the prior excluded) at the last
+    /// linearisation: the information the image carries about the pose.
+    pub information: Matrix6<f64>,
+    /// The photometric cost at the fit per degree of freedom, at the finest level: ≈ 1 (or
+    /// less) when the residuals are the colour noise `photometric_sigma` describes, larger when
+    /// the model does not explain the image (a fit that has not converged, or the NeRF against
+    /// ground-truth images). The filter divides `information` by it when it exceeds 1.
+    pub variance_factor: f64,
+    /// Renders spent (forward passes over the pixels, the start candidates and the one at the
+    /// prediction included).
     pub renders: usize,
     /// Of those, the renders also differentiated (the reverse pass for the pose Jacobians).
     pub linearisations: usize,
@@ -263,11 +335,12 @@ struct PoseRender<'a> {
     render: RayRender<'a>,
 }
 
-/// Refines the camera pose `(position, rotation)` of a drone whose prediction is
-/// `(prior_position, prior_rotation)` against the colours `observed` at `pixels` (drawn by
-/// [`stratified_pixels`] with `cfg.pixels`), by Levenberg–Marquardt with the analytic pose
-/// Jacobian of the NeRF's rendered colours, coarse to fine over `cfg.levels` (by default the
-/// first half of the renders align blocks of 4×4 strata, the rest blocks of 2×2).
+/// Refines the camera pose of a drone whose prediction is `prior` against the colours
+/// `observed` at `pixels` (drawn by [`stratified_pixels`] with `cfg.pixels`), by
+/// Levenberg–Marquardt with the analytic pose Jacobian of the NeRF's rendered colours, coarse to
+/// fine over `cfg.levels` (by default the first half of the renders align blocks of 4×4 strata,
+/// the rest blocks of 2×2), from the best of the prediction and `cfg.start_candidates` pairs of
+/// poses ±1σ along the prior's principal axes.
 ///
 /// Each render is a forward pass at a trial pose; the reverse pass that gives the colours' pose
 /// Jacobians runs only at poses the search accepts and linearises at. A level ends early when
@@ -277,20 +350,13 @@ struct PoseRender<'a> {
 pub fn refine_pose(
     nerf: &Nerf,
     intrinsics: Intrinsics,
-    prior_position: &Vector3<f64>,
-    prior_rotation: &Matrix3<f64>,
+    prior: &PosePrior,
     pixels: &[[u32; 2]],
     observed: &[[f32; 3]],
     background: [f32; 3],
     cfg: &VisionConfig,
 ) -> PoseFit {
-    let prior_w = Vector6::from_fn(|i, _| {
-        if i < 3 {
-            cfg.prior_position_m.powi(-2)
-        } else {
-            cfg.prior_rotation_deg.to_radians().powi(-2)
-        }
-    });
+    let prior_info = prior.information;
     let (cols, _) = strata(&intrinsics, pixels.len());
     let group_ids = |level: u32| -> Vec<u32> {
         let gcols = cols.div_ceil(1 << level);
@@ -304,9 +370,9 @@ pub fn refine_pose(
         per * (coarsest - level + 1)
     };
     // Prior residual; its Jacobian is taken as the identity (small corrections).
-    let prior = |p: &Vector3<f64>, r: &Matrix3<f64>| {
-        let dp = p - prior_position;
-        let dr = so3_log(&(r * prior_rotation.transpose()));
+    let prior_residual = |p: &Vector3<f64>, r: &Matrix3<f64>| {
+        let dp = p - prior.position;
+        let dr = so3_log(&(r * prior.rotation.transpose()));
         Vector6::new(dp.x, dp.y, dp.z, dr.x, dr.y, dr.z)
     };
     let render_at = |pose: &mut PoseRender, p: Vector3<f64>, r: Matrix3<f64>| {
@@ -316,11 +382,13 @@ pub fn refine_pose(
     };
     let linearise = |pose: &PoseRender, jacobian: Option<&[Matrix3x6<f64>]>, level: usize| {
         let mut lin = photometric(pose.render.rgb(), jacobian, observed, &levels[level], cfg);
-        let e = prior(&pose.position, &pose.rotation);
-        lin.cost += e.component_mul(&prior_w).dot(&e);
-        lin.h += Matrix6::from_diagonal(&prior_w);
-        lin.g += e.component_mul(&prior_w);
-        lin
+        let photometric_h = lin.h;
+        let e = prior_residual(&pose.position, &pose.rotation);
+        let we = prior_info * e;
+        lin.cost += e.dot(&we);
+        lin.h += prior_info;
+        lin.g += we;
+        (lin, photometric_h)
     };
     let stop = [cfg.stop_step[0], cfg.stop_step[1].to_radians()];
 
@@ -331,21 +399,39 @@ pub fn refine_pose(
         render: Nerf::ray_render(nerf),
     };
     let (mut current, mut trial) = (empty(nerf), empty(nerf));
-    render_at(&mut current, *prior_position, *prior_rotation);
+    render_at(&mut current, prior.position, prior.rotation);
+    let (mut renders, mut linearisations) = (1, 0);
+    // The start: the cheapest of the prediction and the candidates, at the coarsest level.
+    let offsets = prior.principal_offsets(cfg.start_candidates);
+    if !offsets.is_empty() {
+        let mut best = linearise(&current, None, coarsest).0.cost;
+        for d in &offsets {
+            let (p, r) = prior.moved(d);
+            render_at(&mut trial, p, r);
+            renders += 1;
+            let cost = linearise(&trial, None, coarsest).0.cost;
+            if cost < best {
+                best = cost;
+                std::mem::swap(&mut current, &mut trial);
+            }
+        }
+    }
+    let budget = renders - 1 + cfg.iterations.max(1);
     // The current pose's pixel Jacobians, once computed.
     let mut jacobian: Option<Vec<Matrix3x6<f64>>> = None;
-    let (mut renders, mut linearisations) = (1, 0);
+    let mut information = Matrix6::zeros();
     let mut level = coarsest;
     let mut lambda = 1e-3;
-    while renders < cfg.iterations.max(1) {
-        while level > finest && renders > level_end(level) {
+    while renders < budget {
+        while level > finest && renders - (budget - cfg.iterations.max(1)) > level_end(level) {
             level -= 1;
         }
         let jac = jacobian.get_or_insert_with(|| {
             linearisations += 1;
             pose_jacobians(&current.render.jacobians_above(cfg.jacobian_min_weight as f32), &current.rays)
         });
-        let lin = linearise(&current, Some(jac), level);
+        let (lin, photometric_h) = linearise(&current, Some(jac), level);
+        information = photometric_h;
         let mut a = lin.h;
         for i in 0..6 {
             a[(i, i)] += lambda * lin.h[(i, i)].max(1e-12);
@@ -368,7 +454,7 @@ pub fn refine_pose(
         let cand_r = crate::dynamics::reorthonormalise(&(so3_exp(&dr) * current.rotation));
         render_at(&mut trial, current.position + dp, cand_r);
         renders += 1;
-        if linearise(&trial, None, level).cost < lin.cost {
+        if linearise(&trial, None, level).0.cost < lin.cost {
             std::mem::swap(&mut current, &mut trial);
             jacobian = None;
             lambda = (lambda * 0.3).max(1e-7);
@@ -384,5 +470,18 @@ pub fn refine_pose(
         .map(|(c, o)| (Vector3::from(c.map(f64::from)) - Vector3::from(o.map(f64::from))).norm_squared())
         .sum();
     let rmse = (sq / (3 * pixels.len().max(1)) as f64).sqrt();
-    PoseFit { position: current.position, rotation: current.rotation, renders, linearisations, rmse }
+    // The a-posteriori variance factor of the finest level: its robust cost per degree of
+    // freedom (≈ 1 when the residuals are the noise `photometric_sigma` describes).
+    let blocks = levels[finest].iter().map(|&g| g as usize + 1).max().unwrap_or(0);
+    let dof = (3 * blocks).saturating_sub(6).max(1) as f64;
+    let variance_factor = photometric(current.render.rgb(), None, observed, &levels[finest], cfg).cost / dof;
+    PoseFit {
+        position: current.position,
+        rotation: current.rotation,
+        information,
+        variance_factor,
+        renders,
+        linearisations,
+        rmse,
+    }
 }

@@ -75,6 +75,7 @@ impl Flight {
             intrinsics: cfg.camera.map_or(intrinsics, |c| c.intrinsics()),
             background: cfg.background,
             half_extents: nerfsv_collision::drone_half_extents(),
+            collision: cfg.collision,
             reference: self.reference.clone(),
             goal: Vector3::from(cfg.goal),
             goal_tolerance: cfg.goal_tolerance_m,

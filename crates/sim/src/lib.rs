@@ -6,18 +6,20 @@
 //! - [`planner`]: A* on the NeRF's signed field, then shortcut smoothing;
 //!   [`reference`]: the path timed with a minimum-jerk profile;
 //! - [`controller`]: the geometric SE(3) tracking controller;
-//! - [`estimator`]: `truth`, or `vision` (photometric alignment of the camera image to the NeRF);
+//! - [`estimator`]: `truth`, or `vision`: a [`filter`] on the full state whose measurement is
+//!   the photometric alignment of the camera image to the NeRF;
 //! - [`world`]: NeRF-sim and GT-sim behind one [`World`] interface;
 //! - [`rollout`]: the closed loop, checking the body box at every substep;
 //!   [`flight`]: a configuration to a ready [`Simulator`]; [`io`]: disturbance and trajectory CSVs.
 
 // Module dependencies form a DAG: dynamics → planner → reference → controller → camera → world
-// → estimator → rollout → config → io → flight.
+// → estimator → filter → rollout → config → io → flight.
 pub mod camera;
 pub mod config;
 pub mod controller;
 pub mod dynamics;
 pub mod estimator;
+pub mod filter;
 pub mod flight;
 pub mod io;
 pub mod planner;
@@ -27,9 +29,10 @@ pub mod world;
 
 pub use config::{CameraConfig, SimConfig};
 pub use dynamics::{Disturbance, DroneParams, State};
-pub use estimator::{EstimatorKind, VisionConfig};
+pub use estimator::{EstimatorKind, PosePrior, VisionConfig};
 pub use flight::{plan_flight, Flight, SimError};
 pub use io::{read_disturbances, trajectory_csv, DisturbanceFileError};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};
-pub use rollout::{Event, Rollout, Simulator, StepEstimate, Substep};
+pub use filter::Belief;
+pub use rollout::{Collision, Event, ImageUpdate, Rollout, Simulator, Substep};
 pub use world::{GroundTruthWorld, NerfWorld, World, WorldKind};

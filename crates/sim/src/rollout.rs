@@ -1,30 +1,55 @@
-//! One flight: the closed loop of dynamics, disturbance, estimator, controller and world.
+//! One flight: the closed loop of dynamics, disturbance, camera, estimator and controller.
 //!
 //! A rollout is `steps` steps; step `k` covers one segment of the planned path in `substeps`
-//! substeps of `dt`. At the start of step `k` the disturbance `x_k` is applied to the true
-//! state; then each substep the controller turns the *estimated* state and the reference into
-//! an action, the true state (and, for the vision estimator, the estimate) is integrated, and
-//! the drone's body box is checked against the world's signed field. At the end of the step (and
-//! with `images_per_step` > 1 also at evenly spread substeps within it) the vision estimator
-//! takes an image and refines its pose.
+//! substeps of `dt`, in the paper's order: the disturbance `x_k` is applied to the true state,
+//! then the camera observes the disturbed state and the estimator updates (the vision
+//! estimator's first image of the step; with `images_per_step` > 1 more follow at evenly spread
+//! substeps), then each substep the controller turns the *estimated* state and the reference
+//! into an action and the true state (and the estimator's prediction) is integrated.
 //!
 //! The body is checked after the disturbance (substep 0) and after every integration (substeps
-//! 1..=substeps). A box that touches geometry is a collision; a box partly outside the field's
-//! grid is an `OutOfGrid` event, never clamped. Rollouts are pure functions of the simulator,
-//! the disturbances and the seed, so the same inputs replay bit for bit.
+//! 1..=substeps), by the configured [`Collision`] criterion: a body box that touches geometry
+//! (default) or the paper's centre cell. Anything partly outside the field's grid is an
+//! `OutOfGrid` event, never clamped. A state that stops being finite ends the rollout as
+//! `diverged`. Rollouts are pure functions of the simulator, the disturbances and the seed, so
+//! the same inputs replay bit for bit.
 
 use nalgebra::{Point3, Rotation3, Vector3};
 use nerfsv_collision::{BoxQuery, SdfGrid};
 use nerfsv_nerf::Nerf;
 use nerfsv_scene::Intrinsics;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::camera::drone_camera;
 use crate::controller::{control, ControllerGains};
-use crate::dynamics::{rotation_error, so3_log, step, Disturbance, DroneParams, State};
-use crate::estimator::{refine_pose, stratified_pixels, EstimatorKind, VisionConfig};
+use crate::dynamics::{rotation_error, step, Disturbance, DroneParams, State};
+use crate::estimator::{refine_pose, stratified_pixels, EstimatorKind, PoseFit, PosePrior, VisionConfig};
+use crate::filter::Belief;
 use crate::reference::ReferenceTrajectory;
 use crate::world::World;
+
+/// What counts as a crash, the `[sim] collision` key.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Collision {
+    /// The drone's body box (rotated with the body) touches geometry of the signed field.
+    #[default]
+    BodyBox,
+    /// The paper's criterion: the drone's centre lies in a field cell that touches geometry (a
+    /// corner value ≤ 0). The paper's code counts the cells holding a vertex of the scene's
+    /// mesh, a shell one cell thick; this also counts the cells inside it, which a 0.1 s substep
+    /// could otherwise jump over.
+    CentreCell,
+}
+
+impl Collision {
+    pub fn name(self) -> &'static str {
+        match self {
+            Collision::BodyBox => "body_box",
+            Collision::CentreCell => "centre_cell",
+        }
+    }
+}
 
 /// Everything that is fixed across rollouts: the drone, its controller and estimator settings,
 /// the nominal path, and the NeRF the estimator knows.
@@ -36,6 +61,8 @@ pub struct Simulator<'a> {
     pub background: [f32; 3],
     /// Half extents of the body box, metres (body frame).
     pub half_extents: Vector3<f32>,
+    /// What counts as a crash.
+    pub collision: Collision,
     pub reference: ReferenceTrajectory,
     pub goal: Vector3<f64>,
     pub goal_tolerance: f64,
@@ -51,28 +78,44 @@ pub struct Simulator<'a> {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Substep {
     pub step: usize,
-    /// 0 = right after the step's disturbance; 1..=substeps after each integration.
+    /// 0 = right after the step's disturbance (and its first image's update); 1..=substeps
+    /// after each integration.
     pub substep: usize,
     pub time: f64,
     pub truth: State,
     pub estimate: State,
-    /// Minimum signed distance over the body box (negative when penetrating), exact within
-    /// [`FAR_FIELD_M`] of geometry and a lower bound beyond (see [`body_query`]); `None` when
-    /// the box is partly outside the field's grid.
+    /// The estimator's expected error, `[√tr P_pos (m), √tr P_att (rad)]` (0 for `truth`).
+    pub estimate_spread: [f64; 2],
+    /// The crash criterion's signed clearance (negative when penetrating): for the body box the
+    /// minimum signed distance over it, exact within [`FAR_FIELD_M`] of geometry and a lower
+    /// bound beyond (see [`body_query`]); for the centre cell the least corner value of its
+    /// cell. `None` when the body is partly outside the field's grid.
     pub clearance: Option<f32>,
 }
 
-/// Estimation at the end of a step.
+/// One camera image's estimator update.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct StepEstimate {
+pub struct ImageUpdate {
     pub step: usize,
-    /// Error of the dynamics prediction before the image, metres and degrees.
+    /// The image was taken right before this substep's integration (0: after the disturbance).
+    pub substep: usize,
+    pub time: f64,
+    /// Error of the prediction before the image, metres and degrees.
     pub predicted_position_error_m: f64,
     pub predicted_rotation_error_deg: f64,
-    /// Error after the image (equal to the prediction's for `truth`, which has none).
+    /// Error after the update.
     pub position_error_m: f64,
     pub rotation_error_deg: f64,
-    /// Renders the vision estimator spent, and its final colour RMSE (0 for `truth`).
+    /// Normalised estimation error squared of the full 12-D state after the update (χ²(12) for a
+    /// consistent filter).
+    pub nees: f64,
+    /// The fit's squared Mahalanobis distance from the prediction, and whether the gate took it.
+    pub mahalanobis_sq: f64,
+    pub accepted: bool,
+    /// The filter's expected position and attitude errors after the update, m and degrees.
+    pub position_spread_m: f64,
+    pub rotation_spread_deg: f64,
+    /// Renders the fit spent, and its final colour RMSE.
     pub renders: usize,
     pub photometric_rmse: f64,
 }
@@ -89,11 +132,15 @@ pub struct Event {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Rollout {
     pub substeps: Vec<Substep>,
-    pub estimates: Vec<StepEstimate>,
-    /// The first substep whose body box touches geometry.
+    /// Every image's update, in order (none for `truth`).
+    pub updates: Vec<ImageUpdate>,
+    /// The first substep whose body touches geometry.
     pub first_collision: Option<Event>,
-    /// The first substep whose body box left the field's grid.
+    /// The first substep whose body left the field's grid.
     pub left_grid: Option<Event>,
+    /// The substep whose true state stopped being finite (the rollout ends there; `position` is
+    /// the last finite one).
+    pub diverged: Option<Event>,
     /// Minimum clearance over every checked substep, metres.
     pub min_clearance: Option<f32>,
     /// Distance from the final true position to the goal, metres.
@@ -106,14 +153,19 @@ impl Rollout {
         self.first_collision.is_some()
     }
 
-    /// Mean position error of the estimate at the step ends, metres.
-    pub fn mean_position_error_m(&self) -> f64 {
-        mean(self.estimates.iter().map(|e| e.position_error_m))
+    /// Steps flown (a crash or divergence ends a rollout early).
+    pub fn steps_flown(&self) -> usize {
+        self.substeps.last().map_or(0, |s| s.step + 1)
     }
 
-    /// Mean rotation error of the estimate at the step ends, degrees.
+    /// Mean position error of the estimate after its image updates, metres.
+    pub fn mean_position_error_m(&self) -> f64 {
+        mean(self.updates.iter().map(|e| e.position_error_m))
+    }
+
+    /// Mean rotation error of the estimate after its image updates, degrees.
     pub fn mean_rotation_error_deg(&self) -> f64 {
-        mean(self.estimates.iter().map(|e| e.rotation_error_deg))
+        mean(self.updates.iter().map(|e| e.rotation_error_deg))
     }
 }
 
@@ -152,23 +204,39 @@ pub fn body_query(field: &SdfGrid, centre: Point3<f32>, rotation: &Rotation3<f32
     field.box_query(centre, rotation, half)
 }
 
-/// The seed of the pixels step `step` of a rollout seeded `seed` reads.
+/// The paper's criterion: the least corner value of the field cell holding `centre` (≤ 0: the
+/// cell touches geometry).
+pub fn centre_cell_query(field: &SdfGrid, centre: Point3<f32>) -> BoxQuery {
+    match field.cell_min(centre).in_grid() {
+        None => BoxQuery::OutOfGrid,
+        Some(v) if v <= 0.0 => BoxQuery::Touching { penetration: -v },
+        Some(v) => BoxQuery::Clear { clearance: v },
+    }
+}
+
+/// The seed of the pixels of step `step`'s first image in a rollout seeded `seed`.
 fn step_seed(seed: u64, step: usize) -> u64 {
     nerfsv_scene::seed::mix(seed, step as u64 + 1, 0)
 }
 
-/// The seed of the pixels of the image after substep `substep` (not the step's last) of step
-/// `step`, with more than one image per step.
+/// The seed of the pixels of the image before substep `substep` (≥ 1) of step `step`, with
+/// more than one image per step.
 fn image_seed(seed: u64, step: usize, substep: usize) -> u64 {
     nerfsv_scene::seed::mix(seed, step as u64 + 1, substep as u64)
 }
 
+fn finite(s: &State) -> bool {
+    s.to_array().iter().all(|v| v.is_finite())
+}
+
 impl Simulator<'_> {
-    /// Whether the vision estimator takes an image after substep `j` (1-based) of a step:
-    /// `images_per_step` of them spread evenly, the last after the step's last substep.
-    pub fn images_after(&self, j: usize) -> bool {
-        let n = self.vision.images_per_step.min(self.substeps);
-        j * n / self.substeps > (j - 1) * n / self.substeps
+    /// Whether the vision estimator takes an image right before the integration of substep
+    /// `j` (0-based) of a step: `images_per_step` of them spread evenly, the first at `j = 0`,
+    /// right after the step's disturbance.
+    pub fn image_before(&self, j: usize) -> bool {
+        let (n, s) = (self.vision.images_per_step.clamp(1, self.substeps), self.substeps);
+        let i = (j * n).div_ceil(s);
+        i < n && i * s / n == j
     }
 
     /// The initial state: at rest at the path's start, facing along it.
@@ -181,26 +249,45 @@ impl Simulator<'_> {
         self.substeps as f64 * self.drone.dt
     }
 
+    /// The crash criterion at a true state.
+    pub fn check(&self, field: &SdfGrid, truth: &State) -> BoxQuery {
+        let centre = Point3::from(truth.position.map(|v| v as f32));
+        match self.collision {
+            Collision::BodyBox => {
+                let rotation = Rotation3::from_matrix_unchecked(truth.rotation.map(|v| v as f32));
+                body_query(field, centre, &rotation, self.half_extents)
+            }
+            Collision::CentreCell => centre_cell_query(field, centre),
+        }
+    }
+
     /// Flies one rollout in `world` with `disturbances` (one per step; missing steps are
     /// undisturbed). `seed` drives the estimator's random choices. With `stop_at_collision` it
     /// ends at the substep of the first collision.
     pub fn fly(&self, world: &dyn World, estimator: EstimatorKind, disturbances: &[Disturbance], seed: u64) -> Rollout {
         let field = world.field();
         let mut truth = self.initial_state();
-        let mut estimate = truth;
+        let mut belief = Belief::new(truth, &self.vision.initial_std);
+        let vision = estimator == EstimatorKind::Vision;
         let mut out = Rollout {
             substeps: Vec::with_capacity(self.steps * (self.substeps + 1)),
-            estimates: Vec::with_capacity(self.steps),
+            updates: Vec::new(),
             first_collision: None,
             left_grid: None,
+            diverged: None,
             min_clearance: None,
             goal_distance_m: 0.0,
             reached_goal: false,
         };
-        let record = |out: &mut Rollout, step: usize, substep: usize, time: f64, truth: &State, estimate: &State| {
-            let rotation = Rotation3::from_matrix_unchecked(truth.rotation.map(|v| v as f32));
-            let centre = Point3::from(truth.position.map(|v| v as f32));
-            let q = body_query(field, centre, &rotation, self.half_extents);
+        // Records a substep; false when the rollout ends there (diverged, or crashed and
+        // stopping at collisions).
+        let record = |out: &mut Rollout, step: usize, substep: usize, time: f64, truth: &State, belief: &Belief| {
+            let position = out.substeps.last().map_or(truth.position, |s| s.truth.position);
+            if !finite(truth) {
+                out.diverged = Some(Event { step, substep, position: position.into() });
+                return false;
+            }
+            let q = self.check(field, truth);
             let event = Event { step, substep, position: truth.position.into() };
             match q {
                 BoxQuery::OutOfGrid => {
@@ -215,95 +302,97 @@ impl Simulator<'_> {
             if let Some(c) = clearance {
                 out.min_clearance = Some(out.min_clearance.map_or(c, |m| m.min(c)));
             }
-            out.substeps.push(Substep { step, substep, time, truth: *truth, estimate: *estimate, clearance });
+            let estimate_spread = if vision { belief.pose_spread() } else { [0.0; 2] };
+            out.substeps.push(Substep { step, substep, time, truth: *truth, estimate: belief.mean, estimate_spread, clearance });
+            !(self.stop_at_collision && out.first_collision.is_some())
         };
 
-        for k in 0..self.steps {
+        'steps: for k in 0..self.steps {
             let t0 = k as f64 * self.step_duration();
             if let Some(d) = disturbances.get(k) {
                 truth = d.apply(&truth);
             }
-            if estimator == EstimatorKind::Truth {
-                estimate = truth;
+            if vision {
+                belief.disturb(&self.vision.disturbance_std);
+            } else {
+                belief.mean = truth;
             }
-            record(&mut out, k, 0, t0, &truth, &estimate);
-            let crashed = |out: &Rollout| self.stop_at_collision && out.first_collision.is_some();
-            if crashed(&out) {
-                break;
-            }
-            // Substep of the previous image (the rate correction's interval).
-            let mut last_image = 0;
-            let mut end_update = (estimate, 0, 0.0);
-            for j in 1..=self.substeps {
-                let t = t0 + (j - 1) as f64 * self.drone.dt;
-                let action = control(&estimate, &self.reference.at(t), &self.gains, &self.drone);
+            for j in 0..self.substeps {
+                let t = t0 + j as f64 * self.drone.dt;
+                if vision && finite(&truth) && self.image_before(j) {
+                    let pixel_seed = if j == 0 { step_seed(seed, k) } else { image_seed(seed, k, j) };
+                    out.updates.push(self.image_update(world, &truth, &mut belief, pixel_seed, k, j, t));
+                }
+                if j == 0 && !record(&mut out, k, 0, t0, &truth, &belief) {
+                    break 'steps;
+                }
+                let action = control(&belief.mean, &self.reference.at(t), &self.gains, &self.drone);
                 truth = step(&truth, &action, &self.drone);
-                estimate = match estimator {
-                    EstimatorKind::Truth => truth,
-                    EstimatorKind::Vision => step(&estimate, &action, &self.drone),
-                };
-                record(&mut out, k, j, t + self.drone.dt, &truth, &estimate);
-                if crashed(&out) {
-                    break;
+                if vision {
+                    belief.predict(&action, &self.drone);
+                } else {
+                    belief.mean = truth;
                 }
-                if estimator == EstimatorKind::Vision && self.images_after(j) {
-                    let predicted = estimate;
-                    // The step's end keeps the seed of one image per step.
-                    let pixel_seed = if j == self.substeps { step_seed(seed, k) } else { image_seed(seed, k, j) };
-                    let fit = self.observe_and_refine(world, &truth, &predicted, pixel_seed);
-                    estimate.position = fit.position;
-                    estimate.rotation = fit.rotation;
-                    // α–β correction of the rates from the pose correction.
-                    let g = self.vision.velocity_gain / ((j - last_image) as f64 * self.drone.dt);
-                    last_image = j;
-                    estimate.velocity += (fit.position - predicted.position) * g;
-                    estimate.omega += so3_log(&(predicted.rotation.transpose() * fit.rotation)) * g;
-                    end_update = (predicted, fit.renders, fit.rmse);
+                if !record(&mut out, k, j + 1, t + self.drone.dt, &truth, &belief) {
+                    break 'steps;
                 }
             }
-            if crashed(&out) {
-                break;
-            }
-            let (predicted, renders, rmse) = match estimator {
-                EstimatorKind::Truth => (estimate, 0, 0.0),
-                EstimatorKind::Vision => end_update,
-            };
-            out.estimates.push(StepEstimate {
-                step: k,
-                predicted_position_error_m: (predicted.position - truth.position).norm(),
-                predicted_rotation_error_deg: rotation_error(&predicted.rotation, &truth.rotation).to_degrees(),
-                position_error_m: (estimate.position - truth.position).norm(),
-                rotation_error_deg: rotation_error(&estimate.rotation, &truth.rotation).to_degrees(),
-                renders,
-                photometric_rmse: rmse,
-            });
         }
-        out.goal_distance_m = (truth.position - self.goal).norm();
-        out.reached_goal = out.goal_distance_m <= self.goal_tolerance;
+        let last = out.substeps.last().map_or(truth.position, |s| s.truth.position);
+        out.goal_distance_m = (last - self.goal).norm();
+        out.reached_goal = out.diverged.is_none() && out.goal_distance_m <= self.goal_tolerance;
         out
     }
 
-    /// The vision estimator's update: the camera image at the true pose, read at the step's
-    /// pixels, aligned against the NeRF from the prediction.
-    pub fn observe_and_refine(
+    /// One camera image: observe the true state, fit the pose from the belief's prediction, and
+    /// update the belief (through the innovation gate); `step`, `substep` and `time` only label
+    /// the record.
+    #[allow(clippy::too_many_arguments)]
+    pub fn image_update(
         &self,
         world: &dyn World,
         truth: &State,
-        predicted: &State,
+        belief: &mut Belief,
         seed: u64,
-    ) -> crate::estimator::PoseFit {
+        step: usize,
+        substep: usize,
+        time: f64,
+    ) -> ImageUpdate {
+        let predicted = belief.mean;
+        let prior = PosePrior { position: predicted.position, rotation: predicted.rotation, information: belief.pose_information() };
+        let fit = self.observe_and_refine(world, truth, &prior, seed);
+        let u = belief.update_pose(
+            &fit.position,
+            &fit.rotation,
+            &(fit.information / fit.variance_factor.max(1.0)),
+            self.vision.gate_chi2,
+            self.vision.gate_inflation,
+        );
+        let [sp, sr] = belief.pose_spread();
+        ImageUpdate {
+            step,
+            substep,
+            time,
+            predicted_position_error_m: (predicted.position - truth.position).norm(),
+            predicted_rotation_error_deg: rotation_error(&predicted.rotation, &truth.rotation).to_degrees(),
+            position_error_m: (belief.mean.position - truth.position).norm(),
+            rotation_error_deg: rotation_error(&belief.mean.rotation, &truth.rotation).to_degrees(),
+            nees: belief.nees(truth),
+            mahalanobis_sq: u.mahalanobis_sq,
+            accepted: u.accepted,
+            position_spread_m: sp,
+            rotation_spread_deg: sr.to_degrees(),
+            renders: fit.renders,
+            photometric_rmse: fit.rmse,
+        }
+    }
+
+    /// The vision estimator's measurement: the camera image at the true pose, read at the
+    /// image's pixels, aligned against the NeRF from `prior`.
+    pub fn observe_and_refine(&self, world: &dyn World, truth: &State, prior: &PosePrior, seed: u64) -> PoseFit {
         let pixels = stratified_pixels(&self.intrinsics, self.vision.pixels, seed);
         let camera = drone_camera(self.intrinsics, &truth.position, &truth.rotation);
         let observed = world.observe(&camera, &pixels, self.background);
-        refine_pose(
-            self.nerf,
-            self.intrinsics,
-            &predicted.position,
-            &predicted.rotation,
-            &pixels,
-            &observed,
-            self.background,
-            &self.vision,
-        )
+        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, &self.vision)
     }
 }

@@ -7,7 +7,7 @@ use common::tiny_nerf;
 use nalgebra::{Matrix3, Vector3};
 use nerfsv_scene::Intrinsics;
 use nerfsv_sim::camera::drone_camera;
-use nerfsv_sim::estimator::{refine_pose, stratified_pixels};
+use nerfsv_sim::estimator::{refine_pose, stratified_pixels, PosePrior};
 use nerfsv_sim::world::pixel_rays;
 use nerfsv_sim::VisionConfig;
 
@@ -26,13 +26,14 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     let observed: Vec<[f32; 3]> = out.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     assert!(observed.iter().any(|c| (c[0] - observed[0][0]).abs() > 1e-3), "a flat image tests nothing");
 
-    let fit = refine_pose(&nerf, k, &p, &r, &pixels, &observed, bg, &cfg);
+    let prior = PosePrior::isotropic(p, r, 0.05, 3.0);
+    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &cfg);
     assert_eq!((fit.renders, fit.linearisations), (1, 1));
     assert_eq!((fit.position, fit.rotation), (p, r));
     assert_eq!(fit.rmse, 0.0);
 
     let exhaustive = VisionConfig { stop_step: [0.0, 0.0], ..cfg.clone() };
-    let fit = refine_pose(&nerf, k, &p, &r, &pixels, &observed, bg, &exhaustive);
+    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &exhaustive);
     assert_eq!(fit.renders, cfg.iterations);
     // Null steps do not lower the cost, so no trial is accepted and none is differentiated.
     assert_eq!(fit.linearisations, 1);

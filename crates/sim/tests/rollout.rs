@@ -12,7 +12,7 @@ use nerfsv_scene::{Aabb, Camera, Intrinsics};
 use nerfsv_sim::config::SimConfig;
 use nerfsv_sim::dynamics::so3_exp;
 use nerfsv_sim::planner::PlannedPath;
-use nerfsv_sim::{Disturbance, EstimatorKind, Flight, NerfWorld, Rollout, Simulator, World, WorldKind};
+use nerfsv_sim::{Collision, Disturbance, EstimatorKind, Flight, NerfWorld, Rollout, Simulator, World, WorldKind};
 
 /// A world of one analytic signed field; its camera sees a flat grey.
 struct FieldWorld {
@@ -50,6 +50,7 @@ fn straight(nerf: &Nerf, steps: usize) -> Simulator<'_> {
     let mut cfg = SimConfig { steps, start: [0.0, 0.0, 0.3], goal: [1.2, 0.0, 0.3], ..SimConfig::default() };
     cfg.vision.pixels = 16;
     cfg.vision.iterations = 2;
+    cfg.vision.images_per_step = 1;
     Flight::along(path, &cfg).simulator(&cfg, nerf, Intrinsics::from_fov_x(16, 16, 0.8))
 }
 
@@ -106,11 +107,12 @@ fn a_disturbance_that_pushes_the_body_into_a_stone_collides_at_that_step_right_a
     assert!(s.clearance.unwrap() <= 0.0);
     // The crash ends the rollout there; without stopping it flies on through the stone.
     let last = r.substeps.last().unwrap();
-    assert_eq!((last.step, last.substep, r.estimates.len()), (3, 0, 3));
+    assert_eq!((last.step, last.substep, r.steps_flown()), (3, 0, 4));
+    assert!(r.updates.is_empty(), "the truth estimator takes no images");
     let mut flies_on = straight(&nerf, 6);
     flies_on.stop_at_collision = false;
     let on = flies_on.fly(&world, EstimatorKind::Truth, &ds, 0);
-    assert_eq!((on.first_collision, on.substeps.len(), on.estimates.len()), (r.first_collision, 6 * 9, 6));
+    assert_eq!((on.first_collision, on.substeps.len(), on.steps_flown()), (r.first_collision, 6 * 9, 6));
     assert_eq!(on.substeps[..r.substeps.len()], r.substeps[..]);
 }
 
@@ -199,8 +201,9 @@ fn a_replayed_rollout_reproduces_its_trajectory_bit_for_bit_on_any_thread_count(
     assert_eq!(a, c);
     // The vision estimator did work: its renders are counted (at most `iterations`; fewer
     // where the search converged, see `stop_step`).
-    assert!(a.estimates.iter().all(|e| (1..=2).contains(&e.renders)), "{:?}", a.estimates);
-    assert!(a.estimates.iter().any(|e| e.renders == 2));
+    assert_eq!(a.updates.len(), 4, "one image per step");
+    assert!(a.updates.iter().all(|e| (1..=2).contains(&e.renders) && e.substep == 0), "{:?}", a.updates);
+    assert!(a.updates.iter().any(|e| e.renders == 2));
     // Another seed picks other pixels, so the estimates differ.
     let d = sim.fly(&world, EstimatorKind::Vision, &ds, 6);
     assert_ne!(a.substeps.last().unwrap().estimate, d.substeps.last().unwrap().estimate);
@@ -236,4 +239,67 @@ fn the_body_query_is_exact_near_geometry_and_a_lower_bound_far_from_it() {
     assert!(near > 20 && far > 20, "{near} near, {far} far");
     // Off the grid either way.
     assert_eq!(body_query(f, Point3::new(1.79, 0.0, 0.3), &rotation, half), nerfsv_collision::BoxQuery::OutOfGrid);
+}
+
+#[test]
+fn the_paper_centre_cell_criterion_counts_the_centre_not_the_body() {
+    let nerf = tiny_nerf();
+    let mut sim = straight(&nerf, 6);
+    // A stone whose face is at y = 0.15, beside where step 3 begins (as above).
+    let x3 = sim.reference.at(3.0 * sim.step_duration()).position.x as f32;
+    let world = post_world([x3, 0.2, 0.3], [0.1, 0.05, 0.5]);
+    let kicked = |dy: f64| {
+        let mut ds = vec![Disturbance::ZERO; 6];
+        ds[3].0[1] = dy;
+        ds
+    };
+    // 12 cm: the body box (5 cm to each side) reaches y = 0.17 and touches; the centre's cell
+    // [0.1, 0.125] stays clear of the face.
+    assert!(sim.fly(&world, EstimatorKind::Truth, &kicked(0.12), 0).collided());
+    sim.collision = Collision::CentreCell;
+    let r = sim.fly(&world, EstimatorKind::Truth, &kicked(0.12), 0);
+    assert!(!r.collided(), "{:?}", r.first_collision);
+    let s = r.substeps.iter().find(|s| s.step == 3 && s.substep == 0).unwrap();
+    assert!((s.clearance.unwrap() - 0.025).abs() < 0.004, "{:?}", s.clearance);
+    // 14 cm: the centre's cell [0.125, 0.15] has a corner on the face.
+    let e = sim.fly(&world, EstimatorKind::Truth, &kicked(0.14), 0).first_collision.expect("centre cell collides");
+    assert_eq!((e.step, e.substep), (3, 0));
+}
+
+#[test]
+fn a_state_that_stops_being_finite_ends_the_rollout_as_diverged() {
+    let nerf = tiny_nerf();
+    let sim = straight(&nerf, 6);
+    let world = post_world([5.0, 5.0, 0.3], [0.01, 0.01, 0.5]);
+    let mut ds = vec![Disturbance::ZERO; 6];
+    ds[2].0[3] = f64::INFINITY;
+    let r = sim.fly(&world, EstimatorKind::Truth, &ds, 0);
+    let e = r.diverged.expect("diverged");
+    assert_eq!((e.step, e.substep), (2, 0));
+    assert!(!r.reached_goal && !r.collided());
+    // Nothing non-finite is recorded: the last substep is step 1's end.
+    let last = r.substeps.last().unwrap();
+    assert_eq!((last.step, last.substep), (1, sim.substeps));
+    assert!(r.substeps.iter().all(|s| s.truth.to_array().iter().all(|v| v.is_finite())));
+    // A finite but huge kick leaves the grid instead and stays finite.
+    ds[2].0[3] = 1e300;
+    let r = sim.fly(&world, EstimatorKind::Truth, &ds, 0);
+    assert!(r.left_grid.is_some() || r.diverged.is_some());
+    assert!(r.substeps.iter().all(|s| s.truth.to_array().iter().all(|v| v.is_finite())));
+}
+
+#[test]
+fn images_are_spread_over_the_step_the_first_right_after_the_disturbance() {
+    let nerf = tiny_nerf();
+    let mut sim = straight(&nerf, 6);
+    let schedule = |sim: &Simulator| (0..sim.substeps).filter(|&j| sim.image_before(j)).collect::<Vec<_>>();
+    assert_eq!(schedule(&sim), [0]);
+    sim.vision.images_per_step = 2;
+    assert_eq!(schedule(&sim), [0, 4]);
+    sim.vision.images_per_step = 3;
+    assert_eq!(schedule(&sim), [0, 2, 5]);
+    sim.vision.images_per_step = 8;
+    assert_eq!(schedule(&sim), (0..8).collect::<Vec<_>>());
+    sim.vision.images_per_step = 100;
+    assert_eq!(schedule(&sim), (0..8).collect::<Vec<_>>());
 }

@@ -2,12 +2,13 @@
 //! undisturbed, in both worlds with both estimators; `RUN/flight/` holds each flight's
 //! trajectory CSV and plot. The same functions serve `nerfsv fly`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::Nerf;
-use nerfsv_plot::{FieldSlice, Track, TrackKind, TrajectoryFigure};
+use nerfsv_plot::{FieldSlice, PointGroup, ScatterFigure, Track, TrackKind, TrajectoryFigure};
+use nerfsv_sim::dynamics::rotation_error;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{
     plan_flight, trajectory_csv, Disturbance, EstimatorKind, Flight, GroundTruthWorld, NerfWorld, Rollout, SimConfig,
@@ -151,7 +152,39 @@ pub fn flight_figure(
     }
 }
 
-/// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths.
+/// The estimator's error along a flight, one figure per quantity: the error's norm at every
+/// substep beside the filter's 2σ (twice `√tr P` of that block), `[position (mm), attitude (°)]`.
+pub fn estimate_figures(world: WorldKind, r: &Rollout) -> [ScatterFigure; 2] {
+    let series = |f: &dyn Fn(&nerfsv_sim::Substep) -> [f64; 2]| -> [Vec<[f64; 2]>; 2] {
+        let (mut e, mut b) = (Vec::new(), Vec::new());
+        for s in &r.substeps {
+            let [err, band] = f(s);
+            e.push([s.time, err]);
+            b.push([s.time, band]);
+        }
+        [e, b]
+    };
+    let position = series(&|s| {
+        [1e3 * (s.estimate.position - s.truth.position).norm(), 2e3 * s.estimate_spread[0]]
+    });
+    let attitude = series(&|s| {
+        [rotation_error(&s.estimate.rotation, &s.truth.rotation).to_degrees(), 2.0 * s.estimate_spread[1].to_degrees()]
+    });
+    let figure = |what: &str, unit: &str, [e, b]: [Vec<[f64; 2]>; 2]| ScatterFigure {
+        title: format!("{}-sim, vision estimator: {what} error of the estimate and the filter's 2σ", world.name()),
+        x_title: "time (s)".into(),
+        y_title: format!("{what} error ({unit})"),
+        groups: vec![
+            PointGroup { label: format!("|{what} error|"), points: e },
+            PointGroup { label: "2σ (filter)".into(), points: b },
+        ],
+    };
+    [figure("position", "mm", position), figure("attitude", "°", attitude)]
+}
+
+/// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths; for
+/// the vision estimator also its error figures beside the PNG (`…_position_error.png`,
+/// `…_attitude_error.png`).
 #[allow(clippy::too_many_arguments)]
 pub fn fly_and_write(
     flight: &Flight,
@@ -174,6 +207,15 @@ pub fn fly_and_write(
     let png = nerfsv_plot::trajectory_png(&flight_figure(flight, cfg, world, estimator, &rollout), 1200, 640)
         .map_err(|e| PipelineError::Internal(format!("plotting {}: {e}", png_path.display())))?;
     nerfsv_scene::io::atomic_write_bytes(png_path, &png).map_err(|e| PipelineError::io(png_path, e))?;
+    if estimator == EstimatorKind::Vision {
+        let stem = png_path.with_extension("");
+        for (fig, what) in estimate_figures(world.kind(), &rollout).iter().zip(["position", "attitude"]) {
+            let path = PathBuf::from(format!("{}_{what}_error.png", stem.display()));
+            let png = nerfsv_plot::scatter_png(fig, 1000, 480)
+                .map_err(|e| PipelineError::Internal(format!("plotting {}: {e}", path.display())))?;
+            nerfsv_scene::io::atomic_write_bytes(&path, &png).map_err(|e| PipelineError::io(&path, e))?;
+        }
+    }
     Ok((figures, rollout))
 }
 

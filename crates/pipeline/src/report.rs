@@ -38,6 +38,22 @@ const PICTURES: &[(&str, &str, &str)] = &[
     ("eval", "compare.png", "Test views: ground truth (left) beside the NeRF (right)"),
     ("flight", "trajectory_gt_vision.png", "Nominal flight in GT-sim, vision estimator"),
     ("flight", "trajectory_nerf_vision.png", "Nominal flight in NeRF-sim, vision estimator"),
+    (
+        "flight",
+        "trajectory_gt_vision_position_error.png",
+        "GT-sim, vision estimator: position error of the estimate and the filter's 2σ",
+    ),
+    (
+        "flight",
+        "trajectory_gt_vision_attitude_error.png",
+        "GT-sim, vision estimator: attitude error of the estimate and the filter's 2σ",
+    ),
+    (
+        "flight",
+        "trajectory_nerf_vision_position_error.png",
+        "NeRF-sim, vision estimator: position error of the estimate and the filter's 2σ",
+    ),
+    ("stress", "estimate_errors.png", "The vision estimator's position error after each image, both worlds"),
     ("stress", "most_likely_failure_mc_nerf.png", "MC's most likely failure in NeRF-sim"),
     ("stress", "most_likely_failure_mc_gt.png", "The same disturbances in GT-sim"),
     ("stress", "most_likely_failure_cem_nerf.png", "CEM's most likely failure in NeRF-sim"),
@@ -257,6 +273,11 @@ fn num(v: &Value, digits: usize) -> String {
     v.as_f64().map_or("–".into(), |x| format!("{x:.digits$}"))
 }
 
+/// Metres as millimetres, one decimal.
+fn mm(v: &Value) -> String {
+    v.as_f64().map_or("–".into(), |x| format!("{:.1}", 1e3 * x))
+}
+
 /// A percentage of a fraction.
 fn pct(v: &Value) -> String {
     v.as_f64().map_or("–".into(), |x| format!("{:.1} %", 100.0 * x))
@@ -366,8 +387,11 @@ fn page(
                             ),
                             f["collided"].as_bool().map_or("–".into(), |c| if c { "yes" } else { "no" }.into()),
                             num(&f["min_clearance_m"], 3),
+                            f["reached_goal"].as_bool().map_or("–".into(), |c| if c { "yes" } else { "no" }.into()),
                             num(&f["mean_position_error_m"], 4),
                             num(&f["mean_rotation_error_deg"], 2),
+                            format!("{} / {}", num(&f["images"], 0), num(&f["rejected_images"], 0)),
+                            num(&f["mean_nees"], 1),
                         ]
                     })
                     .collect()
@@ -375,8 +399,22 @@ fn page(
             .unwrap_or_default();
         table(
             &mut o,
-            &["flight", "collided", "min clearance (m)", "mean position error (m)", "mean rotation error (°)"],
+            &[
+                "flight",
+                "collided",
+                "min clearance (m)",
+                "reached goal",
+                "mean position error (m)",
+                "mean rotation error (°)",
+                "images / rejected by the gate",
+                "mean NEES (12 if consistent)",
+            ],
             &rows,
+        );
+        o.push_str(
+            "<p>The vision estimator is a filter on the 12-D state whose measurement is the camera image aligned \
+             against the NeRF; errors are after each image's update, NEES is the normalised estimation error squared \
+             of the whole state (χ²(12) when the filter's covariance is honest).</p>\n",
         );
         pictures_of(&mut o, "flight");
     }
@@ -446,6 +484,28 @@ fn page(
             ],
             &rows,
         );
+        let errors: Vec<Vec<String>> = summary["stress"]["estimate_errors"]
+            .as_array()
+            .map(|es| {
+                es.iter()
+                    .map(|e| {
+                        vec![
+                            format!("{}-sim", e["world"].as_str().unwrap_or("?")),
+                            num(&e["images"], 0),
+                            format!("{} / {}", mm(&e["median_position_m"]), mm(&e["p90_position_m"])),
+                            format!("{} / {}", num(&e["median_attitude_deg"], 2), num(&e["p90_attitude_deg"], 2)),
+                        ]
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        if !errors.is_empty() {
+            o.push_str(
+                "<p>The vision estimator's error after each image update, over every rollout the stage flew (the \
+                 searches in NeRF-sim and their replays in GT-sim):</p>\n",
+            );
+            table(&mut o, &["world", "images", "position error median / p90 (mm)", "attitude error median / p90 (°)"], &errors);
+        }
         pictures_of(&mut o, "stress");
     }
     if section(&mut o, "online", "Tables 1–2: uncertainty in the search, with and without reward") {

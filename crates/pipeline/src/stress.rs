@@ -16,7 +16,7 @@ use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, table_row, Agreement,
-    Confusion, DroneSystem, ExactUncertainty, FieldUncertainty, Journal, Prior, Recorder, Reward, RolloutRecord,
+    Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Journal, Prior, Recorder, Reward, RolloutRecord,
     TableRow, UncertaintyReward, UqMode, ValidationConfig, ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS,
     SAMPLER_MC,
 };
@@ -254,12 +254,72 @@ pub struct StressFigures {
     /// Where the disturbances were replayed, if they were.
     pub replay_world: Option<WorldKind>,
     pub samplers: Vec<SamplerFigures>,
+    /// The estimator's errors after its image updates, per world (the search's, then the
+    /// replay's), over the rollouts this invocation flew (a resumed run's recalled rollouts are
+    /// not flown again and not counted); empty for the truth estimator.
+    #[serde(default)]
+    pub estimate_errors: Vec<EstimateErrorFigures>,
     /// Rollouts flown in all (searches and replays; resumed ones included).
     pub rollouts: usize,
     /// Wall-clock seconds of this invocation (a timing: not part of what a seed reproduces).
     pub seconds: f64,
     /// Rollouts flown by this invocation per second (a timing).
     pub rollouts_per_second: f64,
+}
+
+/// The distribution of the estimator's errors after its image updates in one world.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EstimateErrorFigures {
+    pub world: WorldKind,
+    pub images: usize,
+    pub median_position_m: f64,
+    pub p90_position_m: f64,
+    pub median_attitude_deg: f64,
+    pub p90_attitude_deg: f64,
+}
+
+impl EstimateErrorFigures {
+    /// From `[position (m), attitude (°)]` errors; none without errors.
+    pub fn new(world: WorldKind, errors: &[[f64; 2]]) -> Option<Self> {
+        if errors.is_empty() {
+            return None;
+        }
+        let quantile = |i: usize, q: f64| {
+            let mut v: Vec<f64> = errors.iter().map(|e| e[i]).collect();
+            v.sort_by(f64::total_cmp);
+            v[((v.len() - 1) as f64 * q).round() as usize]
+        };
+        Some(Self {
+            world,
+            images: errors.len(),
+            median_position_m: quantile(0, 0.5),
+            p90_position_m: quantile(0, 0.9),
+            median_attitude_deg: quantile(1, 0.5),
+            p90_attitude_deg: quantile(1, 0.9),
+        })
+    }
+}
+
+/// The file of the estimate-error histograms.
+pub const ESTIMATE_ERRORS_PNG: &str = "estimate_errors.png";
+
+/// Histograms of the estimator's position errors after its image updates, one panel per world.
+fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<Vec<u8>, PipelineError> {
+    let groups = logs
+        .iter()
+        .map(|(w, e)| nerfsv_plot::Group {
+            label: format!("{}-sim", w.name()),
+            values: e.iter().map(|e| 1e3 * e[0]).collect(),
+        })
+        .collect();
+    let fig = nerfsv_plot::HistogramFigure {
+        title: "Position error of the estimate after each image update, the search's rollouts in both worlds".into(),
+        x_title: "position error (mm)".into(),
+        y_title: "images".into(),
+        groups,
+        bins: 40,
+    };
+    nerfsv_plot::histograms_png(&fig, 1100, 560).map_err(|e| PipelineError::Internal(format!("plotting: {e}")))
 }
 
 impl StressFigures {
@@ -435,11 +495,13 @@ pub fn stress(
     let scorer = setup.online.filter(|o| o.reward).map(|o| UncertaintyReward::new(o.method, setup.uq));
     let score = scorer.map(|s| move |r: &RolloutRecord| s.reward(r));
     let reward: Option<Reward> = score.as_ref().map(|f| f as Reward);
+    let (search_log, replay_log) = (EstimateLog::default(), EstimateLog::default());
     let system = DroneSystem {
         sim: &sim,
         world: search_world.as_ref(),
         estimator: setup.estimator,
         uncertainty: timed.as_ref().map(|t| t as &dyn ViewUncertainty),
+        estimate_log: Some(&search_log),
     };
     let v = setup.validation;
     if resume {
@@ -485,8 +547,13 @@ pub fn stress(
             status: format!("replaying in {}-sim", replay_kind.name()),
         };
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
-        let system =
-            DroneSystem { sim: &sim, world: replay_world.as_ref(), estimator: setup.estimator, uncertainty: None };
+        let system = DroneSystem {
+            sim: &sim,
+            world: replay_world.as_ref(),
+            estimator: setup.estimator,
+            uncertainty: None,
+            estimate_log: Some(&replay_log),
+        };
         let originals: Vec<RolloutRecord> = searched(&records).cloned().collect();
         let replays = replay_all(&system, &originals, &replaying)?;
         if resume {
@@ -576,6 +643,17 @@ pub fn stress(
         });
     }
     write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
+    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> = [(setup.world, search_log.sorted()), (replay_kind, replay_log.sorted())]
+        .into_iter()
+        .filter(|(_, e)| !e.is_empty())
+        .collect();
+    let estimate_errors: Vec<EstimateErrorFigures> =
+        logs.iter().filter_map(|(w, e)| EstimateErrorFigures::new(*w, e)).collect();
+    if !logs.is_empty() {
+        let path = out.join(ESTIMATE_ERRORS_PNG);
+        nerfsv_scene::io::atomic_write_bytes(&path, &estimate_error_png(&logs)?)
+            .map_err(|e| PipelineError::io(&path, e))?;
+    }
     let seconds = start.elapsed().as_secs_f64();
     let flown = counting.fresh.load(Ordering::Relaxed);
     let figures = StressFigures {
@@ -586,6 +664,7 @@ pub fn stress(
         uncertainty_seconds: timed.as_ref().map_or(0.0, |t| t.nanos.load(Ordering::Relaxed) as f64 * 1e-9),
         replay_world: setup.replay.then_some(replay_kind),
         samplers,
+        estimate_errors,
         rollouts: records.len() + replays.as_ref().map_or(0, Vec::len),
         seconds,
         rollouts_per_second: flown as f64 / seconds.max(1e-9),

@@ -82,10 +82,12 @@ pub struct VisionConfig {
     /// at a known start.
     pub initial_std: [f64; 12],
     /// Camera images per step, spread evenly over its substeps; the first right after the
-    /// step's disturbance (the paper's order: disturb, observe, estimate, act). Default 4 (one
-    /// every 0.2 s with the default 8 substeps of 0.1 s): with one image per step the body-rate
-    /// kick of a step is not observable apart from its attitude kick, and the tilt it leaves
-    /// grows unseen for the whole step.
+    /// step's disturbance (the paper's order: disturb, observe, estimate, act). Default 8, an
+    /// image every substep of 0.1 s: with one image per step the body-rate kick of a step is not
+    /// observable apart from its attitude kick, and the tilt it leaves grows unseen for the
+    /// whole step. With [`VisionConfig::stop_step`] the images after the first of a step start
+    /// near the optimum and stop after 2–3 renders, so 8 images cost about what 4 did without
+    /// early stopping (BENCHMARKS.md has the crash rates per camera rate).
     pub images_per_step: usize,
     /// Poses tried before the search besides the prediction: ±1σ along this many principal axes
     /// of the prediction's pose covariance, each one forward render scored at the coarsest level.
@@ -98,9 +100,8 @@ pub struct VisionConfig {
     pub gate_inflation: f64,
     /// `[metres, degrees]`: the search stops at the finest level when the step it proposes
     /// moves the pose less than this in both position and rotation, and leaves a coarser level
-    /// at four times it. `[0, 0]` (default) spends every render: at 0.5 mm / 0.03° the NeRF-sim
-    /// update needs 30 % fewer renders, but the undisturbed GT-sim flight of the default scene,
-    /// whose clearance is only 2 cm, then grazes the central stone (−2.4 mm at step 3).
+    /// at four times it; `[0, 0]` spends every render. Default `[0.001, 0.06]`: on the default
+    /// study 2.9 renders per image instead of 9, at the same crash rate.
     pub stop_step: [f64; 2],
     /// Samples whose compositing weight is below this enter the pose Jacobians through their
     /// density only ([`RayRender::jacobians_above`]): their own colour's change with position
@@ -116,17 +117,17 @@ impl Default for VisionConfig {
     fn default() -> Self {
         Self {
             pixels: 256,
-            iterations: 5,
+            iterations: 9,
             levels: [2, 1],
             photometric_sigma: 0.3,
             huber: 2.0,
             disturbance_std: crate::dynamics::Disturbance::PAPER_STD,
             initial_std: [1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3],
-            images_per_step: 4,
+            images_per_step: 8,
             start_candidates: 0,
             gate_chi2: 22.46,
             gate_inflation: 2.0,
-            stop_step: [0.0, 0.0],
+            stop_step: [1e-3, 0.06],
             jacobian_min_weight: 0.0,
         }
     }

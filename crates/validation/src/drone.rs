@@ -1,5 +1,7 @@
 //! The drone as a [`System`]: one rollout of a [`Simulator`] in a [`World`] with an estimator.
 
+use std::sync::Mutex;
+
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
 
@@ -15,6 +17,27 @@ pub struct DroneSystem<'a> {
     /// Measures each flown step's uncertainty (`Outcome::step_uncertainty`), if given: the view
     /// of the camera at the step's final true pose.
     pub uncertainty: Option<&'a dyn ViewUncertainty>,
+    /// Collects the estimator's error after every image update of the rollouts flown, if given.
+    pub estimate_log: Option<&'a EstimateLog>,
+}
+
+/// The estimator's errors after its image updates, `[position (m), attitude (°)]` each, over the
+/// rollouts a system flew (in the order they finished: sort before use).
+#[derive(Debug, Default)]
+pub struct EstimateLog(Mutex<Vec<[f64; 2]>>);
+
+impl EstimateLog {
+    fn extend(&self, errors: impl Iterator<Item = [f64; 2]>) {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).extend(errors);
+    }
+
+    /// Every error recorded, sorted by position error (then attitude error), so the result does
+    /// not depend on the order rollouts finished in.
+    pub fn sorted(&self) -> Vec<[f64; 2]> {
+        let mut v = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        v.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+        v
+    }
 }
 
 /// A rollout's disturbances, one row per step, as the simulator takes them (components beyond
@@ -39,6 +62,9 @@ impl System for DroneSystem<'_> {
     /// have NaN positions (and, when measured, NaN uncertainty).
     fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
+        if let Some(log) = self.estimate_log {
+            log.extend(r.updates.iter().map(|u| [u.position_error_m, u.rotation_error_deg]));
+        }
         let mut step_scores = vec![f64::NAN; self.sim.steps];
         // The substeps come in order: the last one of a step is its end, where the camera takes
         // the step's image.

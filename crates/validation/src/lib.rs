@@ -51,7 +51,7 @@ mod table;
 
 pub use compare::{compare, Agreement, Confusion, Spread};
 pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, ValidationConfig};
-pub use drone::{drone_disturbances, DroneSystem};
+pub use drone::{drone_disturbances, DroneSystem, EstimateLog};
 pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};

@@ -20,10 +20,20 @@ fn mc_truth_replay(c: &mut Criterion) {
     let Some(run) = BenchRun::load("stress") else { return };
     let (cfg, sim) = (&run.cfg, run.simulator());
     let (nerf_world, gt_world) = (run.world(WorldKind::Nerf), run.world(WorldKind::Gt));
-    let search =
-        DroneSystem { sim: &sim, world: nerf_world.as_ref(), estimator: EstimatorKind::Truth, uncertainty: None, estimate_log: None };
-    let replay =
-        DroneSystem { sim: &sim, world: gt_world.as_ref(), estimator: EstimatorKind::Truth, uncertainty: None, estimate_log: None };
+    let search = DroneSystem {
+        sim: &sim,
+        world: nerf_world.as_ref(),
+        estimator: EstimatorKind::Truth,
+        uncertainty: None,
+        estimate_log: None,
+    };
+    let replay = DroneSystem {
+        sim: &sim,
+        world: gt_world.as_ref(),
+        estimator: EstimatorKind::Truth,
+        uncertainty: None,
+        estimate_log: None,
+    };
     let prior = Prior::drone(cfg.steps);
     let mut g = c.benchmark_group("stress");
     g.sample_size(10);

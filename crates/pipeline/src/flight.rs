@@ -8,8 +8,8 @@ use std::time::Instant;
 use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::Nerf;
 use nerfsv_plot::{FieldSlice, PointGroup, ScatterFigure, Track, TrackKind, TrajectoryFigure};
-use nerfsv_sim::dynamics::rotation_error;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::dynamics::rotation_error;
 use nerfsv_sim::{
     plan_flight, trajectory_csv, Disturbance, EstimatorKind, Flight, GroundTruthWorld, NerfWorld, Rollout, SimConfig,
     World, WorldKind,
@@ -164,9 +164,7 @@ pub fn estimate_figures(world: WorldKind, r: &Rollout) -> [ScatterFigure; 2] {
         }
         [e, b]
     };
-    let position = series(&|s| {
-        [1e3 * (s.estimate.position - s.truth.position).norm(), 2e3 * s.estimate_spread[0]]
-    });
+    let position = series(&|s| [1e3 * (s.estimate.position - s.truth.position).norm(), 2e3 * s.estimate_spread[0]]);
     let attitude = series(&|s| {
         [rotation_error(&s.estimate.rotation, &s.truth.rotation).to_degrees(), 2.0 * s.estimate_spread[1].to_degrees()]
     });

@@ -504,7 +504,11 @@ fn page(
                 "<p>The vision estimator's error after each image update, over every rollout the stage flew (the \
                  searches in NeRF-sim and their replays in GT-sim):</p>\n",
             );
-            table(&mut o, &["world", "images", "position error median / p90 (mm)", "attitude error median / p90 (°)"], &errors);
+            table(
+                &mut o,
+                &["world", "images", "position error median / p90 (mm)", "attitude error median / p90 (°)"],
+                &errors,
+            );
         }
         pictures_of(&mut o, "stress");
     }

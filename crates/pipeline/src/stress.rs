@@ -16,9 +16,9 @@ use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, table_row, Agreement,
-    Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Journal, Prior, Recorder, Reward, RolloutRecord,
-    TableRow, UncertaintyReward, UqMode, ValidationConfig, ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS,
-    SAMPLER_MC,
+    Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Journal, Prior, Recorder, Reward,
+    RolloutRecord, TableRow, UncertaintyReward, UqMode, ValidationConfig, ValidationError, ViewUncertainty,
+    SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -303,17 +303,26 @@ impl EstimateErrorFigures {
 /// The file of the estimate-error histograms.
 pub const ESTIMATE_ERRORS_PNG: &str = "estimate_errors.png";
 
-/// Histograms of the estimator's position errors after its image updates, one panel per world.
+/// Histograms of the estimator's position errors after its image updates, one panel per world,
+/// up to the 99th percentile of all of them (the rest, a crashed rollout's last images, would
+/// squeeze the bulk into one bar; the title says how many are left out).
 fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<Vec<u8>, PipelineError> {
+    let mut all: Vec<f64> = logs.iter().flat_map(|(_, e)| e.iter().map(|e| 1e3 * e[0])).collect();
+    all.sort_by(f64::total_cmp);
+    let cut = all.get(((all.len().max(1) - 1) as f64 * 0.99).round() as usize).copied().unwrap_or(f64::INFINITY);
+    let left_out = all.iter().filter(|&&v| v > cut).count();
     let groups = logs
         .iter()
         .map(|(w, e)| nerfsv_plot::Group {
             label: format!("{}-sim", w.name()),
-            values: e.iter().map(|e| 1e3 * e[0]).collect(),
+            values: e.iter().map(|e| 1e3 * e[0]).filter(|&v| v <= cut).collect(),
         })
         .collect();
     let fig = nerfsv_plot::HistogramFigure {
-        title: "Position error of the estimate after each image update, the search's rollouts in both worlds".into(),
+        title: format!(
+            "Position error of the estimate after each image update, both worlds ({left_out} above {cut:.0} mm, the 99th \
+             percentile, left out)"
+        ),
         x_title: "position error (mm)".into(),
         y_title: "images".into(),
         groups,
@@ -643,10 +652,11 @@ pub fn stress(
         });
     }
     write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
-    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> = [(setup.world, search_log.sorted()), (replay_kind, replay_log.sorted())]
-        .into_iter()
-        .filter(|(_, e)| !e.is_empty())
-        .collect();
+    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> =
+        [(setup.world, search_log.sorted()), (replay_kind, replay_log.sorted())]
+            .into_iter()
+            .filter(|(_, e)| !e.is_empty())
+            .collect();
     let estimate_errors: Vec<EstimateErrorFigures> =
         logs.iter().filter_map(|(w, e)| EstimateErrorFigures::new(*w, e)).collect();
     if !logs.is_empty() {

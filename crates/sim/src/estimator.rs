@@ -174,7 +174,10 @@ impl PosePrior {
     /// The prior's pose moved by `(δp, δθ)`.
     fn moved(&self, d: &Vector6<f64>) -> (Vector3<f64>, Matrix3<f64>) {
         let dr = Vector3::new(d[3], d[4], d[5]);
-        (self.position + Vector3::new(d[0], d[1], d[2]), crate::dynamics::reorthonormalise(&(so3_exp(&dr) * self.rotation)))
+        (
+            self.position + Vector3::new(d[0], d[1], d[2]),
+            crate::dynamics::reorthonormalise(&(so3_exp(&dr) * self.rotation)),
+        )
     }
 
     /// `±√λ·v` for the `n` largest eigenpairs `(λ, v)` of the prior covariance.

@@ -45,7 +45,11 @@ pub const MAX_PRIOR_SIGMAS: f64 = 50.0;
 
 /// Reads `steps` disturbances from a CSV file; `prior_std` is the disturbance prior's standard
 /// deviation per column (a column whose prior is 0 is bounded by the largest of them).
-pub fn read_disturbances(path: &Path, steps: usize, prior_std: &[f64]) -> Result<Vec<Disturbance>, DisturbanceFileError> {
+pub fn read_disturbances(
+    path: &Path,
+    steps: usize,
+    prior_std: &[f64],
+) -> Result<Vec<Disturbance>, DisturbanceFileError> {
     let text = std::fs::read_to_string(path).map_err(|e| DisturbanceFileError::Io { path: path.into(), error: e })?;
     parse_disturbances(&text, steps, prior_std, path)
 }
@@ -200,9 +204,11 @@ mod tests {
             e.to_string(),
             format!("d.csv: line 2: expected 12 columns ({}), found 3", DISTURBANCE_COLUMNS.join(","))
         );
-        let e = parse_disturbances(&format!("{row}0,0,0,0,0,0,0,0,nan,0,0,0\n"), 2, &Disturbance::PAPER_STD, path).unwrap_err();
+        let e = parse_disturbances(&format!("{row}0,0,0,0,0,0,0,0,nan,0,0,0\n"), 2, &Disturbance::PAPER_STD, path)
+            .unwrap_err();
         assert_eq!(e.to_string(), "d.csv: line 2, column 9 (dr_z): \"nan\" is not a finite number");
-        let e = parse_disturbances(&format!("{row}0,0,0,0,0,1e999,0,0,0,0,0,0\n"), 2, &Disturbance::PAPER_STD, path).unwrap_err();
+        let e = parse_disturbances(&format!("{row}0,0,0,0,0,1e999,0,0,0,0,0,0\n"), 2, &Disturbance::PAPER_STD, path)
+            .unwrap_err();
         assert!(e.to_string().contains("column 6 (dv_z)"), "{e}");
         let e = parse_disturbances(row, 2, &Disturbance::PAPER_STD, path).unwrap_err();
         assert_eq!(e.to_string(), "d.csv: expected one row per step (2), found 1 rows");
@@ -214,6 +220,8 @@ mod tests {
             "d.csv: line 2, column 4 (dv_x): 1e300 is more than 50 standard deviations of the disturbance prior (0.5 at most)"
         );
         // 50σ itself is accepted.
-        assert!(parse_disturbances(&format!("{row}1,0,0,0,0,0,0,0,0,0,0,0\n"), 2, &Disturbance::PAPER_STD, path).is_ok());
+        assert!(
+            parse_disturbances(&format!("{row}1,0,0,0,0,0,0,0,0,0,0,0\n"), 2, &Disturbance::PAPER_STD, path).is_ok()
+        );
     }
 }

@@ -303,7 +303,15 @@ impl Simulator<'_> {
                 out.min_clearance = Some(out.min_clearance.map_or(c, |m| m.min(c)));
             }
             let estimate_spread = if vision { belief.pose_spread() } else { [0.0; 2] };
-            out.substeps.push(Substep { step, substep, time, truth: *truth, estimate: belief.mean, estimate_spread, clearance });
+            out.substeps.push(Substep {
+                step,
+                substep,
+                time,
+                truth: *truth,
+                estimate: belief.mean,
+                estimate_spread,
+                clearance,
+            });
             !(self.stop_at_collision && out.first_collision.is_some())
         };
 
@@ -359,7 +367,11 @@ impl Simulator<'_> {
         time: f64,
     ) -> ImageUpdate {
         let predicted = belief.mean;
-        let prior = PosePrior { position: predicted.position, rotation: predicted.rotation, information: belief.pose_information() };
+        let prior = PosePrior {
+            position: predicted.position,
+            rotation: predicted.rotation,
+            information: belief.pose_information(),
+        };
         let fit = self.observe_and_refine(world, truth, &prior, seed);
         let u = belief.update_pose(
             &fit.position,

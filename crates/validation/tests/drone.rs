@@ -19,7 +19,13 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
     let flight = plan_flight(&cfg, &gt.sdf, (nerf.config.aabb_min, nerf.config.aabb_max)).unwrap();
     let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(16, 16, 0.8));
     let world = GroundTruthWorld { scene: &scene, field: &gt.sdf, render: RenderSettings::default() };
-    let system = DroneSystem { sim: &sim, world: &world, estimator: EstimatorKind::Truth, uncertainty: None, estimate_log: None };
+    let system = DroneSystem {
+        sim: &sim,
+        world: &world,
+        estimator: EstimatorKind::Truth,
+        uncertainty: None,
+        estimate_log: None,
+    };
     assert_eq!((system.steps(), system.dim()), (6, 12));
     let undisturbed = system.run(&vec![vec![0.0; 12]; 6], 0);
     assert!(!undisturbed.failed() && undisturbed.score.is_finite(), "{undisturbed:?}");

@@ -1,0 +1,176 @@
+//! The vision estimator on a run folder's model, away from the pipeline: how often it crashes
+//! the drone under the paper's disturbances, how consistent its filter is, and what one image
+//! update does from a disturbance. The figures of BENCHMARKS.md's issue-21 section come from it.
+//!
+//! ```sh
+//! cargo run --release -- run     # a run folder with a trained model and both fields
+//! cargo run --release --example estimator_study -- mc 100          # Monte Carlo, both worlds
+//! cargo run --release --example estimator_study -- update 36       # single updates from the prior
+//! cargo run --release --example estimator_study -- floor 36        # updates started at the truth
+//! cargo run --release --example estimator_study -- nominal         # the undisturbed flights
+//! ```
+//!
+//! The run folder is `runs/stonehenge` (`RUN=DIR` for another); settings override the default
+//! `[sim.vision]` through the environment: `IMAGES` (images per step), `ITERATIONS`, `SIGMA`
+//! (photometric σ), `STOP_MM` (stop step in mm, with 0.06° per mm), `CANDIDATES`, `PIXELS`,
+//! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both). Disturbances come
+//! from a seeded generator of its own, so every setting is compared on the same draws.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use nerfsv_pipeline::flight::{world, FlightInputs};
+use nerfsv_pipeline::stages::{GroundTruthField, NerfField, Train};
+use nerfsv_pipeline::{RunConfig, Stage};
+use nerfsv_scene::Scene;
+use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, Rollout, WorldKind};
+use rayon::prelude::*;
+
+fn env<T: std::str::FromStr>(key: &str, default: T) -> T {
+    std::env::var(key).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// A small seeded normal generator (SplitMix64 + Box–Muller), independent of the crates'.
+struct Normal(u64);
+
+impl Normal {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64 + 0.5 / (1u64 << 53) as f64
+    }
+
+    fn sample(&mut self) -> f64 {
+        let (a, b) = (self.uniform(), self.uniform());
+        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+    }
+
+    fn disturbance(&mut self) -> Disturbance {
+        Disturbance(std::array::from_fn(|i| self.sample() * Disturbance::PAPER_STD[i]))
+    }
+}
+
+fn percentile(v: &mut [f64], q: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mode = args.first().map_or("mc", String::as_str).to_string();
+    let n: usize = args.get(1).and_then(|v| v.parse().ok()).unwrap_or(40);
+    let out = PathBuf::from(env("RUN", "runs/stonehenge".to_string()));
+    let mut cfg = RunConfig { out: out.clone(), ..RunConfig::default() };
+    let v = &mut cfg.sim.vision;
+    v.images_per_step = env("IMAGES", v.images_per_step);
+    v.iterations = env("ITERATIONS", v.iterations);
+    v.photometric_sigma = env("SIGMA", v.photometric_sigma);
+    v.start_candidates = env("CANDIDATES", v.start_candidates);
+    v.pixels = env("PIXELS", v.pixels);
+    let stop_mm: f64 = env("STOP_MM", v.stop_step[0] * 1e3);
+    v.stop_step = [stop_mm * 1e-3, stop_mm * 0.06];
+    if env("COLLISION", String::new()) == "centre_cell" {
+        cfg.sim.collision = Collision::CentreCell;
+    }
+    let scene = Scene::builtin(&cfg.scene)?;
+    let inputs = FlightInputs::load(
+        &Train::checkpoint(&out),
+        &out.join(NerfField::NAME).join(NerfField::SDF),
+        &GroundTruthField::sdf_path(&out),
+    )?;
+    let flight = inputs.plan(&cfg.sim)?;
+    let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
+    let worlds = match env("WORLD", String::new()).as_str() {
+        "nerf" => vec![WorldKind::Nerf],
+        "gt" => vec![WorldKind::Gt],
+        _ => vec![WorldKind::Nerf, WorldKind::Gt],
+    };
+    for kind in worlds {
+        let w = world(kind, &inputs, &scene, cfg.dataset.render_settings());
+        match mode.as_str() {
+            "mc" => {
+                for estimator in [EstimatorKind::Vision, EstimatorKind::Truth] {
+                    let start = Instant::now();
+                    let rollouts: Vec<Rollout> = (0..n)
+                        .into_par_iter()
+                        .map(|i| {
+                            let mut rng = Normal(1000 + i as u64);
+                            let ds: Vec<Disturbance> = (0..cfg.sim.steps).map(|_| rng.disturbance()).collect();
+                            sim.fly(w.as_ref(), estimator, &ds, i as u64)
+                        })
+                        .collect();
+                    let crashed = rollouts.iter().filter(|r| r.collided()).count();
+                    let updates: Vec<_> = rollouts.iter().flat_map(|r| &r.updates).collect();
+                    let images = updates.len().max(1) as f64;
+                    let mut nees: Vec<f64> = updates.iter().map(|u| u.nees).collect();
+                    let mean_nees = nees.iter().sum::<f64>() / images;
+                    let median_nees = if nees.is_empty() { f64::NAN } else { percentile(&mut nees, 0.5) };
+                    println!(
+                        "{}-sim, {}: {crashed}/{n} collided; {} images, {:.2} renders each, {} rejected; mean NEES {:.1} \
+                         (median {:.1}); mean error {:.1} mm / {:.2}°; {:.1} s",
+                        kind.name(),
+                        estimator.name(),
+                        updates.len(),
+                        updates.iter().map(|u| u.renders).sum::<usize>() as f64 / images,
+                        updates.iter().filter(|u| !u.accepted).count(),
+                        mean_nees,
+                        median_nees,
+                        1e3 * updates.iter().map(|u| u.position_error_m).sum::<f64>() / images,
+                        updates.iter().map(|u| u.rotation_error_deg).sum::<f64>() / images,
+                        start.elapsed().as_secs_f64()
+                    );
+                }
+            }
+            "update" | "floor" => {
+                let mut rng = Normal(7);
+                let (mut within, mut pos, mut rot, mut ms) = (0, Vec::new(), Vec::new(), 0.0);
+                for case in 0..n {
+                    let k = case % cfg.sim.steps;
+                    let at = flight.reference.at_rest(k as f64 * sim.step_duration());
+                    let mut belief = Belief::new(at, &cfg.sim.vision.initial_std);
+                    belief.disturb(&cfg.sim.vision.disturbance_std);
+                    let d = rng.disturbance();
+                    let truth = if mode == "floor" { at } else { d.apply(&at) };
+                    let t = Instant::now();
+                    let u = sim.image_update(w.as_ref(), &truth, &mut belief, case as u64, k, 0, 0.0);
+                    ms += 1e3 * t.elapsed().as_secs_f64();
+                    if u.position_error_m <= 0.01 && u.rotation_error_deg <= 0.5 {
+                        within += 1;
+                    }
+                    pos.push(1e3 * u.position_error_m);
+                    rot.push(u.rotation_error_deg);
+                }
+                println!(
+                    "{}-sim, {mode}: {within}/{n} within 1 cm / 0.5° after one image; median {:.1} mm / {:.2}°, p90 \
+                     {:.1} mm / {:.2}°; {:.1} ms per update",
+                    kind.name(),
+                    percentile(&mut pos, 0.5),
+                    percentile(&mut rot, 0.5),
+                    percentile(&mut pos, 0.9),
+                    percentile(&mut rot, 0.9),
+                    ms / n as f64
+                );
+            }
+            _ => {
+                for estimator in [EstimatorKind::Vision, EstimatorKind::Truth] {
+                    let t = Instant::now();
+                    let r = sim.fly(w.as_ref(), estimator, &[], cfg.flight_seed);
+                    println!(
+                        "{}-sim, {}, undisturbed: collided {}, min clearance {:.3} m, {:.3} m from the goal, {} images \
+                         ({:.1} ms each)",
+                        kind.name(),
+                        estimator.name(),
+                        r.collided(),
+                        r.min_clearance.unwrap_or(f32::NAN),
+                        r.goal_distance_m,
+                        r.updates.len(),
+                        1e3 * t.elapsed().as_secs_f64() / r.updates.len().max(1) as f64
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
+}

@@ -63,8 +63,8 @@ fn vision_steps(c: &mut Criterion) {
         .collect();
     // The filter's prediction covariance right after a step's disturbance: the paper's prior.
     let prior = |p: &State| {
-        let mut b = nerfsv_sim::Belief::new(*p, &cfg.sim.vision.initial_std);
-        b.disturb(&cfg.sim.vision.disturbance_std);
+        let mut b = nerfsv_sim::Belief::new(*p, &cfg.vision.initial_std);
+        b.disturb(&cfg.vision.disturbance_std);
         nerfsv_sim::PosePrior { position: p.position, rotation: p.rotation, information: b.pose_information() }
     };
     let mut g = c.benchmark_group("sim");

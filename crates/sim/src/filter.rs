@@ -139,7 +139,7 @@ impl Belief {
         let p_pp_inv = inverse_spd(&p_pp);
         let innovation = pose_difference(position, rotation, &self.mean);
         let mahalanobis_sq = innovation.dot(&(p_pp_inv * innovation));
-        if !(mahalanobis_sq <= gate) {
+        if mahalanobis_sq.is_nan() || mahalanobis_sq > gate {
             self.covariance *= inflation;
             return PoseUpdate { mahalanobis_sq, accepted: false };
         }

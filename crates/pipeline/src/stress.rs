@@ -411,8 +411,13 @@ impl ViewUncertainty for Timed<'_> {
 }
 
 /// Counts finished rollouts for progress, passing everything to the journal.
+/// Extension of the files that keep a journalled rollout's estimator errors.
+const ESTIMATES_EXTENSION: &str = "estimates";
+
 struct Counting<'a> {
     journal: &'a Journal,
+    /// The estimator's errors of the rollouts, kept beside their journal files.
+    estimates: &'a EstimateLog,
     done: AtomicU64,
     fresh: AtomicU64,
     total: u64,
@@ -423,7 +428,12 @@ struct Counting<'a> {
 
 impl Recorder for Counting<'_> {
     fn recall(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
-        let r = self.journal.recall(s, p, i);
+        // A rollout whose estimator errors cannot be read back is flown again (to the same
+        // result), so the errors cover every rollout as in an uninterrupted run.
+        let r = self
+            .journal
+            .recall(s, p, i)
+            .filter(|r| self.estimates.load(r.seed, &self.journal.beside(s, p, i, ESTIMATES_EXTENSION)).is_ok());
         if r.is_some() {
             self.done.fetch_add(1, Ordering::Relaxed);
         }
@@ -431,6 +441,8 @@ impl Recorder for Counting<'_> {
     }
 
     fn record(&self, r: &RolloutRecord) -> Result<(), ValidationError> {
+        let beside = self.journal.beside(&r.sampler, r.population, r.index, ESTIMATES_EXTENSION);
+        self.estimates.save(r.seed, &beside)?;
         self.journal.record(r)?;
         self.fresh.fetch_add(1, Ordering::Relaxed);
         let done = self.done.fetch_add(1, Ordering::Relaxed) + 1;
@@ -469,8 +481,10 @@ pub fn stress(
     let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
 
     let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume)?;
+    let (search_log, replay_log) = (EstimateLog::default(), EstimateLog::default());
     let mut counting = Counting {
         journal: &journal,
+        estimates: &search_log,
         done: AtomicU64::new(0),
         fresh: AtomicU64::new(0),
         total,
@@ -504,7 +518,6 @@ pub fn stress(
     let scorer = setup.online.filter(|o| o.reward).map(|o| UncertaintyReward::new(o.method, setup.uq));
     let score = scorer.map(|s| move |r: &RolloutRecord| s.reward(r));
     let reward: Option<Reward> = score.as_ref().map(|f| f as Reward);
-    let (search_log, replay_log) = (EstimateLog::default(), EstimateLog::default());
     let system = DroneSystem {
         sim: &sim,
         world: search_world.as_ref(),
@@ -548,6 +561,7 @@ pub fn stress(
         let replay_journal = Journal::open(&journal_dir.join(format!("replay_{}", replay_kind.name())), key, resume)?;
         let replaying = Counting {
             journal: &replay_journal,
+            estimates: &replay_log,
             done: AtomicU64::new(counting.done.load(Ordering::Relaxed)),
             fresh: AtomicU64::new(0),
             total,

@@ -1,10 +1,13 @@
 //! The drone as a [`System`]: one rollout of a [`Simulator`] in a [`World`] with an estimator.
 
+use std::collections::BTreeMap;
+use std::path::Path;
 use std::sync::Mutex;
 
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
 
+use crate::error::ValidationError;
 use crate::online::ViewUncertainty;
 
 use crate::system::{Outcome, System};
@@ -21,22 +24,58 @@ pub struct DroneSystem<'a> {
     pub estimate_log: Option<&'a EstimateLog>,
 }
 
-/// The estimator's errors after its image updates, `[position (m), attitude (°)]` each, over the
-/// rollouts a system flew (in the order they finished: sort before use).
+/// The estimator's errors after its image updates, `[position (m), attitude (°)]` each, per
+/// rollout (by its seed), over the rollouts a system flew.
+///
+/// A rollout's errors can be kept in a file ([`EstimateLog::save`]) and read back
+/// ([`EstimateLog::load`]) bit-identical, so a run that recalls rollouts from a journal instead
+/// of flying them still knows their errors.
 #[derive(Debug, Default)]
-pub struct EstimateLog(Mutex<Vec<[f64; 2]>>);
+pub struct EstimateLog(Mutex<BTreeMap<u64, Vec<[f64; 2]>>>);
 
 impl EstimateLog {
-    fn extend(&self, errors: impl Iterator<Item = [f64; 2]>) {
-        self.0.lock().unwrap_or_else(|e| e.into_inner()).extend(errors);
+    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<u64, Vec<[f64; 2]>>> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Sets the errors of the rollout flown with `seed`.
+    pub fn insert(&self, seed: u64, errors: Vec<[f64; 2]>) {
+        self.lock().insert(seed, errors);
     }
 
     /// Every error recorded, sorted by position error (then attitude error), so the result does
     /// not depend on the order rollouts finished in.
     pub fn sorted(&self) -> Vec<[f64; 2]> {
-        let mut v = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let mut v: Vec<[f64; 2]> = self.lock().values().flatten().copied().collect();
         v.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
         v
+    }
+
+    /// Writes the errors of the rollout `seed` to `path` (written atomically; one line
+    /// `position,attitude` each, nothing for a rollout not logged).
+    pub fn save(&self, seed: u64, path: &Path) -> Result<(), ValidationError> {
+        let mut text = String::new();
+        for [p, a] in self.lock().get(&seed).into_iter().flatten() {
+            text.push_str(&format!("{p},{a}\n"));
+        }
+        nerfsv_scene::io::atomic_write_bytes(path, text.as_bytes()).map_err(|e| ValidationError::io(path, e))
+    }
+
+    /// Reads a file [`EstimateLog::save`] wrote as the errors of the rollout `seed`.
+    pub fn load(&self, seed: u64, path: &Path) -> Result<(), ValidationError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ValidationError::io(path, e))?;
+        let mut errors = Vec::new();
+        for (n, line) in text.lines().enumerate() {
+            let bad = || ValidationError::Csv {
+                path: path.into(),
+                line: n + 1,
+                message: format!("`{line}` is not `position,attitude`"),
+            };
+            let (p, a) = line.split_once(',').ok_or_else(bad)?;
+            errors.push([p.parse().map_err(|_| bad())?, a.parse().map_err(|_| bad())?]);
+        }
+        self.insert(seed, errors);
+        Ok(())
     }
 }
 
@@ -63,7 +102,7 @@ impl System for DroneSystem<'_> {
     fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
         if let Some(log) = self.estimate_log {
-            log.extend(r.updates.iter().map(|u| [u.position_error_m, u.rotation_error_deg]));
+            log.insert(seed, r.updates.iter().map(|u| [u.position_error_m, u.rotation_error_deg]).collect());
         }
         let mut step_scores = vec![f64::NAN; self.sim.steps];
         // The substeps come in order: the last one of a step is its end, where the camera takes
@@ -97,5 +136,32 @@ impl System for DroneSystem<'_> {
             step_positions,
             step_uncertainty,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn estimate_errors_read_back_bit_identical_and_a_damaged_file_is_refused_by_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = EstimateLog::default();
+        let errors = vec![[0.1 + 0.2, 1.0 / 3.0], [f64::MIN_POSITIVE, 123456.789e-7], [0.0, f64::MAX]];
+        log.insert(7, errors.clone());
+        log.insert(8, Vec::new());
+        let (a, b) = (dir.path().join("7.estimates"), dir.path().join("8.estimates"));
+        log.save(7, &a).unwrap();
+        log.save(8, &b).unwrap();
+
+        let back = EstimateLog::default();
+        back.load(7, &a).unwrap();
+        back.load(8, &b).unwrap();
+        assert_eq!(back.sorted(), log.sorted());
+        assert_eq!(back.sorted().len(), errors.len());
+
+        std::fs::write(&a, "0.1,0.2\n0.3;0.4\n").unwrap();
+        let e = back.load(7, &a).unwrap_err().to_string();
+        assert!(e.contains("7.estimates") && e.contains('2') && e.contains("0.3;0.4"), "{e}");
     }
 }

@@ -97,6 +97,12 @@ impl Journal {
         }
     }
 
+    /// Where a file kept beside the rollout (sampler, population, index) goes: its journal
+    /// file's name with `extension` (anything but `csv`, which is the journal's own).
+    pub fn beside(&self, sampler: &str, population: usize, index: usize, extension: &str) -> PathBuf {
+        self.dir.join(format!("{sampler}-{population}-{index}.{extension}"))
+    }
+
     /// Whether `dir` holds a journal (of any run).
     pub fn exists(dir: &Path) -> bool {
         dir.join(KEY_FILE).is_file()

@@ -72,6 +72,7 @@ fn cem_with_replay_prints_the_summary_and_writes_the_same_bytes_on_one_and_two_t
     for key in [
         "rollouts",
         "collision_rate",
+        "lost_rate",
         "avg_collision_step",
         "avg_log_likelihood",
         "avg_uncertainty",
@@ -98,7 +99,7 @@ fn cem_with_replay_prints_the_summary_and_writes_the_same_bytes_on_one_and_two_t
     assert_eq!(rollouts.lines().count(), 1 + 18 * 6);
     assert_eq!(std::fs::read_to_string(one.join("replay_gt.csv")).unwrap().lines().count(), 1 + 12 * 6);
     let table = std::fs::read_to_string(one.join("table.csv")).unwrap();
-    assert!(table.starts_with("world,sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood"));
+    assert!(table.starts_with("world,sampler,rollouts,collision_rate,lost_rate,avg_collision_step,avg_log_likelihood"));
     assert_eq!(table.lines().map(|l| l.split(',').nth(1).unwrap()).collect::<Vec<_>>(), ["sampler", "cem", "cem-is"]);
     // The most likely failure: its disturbances and its flight in both worlds.
     for f in ["most_likely_failure_cem.csv", "most_likely_failure_cem_nerf.png", "most_likely_failure_cem_gt.png"] {

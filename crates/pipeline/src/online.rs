@@ -90,12 +90,13 @@ impl OnlineFigures {
             ));
             for OnlineRow { reward, row: r, .. } in &m.rows {
                 s.push_str(&format!(
-                    "\n      {:<6} {:<9} {:>4} rollouts: collision rate {:.3}, avg step {}, avg log-likelihood {:.2}, \
+                    "\n      {:<6} {:<9} {:>4} rollouts: collision rate {:.3}, lost {:.3}, avg step {}, avg log-likelihood {:.2}, \
                      avg uncertainty {}, avg reward {}",
                     r.sampler,
                     if *reward { "reward" } else { "no reward" },
                     r.rollouts,
                     r.collision_rate,
+                    r.lost_rate,
                     opt(r.avg_collision_step, 2),
                     r.avg_log_likelihood,
                     opt(r.avg_uncertainty, 4),
@@ -129,7 +130,7 @@ impl OnlineStage<'_> {
 
 impl Stage for OnlineStage<'_> {
     const NAME: &'static str = "online";
-    const VERSION: u32 = 1;
+    const VERSION: u32 = 2;
     const OUTPUTS: &'static [&'static str] = &[ONLINE_TABLE_CSV];
     const INPUTS: &'static [&'static str] =
         &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, crate::stress::STAGE];

@@ -161,6 +161,8 @@ pub struct SamplerFigures {
     /// The paper's Table 1–2 columns over the search's own rollouts (MC: all; CEM: its
     /// populations).
     pub collision_rate: f64,
+    /// Rollouts lost without a collision (state not finite, or out of the field's grid).
+    pub lost_rate: f64,
     pub avg_collision_step: Option<f64>,
     pub avg_log_likelihood: f64,
     pub avg_uncertainty: Option<f64>,
@@ -180,13 +182,14 @@ pub struct SamplerFigures {
 impl SamplerFigures {
     pub fn describe(&self) -> String {
         let mut s = format!(
-            "{} in {}-sim ({} estimator), {} rollouts: collision rate {:.3}, avg collision step {}, avg log-likelihood \
-             {:.2}, P(fail) {:.3e} ± {:.1e}",
+            "{} in {}-sim ({} estimator), {} rollouts: collision rate {:.3}, lost {:.3}, avg collision step {}, avg \
+             log-likelihood {:.2}, P(fail) {:.3e} ± {:.1e}",
             self.sampler.name().to_uppercase(),
             self.world.name(),
             self.estimator.name(),
             self.rollouts,
             self.collision_rate,
+            self.lost_rate,
             self.avg_collision_step.map_or("n/a".into(), |v| format!("{v:.2}")),
             self.avg_log_likelihood,
             self.p_fail,
@@ -654,6 +657,7 @@ pub fn stress(
             estimator: setup.estimator,
             rollouts: sampler.rollouts(v),
             collision_rate: headline.collision_rate,
+            lost_rate: headline.lost_rate,
             avg_collision_step: headline.avg_collision_step,
             avg_log_likelihood: headline.avg_log_likelihood,
             avg_uncertainty: headline.avg_uncertainty,
@@ -769,7 +773,7 @@ impl StressStage<'_> {
 
 impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
-    const VERSION: u32 = 2;
+    const VERSION: u32 = 3;
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
     const RESUMABLE: bool = true;

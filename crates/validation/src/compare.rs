@@ -154,6 +154,7 @@ mod tests {
             step_positions: vec![],
             step_uncertainty: vec![],
             collision_step: step_scores.iter().position(|&s| s <= 0.0),
+            lost_step: None,
             reward: None,
             failed: score <= 0.0,
         }

@@ -129,7 +129,9 @@ impl System for DroneSystem<'_> {
                 })
                 .collect(),
         };
+        let lost_step = [r.diverged, r.left_grid].into_iter().flatten().map(|e| e.step).min();
         Outcome {
+            lost_step,
             score: r.min_clearance.map_or(f64::INFINITY, f64::from),
             collision_step: r.first_collision.map(|e| e.step),
             step_scores,

@@ -45,6 +45,9 @@ pub struct RolloutRecord {
     pub step_uncertainty: Vec<f64>,
     /// First step that touched geometry, if any.
     pub collision_step: Option<usize>,
+    /// First step at which the system was lost (non-finite state, or out of the region where
+    /// its score is defined), if any.
+    pub lost_step: Option<usize>,
     /// The reward the CEM ranking used, if one was given.
     pub reward: Option<f64>,
     /// score ≤ 0.
@@ -62,6 +65,7 @@ impl RolloutRecord {
             step_positions: outcome.step_positions,
             step_uncertainty: outcome.step_uncertainty,
             collision_step: outcome.collision_step,
+            lost_step: outcome.lost_step,
             ..self
         }
     }
@@ -77,6 +81,12 @@ impl RolloutRecord {
         crate::table::mean(self.step_uncertainty.iter().copied().filter(|u| u.is_finite()))
     }
 
+    /// Whether the system was lost (see [`RolloutRecord::lost_step`]) and did not fail: a
+    /// rollout that was lost and also crashed counts as a crash.
+    pub fn lost_without_failing(&self) -> bool {
+        self.lost_step.is_some() && !self.failed
+    }
+
     /// The key that identifies a rollout within a run: (sampler, population, index).
     pub fn key(&self) -> (&str, usize, usize) {
         (&self.sampler, self.population, self.index)
@@ -84,11 +94,23 @@ impl RolloutRecord {
 }
 
 /// The columns after the disturbances.
-const TAIL: [&str; 11] =
-    ["log_p", "log_q", "uncertainty", "reward", "score", "trajectory_log_q", "clearance", "x", "y", "z", "collided"];
+const TAIL: [&str; 12] = [
+    "log_p",
+    "log_q",
+    "uncertainty",
+    "reward",
+    "score",
+    "trajectory_log_q",
+    "clearance",
+    "x",
+    "y",
+    "z",
+    "collided",
+    "lost",
+];
 
 /// The CSV header for disturbances of dimension `dim`:
-/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,collided`.
+/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,collided,lost`.
 pub fn csv_header(dim: usize) -> String {
     let mut s = String::from("sampler,population,index,seed,step");
     for j in 0..dim {
@@ -110,7 +132,8 @@ pub fn csv_header(dim: usize) -> String {
 /// row of the rollout; `clearance` is the step's minimum clearance;
 /// `x,y,z` the position at the step's end (empty for systems without one); `collided` is 1 on
 /// the first step that touched geometry and 0 elsewhere (a step touched geometry where its
-/// clearance is ≤ 0). Floats are written with Rust's shortest round-trip formatting, so a value
+/// clearance is ≤ 0); `lost` is 1 on the step at which the system was lost (its state stopped
+/// being finite or left the region where its score is defined) and 0 elsewhere. Floats are written with Rust's shortest round-trip formatting, so a value
 /// read back is the value written and the same records always give the same bytes. Refuses
 /// records of different dimensions.
 pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()> {
@@ -152,7 +175,7 @@ pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()
                 }
                 None => line.push_str(",,"),
             }
-            let _ = write!(line, ",{}", u8::from(r.collision_step == Some(t)));
+            let _ = write!(line, ",{},{}", u8::from(r.collision_step == Some(t)), u8::from(r.lost_step == Some(t)));
             writeln!(w, "{line}")?;
         }
     }
@@ -211,11 +234,12 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         let trajectory_log_q = float(tail + 5)?;
         let clearance = float(tail + 6)?;
         let position = [optional(tail + 7)?, optional(tail + 8)?, optional(tail + 9)?];
-        let collided = match fields[tail + 10] {
-            "0" => false,
-            "1" => true,
-            other => return Err((n, format!("column collided: `{other}` is not 0 or 1"))),
+        let flag = |i: usize| match fields[i] {
+            "0" => Ok(false),
+            "1" => Ok(true),
+            other => Err((n, format!("column {}: `{other}` is not 0 or 1", col(i)))),
         };
+        let (collided, lost) = (flag(tail + 10)?, flag(tail + 11)?);
         let continues = records.last().is_some_and(|r| {
             r.sampler == fields[0] && r.population == population && r.index == index && r.seed == seed
         });
@@ -235,6 +259,7 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
                 step_positions: Vec::new(),
                 step_uncertainty: Vec::new(),
                 collision_step: None,
+                lost_step: None,
                 reward,
                 failed: score <= 0.0,
             });
@@ -270,6 +295,12 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
                 return Err((n, "a rollout has one first collision".to_owned()));
             }
             r.collision_step = Some(step);
+        }
+        if lost {
+            if r.lost_step.is_some() {
+                return Err((n, "a rollout is lost once".to_owned()));
+            }
+            r.lost_step = Some(step);
         }
     }
     for r in &mut records {

@@ -31,12 +31,23 @@ pub struct Outcome {
     pub step_positions: Vec<[f64; 3]>,
     /// Uncertainty of each step's observation, `[steps]`, or empty when none is measured.
     pub step_uncertainty: Vec<f64>,
+    /// First step at which the system was lost: its state stopped being finite or left the
+    /// region where its score is defined (for the drone, the field's grid). A lost rollout is
+    /// neither a pass nor, unless it also collided, a failure: tables count it on its own.
+    pub lost_step: Option<usize>,
 }
 
 impl Outcome {
     /// An outcome with scores only (no positions, no uncertainty).
     pub fn new(score: f64, collision_step: Option<usize>, step_scores: Vec<f64>) -> Self {
-        Self { score, collision_step, step_scores, step_positions: Vec::new(), step_uncertainty: Vec::new() }
+        Self {
+            score,
+            collision_step,
+            step_scores,
+            step_positions: Vec::new(),
+            step_uncertainty: Vec::new(),
+            lost_step: None,
+        }
     }
 
     /// A failure: score ≤ 0 (a NaN score is not a failure).

@@ -11,6 +11,10 @@ pub struct TableRow {
     pub rollouts: usize,
     /// Fraction of rollouts that collided.
     pub collision_rate: f64,
+    /// Fraction of rollouts in which the system was lost (its state stopped being finite or
+    /// left the region where collisions are checked) and did not fail: neither passes nor
+    /// failures.
+    pub lost_rate: f64,
     /// Mean first collision step over the rollouts that collided (steps counted from 1, as in
     /// the paper); `None` without collisions.
     pub avg_collision_step: Option<f64>,
@@ -26,16 +30,17 @@ pub struct TableRow {
 impl TableRow {
     /// The columns of [`TableRow::csv`].
     pub const CSV_HEADER: &'static str =
-        "sampler,rollouts,collision_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty,avg_reward";
+        "sampler,rollouts,collision_rate,lost_rate,avg_collision_step,avg_log_likelihood,avg_uncertainty,avg_reward";
 
     /// The row as CSV fields (no line end), empty where undefined.
     pub fn csv(&self) -> String {
         let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
         format!(
-            "{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{}",
             self.sampler,
             self.rollouts,
             self.collision_rate,
+            self.lost_rate,
             opt(self.avg_collision_step),
             self.avg_log_likelihood,
             opt(self.avg_uncertainty),
@@ -57,6 +62,7 @@ pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
         sampler: sampler.to_owned(),
         rollouts: rows.len(),
         collision_rate: rows.iter().filter(|r| r.failed).count() as f64 / n,
+        lost_rate: rows.iter().filter(|r| r.lost_without_failing()).count() as f64 / n,
         avg_collision_step: (!steps.is_empty()).then(|| steps.iter().sum::<f64>() / steps.len() as f64),
         avg_log_likelihood: rows.iter().map(|r| r.log_p).sum::<f64>() / n,
         avg_uncertainty: mean(rows.iter().filter_map(|r| r.mean_uncertainty())),
@@ -90,6 +96,7 @@ mod tests {
             step_positions: vec![],
             step_uncertainty: vec![],
             collision_step,
+            lost_step: None,
             reward: None,
             failed: collision_step.is_some(),
         }
@@ -121,6 +128,12 @@ mod tests {
         measured[1].reward = Some(-4.0);
         measured[3].reward = Some(-6.0);
         assert_eq!(table_row("mc", &measured).unwrap().avg_reward, Some(-5.0));
+        assert_eq!(table_row("mc", &measured).unwrap().lost_rate, 0.0);
+        // A lost rollout that also crashed is a crash.
+        measured[1].lost_step = Some(3);
+        measured[2].lost_step = Some(5);
+        measured[0].lost_step = Some(1);
+        assert_eq!(table_row("mc", &measured).unwrap().lost_rate, 0.25);
         let none = table_row("mc", &records[1..2]).unwrap();
         assert_eq!((none.collision_rate, none.avg_collision_step), (0.0, None));
         assert!(table_row("cem-is", &records).is_none());

@@ -22,6 +22,7 @@ fn records(scores: &[f64]) -> Vec<RolloutRecord> {
             step_positions: vec![],
             step_uncertainty: vec![],
             collision_step: (s <= 0.0).then_some(0),
+            lost_step: None,
             reward: None,
             failed: s <= 0.0,
         })

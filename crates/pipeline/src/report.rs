@@ -433,6 +433,9 @@ fn page(
                     num(&s["avg_log_likelihood"], 2),
                     format!("{} ± {}", num(&s["p_fail"], 3), num(&s["p_fail_se"], 3)),
                     format!("[{}, {}]", num(&i[0], 3), num(&i[1], 3)),
+                    esc(s["p_fail_estimator"].as_str().unwrap_or("?")),
+                    format!("{} / {}", num(&s["effective_sample_size"], 1), num(&s["effective_failures"], 1)),
+                    num(&s["p_fail_unnormalised"], 3),
                 ]
             })
             .collect();
@@ -447,8 +450,19 @@ fn page(
                 "avg. log-likelihood",
                 "P(fail) ± SE",
                 "95 % interval",
+                "estimator",
+                "effective rollouts / failures",
+                "paper's plain IS estimate",
             ],
             &rows,
+        );
+        o.push_str(
+            "<p>Lost: rollouts whose state stopped being finite or left the field's grid without a collision, \
+             neither passes nor failures. The CEM's P(fail) is the importance-sampling estimate with the weight as \
+             control variate (its expectation under the proposal is 1), clamped to [0, 1]; the paper's plain estimate \
+             (1/N) Σ 𝟙·p/q, unbiased but able to exceed 1, stands beside it. Effective rollouts and failures are \
+             Kish's sizes (Σw)²/Σw² of the batch's and of the failures' weights: the number of rollouts the \
+             estimate effectively rests on.</p>\n",
         );
         let rows: Vec<Vec<String>> = samplers
             .iter()
@@ -568,6 +582,12 @@ fn page(
                 &rows,
             );
         }
+        o.push_str(
+            "<p>The reward is the trajectory log-likelihood (a sum over the steps) less the penalty times the \
+             rollout's <em>mean</em> per-step uncertainty (BLA's also times the paper's n perturbations), as in the \
+             paper's eqs. 10–11; a rollout with no measured step has reward −∞ and ranks last, and the average \
+             reward is over the rollouts with a finite one.</p>\n",
+        );
     }
     if section(&mut o, "uq", "Offline uncertainty per image, and its calibration") {
         let u = &summary["uq"];

@@ -16,9 +16,9 @@ use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, table_row, Agreement,
-    Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Journal, Prior, Recorder, Reward,
-    RolloutRecord, TableRow, UncertaintyReward, UqMode, ValidationConfig, ValidationError, ViewUncertainty,
-    SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, ImportanceEstimate, Journal, Prior,
+    Recorder, Reward, RolloutRecord, TableRow, UncertaintyReward, UqMode, ValidationConfig, ValidationError,
+    ViewUncertainty, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -170,8 +170,19 @@ pub struct SamplerFigures {
     pub p_fail: f64,
     /// Its standard error (MC: √(p(1−p)/N)).
     pub p_fail_se: f64,
-    /// 95 % interval (MC: Wilson; CEM: p ± 1.96 SE, clamped at 0).
+    /// 95 % interval within [0, 1] (MC: Wilson; CEM: p ± 1.96 SE, widened to Wilson's in the
+    /// effective sample size on a side with fewer than ten rollouts).
     pub p_fail_interval: (f64, f64),
+    /// The estimator `p_fail` is.
+    pub p_fail_estimator: String,
+    /// CEM: the paper's plain importance-sampling estimate (1/N) Σ 𝟙·p/q, unbiased but not
+    /// bounded by 1; `None` for MC.
+    pub p_fail_unnormalised: Option<f64>,
+    /// Kish's effective sample size of the estimate's weighted rollouts (MC: its rollouts).
+    pub effective_sample_size: f64,
+    /// How many failures the estimate effectively rests on (Kish's size of the failures'
+    /// weights; MC: its failures).
+    pub effective_failures: f64,
     pub most_likely_failure: Option<FailureFigures>,
     /// Over the search's own rollouts (MC: all; CEM: its populations), when replayed.
     pub confusion: Option<ConfusionFigures>,
@@ -195,6 +206,17 @@ impl SamplerFigures {
             self.p_fail,
             self.p_fail_se,
         );
+        s.push_str(&format!(
+            " [{:.3}, {:.3}] by {}, {:.1} effective rollouts, {:.1} effective failures",
+            self.p_fail_interval.0,
+            self.p_fail_interval.1,
+            self.p_fail_estimator,
+            self.effective_sample_size,
+            self.effective_failures
+        ));
+        if let Some(u) = self.p_fail_unnormalised {
+            s.push_str(&format!(" (the paper's plain estimate: {u:.3e})"));
+        }
         if let Some(f) = &self.most_likely_failure {
             s.push_str(&format!(
                 "; most likely failure {}/{}/{} (seed {}, log-likelihood {:.2})",
@@ -414,6 +436,17 @@ impl ViewUncertainty for Timed<'_> {
 }
 
 /// Counts finished rollouts for progress, passing everything to the journal.
+/// A sampler's failure probability and how it was estimated.
+struct Estimate {
+    p: f64,
+    se: f64,
+    interval: (f64, f64),
+    estimator: String,
+    unnormalised: Option<f64>,
+    ess: f64,
+    effective_failures: f64,
+}
+
 /// Extension of the files that keep a journalled rollout's estimator errors.
 const ESTIMATES_EXTENSION: &str = "estimates";
 
@@ -518,7 +551,14 @@ pub fn stress(
         }),
     };
     let timed = meter.as_deref().map(|inner| Timed { inner, views: AtomicU64::new(0), nanos: AtomicU64::new(0) });
-    let scorer = setup.online.filter(|o| o.reward).map(|o| UncertaintyReward::new(o.method, setup.uq));
+    let scorer = setup.online.filter(|o| o.reward).map(|o| {
+        let s = UncertaintyReward::new(o.method, setup.uq);
+        if o.mode == UqMode::Field {
+            s.for_field()
+        } else {
+            s
+        }
+    });
     let score = scorer.map(|s| move |r: &RolloutRecord| s.reward(r));
     let reward: Option<Reward> = score.as_ref().map(|f| f as Reward);
     let system = DroneSystem {
@@ -533,7 +573,7 @@ pub fn stress(
         observer.note(setup.stage, &format!("{} of {planned} rollouts were already flown", journal.len()));
     }
     let mut records = Vec::with_capacity(planned);
-    let mut estimates = Vec::new();
+    let mut estimates: Vec<Estimate> = Vec::new();
     for &sampler in setup.samplers {
         counting.status = format!("{} in {}-sim", sampler.name().to_uppercase(), setup.world.name());
         if let Some(o) = &setup.online {
@@ -548,13 +588,40 @@ pub fn stress(
                     r.records.iter_mut().for_each(|rec| rec.reward = Some(s.reward(rec)));
                 }
                 let se = (r.probability * (1.0 - r.probability) / r.records.len() as f64).sqrt();
-                estimates.push((r.probability, se, r.interval));
+                let n = r.records.len() as f64;
+                estimates.push(Estimate {
+                    p: r.probability,
+                    se,
+                    interval: r.interval,
+                    estimator: "Monte Carlo: failure fraction, Wilson interval".into(),
+                    unnormalised: None,
+                    ess: n,
+                    effective_failures: r.probability * n,
+                });
                 records.extend(r.records);
             }
             Sampler::Cem => {
                 let r = cross_entropy(&system, setup.prior, &v.cem, v.seed, reward, &counting)?;
                 let e = r.estimate;
-                estimates.push((e.probability, e.standard_error, e.interval));
+                if e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
+                    observer.note(
+                        setup.stage,
+                        &format!(
+                            "warning: the CEM's P(fail) rests on {:.1} effective failures (of {} in its importance \
+                             batch): read it as an order of magnitude",
+                            e.effective_failures, e.failures
+                        ),
+                    );
+                }
+                estimates.push(Estimate {
+                    p: e.probability,
+                    se: e.standard_error,
+                    interval: e.interval,
+                    estimator: ImportanceEstimate::ESTIMATOR.into(),
+                    unnormalised: Some(e.unnormalised),
+                    ess: e.effective_sample_size,
+                    effective_failures: e.effective_failures,
+                });
                 records.extend(r.records);
             }
         }
@@ -605,7 +672,7 @@ pub fn stress(
     }
     let mut samplers = Vec::new();
     let mut table = Vec::new();
-    for (&sampler, &(p_fail, p_fail_se, p_fail_interval)) in setup.samplers.iter().zip(&estimates) {
+    for (&sampler, estimate) in setup.samplers.iter().zip(estimates) {
         let rows: Vec<TableRow> = match sampler {
             Sampler::Mc => vec![table_row(SAMPLER_MC, &records)],
             Sampler::Cem => vec![table_row(SAMPLER_CEM, &records), table_row(SAMPLER_IS, &records)],
@@ -661,9 +728,13 @@ pub fn stress(
             avg_collision_step: headline.avg_collision_step,
             avg_log_likelihood: headline.avg_log_likelihood,
             avg_uncertainty: headline.avg_uncertainty,
-            p_fail,
-            p_fail_se,
-            p_fail_interval,
+            p_fail: estimate.p,
+            p_fail_se: estimate.se,
+            p_fail_interval: estimate.interval,
+            p_fail_estimator: estimate.estimator,
+            p_fail_unnormalised: estimate.unnormalised,
+            effective_sample_size: estimate.ess,
+            effective_failures: estimate.effective_failures,
             most_likely_failure,
             confusion,
             table: rows,

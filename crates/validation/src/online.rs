@@ -107,7 +107,16 @@ impl ViewUncertainty for FieldUncertainty<'_> {
 /// - eq. 11 (BLA): `log p − penalty · ū · n` (ū the mean `rmv · trace`, n the number of
 ///   spatial perturbations).
 ///
-/// A rollout with no measured step is not penalised.
+/// The penalty is on the mean over the measured steps while log p is a sum over the steps:
+/// the paper's choice, kept; a longer rollout is not penalised more for the same uncertainty
+/// per step.
+///
+/// A rollout with no measured step has no uncertainty to weigh: its reward is −∞, so it ranks
+/// last among rollouts of its kind (never first, as a penalty of 0 would rank it).
+///
+/// `perturbations` multiplies BLA's value as eq. 11 does (the paper's n perturbed copies of each
+/// view); [`UncertaintyReward::for_field`] sets it to 1, since a field's per-view value is
+/// already one number per view and n has no meaning there.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct UncertaintyReward {
     pub method: Method,
@@ -121,8 +130,15 @@ impl UncertaintyReward {
         Self { method, penalty: cfg.reward_penalty, perturbations: cfg.perturbations }
     }
 
+    /// The reward for a field-mode measure: no multiplication by the perturbation count.
+    pub fn for_field(self) -> Self {
+        Self { perturbations: 1, ..self }
+    }
+
     pub fn reward(&self, record: &RolloutRecord) -> f64 {
-        let u = record.mean_uncertainty().unwrap_or(0.0);
+        let Some(u) = record.mean_uncertainty() else {
+            return f64::NEG_INFINITY;
+        };
         let scale = match self.method {
             Method::Ga => 1.0,
             Method::Bla => self.perturbations as f64,
@@ -215,6 +231,39 @@ pub fn disagreement_auroc(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Disag
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Of three failures, the one whose steps were never measured (every value NaN, or none)
+    /// must not come first in CEM's ranking: a penalty of 0 would put it ahead of every measured
+    /// rollout, however uncertain.
+    #[test]
+    fn a_rollout_with_no_measured_step_ranks_last_not_first() {
+        let rec = |log_p: f64, step_uncertainty: Vec<f64>| RolloutRecord {
+            log_p,
+            step_uncertainty,
+            score: -0.1,
+            failed: true,
+            ..RolloutRecord::default()
+        };
+        let records = [
+            rec(-10.0, vec![0.5, 0.7]),
+            rec(-10.0, vec![f64::NAN, f64::NAN]),
+            rec(-12.0, vec![0.1]),
+            rec(-9.0, vec![]),
+        ];
+        for method in [Method::Ga, Method::Bla] {
+            let r = UncertaintyReward::new(method, &UqConfig::default());
+            let rewards: Vec<f64> = records.iter().map(|x| r.reward(x)).collect();
+            assert!(rewards[0].is_finite() && rewards[2].is_finite());
+            assert_eq!((rewards[1], rewards[3]), (f64::NEG_INFINITY, f64::NEG_INFINITY));
+            let elite = crate::select_elites(&records, 2, Some(&rewards));
+            assert_eq!(elite, [true, false, true, false], "{method:?}: {rewards:?}");
+            // Eq. 11's n multiplies BLA's value per view; a field's value is not n copies.
+            let field = r.for_field();
+            let one = rec(0.0, vec![0.5]);
+            let expected = if method == Method::Bla { r.perturbations as f64 } else { 1.0 };
+            approx::assert_relative_eq!(r.reward(&one) / field.reward(&one), expected, max_relative = 1e-12);
+        }
+    }
 
     #[test]
     fn auroc_is_one_for_a_perfect_ranking_a_half_for_ties_and_the_pair_count_otherwise() {

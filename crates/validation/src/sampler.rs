@@ -177,16 +177,22 @@ pub fn wilson_interval(failures: usize, n: usize) -> (f64, f64) {
     if n == 0 {
         return (0.0, 1.0);
     }
-    let (k, n) = (failures as f64, n as f64);
-    let p = k / n;
+    let (lo, hi) = wilson(failures as f64 / n as f64, n as f64);
+    // The bounds are exactly 0 and 1 at the ends; rounding would leave ±1e-18 there.
+    (if failures == 0 { 0.0 } else { lo }, if failures == n { 1.0 } else { hi })
+}
+
+/// Wilson's 95 % score interval for a proportion `p` from `n` (possibly effective, not whole)
+/// trials, within [0, 1]; (0, 1) without trials.
+fn wilson(p: f64, n: f64) -> (f64, f64) {
+    if n <= 0.0 || !n.is_finite() {
+        return (0.0, 1.0);
+    }
     let z2 = Z95 * Z95;
     let denom = 1.0 + z2 / n;
     let centre = (p + z2 / (2.0 * n)) / denom;
     let half = Z95 / denom * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
-    // The bounds are exactly 0 and 1 at the ends; rounding would leave ±1e-18 there.
-    let lo = if failures == 0 { 0.0 } else { (centre - half).max(0.0) };
-    let hi = if failures as f64 == n { 1.0 } else { (centre + half).min(1.0) };
-    (lo, hi)
+    ((centre - half).max(0.0), (centre + half).min(1.0))
 }
 
 /// The failure with the highest trajectory log-likelihood (eq. 1) among `records`; ties go to
@@ -238,36 +244,111 @@ pub fn monte_carlo<S: System + ?Sized>(
 /// An importance-sampling estimate of the failure probability.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImportanceEstimate {
-    /// p̂ = (1/N) Σ_i 𝟙(fail_i)·p(x_i)/q(x_i).
+    /// The regression (control-variate) estimate: the plain estimate corrected by how far the
+    /// batch's mean weight is from its known expectation E_q[w] = 1,
+    /// p̂ = mean(w·𝟙) − β̂ (mean(w) − 1) with β̂ the least-squares slope of w·𝟙 on w (Owen &
+    /// Zhou 2000), clamped to [0, 1]. Where failures are common the plain estimate reads above 1
+    /// whenever the batch over-draws them; this one does not.
     pub probability: f64,
-    /// Standard error of p̂: sample std of the terms / √N (∞ for N < 2).
+    /// Its standard error: the regression residuals' std / √N (∞ for N < 3).
     pub standard_error: f64,
-    /// p̂ ± 1.96·SE, clamped below at 0.
+    /// 95 % interval p̂ ± 1.96 SE within [0, 1]; without failures its upper bound is Wilson's
+    /// for no failures in the effective sample size (not the empty [0, 0]), without passes its
+    /// lower bound likewise.
     pub interval: (f64, f64),
+    /// Kish's effective sample size (Σ w)² / Σ w²: how many prior draws the weighted batch is
+    /// worth (N when every weight is equal).
+    pub effective_sample_size: f64,
+    /// Kish's effective sample size of the failures' weights alone: how many failures the
+    /// estimate effectively rests on (0 without failures).
+    pub effective_failures: f64,
+    /// The plain (unnormalised) estimate (1/N) Σ_i 𝟙(fail_i)·w_i of the paper: unbiased, but
+    /// above 1 whenever the weights of the failures sum past N.
+    pub unnormalised: f64,
+    /// Its standard error: sample std of the terms / √N (∞ for N < 2).
+    pub unnormalised_standard_error: f64,
     /// N.
     pub samples: usize,
     /// Failures among the N samples.
     pub failures: usize,
 }
 
+impl ImportanceEstimate {
+    /// The name of the estimator [`ImportanceEstimate::probability`] is, for outputs.
+    pub const ESTIMATOR: &'static str = "importance sampling, weight as control variate";
+    /// Below this many failures (passes) in the batch, the interval's upper (lower) bound is at
+    /// least Wilson's for the estimate in the effective sample size.
+    pub const FEW_EVENTS: usize = 10;
+    /// Below this many effective failures an estimate rests on a few rollouts: outputs warn.
+    pub const FEW_EFFECTIVE_FAILURES: f64 = 5.0;
+}
+
+/// Kish's effective sample size (Σ w)² / Σ w² of `weights` (0 when they sum to 0).
+fn effective_sample_size(weights: impl Iterator<Item = f64>) -> f64 {
+    let (s, s2) = weights.fold((0.0, 0.0), |(s, s2), w| (s + w, s2 + w * w));
+    if s2 > 0.0 {
+        s * s / s2
+    } else {
+        0.0
+    }
+}
+
 /// The importance-sampling estimate from rollouts drawn from one proposal, with the
 /// trajectory-level weight p(x)/q(x) = exp(Σ_t [ln p(x_t) − ln q_t(x_t)]) of each.
 pub fn importance_estimate(records: &[RolloutRecord]) -> ImportanceEstimate {
     let n = records.len();
-    let terms: Vec<f64> = records.iter().map(|r| if r.failed { r.weight() } else { 0.0 }).collect();
-    let p = terms.iter().sum::<f64>() / n.max(1) as f64;
-    let se = if n < 2 {
+    let nf = n.max(1) as f64;
+    let weights: Vec<f64> = records.iter().map(RolloutRecord::weight).collect();
+    let terms: Vec<f64> = records.iter().zip(&weights).map(|(r, &w)| if r.failed { w } else { 0.0 }).collect();
+    let plain = terms.iter().sum::<f64>() / nf;
+    let plain_se = if n < 2 {
         f64::INFINITY
     } else {
-        let ss: f64 = terms.iter().map(|v| (v - p) * (v - p)).sum();
+        let ss: f64 = terms.iter().map(|v| (v - plain) * (v - plain)).sum();
         (ss / ((n - 1) as f64 * n as f64)).sqrt()
     };
+    // Least-squares regression of the terms on the weights.
+    let mean_w = weights.iter().sum::<f64>() / nf;
+    let (sxy, sxx) = terms
+        .iter()
+        .zip(&weights)
+        .fold((0.0, 0.0), |(sxy, sxx), (y, w)| (sxy + (y - plain) * (w - mean_w), sxx + (w - mean_w).powi(2)));
+    let beta = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    let regression = plain - beta * (mean_w - 1.0);
+    let se = if n < 3 {
+        f64::INFINITY
+    } else {
+        let ss: f64 = terms.iter().zip(&weights).map(|(y, w)| (y - plain - beta * (w - mean_w)).powi(2)).sum();
+        // One degree of freedom for the mean, one more for the slope when there is one.
+        let dof = n - 1 - usize::from(sxx > 0.0);
+        (ss / (dof as f64 * n as f64)).sqrt()
+    };
+    let p = regression.clamp(0.0, 1.0);
+    let failures = records.iter().filter(|r| r.failed).count();
+    let ess = effective_sample_size(weights.iter().copied());
+    // With few failures (or few passes) the residuals on that side are too few to show the
+    // spread, and with none the SE claims certainty: that side's bound is then at least as wide
+    // as Wilson's for p̂ in the effective sample size.
+    let (few, wide) = (ImportanceEstimate::FEW_EVENTS, wilson(p, ess));
+    let mut lo = (p - Z95 * se).max(0.0);
+    let mut hi = (p + Z95 * se).min(1.0);
+    if n - failures < few {
+        lo = lo.min(wide.0);
+    }
+    if failures < few {
+        hi = hi.max(wide.1);
+    }
+    let interval = (lo.min(p), hi.max(p));
     ImportanceEstimate {
         probability: p,
         standard_error: se,
-        interval: ((p - Z95 * se).max(0.0), p + Z95 * se),
+        interval,
+        effective_sample_size: ess,
+        effective_failures: effective_sample_size(terms.iter().copied()),
+        unnormalised: plain,
+        unnormalised_standard_error: plain_se,
         samples: n,
-        failures: records.iter().filter(|r| r.failed).count(),
+        failures,
     }
 }
 

@@ -23,7 +23,8 @@ pub struct TableRow {
     /// Mean over the rollouts of their mean per-step uncertainty; `None` when none was
     /// measured.
     pub avg_uncertainty: Option<f64>,
-    /// Mean reward over the rollouts that carry one; `None` when none does.
+    /// Mean reward over the rollouts that carry a finite one (a rollout with no measured step
+    /// has reward −∞); `None` when none does.
     pub avg_reward: Option<f64>,
 }
 
@@ -66,7 +67,7 @@ pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
         avg_collision_step: (!steps.is_empty()).then(|| steps.iter().sum::<f64>() / steps.len() as f64),
         avg_log_likelihood: rows.iter().map(|r| r.log_p).sum::<f64>() / n,
         avg_uncertainty: mean(rows.iter().filter_map(|r| r.mean_uncertainty())),
-        avg_reward: mean(rows.iter().filter_map(|r| r.reward)),
+        avg_reward: mean(rows.iter().filter_map(|r| r.reward).filter(|r| r.is_finite())),
     })
 }
 

@@ -4,7 +4,9 @@
 mod common;
 
 use common::{LinearToy, STD, Z_1E3};
-use nerfsv_validation::{elite_weights, importance_sampling, Gaussian, Proposal, RolloutRecord};
+use nerfsv_validation::{
+    cross_entropy, elite_weights, importance_sampling, wilson_interval, CemConfig, Gaussian, Proposal, RolloutRecord,
+};
 
 /// The prior shifted to the design point: a good, fixed proposal for the toy.
 fn shifted_proposal(toy: &LinearToy) -> Proposal {
@@ -133,4 +135,61 @@ fn a_defensive_mixture_bounds_the_weights_and_rescues_a_drifted_proposal() {
             e.standard_error
         );
     }
+}
+
+/// Where failures are common (P = 0.99), the default CEM's importance batch gives the failures
+/// weights whose sum often passes N: the plain estimate (1/N) Σ 𝟙·w then reads above 1. The
+/// control-variate estimate and its interval stay within [0, 1] and the interval covers P.
+#[test]
+fn the_control_variate_estimate_stays_within_zero_and_one_where_the_plain_one_leaves_it() {
+    let toy = LinearToy::new(-2.326_347_874_040_840_8); // P(fail) = 0.99
+    let truth = toy.p_fail();
+    assert!((truth - 0.99).abs() < 1e-9);
+    let (mut above_one, mut covered) = (0, 0);
+    let seeds = 100;
+    for seed in 0..seeds {
+        let e = cross_entropy(&toy, &toy.prior(), &CemConfig::default(), seed, None, &()).unwrap().estimate;
+        assert!((0.0..=1.0).contains(&e.probability), "seed {seed}: {}", e.probability);
+        assert!(0.0 <= e.interval.0 && e.interval.0 <= e.probability && e.probability <= e.interval.1);
+        assert!(e.interval.1 <= 1.0);
+        assert!(e.effective_sample_size > 0.0 && e.effective_sample_size <= e.samples as f64 + 1e-9);
+        above_one += usize::from(e.unnormalised > 1.0);
+        covered += usize::from(e.interval.0 <= truth && truth <= e.interval.1);
+        eprintln!(
+            "{seed}: {:.4} ± {:.4} [{:.4}, {:.4}] plain {:.3} fails {} ess {:.1} ess_f {:.1}",
+            e.probability,
+            e.standard_error,
+            e.interval.0,
+            e.interval.1,
+            e.unnormalised,
+            e.failures,
+            e.effective_sample_size,
+            e.effective_failures
+        );
+    }
+    eprintln!("plain estimate above 1 in {above_one} of {seeds} runs; interval covers P in {covered}");
+    assert!(above_one >= 10, "the plain estimate exceeded 1 in only {above_one} runs: the case tests nothing");
+    assert!(covered >= 85, "the interval covers P = 0.99 in {covered} of {seeds} runs");
+}
+
+/// Drawn from the prior itself, every weight is 1: the estimate is the failure fraction with
+/// Monte Carlo's standard error, its effective sample size N.
+#[test]
+fn with_the_prior_as_proposal_the_estimate_is_monte_carlo() {
+    let toy = LinearToy::new(1.0);
+    let prior = toy.prior();
+    let (records, e) = importance_sampling(&toy, &prior, &prior.to_proposal(), 400, 5, &()).unwrap();
+    let failures = records.iter().filter(|r| r.failed).count();
+    assert!(failures > 20);
+    approx::assert_relative_eq!(e.probability, failures as f64 / 400.0, max_relative = 1e-12);
+    approx::assert_relative_eq!(e.unnormalised, e.probability, max_relative = 1e-12);
+    approx::assert_relative_eq!(e.effective_sample_size, 400.0, max_relative = 1e-12);
+    let p = failures as f64 / 400.0;
+    approx::assert_relative_eq!(e.standard_error, (p * (1.0 - p) / 399.0).sqrt(), max_relative = 1e-9);
+    approx::assert_relative_eq!(e.effective_failures, failures as f64, max_relative = 1e-12);
+    // Without a failure the interval is not [0, 0]: Wilson's bound for none in N.
+    let (records, e) = importance_sampling(&LinearToy::new(6.0), &prior, &prior.to_proposal(), 400, 5, &()).unwrap();
+    assert!(records.iter().all(|r| !r.failed));
+    assert_eq!(e.interval.0, 0.0);
+    approx::assert_relative_eq!(e.interval.1, wilson_interval(0, 400).1, max_relative = 1e-9);
 }

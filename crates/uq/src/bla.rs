@@ -1,12 +1,17 @@
 //! Bayesian Laplace approximation (BLA), the paper's eq. 4–9, over the `sigma_net` weights.
 //!
 //! With residuals `r(θ) ∈ ℝ^m` (rendered minus reference colour, per ray and channel),
-//! Gaussian noise of standard deviation σ_n and the prior `θ ~ N(0, α⁻¹·I)`, the negative log
-//! posterior is, up to a constant,
+//! Gaussian noise of standard deviation σ_n and the prior `θ ~ N(θ₀, α⁻¹·I)` centred at the
+//! trained weights θ₀ (the model that is flown and scored), the negative log posterior is, up
+//! to a constant,
 //!
-//!   `L(θ) = ½·|r(θ)|²/σ_n² + ½·α·|θ|²`
+//!   `L(θ) = ½·|r(θ)|²/σ_n² + ½·α·|θ − θ₀|²`
 //!
-//! Its gradient is `g = Jᵀr/σ_n² + α·θ` and its Gauss–Newton Hessian
+//! (The paper's prior is centred at 0; from the trained weights, one damped step towards that
+//! prior's mode removes α/(α + λ) ≈ 99 % of every weight the image does not constrain, so Σ
+//! would describe a per-image MAP model, not the trained one.)
+//!
+//! Its gradient is `g = Jᵀr/σ_n² + α·(θ − θ₀)` and its Gauss–Newton Hessian
 //! `H = JᵀJ/σ_n² + α·I` (`J = ∂r/∂θ`, `[m, P]`; eq. 8 with the prior). The mode (eq. 7) is
 //! found by Levenberg–Marquardt, eq. 9: `θ ← θ − (H + λI)⁻¹·g`, λ = 0.01, a step kept only if
 //! it lowers `L` (else retried with 10·λ), so the loss never increases. The posterior is then
@@ -20,7 +25,11 @@
 //! - **normalised trace** `tr(Σ)/P`, the mean posterior variance of a weight;
 //! - **root-mean-variance** `rmv = √(mean_p Σ_pp)`, its square root: the RMS posterior
 //!   standard deviation of a weight. (The two carry the same information; the paper's eq. 11
-//!   reward uses their product.)
+//!   reward uses their product.) In the `P − k` directions the data do not see, Σ is the
+//!   prior's 1/α, so `tr Σ / P ≥ (P − k)/(P·α)`: with few residuals both are mostly the prior.
+//! - **information gain** `½·Σ_k ln(1 + e_k/(σ_n²·α)) = ½·(ln det H − P·ln α)` (nats; `e_k` the
+//!   non-zero eigenvalues of `JᵀJ`): the KL divergence of posterior from prior in the data
+//!   directions only, zero where the data say nothing, growing with how much they pin down.
 //!
 //! The Laplace log marginal likelihood (eq. 6 approximated at the mode),
 //!
@@ -60,10 +69,11 @@ pub trait ResidualModel {
     fn residuals_and_jacobian(&mut self, theta: &[f64], r: &mut Vec<f64>, jacobian: &mut Mat<f64>);
 }
 
-/// `L(θ) = ½·|r|²/σ_n² + ½·α·|θ|²`, the negative log posterior up to a constant.
-pub fn neg_log_posterior(r: &[f64], theta: &[f64], prior_precision: f64, noise_std: f64) -> f64 {
+/// `L(θ) = ½·|r|²/σ_n² + ½·α·|θ − θ₀|²`, the negative log posterior up to a constant
+/// (`prior_mean` is θ₀).
+pub fn neg_log_posterior(r: &[f64], theta: &[f64], prior_mean: &[f64], prior_precision: f64, noise_std: f64) -> f64 {
     let rr: f64 = r.iter().map(|v| v * v).sum();
-    let tt: f64 = theta.iter().map(|v| v * v).sum();
+    let tt: f64 = theta.iter().zip(prior_mean).map(|(v, m)| (v - m) * (v - m)).sum();
     0.5 * rr / (noise_std * noise_std) + 0.5 * prior_precision * tt
 }
 
@@ -136,7 +146,8 @@ impl StepSolver {
     }
 }
 
-/// Levenberg–Marquardt (eq. 9) from `theta0` to the mode of the posterior of `model`:
+/// Levenberg–Marquardt (eq. 9) from `theta0` to the mode of the posterior of `model` under
+/// the prior `N(theta0, α⁻¹I)` (centred where it starts: the trained weights):
 /// at most [`UqConfig::lm_iterations`] Jacobians, each followed by a step `δ = (H + λI)⁻¹·g`
 /// kept only if it lowers `L` (a rejected one is retried with 10·λ, up to 10 times; an
 /// accepted one divides λ by 10, down to [`UqConfig::lm_damping`]). Stops early when a step
@@ -155,15 +166,15 @@ pub fn lm_map<M: ResidualModel>(model: &mut M, theta0: &[f64], cfg: &UqConfig) -
     for _ in 0..cfg.lm_iterations {
         model.residuals_and_jacobian(&theta, &mut r, &mut jac);
         if losses.is_empty() {
-            loss = neg_log_posterior(&r, &theta, alpha, cfg.noise_std);
+            loss = neg_log_posterior(&r, &theta, theta0, alpha, cfg.noise_std);
             losses.push(loss);
             if !loss.is_finite() {
                 break;
             }
         }
-        // g = Jᵀr/σ² + αθ
+        // g = Jᵀr/σ² + α(θ − θ₀)
         let rc = Mat::from_fn(r.len(), 1, |i, _| r[i]);
-        let mut g = Mat::from_fn(p, 1, |i, _| alpha * theta[i]);
+        let mut g = Mat::from_fn(p, 1, |i, _| alpha * (theta[i] - theta0[i]));
         matmul(g.as_mut(), Accum::Add, jac.transpose(), rc.as_ref(), 1.0 / var, dense_par());
         let solver = StepSolver::new(&jac);
         let mut accepted = None;
@@ -172,7 +183,7 @@ pub fn lm_map<M: ResidualModel>(model: &mut M, theta0: &[f64], cfg: &UqConfig) -
             if let Some(d) = step {
                 let trial: Vec<f64> = (0..p).map(|i| theta[i] - d[(i, 0)]).collect();
                 model.residuals(&trial, &mut r_try);
-                let l = neg_log_posterior(&r_try, &trial, alpha, cfg.noise_std);
+                let l = neg_log_posterior(&r_try, &trial, theta0, alpha, cfg.noise_std);
                 if l.is_finite() && l < loss {
                     accepted = Some((trial, l));
                     lambda = (lambda / 10.0).max(cfg.lm_damping);
@@ -269,6 +280,9 @@ pub struct Laplace {
     pub normalized_trace: f64,
     /// `√(mean diag Σ)`.
     pub rmv: f64,
+    /// `½·(ln det H − P·ln α) = ½·Σ_k ln(1 + e_k/(σ_n²α))`, nats: what the data taught, in
+    /// their own directions (see the module docs).
+    pub information_gain: f64,
     /// Laplace log marginal likelihood at that α (see the module docs).
     pub log_evidence: f64,
     /// `(α, log evidence)` for every α of [`UqConfig::prior_precision_grid`] (empty without one).
@@ -277,17 +291,18 @@ pub struct Laplace {
     pub residuals: usize,
 }
 
-/// The Laplace approximation at the mode `theta` of `model`: `H = JᵀJ/σ_n² + α·I`, its
-/// Cholesky factor, `Σ = H⁻¹`, the summaries and the log evidence. With a non-empty
-/// [`UqConfig::prior_precision_grid`], α is the grid's value of highest evidence (the mode is
-/// not refitted).
+/// The Laplace approximation at the mode `theta` of `model` under the prior
+/// `N(prior_mean, α⁻¹I)`: `H = JᵀJ/σ_n² + α·I`, its Cholesky factor, `Σ = H⁻¹`, the summaries
+/// and the log evidence. With a non-empty [`UqConfig::prior_precision_grid`], α is the grid's
+/// value of highest evidence (the mode is not refitted).
 pub fn laplace_at<M: ResidualModel>(
     image: &str,
     model: &mut M,
     theta: &[f64],
+    prior_mean: &[f64],
     cfg: &UqConfig,
 ) -> Result<Laplace, UqError> {
-    let mode = Mode::at(image, model, theta, cfg)?;
+    let mode = Mode::at(image, model, theta, prior_mean, cfg)?;
     let (alpha, evidence_grid) = if cfg.prior_precision_grid.is_empty() {
         (cfg.prior_precision, Vec::new())
     } else {
@@ -306,6 +321,7 @@ pub fn laplace_at<M: ResidualModel>(
         prior_precision: alpha,
         normalized_trace,
         rmv: normalized_trace.sqrt(),
+        information_gain: 0.5 * (log_det_h - p as f64 * alpha.ln()),
         log_evidence: mode.evidence(alpha, log_det_h),
         evidence_grid,
         residuals: m,
@@ -315,7 +331,7 @@ pub fn laplace_at<M: ResidualModel>(
 /// The model at a mode: residuals and Jacobian, and what the evidence needs of them.
 struct Mode {
     jac: Mat<f64>,
-    /// `|r|²` and `|θ|²`.
+    /// `|r|²` and `|θ − θ₀|²`.
     rr: f64,
     tt: f64,
     /// σ_n², `P` and `m`.
@@ -325,12 +341,19 @@ struct Mode {
 }
 
 impl Mode {
-    fn at<M: ResidualModel>(image: &str, model: &mut M, theta: &[f64], cfg: &UqConfig) -> Result<Self, UqError> {
+    fn at<M: ResidualModel>(
+        image: &str,
+        model: &mut M,
+        theta: &[f64],
+        prior_mean: &[f64],
+        cfg: &UqConfig,
+    ) -> Result<Self, UqError> {
+        assert_eq!(prior_mean.len(), theta.len(), "one prior mean per weight");
         let mut r = Vec::new();
         let mut jac = Mat::zeros(0, 0);
         model.residuals_and_jacobian(theta, &mut r, &mut jac);
         let rr: f64 = r.iter().map(|v| v * v).sum();
-        let tt: f64 = theta.iter().map(|v| v * v).sum();
+        let tt: f64 = theta.iter().zip(prior_mean).map(|(v, m)| (v - m) * (v - m)).sum();
         if !rr.is_finite() || !tt.is_finite() || jac.col_iter().any(|c| c.iter().any(|v| !v.is_finite())) {
             return Err(UqError::NonFinite { image: image.to_string(), what: "the residuals at the mode" });
         }
@@ -352,7 +375,7 @@ impl Mode {
             + (self.p - eig.len()) as f64 * alpha.ln()
     }
 
-    /// `log p(y | α) ≈ −½rr/σ² − ½α·tt − (m/2)·log(2πσ²) + (P/2)·log α − ½·log det H(α)`.
+    /// `log p(y | α) ≈ −½rr/σ² − ½α·|θ̂ − θ₀|² − (m/2)·log(2πσ²) + (P/2)·log α − ½·log det H(α)`.
     fn evidence(&self, alpha: f64, log_det_h: f64) -> f64 {
         let var = self.var;
         -0.5 * self.rr / var - 0.5 * alpha * self.tt - 0.5 * self.m as f64 * (2.0 * std::f64::consts::PI * var).ln()
@@ -386,6 +409,8 @@ pub struct LaplaceSummary {
     pub normalized_trace: f64,
     /// `√(mean diag Σ)`.
     pub rmv: f64,
+    /// `½·Σ_k ln(1 + e_k/(σ_n²α))`, nats: what the data taught, in their own directions.
+    pub information_gain: f64,
     /// Laplace log marginal likelihood at that α.
     pub log_evidence: f64,
     /// `(α, log evidence)` for every α of [`UqConfig::prior_precision_grid`].
@@ -403,9 +428,10 @@ pub fn laplace_summary_at<M: ResidualModel>(
     image: &str,
     model: &mut M,
     theta: &[f64],
+    prior_mean: &[f64],
     cfg: &UqConfig,
 ) -> Result<LaplaceSummary, UqError> {
-    let mode = Mode::at(image, model, theta, cfg)?;
+    let mode = Mode::at(image, model, theta, prior_mean, cfg)?;
     let eig = mode.spectrum(image)?;
     let (alpha, evidence_grid) = mode.choose_prior_precision(&eig, cfg);
     let (var, p, k) = (mode.var, mode.p, eig.len());
@@ -418,6 +444,7 @@ pub fn laplace_summary_at<M: ResidualModel>(
         prior_precision: alpha,
         normalized_trace,
         rmv: normalized_trace.sqrt(),
+        information_gain: 0.5 * eig.iter().map(|&e| (e.max(0.0) / (var * alpha)).ln_1p()).sum::<f64>(),
         log_evidence: mode.evidence(alpha, mode.log_det(&eig, alpha)),
         evidence_grid,
         residuals: mode.m,
@@ -502,6 +529,8 @@ pub struct BlaFit {
 /// The MAP part of the BLA of one view: the kept perturbation's fit, the rays it used and the
 /// model copy whose weights the fit varied.
 struct Mapped {
+    /// The trained weights: where every fit starts and the prior is centred.
+    theta0: Vec<f64>,
     perturbation: usize,
     perturbation_losses: Vec<f64>,
     map: MapFit,
@@ -559,7 +588,7 @@ fn map_over_perturbations(
     let Some((perturbation, Candidate { map, rays, reference })) = best else {
         unreachable!("at least one perturbation (validated)")
     };
-    Ok(Mapped { perturbation, perturbation_losses, map, model, rays, reference })
+    Ok(Mapped { theta0, perturbation, perturbation_losses, map, model, rays, reference })
 }
 
 /// The BLA of one image: for each of [`UqConfig::perturbations`] jittered copies of the
@@ -579,11 +608,11 @@ pub fn bla_image(
     reference: &[[f32; 3]],
     cfg: &UqConfig,
 ) -> Result<BlaFit, UqError> {
-    let Mapped { perturbation, perturbation_losses, map, mut model, rays, reference } =
+    let Mapped { theta0, perturbation, perturbation_losses, map, mut model, rays, reference } =
         map_over_perturbations(nerf, image, rays, reference, cfg, cfg.max_rays)?;
     let n_rays = rays.len();
     let mut res = NerfResiduals::new(&mut model, rays, reference);
-    let laplace = laplace_at(image, &mut res, &map.theta, cfg)?;
+    let laplace = laplace_at(image, &mut res, &map.theta, &theta0, cfg)?;
     Ok(BlaFit { map, perturbation, perturbation_losses, rays: n_rays, laplace })
 }
 
@@ -607,10 +636,10 @@ pub fn bla_view(
     cfg: &UqConfig,
     max_rays: usize,
 ) -> Result<BlaSummary, UqError> {
-    let Mapped { perturbation, map, mut model, rays, reference, .. } =
+    let Mapped { theta0, perturbation, map, mut model, rays, reference, .. } =
         map_over_perturbations(nerf, image, rays, reference, cfg, max_rays)?;
     let n_rays = rays.len();
     let mut res = NerfResiduals::new(&mut model, rays, reference);
-    let laplace = laplace_summary_at(image, &mut res, &map.theta, cfg)?;
+    let laplace = laplace_summary_at(image, &mut res, &map.theta, &theta0, cfg)?;
     Ok(BlaSummary { map, perturbation, rays: n_rays, laplace })
 }

@@ -71,9 +71,10 @@ fn inverse_logdet(mut a: Vec<Vec<f64>>) -> (Vec<Vec<f64>>, f64) {
     (inv, logdet)
 }
 
-/// For `r = Aθ − y` with prior `N(0, α⁻¹I)` and noise σ_n, the posterior is exactly Gaussian:
-/// `Σ = (AᵀA/σ_n² + αI)⁻¹`, mean `Σ·Aᵀy/σ_n²`, and the evidence is `N(y; 0, σ_n²I + AAᵀ/α)`.
-/// The BLA core must reproduce all three (covariance to 1e-9 relative; the mean to 1e-6, as a
+/// For `r = Aθ − y` with prior `N(θ₀, α⁻¹I)` (θ₀ where the fit starts) and noise σ_n, the
+/// posterior is exactly Gaussian: `Σ = (AᵀA/σ_n² + αI)⁻¹`, mean `Σ·(Aᵀy/σ_n² + αθ₀)`, and the
+/// evidence is `N(y; Aθ₀, σ_n²I + AAᵀ/α)`; the information gain is `½(ln det H − P ln α)`.
+/// The BLA core must reproduce all four (covariance to 1e-9 relative; the mean to 1e-6, as a
 /// step is accepted on a lower loss and the loss resolves θ only to about √ε), on both of
 /// its solver paths: more residuals than parameters (P × P steps) and fewer (m × m steps).
 #[test]
@@ -100,8 +101,10 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
                     .collect()
             })
             .collect();
-        let (sigma, _) = inverse_logdet(h);
-        let aty: Vec<f64> = (0..p).map(|i| (0..m).map(|k| model.a[k][i] * model.y[k]).sum::<f64>() / var).collect();
+        let (sigma, log_det_h) = inverse_logdet(h);
+        let theta0 = vec![0.3; p];
+        let aty: Vec<f64> =
+            (0..p).map(|i| (0..m).map(|k| model.a[k][i] * model.y[k]).sum::<f64>() / var + alpha * theta0[i]).collect();
         let mean: Vec<f64> = (0..p).map(|i| (0..p).map(|j| sigma[i][j] * aty[j]).sum()).collect();
         let c: Vec<Vec<f64>> = (0..m)
             .map(|i| {
@@ -114,11 +117,13 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
             })
             .collect();
         let (c_inv, c_logdet) = inverse_logdet(c);
-        let quad: f64 = (0..m).map(|i| (0..m).map(|j| model.y[i] * c_inv[i][j] * model.y[j]).sum::<f64>()).sum();
+        let centred: Vec<f64> =
+            (0..m).map(|i| model.y[i] - (0..p).map(|k| model.a[i][k] * theta0[k]).sum::<f64>()).collect();
+        let quad: f64 = (0..m).map(|i| (0..m).map(|j| centred[i] * c_inv[i][j] * centred[j]).sum::<f64>()).sum();
         let evidence = -0.5 * quad - 0.5 * c_logdet - 0.5 * m as f64 * (2.0 * std::f64::consts::PI).ln();
 
-        let theta0 = vec![0.3; p];
-        // One step is eq. 9 exactly: θ₁ = θ₀ − (H + λI)⁻¹ g, g = Aᵀ(Aθ₀ − y)/σ² + αθ₀.
+        // One step is eq. 9 exactly: θ₁ = θ₀ − (H + λI)⁻¹ g, g = Aᵀ(Aθ₀ − y)/σ² (the prior's
+        // term α(θ₀ − θ₀) is 0).
         let damped: Vec<Vec<f64>> = (0..p)
             .map(|i| {
                 (0..p)
@@ -132,8 +137,7 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
         let (damped_inv, _) = inverse_logdet(damped);
         let mut r0 = Vec::new();
         model.residuals(&theta0, &mut r0);
-        let g: Vec<f64> =
-            (0..p).map(|i| (0..m).map(|k| model.a[k][i] * r0[k]).sum::<f64>() / var + alpha * theta0[i]).collect();
+        let g: Vec<f64> = (0..p).map(|i| (0..m).map(|k| model.a[k][i] * r0[k]).sum::<f64>() / var).collect();
         let one = lm_map(&mut model, &theta0, &UqConfig { lm_iterations: 1, ..cfg.clone() });
         for i in 0..p {
             let want = theta0[i] - (0..p).map(|j| damped_inv[i][j] * g[j]).sum::<f64>();
@@ -144,7 +148,9 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
         for i in 0..p {
             assert!((fit.theta[i] - mean[i]).abs() < 1e-6 * scale, "m={m}: θ̂[{i}] {} vs {}", fit.theta[i], mean[i]);
         }
-        let lap = laplace_at("linear", &mut model, &fit.theta, &cfg).unwrap();
+        let lap = laplace_at("linear", &mut model, &fit.theta, &theta0, &cfg).unwrap();
+        let gain = 0.5 * (log_det_h - p as f64 * alpha.ln());
+        assert!((lap.information_gain - gain).abs() < 1e-9 * gain, "m={m}: {} vs {gain}", lap.information_gain);
         let smax = (0..p).map(|i| sigma[i][i]).fold(0.0, f64::max);
         for i in 0..p {
             for j in 0..p {
@@ -164,6 +170,55 @@ fn bla_on_a_linear_model_reproduces_the_closed_form_gaussian_posterior() {
     }
 }
 
+/// Half the weights of a linear model are unseen by the data (zero columns of A): with the
+/// prior centred at the trained weights they keep those weights exactly, and their posterior
+/// variance is the prior's 1/α; the seen half moves to the data. The information gain is
+/// `½ Σ_k ln(1 + s_k²/(σ²α))` for the seen columns' squared norms `s_k²` (A's columns are
+/// orthogonal here, so those are the spectrum of AᵀA), and 0 for data that see nothing.
+#[test]
+fn unobserved_weights_keep_their_trained_values_and_the_information_gain_is_the_spectrum_s() {
+    let (p, m) = (8, 12);
+    let scales = [0.5, 1.0, 2.0, 3.0];
+    // Column j < 4 is s_j times the unit vector e_{2j}: orthogonal; columns 4..8 are zero.
+    let a: Vec<Vec<f64>> =
+        (0..m).map(|k| (0..p).map(|j| if j < 4 && k == 2 * j { scales[j] } else { 0.0 }).collect()).collect();
+    let y: Vec<f64> = (0..m).map(|k| 0.1 * k as f64 - 0.4).collect();
+    let mut model = Linear { a, y };
+    let cfg = UqConfig {
+        prior_precision: 2.0,
+        noise_std: 0.5,
+        lm_iterations: 30,
+        lm_tolerance: 1e-15,
+        ..UqConfig::default()
+    };
+    let (alpha, var) = (cfg.prior_precision, cfg.noise_std * cfg.noise_std);
+    let trained: Vec<f64> = (0..p).map(|j| 0.7 - 0.2 * j as f64).collect();
+    let fit = lm_map(&mut model, &trained, &cfg);
+    for j in 4..p {
+        assert!((fit.theta[j] - trained[j]).abs() < 1e-12, "unseen weight {j}: {} from {}", fit.theta[j], trained[j]);
+    }
+    for (j, &s) in scales.iter().enumerate() {
+        // Closed form: (s²/σ² + α)·θ = s·y/σ² + α·θ₀.
+        let want = (s * model.y[2 * j] / var + alpha * trained[j]) / (s * s / var + alpha);
+        // A step is kept on a lower loss, which resolves θ to about √ε.
+        assert!((fit.theta[j] - want).abs() < 1e-6, "seen weight {j}: {} vs {want}", fit.theta[j]);
+    }
+    let lap = laplace_at("half", &mut model, &fit.theta, &trained, &cfg).unwrap();
+    for j in 4..p {
+        assert!((lap.covariance[(j, j)] - 1.0 / alpha).abs() < 1e-12);
+    }
+    let gain: f64 = scales.iter().map(|s| 0.5 * (s * s / (var * alpha)).ln_1p()).sum();
+    assert!((lap.information_gain - gain).abs() < 1e-10 * gain, "{} vs {gain}", lap.information_gain);
+    let summary = laplace_summary_at("half", &mut model, &fit.theta, &trained, &cfg).unwrap();
+    assert!((summary.information_gain - gain).abs() < 1e-9 * gain);
+    // The trace still reads mostly the prior: half its weights are the prior's 1/α.
+    assert!(lap.normalized_trace > 0.5 / alpha);
+    // Data that see nothing teach nothing.
+    let mut blind = Linear { a: vec![vec![0.0; p]; m], y: model.y.clone() };
+    let none = laplace_summary_at("blind", &mut blind, &trained, &trained, &cfg).unwrap();
+    assert_eq!(none.information_gain, 0.0);
+}
+
 /// With a grid of prior precisions, the evidence of each (mode held at the configured α's) is
 /// the Laplace formula at that α, and the covariance uses the best; for a linear model the mode
 /// moves with α, so the grid's figures are those at the configured α's mode.
@@ -175,12 +230,13 @@ fn the_prior_precision_grid_picks_the_highest_laplace_evidence() {
         let mut model = Linear::random(m, p, 7);
         let fit = lm_map(&mut model, &vec![0.0; p], &base);
         let with_grid = UqConfig { prior_precision_grid: grid.clone(), ..base.clone() };
-        let lap = laplace_at("grid", &mut model, &fit.theta, &with_grid).unwrap();
+        let zero = vec![0.0; p];
+        let lap = laplace_at("grid", &mut model, &fit.theta, &zero, &with_grid).unwrap();
         assert_eq!(lap.evidence_grid.len(), grid.len());
         // Each grid value equals the dense formula evaluated with that α.
         for &(a, e) in &lap.evidence_grid {
             let one = UqConfig { prior_precision: a, ..base.clone() };
-            let direct = laplace_at("grid", &mut model, &fit.theta, &one).unwrap();
+            let direct = laplace_at("grid", &mut model, &fit.theta, &zero, &one).unwrap();
             assert!((direct.log_evidence - e).abs() < 1e-9 * e.abs(), "α {a}: {e} vs {}", direct.log_evidence);
         }
         let best = lap.evidence_grid.iter().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
@@ -200,8 +256,9 @@ fn the_summary_from_the_gram_spectrum_equals_the_dense_laplace_approximation() {
             let cfg = UqConfig { prior_precision_grid: grid, ..base.clone() };
             let mut model = Linear::random(m, p, 11);
             let fit = lm_map(&mut model, &vec![0.0; p], &cfg);
-            let dense = laplace_at("lin", &mut model, &fit.theta, &cfg).unwrap();
-            let summary = laplace_summary_at("lin", &mut model, &fit.theta, &cfg).unwrap();
+            let zero = vec![0.0; p];
+            let dense = laplace_at("lin", &mut model, &fit.theta, &zero, &cfg).unwrap();
+            let summary = laplace_summary_at("lin", &mut model, &fit.theta, &zero, &cfg).unwrap();
             let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(1.0);
             assert_eq!(summary.prior_precision, dense.prior_precision, "m {m} p {p}");
             assert!(
@@ -210,6 +267,7 @@ fn the_summary_from_the_gram_spectrum_equals_the_dense_laplace_approximation() {
                 dense.normalized_trace
             );
             assert!(close(summary.rmv, dense.rmv));
+            assert!(close(summary.information_gain, dense.information_gain), "{summary:?}");
             assert!(
                 close(summary.log_evidence, dense.log_evidence),
                 "{} vs {}",
@@ -295,7 +353,9 @@ fn levenberg_marquardt_on_the_sigma_net_weights_of_a_nerf_decreases_the_loss_mon
     let fit = lm_map(&mut model, &theta0, &cfg);
     assert!(fit.losses.len() >= 3, "{:?}", fit.losses);
     assert!(fit.losses.windows(2).all(|w| w[1] < w[0]), "not monotone: {:?}", fit.losses);
-    assert!(fit.loss < 0.5 * fit.losses[0], "{:?}", fit.losses);
+    // The prior holds the weights at the trained ones where the 30 rays say little: the fit
+    // takes about 30 % off the loss (0.99e-3 → 0.70e-3), not all of the shifted model's change.
+    assert!(fit.loss < 0.8 * fit.losses[0], "{:?}", fit.losses);
 }
 
 #[test]

@@ -54,7 +54,7 @@ fn uq(c: &mut Criterion) {
         }
     };
     let cfg = UqConfig::default();
-    let ga = ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max).expect("GA");
+    let ga = ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max, cfg.noise_std).expect("GA");
     eprintln!("uq: {} rays; GA μ_d {:.4} σ_d {:.4} ({} terms)", rays.len(), ga.mu_d, ga.sigma_d, ga.terms);
     let t = std::time::Instant::now();
     let bla = bla_image(&nerf, "bench", &rays, &reference, &cfg).expect("BLA");
@@ -75,7 +75,9 @@ fn uq(c: &mut Criterion) {
     CovarianceFactor::new("bench", &bla.laplace.covariance).expect("Cholesky of Σ");
     eprintln!("uq: Cholesky of the 3072² covariance (inside bla_maps) {:.3} s", t.elapsed().as_secs_f64());
     let mut g = c.benchmark_group("uq");
-    g.bench_function("ga_100x100", |b| b.iter(|| ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max)));
+    g.bench_function("ga_100x100", |b| {
+        b.iter(|| ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max, cfg.noise_std))
+    });
     g.bench_function("ga_maps_100x100", |b| b.iter(|| ga_maps(&nerf, "bench", &camera, bg, ga.sigma_d)));
     g.sample_size(10);
     g.bench_function("bla_100x100", |b| b.iter(|| bla_image(&nerf, "bench", &rays, &reference, &cfg)));
@@ -130,7 +132,8 @@ fn field(c: &mut Criterion) {
         let coarse = UqConfig { field_cells_per_metre: 10.0, ..cfg.clone() };
         UncertaintyField::build_ga(&nerf, "bench", &views, bg, &coarse, &mut |_, _| {}).expect("GA field")
     });
-    let exact = ga_fit_samples("bench", &rays, &nerf.render_rays_samples(&rays), &reference, cfg.ga_sigma_max);
+    let exact =
+        ga_fit_samples("bench", &rays, &nerf.render_rays_samples(&rays), &reference, cfg.ga_sigma_max, cfg.noise_std);
     eprintln!(
         "uq_field: exact GA σ_d {:.4}; field GA {:.4}",
         exact.map_or(f64::NAN, |e| e.sigma_d),
@@ -143,7 +146,16 @@ fn field(c: &mut Criterion) {
         g.bench_function("field_bla_view_1024px", |b| b.iter(|| bla_field.view_uncertainty(&f.camera, &pixels, bg)));
     }
     g.bench_function("exact_ga_view_1024px", |b| {
-        b.iter(|| ga_fit_samples("bench", &rays, &nerf.render_rays_samples(&rays), &reference, cfg.ga_sigma_max))
+        b.iter(|| {
+            ga_fit_samples(
+                "bench",
+                &rays,
+                &nerf.render_rays_samples(&rays),
+                &reference,
+                cfg.ga_sigma_max,
+                cfg.noise_std,
+            )
+        })
     });
     // Exact BLA of the same view as the online reward runs it: MAP over the perturbations on
     // `online_bla_rays` of its rays, then the Laplace summary from the Gram spectrum.

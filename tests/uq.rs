@@ -86,7 +86,19 @@ fn ga_offline_writes_a_csv_row_per_image_the_figures_and_finite_split_summaries(
     let (header, rows) = read_csv(&out.join("uq_ga.csv"));
     assert_eq!(
         header,
-        ["split", "index", "file_path", "mu_d", "sigma_d", "excluded", "objective", "rays", "rays_without_samples"]
+        [
+            "split",
+            "index",
+            "file_path",
+            "mu_d",
+            "sigma_d",
+            "excluded",
+            "objective",
+            "rays",
+            "rays_without_samples",
+            "floored_mu_d",
+            "floored_sigma_d"
+        ]
     );
     let splits: Vec<(&str, &str)> = rows.iter().map(|r| (r[0].as_str(), r[1].as_str())).collect();
     assert_eq!(splits, [("train", "0"), ("train", "1"), ("val", "0"), ("test", "0")]);
@@ -95,6 +107,8 @@ fn ga_offline_writes_a_csv_row_per_image_the_figures_and_finite_split_summaries(
         assert!(r[2].contains("r_"), "file_path {r:?}");
         let sigma: f64 = r[4].parse().unwrap();
         assert!(sigma.is_finite() && sigma >= 0.0, "{r:?}");
+        let floored: f64 = r[10].parse().unwrap();
+        assert!(floored.is_finite() && floored >= 0.0, "{r:?}");
         assert_eq!(r[7], "64", "all 8×8 pixels are rays: {r:?}");
         let excluded = r[5].as_str();
         assert!(["", "absolutely_certain", "absolutely_uncertain"].contains(&excluded), "{r:?}");
@@ -162,6 +176,8 @@ fn bla_offline_on_one_image_per_split_reports_trace_and_rmv() {
         assert!(p < 2, "{r:?}");
         let rays: usize = r[col("rays")].parse().unwrap();
         assert!((1..=16).contains(&rays), "{r:?}");
+        let gain: f64 = r[col("information_gain")].parse().unwrap();
+        assert!(gain.is_finite() && gain > 0.0, "rays that hit the model teach something: {r:?}");
     }
     assert_figures(&out, &["uq_bla_trace", "uq_bla_rmv", "uq_bla_trace_rmv"]);
 }

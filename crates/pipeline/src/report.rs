@@ -601,9 +601,13 @@ fn page(
                     num(&x["ga_excluded"], 0),
                     num(&x["ga_mean_sigma_d"], 3),
                     num(&x["ga_median_sigma_d"], 3),
+                    num(&x["ga_floored_excluded"], 0),
+                    num(&x["ga_floored_mean_sigma_d"], 3),
+                    num(&x["ga_floored_median_sigma_d"], 3),
                     num(&x["bla_images"], 0),
                     num(&x["bla_mean_normalized_trace"], 4),
                     num(&x["bla_mean_rmv"], 4),
+                    num(&x["bla_mean_information_gain"], 1),
                 ]
             })
             .collect();
@@ -615,11 +619,29 @@ fn page(
                 "excluded (σ_d ≥ 3)",
                 "mean σ_d",
                 "median σ_d",
+                "noise-floored: excluded (≥ 3)",
+                "mean σ_d",
+                "median σ_d",
                 "BLA images",
                 "mean normalised trace",
                 "mean rmv",
+                "mean information gain (nats)",
             ],
             &rows,
+        );
+        o.push_str(
+            "<p>GA's σ_d is the paper's eq. 2, which has no pixel-noise term: a nearly transparent ray (tiny \
+             s = Σ c²d²) turns any noise in its colour into a huge (r − μm)²/s and drives σ_d, which is why the \
+             paper's σ_d ≥ 3 exclusion removes many images. The noise-floored σ_d fits r ~ N(μm, σ_d²s + σ_n²) with \
+             σ_n the pixel noise (uq.noise_std): 0 when the model explains the image up to its noise; it is shown \
+             beside the paper's, whose figures (and the online reward and the maps) are unchanged.</p>\n",
+        );
+        o.push_str(
+            "<p>BLA's prior is centred at the trained weights. The normalised trace tr(Σ)/P and rmv are the \
+             paper's (its eq. 11 reward uses their product); in the directions an image's rays do not see, Σ is the \
+             prior's 1/α, so with m residuals and P weights the trace cannot fall below (P − m)/(P·α): it mostly \
+             measures the prior. The information gain ½ Σ<sub>k</sub> ln(1 + e<sub>k</sub>/(σ<sub>n</sub>²α)) \
+             counts only the data's directions: 0 for an image that constrains nothing.</p>\n",
         );
         table(
             &mut o,

@@ -61,6 +61,9 @@ pub struct GaRow {
     pub objective: f64,
     pub rays: usize,
     pub rays_without_samples: usize,
+    /// The noise-floored fit's μ_d and σ_d (pixel noise in the model).
+    pub floored_mu_d: f64,
+    pub floored_sigma_d: f64,
 }
 
 impl GaRow {
@@ -72,6 +75,8 @@ impl GaRow {
             objective: f.objective,
             rays,
             rays_without_samples: f.rays_without_samples,
+            floored_mu_d: f.floored.mu_d,
+            floored_sigma_d: f.floored.sigma_d,
         }
     }
 }
@@ -81,6 +86,8 @@ impl GaRow {
 pub struct BlaRow {
     pub normalized_trace: f64,
     pub rmv: f64,
+    /// Nats the image taught the weights, in the directions its rays see (0 for none).
+    pub information_gain: f64,
     pub map_loss: f64,
     pub initial_loss: f64,
     pub perturbation: usize,
@@ -94,6 +101,7 @@ impl BlaRow {
         Self {
             normalized_trace: f.laplace.normalized_trace,
             rmv: f.laplace.rmv,
+            information_gain: f.laplace.information_gain,
             map_loss: f.map.loss,
             initial_loss: f.map.losses.first().copied().unwrap_or(f.map.loss),
             perturbation: f.perturbation,
@@ -141,9 +149,8 @@ pub fn fit_image(
     cfg: &UqConfig,
 ) -> Result<Fit, UqError> {
     let fit = match method {
-        Method::Ga => {
-            ga_image(nerf, name, rays, refs, cfg.ga_sigma_max).map(|f| Fit::Ga(Some(GaRow::new(&f, rays.len()))))
-        }
+        Method::Ga => ga_image(nerf, name, rays, refs, cfg.ga_sigma_max, cfg.noise_std)
+            .map(|f| Fit::Ga(Some(GaRow::new(&f, rays.len())))),
         Method::Bla => bla_image(nerf, name, rays, refs, cfg).map(|f| Fit::Bla(Some(BlaRow::new(&f)))),
     };
     match fit {
@@ -190,7 +197,7 @@ pub fn fit_with_depth_uncertainty(
     match method {
         Method::Ga => {
             let samples = nerf.render_rays_samples(&rays);
-            let fit = ga_fit_samples(name, &rays, &samples, &refs, cfg.ga_sigma_max)?;
+            let fit = ga_fit_samples(name, &rays, &samples, &refs, cfg.ga_sigma_max, cfg.noise_std)?;
             let maps = ga_maps_from_samples(name, &frame.camera, &samples, fit.sigma_d)?;
             Ok((Fit::Ga(Some(GaRow::new(&fit, rays.len()))), maps.depth_std))
         }
@@ -346,6 +353,8 @@ pub struct SplitSummary {
     pub mean_trace: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_rmv: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_information_gain: Option<f64>,
 }
 
 /// What `nerfsv uq offline` prints and writes to `uq_{method}.json`.
@@ -395,11 +404,13 @@ impl OfflineSummary {
                 ),
                 _ => writeln!(
                     text,
-                    "{name}: {} images, {} all rays miss; mean normalised trace {}, mean rmv {}",
+                    "{name}: {} images, {} all rays miss; mean normalised trace {}, mean rmv {}, mean information \
+                     gain {} nats",
                     s.images,
                     s.all_rays_miss,
                     short(s.mean_trace),
-                    short(s.mean_rmv)
+                    short(s.mean_rmv),
+                    short(s.mean_information_gain)
                 ),
             };
         }
@@ -453,6 +464,7 @@ pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method
         mean_mu_d: None,
         mean_trace: None,
         mean_rmv: None,
+        mean_information_gain: None,
     };
     match method {
         Method::Ga => {
@@ -466,6 +478,7 @@ pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method
             let fits: Vec<&BlaRow> = bla_rows(rows).collect();
             s.mean_trace = mean(fits.iter().map(|b| b.normalized_trace));
             s.mean_rmv = mean(fits.iter().map(|b| b.rmv));
+            s.mean_information_gain = mean(fits.iter().map(|b| b.information_gain));
         }
     }
     s
@@ -493,10 +506,13 @@ fn exclusion_name(e: Option<GaExclusion>) -> &'static str {
 pub fn csv(rows: &[Row], method: Method) -> String {
     let mut out = String::new();
     match method {
-        Method::Ga => out.push_str("split,index,file_path,mu_d,sigma_d,excluded,objective,rays,rays_without_samples\n"),
+        Method::Ga => out.push_str(
+            "split,index,file_path,mu_d,sigma_d,excluded,objective,rays,rays_without_samples,floored_mu_d,\
+             floored_sigma_d\n",
+        ),
         Method::Bla => out.push_str(
-            "split,index,file_path,normalized_trace,rmv,map_loss,initial_loss,perturbation,prior_precision,\
-             log_evidence,rays,note\n",
+            "split,index,file_path,normalized_trace,rmv,information_gain,map_loss,initial_loss,perturbation,\
+             prior_precision,log_evidence,rays,note\n",
         ),
     }
     for r in rows {
@@ -504,20 +520,23 @@ pub fn csv(rows: &[Row], method: Method) -> String {
         let _ = match &r.fit {
             Fit::Ga(Some(g)) => writeln!(
                 out,
-                "{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{}",
                 g.mu_d,
                 g.sigma_d,
                 exclusion_name(g.excluded),
                 g.objective,
                 g.rays,
-                g.rays_without_samples
+                g.rays_without_samples,
+                g.floored_mu_d,
+                g.floored_sigma_d
             ),
-            Fit::Ga(None) => writeln!(out, ",,all_rays_miss,,,"),
+            Fit::Ga(None) => writeln!(out, ",,all_rays_miss,,,,,"),
             Fit::Bla(Some(b)) => writeln!(
                 out,
-                "{},{},{},{},{},{},{},{},",
+                "{},{},{},{},{},{},{},{},{},",
                 b.normalized_trace,
                 b.rmv,
+                b.information_gain,
                 b.map_loss,
                 b.initial_loss,
                 b.perturbation,
@@ -525,7 +544,7 @@ pub fn csv(rows: &[Row], method: Method) -> String {
                 b.log_evidence,
                 b.rays
             ),
-            Fit::Bla(None) => writeln!(out, ",,,,,,,,all_rays_miss"),
+            Fit::Bla(None) => writeln!(out, ",,,,,,,,,all_rays_miss"),
         };
     }
     out
@@ -696,10 +715,18 @@ pub struct UqSplitFigures {
     /// Median σ_d over every fitted image, excluded ones included (where the split sits
     /// against the exclusion bound).
     pub ga_median_sigma_d: Option<f64>,
+    /// The same with the pixel noise in the model (`uq.noise_std`): images whose noise-floored
+    /// σ_d is ≥ the bound, the mean over the others, the median over all.
+    pub ga_floored_excluded: usize,
+    pub ga_floored_mean_sigma_d: Option<f64>,
+    pub ga_floored_median_sigma_d: Option<f64>,
     /// Images BLA was run on, and their mean normalised trace and rmv.
     pub bla_images: usize,
     pub bla_mean_normalized_trace: Option<f64>,
     pub bla_mean_rmv: Option<f64>,
+    /// Mean information gain (nats): what an image teaches in its own directions, where the
+    /// trace is mostly the prior's 1/α in the directions it does not see.
+    pub bla_mean_information_gain: Option<f64>,
 }
 
 /// What the uncertainty stage reports.
@@ -723,7 +750,14 @@ impl Uncertainty<'_> {
     pub const AUSE_CSV: &'static str = "ause.csv";
 }
 
-fn split_figures(rows: &[Row], split: &str) -> UqSplitFigures {
+/// Whether a noise-floored σ_d stays in the statistics: below the bound. (σ_d = 0 is kept: with
+/// the noise in the model it says the image is explained up to its noise, not that the fit
+/// degenerated, as the paper's σ_d = 0 does.)
+fn floored_kept(g: &GaRow, sigma_max: f64) -> bool {
+    g.floored_sigma_d < sigma_max
+}
+
+fn split_figures(rows: &[Row], split: &str, sigma_max: f64) -> UqSplitFigures {
     let of = |r: &&Row| r.split == split;
     let ga = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Ga(_))), Method::Ga);
     let bla = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Bla(_))), Method::Bla);
@@ -734,9 +768,15 @@ fn split_figures(rows: &[Row], split: &str) -> UqSplitFigures {
         ga_mean_sigma_d: ga.mean_sigma_d,
         ga_mean_mu_d: ga.mean_mu_d,
         ga_median_sigma_d: median(ga_rows(rows.iter().filter(of)).map(|g| g.sigma_d).collect()),
+        ga_floored_excluded: ga_rows(rows.iter().filter(of)).filter(|g| !floored_kept(g, sigma_max)).count(),
+        ga_floored_mean_sigma_d: mean(
+            ga_rows(rows.iter().filter(of)).filter(|g| floored_kept(g, sigma_max)).map(|g| g.floored_sigma_d),
+        ),
+        ga_floored_median_sigma_d: median(ga_rows(rows.iter().filter(of)).map(|g| g.floored_sigma_d).collect()),
         bla_images: bla.images,
         bla_mean_normalized_trace: bla.mean_trace,
         bla_mean_rmv: bla.mean_rmv,
+        bla_mean_information_gain: bla.mean_information_gain,
     }
 }
 
@@ -798,7 +838,7 @@ pub fn maps_figure(nerf: &Nerf, frame: &Frame, bla: bool, cfg: &UqConfig) -> Res
 
 impl Stage for Uncertainty<'_> {
     const NAME: &'static str = "uq";
-    const VERSION: u32 = 2;
+    const VERSION: u32 = 3;
     const OUTPUTS: &'static [&'static str] = &[
         Self::GA_CSV,
         Self::BLA_CSV,
@@ -907,9 +947,9 @@ impl Stage for Uncertainty<'_> {
         write_files(&cx.dir, &files)?;
         let rows: Vec<Row> = ga.into_iter().chain(bla).collect();
         Ok(UqFigures {
-            train: split_figures(&rows, "train"),
-            val: split_figures(&rows, "val"),
-            test: split_figures(&rows, "test"),
+            train: split_figures(&rows, "train", self.uq.ga_sigma_max),
+            val: split_figures(&rows, "val", self.uq.ga_sigma_max),
+            test: split_figures(&rows, "test", self.uq.ga_sigma_max),
             ause_ga,
             ause_ga_images,
             ause_bla,
@@ -984,17 +1024,30 @@ mod tests {
 
     fn ga(split: &'static str, sigma_d: f64, excluded: bool) -> Row {
         let excluded = excluded.then_some(GaExclusion::AbsolutelyUncertain);
-        let g = GaRow { mu_d: 1.0, sigma_d, excluded, objective: 0.0, rays: 4, rays_without_samples: 0 };
+        let g = GaRow {
+            mu_d: 1.0,
+            sigma_d,
+            excluded,
+            objective: 0.0,
+            rays: 4,
+            rays_without_samples: 0,
+            floored_mu_d: 1.0,
+            floored_sigma_d: 0.1 * sigma_d,
+        };
         Row { split, index: 0, file_path: "r_0".into(), fit: Fit::Ga(Some(g)) }
     }
 
     #[test]
     fn split_figures_leave_exclusions_out_of_the_mean_but_not_the_median() {
         let rows = [ga("test", 1.0, false), ga("test", 2.0, false), ga("test", 4.0, true), ga("val", 9.0, true)];
-        let f = split_figures(&rows, "test");
+        let f = split_figures(&rows, "test", 3.0);
         assert_eq!((f.ga_images, f.ga_excluded, f.ga_all_rays_miss, f.bla_images), (3, 1, 0, 0));
         assert_eq!(f.ga_mean_sigma_d, Some(1.5));
         assert_eq!(f.ga_median_sigma_d, Some(2.0));
+        // The noise-floored σ_d (0.1, 0.2, 0.4): none at the bound, all kept.
+        assert_eq!(f.ga_floored_excluded, 0);
+        assert!((f.ga_floored_mean_sigma_d.unwrap() - 0.7 / 3.0).abs() < 1e-12);
+        assert_eq!(f.ga_floored_median_sigma_d, Some(0.2));
         assert_eq!(f.bla_mean_rmv, None);
         assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
     }

@@ -591,7 +591,8 @@ impl UncertaintyField {
             progress(v, views.len());
             let rays = camera_rays(view.camera, background);
             let samples = nerf.render_rays_samples(&rays);
-            let fit = match ga_fit_samples(view.name, &rays, &samples, view.reference, cfg.ga_sigma_max) {
+            let fit = match ga_fit_samples(view.name, &rays, &samples, view.reference, cfg.ga_sigma_max, cfg.noise_std)
+            {
                 Ok(f) => f,
                 Err(UqError::AllRaysMiss { .. }) => continue,
                 Err(e) => return Err(e),

@@ -19,6 +19,14 @@
 //! uncertain") and the standardised residual `z_k = (r_k − μ̂ m_k)/(σ̂ √s_k)` of every pixel and
 //! channel (mean square 1 over the image by construction).
 //!
+//! **Noise floor.** Eq. 2 has no term for the pixel noise, so a ray with tiny `s` (nearly
+//! transparent) makes `(r − μm)²/s` huge for any noise in `r`, and such rays drive σ̂ (on an
+//! exact model with 0.02 pixel noise and a tenth of the rays at opacity 0.02, σ̂ = 1.27, almost
+//! all of it from those rays). Beside the paper's form, [`GaFit::floored`] fits
+//! `r ~ N(μ·m, σ²·s + σ_n²)` with σ_n the pixel noise ([`crate::UqConfig::noise_std`]): μ in
+//! closed form for each σ (weighted least squares), σ by golden-section search of the profile
+//! objective; σ_d is then ≈ 0 when the model explains the image up to the noise.
+//!
 //! Rays that composite no sample (they miss the box or cross only empty occupancy cells) have
 //! `s = 0` and no information about the density scale: they are left out of the fit, counted,
 //! and get a NaN residual. Colour that does not come from samples, the background seen through
@@ -72,6 +80,18 @@ pub enum GaExclusion {
     AbsolutelyUncertain,
 }
 
+/// The noise-floored GA optimum of one image: `r ~ N(μ_d·m, σ_d²·s + σ_n²)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GaFloored {
+    pub mu_d: f64,
+    /// σ_d ≥ 0.
+    pub sigma_d: f64,
+    /// σ_n, the pixel noise it was fitted with.
+    pub noise_std: f64,
+    /// `Σ_k [ln(σ_d² s_k + σ_n²) + (r_k − μ_d m_k)²/(σ_d² s_k + σ_n²)]`.
+    pub objective: f64,
+}
+
 /// The GA optimum of one image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GaFit {
@@ -90,6 +110,8 @@ pub struct GaFit {
     /// `[r]` standardised residuals `(r − μ_d m)/(σ_d √s)` per ray and channel; NaN where
     /// `s = 0`, 0 everywhere when σ_d = 0.
     pub standardized: Vec<[f32; 3]>,
+    /// The same image with the pixel noise in the model (see the module docs).
+    pub floored: GaFloored,
 }
 
 impl GaFit {
@@ -126,12 +148,85 @@ pub fn ga_objective(rays: &[GaRay], mu: f64, sigma: f64) -> f64 {
     f
 }
 
-/// The closed-form GA optimum of an image's rays (see the module docs). `image` names it in
-/// errors; images with `σ_d ≥ sigma_max` or `σ_d ≤ 0` are flagged, not refused.
+/// The noise-floored objective `Σ_k [ln V_k + (r_k − μ m_k)²/V_k]`, `V_k = σ² s_k + σ_n²`, over
+/// the terms with `s > 0`, at `(μ, σ)`.
+pub fn ga_floored_objective(rays: &[GaRay], mu: f64, sigma: f64, noise_std: f64) -> f64 {
+    let (v, n2) = (sigma * sigma, noise_std * noise_std);
+    let mut f = 0.0;
+    for ray in rays {
+        for ch in 0..3 {
+            let s = ray.s[ch];
+            if s > 0.0 {
+                let (e, var) = (ray.r[ch] - mu * ray.m[ch], v * s + n2);
+                f += var.ln() + e * e / var;
+            }
+        }
+    }
+    f
+}
+
+/// μ minimising the noise-floored objective at σ: `Σ(r m/V) / Σ(m²/V)`.
+fn floored_mu(rays: &[GaRay], sigma: f64, noise_std: f64) -> f64 {
+    let (v, n2) = (sigma * sigma, noise_std * noise_std);
+    let (mut num, mut den) = (0.0, 0.0);
+    for ray in rays {
+        for ch in 0..3 {
+            let s = ray.s[ch];
+            if s > 0.0 {
+                let var = v * s + n2;
+                num += ray.r[ch] * ray.m[ch] / var;
+                den += ray.m[ch] * ray.m[ch] / var;
+            }
+        }
+    }
+    if den > 0.0 {
+        num / den
+    } else {
+        0.0
+    }
+}
+
+/// The noise-floored GA of an image's rays: golden-section search over σ ∈ [0, σ_hi] of the
+/// profile objective (μ in closed form at each σ), σ_hi doubled until the optimum lies inside;
+/// `plain_sigma` (the paper's σ̂) starts the bracket.
+fn floored_fit(rays: &[GaRay], plain_sigma: f64, noise_std: f64) -> GaFloored {
+    let profile = |sigma: f64| ga_floored_objective(rays, floored_mu(rays, sigma, noise_std), sigma, noise_std);
+    let mut hi = plain_sigma.max(noise_std).max(1e-6) * 2.0;
+    while profile(hi) < profile(0.5 * hi) && hi < 1e6 {
+        hi *= 2.0;
+    }
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut a, mut b) = (0.0, hi);
+    let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
+    let (mut fc, mut fd) = (profile(c), profile(d));
+    for _ in 0..100 {
+        if b - a <= 1e-9 * hi {
+            break;
+        }
+        if fc < fd {
+            (b, d, fd) = (d, c, fc);
+            c = b - g * (b - a);
+            fc = profile(c);
+        } else {
+            (a, c, fc) = (c, d, fd);
+            d = a + g * (b - a);
+            fd = profile(d);
+        }
+    }
+    // The optimum may sit on the boundary σ = 0 (the noise alone explains the image).
+    let inner = 0.5 * (a + b);
+    let sigma = if profile(0.0) <= profile(inner) { 0.0 } else { inner };
+    let mu = floored_mu(rays, sigma, noise_std);
+    GaFloored { mu_d: mu, sigma_d: sigma, noise_std, objective: ga_floored_objective(rays, mu, sigma, noise_std) }
+}
+
+/// The closed-form GA optimum of an image's rays (see the module docs), and beside it the
+/// noise-floored one with pixel noise `noise_std`. `image` names it in errors; images with
+/// `σ_d ≥ sigma_max` or `σ_d ≤ 0` are flagged, not refused.
 ///
 /// Errors: [`UqError::AllRaysMiss`] when no ray has a sample, [`UqError::NonFinite`] when the
 /// inputs are not finite.
-pub fn ga_fit(image: &str, rays: &[GaRay], sigma_max: f64) -> Result<GaFit, UqError> {
+pub fn ga_fit(image: &str, rays: &[GaRay], sigma_max: f64, noise_std: f64) -> Result<GaFit, UqError> {
     // Pass 1: μ̂ = Σ(r m/s) / Σ(m²/s).
     let (mut num, mut den, mut terms, mut without) = (0.0f64, 0.0f64, 0usize, 0usize);
     for ray in rays {
@@ -194,7 +289,17 @@ pub fn ga_fit(image: &str, rays: &[GaRay], sigma_max: f64) -> Result<GaFit, UqEr
     } else {
         None
     };
-    Ok(GaFit { mu_d: mu, sigma_d: sigma, objective, terms, rays_without_samples: without, excluded, standardized })
+    let floored = floored_fit(rays, sigma, noise_std);
+    Ok(GaFit {
+        mu_d: mu,
+        sigma_d: sigma,
+        objective,
+        terms,
+        rays_without_samples: without,
+        excluded,
+        standardized,
+        floored,
+    })
 }
 
 /// Renders `rays` (one per pixel, each with its background) and fits the GA to the image's
@@ -206,9 +311,10 @@ pub fn ga_image(
     rays: &[RayInput],
     reference: &[[f32; 3]],
     sigma_max: f64,
+    noise_std: f64,
 ) -> Result<GaFit, UqError> {
     check_reference(image, rays.len(), reference)?;
-    fit_rendered(image, rays, &nerf.render_rays_samples(rays), reference, sigma_max)
+    fit_rendered(image, rays, &nerf.render_rays_samples(rays), reference, sigma_max, noise_std)
 }
 
 /// [`ga_image`] on an already rendered view: `samples` of `rays` (from
@@ -220,12 +326,13 @@ pub fn ga_fit_samples(
     samples: &RaySamples,
     reference: &[[f32; 3]],
     sigma_max: f64,
+    noise_std: f64,
 ) -> Result<GaFit, UqError> {
     check_reference(image, rays.len(), reference)?;
     if samples.len() != rays.len() {
         return Err(UqError::LengthMismatch { image: image.to_string(), rays: samples.len(), references: rays.len() });
     }
-    fit_rendered(image, rays, samples, reference, sigma_max)
+    fit_rendered(image, rays, samples, reference, sigma_max, noise_std)
 }
 
 /// The GA of checked inputs: each ray's `(m, s, r)` from its samples, then [`ga_fit`].
@@ -235,6 +342,7 @@ fn fit_rendered(
     samples: &RaySamples,
     reference: &[[f32; 3]],
     sigma_max: f64,
+    noise_std: f64,
 ) -> Result<GaFit, UqError> {
     let ga_rays: Vec<GaRay> = (0..rays.len())
         .into_par_iter()
@@ -243,7 +351,7 @@ fn fit_rendered(
             GaRay::from_samples(c, w, reference[i], rays[i].background)
         })
         .collect();
-    ga_fit(image, &ga_rays, sigma_max)
+    ga_fit(image, &ga_rays, sigma_max, noise_std)
 }
 
 /// Rays and references pair up and every reference is finite.

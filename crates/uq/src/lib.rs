@@ -39,7 +39,7 @@
 //! let reference: Vec<[f32; 3]> = frame.image.rgba.chunks_exact(4)
 //!     .map(|p| [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))).collect();
 //! let cfg = UqConfig::default();
-//! let ga = ga_image(nerf, "r_0", &rays, &reference, cfg.ga_sigma_max).unwrap();
+//! let ga = ga_image(nerf, "r_0", &rays, &reference, cfg.ga_sigma_max, cfg.noise_std).unwrap();
 //! let bla = bla_image(nerf, "r_0", &rays, &reference, &cfg).unwrap();
 //! println!("σ_d {:.3}, trace {:.3e}, rmv {:.3e}", ga.sigma_d, bla.laplace.normalized_trace, bla.laplace.rmv);
 //! # }
@@ -64,5 +64,7 @@ pub use field::{
     data_term, density_param_count, empty_density, field_geometry, model_id, DensityPosterior, FieldFigures,
     TrainingView, UncertaintyField,
 };
-pub use ga::{ga_fit, ga_fit_samples, ga_image, ga_objective, GaExclusion, GaFit, GaRay};
+pub use ga::{
+    ga_fit, ga_fit_samples, ga_floored_objective, ga_image, ga_objective, GaExclusion, GaFit, GaFloored, GaRay,
+};
 pub use maps::{bla_maps, bla_maps_factored, ga_maps, ga_maps_from_samples, CovarianceFactor, UncertaintyMaps};

@@ -80,7 +80,10 @@ impl ViewUncertainty for ExactUncertainty<'_> {
         let rays = pixel_rays(camera, &self.pixels, self.background);
         let reference = self.reference.observe(camera, &self.pixels, self.background);
         let value = match self.method {
-            Method::Ga => ga_image(self.nerf, "step view", &rays, &reference, self.cfg.ga_sigma_max).map(|f| f.sigma_d),
+            Method::Ga => {
+                ga_image(self.nerf, "step view", &rays, &reference, self.cfg.ga_sigma_max, self.cfg.noise_std)
+                    .map(|f| f.sigma_d)
+            }
             Method::Bla => bla_view(self.nerf, "step view", &rays, &reference, self.cfg, self.cfg.online_bla_rays)
                 .map(|s| s.laplace.rmv * s.laplace.normalized_trace),
         };

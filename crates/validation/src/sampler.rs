@@ -252,9 +252,10 @@ pub struct ImportanceEstimate {
     pub probability: f64,
     /// Its standard error: the regression residuals' std / √N (∞ for N < 3).
     pub standard_error: f64,
-    /// 95 % interval p̂ ± 1.96 SE within [0, 1]; without failures its upper bound is Wilson's
-    /// for no failures in the effective sample size (not the empty [0, 0]), without passes its
-    /// lower bound likewise.
+    /// 95 % interval p̂ ± 1.96 SE within [0, 1], widened on a side with fewer than
+    /// [`ImportanceEstimate::FEW_EVENTS`] effective failures (passes) to at least Wilson's
+    /// interval for p̂ in the effective sample size (without failures: Wilson's bound for none,
+    /// not the empty [0, 0]).
     pub interval: (f64, f64),
     /// Kish's effective sample size (Σ w)² / Σ w²: how many prior draws the weighted batch is
     /// worth (N when every weight is equal).
@@ -276,8 +277,9 @@ pub struct ImportanceEstimate {
 impl ImportanceEstimate {
     /// The name of the estimator [`ImportanceEstimate::probability`] is, for outputs.
     pub const ESTIMATOR: &'static str = "importance sampling, weight as control variate";
-    /// Below this many failures (passes) in the batch, the interval's upper (lower) bound is at
-    /// least Wilson's for the estimate in the effective sample size.
+    /// Below this many effective failures (passes: Kish's size of their weights) in the batch,
+    /// the interval's upper (lower) bound is at least Wilson's for the estimate in the effective
+    /// sample size: a few heavy weights say little, whatever the residuals' spread.
     pub const FEW_EVENTS: usize = 10;
     /// Below this many effective failures an estimate rests on a few rollouts: outputs warn.
     pub const FEW_EFFECTIVE_FAILURES: f64 = 5.0;
@@ -329,13 +331,16 @@ pub fn importance_estimate(records: &[RolloutRecord]) -> ImportanceEstimate {
     // With few failures (or few passes) the residuals on that side are too few to show the
     // spread, and with none the SE claims certainty: that side's bound is then at least as wide
     // as Wilson's for p̂ in the effective sample size.
-    let (few, wide) = (ImportanceEstimate::FEW_EVENTS, wilson(p, ess));
+    let (few, wide) = (ImportanceEstimate::FEW_EVENTS as f64, wilson(p, ess));
+    let effective_failures = effective_sample_size(terms.iter().copied());
+    let effective_passes =
+        effective_sample_size(records.iter().zip(&weights).map(|(r, &w)| if r.failed { 0.0 } else { w }));
     let mut lo = (p - Z95 * se).max(0.0);
     let mut hi = (p + Z95 * se).min(1.0);
-    if n - failures < few {
+    if effective_passes < few {
         lo = lo.min(wide.0);
     }
-    if failures < few {
+    if effective_failures < few {
         hi = hi.max(wide.1);
     }
     let interval = (lo.min(p), hi.max(p));
@@ -344,7 +349,7 @@ pub fn importance_estimate(records: &[RolloutRecord]) -> ImportanceEstimate {
         standard_error: se,
         interval,
         effective_sample_size: ess,
-        effective_failures: effective_sample_size(terms.iter().copied()),
+        effective_failures,
         unnormalised: plain,
         unnormalised_standard_error: plain_se,
         samples: n,

@@ -327,7 +327,7 @@ fn assert_uq_stage(run: &std::path::Path, uq: &serde_json::Value) {
     assert!(bla[0].starts_with("split,index,file_path,normalized_trace,rmv"), "{bla:?}");
     assert_eq!(bla.len(), 1 + 3, "{bla:?}");
     let ause = lines("ause.csv");
-    assert_eq!(ause[0], "method,split,index,file_path,ause,pixels,skipped");
+    assert_eq!(ause[0], "method,split,index,file_path,ause,pixels,unscored_pixels,skipped");
     assert!(ause[1].starts_with("ga,test,0,") && ause[2].starts_with("bla,test,0,"), "{ause:?}");
     for stem in ["uq_ga_sigma_d", "uq_ga_mu_sigma", "uq_bla_trace", "uq_bla_rmv", "uq_bla_trace_rmv"] {
         for ext in ["png", "svg"] {

@@ -651,6 +651,12 @@ fn page(
                 vec!["BLA".into(), num(&u["ause_bla_images"], 0), num(&u["ause_bla"], 3)],
             ],
         );
+        o.push_str(
+            "<p>Depth AUSE protocol: every test pixel with a ground-truth depth counts; a pixel whose ray composites \
+             no sample has no uncertainty and ranks as the most uncertain (removed first), not dropped. Bayes' Rays \
+             score only the pixels their method gives a value, so where many pixels are unscored the figures are not \
+             directly comparable (ause.csv counts them per image).</p>\n",
+        );
         pictures_of(&mut o, "uq");
     }
     o.push_str("<h2>Run config</h2>\n");

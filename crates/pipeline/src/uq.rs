@@ -255,8 +255,11 @@ pub fn ause_frame(
 pub struct ImageAuse {
     pub image: String,
     pub ause: f64,
-    /// Pixels with a valid ground-truth depth and a finite uncertainty.
+    /// Pixels with a valid ground-truth depth.
     pub pixels: usize,
+    /// Of those, pixels without a finite uncertainty (no sample on the ray), ranked as the
+    /// most uncertain.
+    pub unscored: usize,
 }
 
 /// The depth AUSE of a set of images.
@@ -287,6 +290,7 @@ pub fn ause_frames(
                     image: frame.file_path.clone(),
                     ause: curve.ause,
                     pixels: curve.pixels,
+                    unscored: curve.unscored,
                 });
                 scored.push(curve);
             }
@@ -782,12 +786,12 @@ fn split_figures(rows: &[Row], split: &str, sigma_max: f64) -> UqSplitFigures {
 
 /// `ause.csv`: a row per (method, test image): its AUSE and pixels, or why it was skipped.
 fn ause_csv(rows: &[(Method, usize, String, AuseOutcome)]) -> String {
-    let mut out = String::from("method,split,index,file_path,ause,pixels,skipped\n");
+    let mut out = String::from("method,split,index,file_path,ause,pixels,unscored_pixels,skipped\n");
     for (method, index, file_path, outcome) in rows {
         let _ = write!(out, "{},test,{index},{},", method.name(), csv_field(file_path));
         let _ = match outcome {
-            AuseOutcome::Scored(c) => writeln!(out, "{},{},", c.ause, c.pixels),
-            AuseOutcome::Skipped(e) => writeln!(out, ",,{}", csv_field(&e.to_string())),
+            AuseOutcome::Scored(c) => writeln!(out, "{},{},{},", c.ause, c.pixels, c.unscored),
+            AuseOutcome::Skipped(e) => writeln!(out, ",,,{}", csv_field(&e.to_string())),
         };
     }
     out

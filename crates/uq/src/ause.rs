@@ -2,7 +2,7 @@
 //! sparsification error (AUSE), as Bayes' Rays (Goli et al. 2024, after CF-NeRF) evaluates it.
 //!
 //! For one image, over the `n` pixels that have a valid ground-truth depth (`> 0`, finite) and a
-//! finite uncertainty, with `e_p = |D_p − D*_p|` the absolute z-depth error (metres) of the
+//! finite depth error, with `e_p = |D_p − D*_p|` the absolute z-depth error (metres) of the
 //! NeRF's depth `D` against the ground truth `D*`:
 //!
 //! - the **sparsification curve** at the fractions `x_k = k/100`, `k = 0, …, 99`: remove the
@@ -16,6 +16,14 @@
 //! - **AUSE** `= ∫ (curve − oracle) dx` by the trapezoid rule over the 100 fractions, i.e. over
 //!   `x ∈ [0, 0.99]` (as `np.trapz(curve − oracle, ratio_removed)` does). It is ≥ 0 and 0 for an
 //!   uncertainty that ranks the pixels as their error does.
+//!
+//! **Pixels without an uncertainty.** A pixel with a ground-truth depth and a depth error but no
+//! finite uncertainty (its ray composites no sample, so neither method can say anything about
+//! it) is kept with the largest uncertainty: it is removed first, as the method's "I do not
+//! know". Leaving such pixels out, as a score over the scored pixels only would, drops what are
+//! likely the worst errors and flatters every method; [`Sparsification::unscored`] counts them.
+//! (Bayes' Rays' published AUSE figures score the pixels their method gives a value; ours are
+//! therefore not directly comparable where many pixels are unscored.)
 //!
 //! Ties in the uncertainty are broken by pixel index (a stable sort), so the result is
 //! deterministic. Every fraction must keep at least one pixel, so an image needs `n ≥ 100`
@@ -42,11 +50,14 @@ pub struct Sparsification {
     pub ause: f64,
     /// `n`, the pixels compared.
     pub pixels: usize,
+    /// Of those, the pixels without a finite uncertainty, ranked as the most uncertain.
+    pub unscored: usize,
 }
 
 /// The sparsification curves and AUSE of per-pixel `error`s ranked by `uncertainty` (same
-/// length, `[h·w]`); pixels where either is NaN or infinite are left out. `image` names the
-/// image in errors.
+/// length, `[h·w]`); pixels whose error is NaN or infinite (no ground truth) are left out, those
+/// with an error but no finite uncertainty rank as the most uncertain. `image` names the image
+/// in errors.
 ///
 /// Errors: lengths differ ([`UqError::MapSize`]); fewer than 100 pixels remain
 /// ([`UqError::TooFewPixels`]).
@@ -59,14 +70,16 @@ pub fn sparsification(image: &str, error: &[f32], uncertainty: &[f32]) -> Result
             expected: error.len(),
         });
     }
-    // (uncertainty, error) of the valid pixels, in pixel order.
+    // (uncertainty, error) of the pixels with an error, in pixel order; no uncertainty ranks as
+    // the largest.
     let mut pairs: Vec<(f32, f64)> = error
         .iter()
         .zip(uncertainty)
-        .filter(|(e, u)| e.is_finite() && u.is_finite())
-        .map(|(&e, &u)| (u, e as f64))
+        .filter(|(e, _)| e.is_finite())
+        .map(|(&e, &u)| (if u.is_finite() { u } else { f32::INFINITY }, e as f64))
         .collect();
     let n = pairs.len();
+    let unscored = pairs.iter().filter(|p| p.0 == f32::INFINITY).count();
     if n < SPARSIFICATION_STEPS {
         return Err(UqError::TooFewPixels { image: image.to_string(), pixels: n, needed: SPARSIFICATION_STEPS });
     }
@@ -84,7 +97,7 @@ pub fn sparsification(image: &str, error: &[f32], uncertainty: &[f32]) -> Result
     let fractions: Vec<f64> = (0..SPARSIFICATION_STEPS).map(|k| k as f64 / SPARSIFICATION_STEPS as f64).collect();
     let gap: Vec<f64> = by_uncertainty.iter().zip(&oracle).map(|(a, b)| a - b).collect();
     let ause = trapezoid(&fractions, &gap);
-    Ok(Sparsification { fractions, by_uncertainty, oracle, max_error, ause, pixels: n })
+    Ok(Sparsification { fractions, by_uncertainty, oracle, max_error, ause, pixels: n, unscored })
 }
 
 /// `[100]` the mean of the first `⌊(100 − k)·n/100⌋` of `errors` (in the order given), by one

@@ -9,7 +9,10 @@
 //! **BLA** ([`UncertaintyField::build_bla`]). The trained weights are the MAP of all training
 //! images (no Levenberg–Marquardt here). The data term `D = JᵀJ/σ_n²` accumulates the rows
 //! `∂C_c/∂θ` (R, G, B) of [`UqConfig::field_rays_per_image`] rays per training image (an even
-//! stride through those that composite a sample), `θ` the `sigma_net` weights; the posterior
+//! stride through those that composite a sample), each weighted by how many of the image's
+//! compositing rays it stands for (so that D estimates the information of every pixel, not of
+//! the 0.64 % sampled: unweighted, Σ's standard deviations came out about 12× too large),
+//! `θ` the `sigma_net` weights; the posterior
 //! is `Σ = (D + α·I)⁻¹`. A node's `variance` is the linearised `Var[σ(x)] = gᵀΣg`,
 //! `g = ∂σ(x)/∂θ` ([`Nerf::density_param_gradients`]), in 1/m². `weight` is 1 everywhere.
 //!
@@ -32,7 +35,8 @@
 //! every direction a node's gradient takes (the posterior variance is a median 0.75 % of the
 //! prior-only `|g|²/α` on nodes of σ ≥ 1/m), so the prior-filled tail dominates. Measured on
 //! the default model (200 images × 64 rays, 2000 nodes of σ ≥ 1/m, relative error against the
-//! exact value, `cargo run --release -p nerfsv-uq --example field_rank_error`): K = 256 (98.5 %
+//! exact value, `cargo run --release -p nerfsv-uq --example field_rank_error`; measured before
+//! the rows were weighted by the rays they stand for, which scales D by about 80): K = 256 (98.5 %
 //! of the eigenvalue mass) median 2.84, p90 3.71, max 4.78; K = 1024 median 1.7e-2, p90
 //! 4.2e-2, max 7.1e-2. The exact route costs about 2.6× K = 256 per node (137 against
 //! 52 µs) and the factorisations of the 2112² term a few seconds, so it is the default; the
@@ -426,7 +430,8 @@ pub fn density_param_count(nerf: &Nerf) -> usize {
 
 /// `D = JᵀJ/σ_n²` (`[P, P]`, lower triangle) over the R, G, B rows of
 /// [`UqConfig::field_rays_per_image`] rays per view (an even stride through those that
-/// composite a sample), and the (images, rays) used.
+/// composite a sample), each ray's rows counted as often as the rays it stands for (the
+/// view's compositing rays over those picked), and the (images, rays) used.
 pub fn data_term(
     nerf: &Nerf,
     views: &[TrainingView],
@@ -465,6 +470,10 @@ pub fn data_term(
         }
         let n = hit.len().min(cfg.field_rays_per_image);
         let picked: Vec<_> = (0..n).map(|q| rays[hit[q * hit.len() / n]]).collect();
+        // Each picked ray stands for hit/n of the image's rays that composite a sample (the
+        // others add nothing): its rows count that many times, so D estimates the information
+        // of the whole image, not of the subsample (√ on the rows, as D is their product).
+        let stands_for = (hit.len() as f64 / n as f64).sqrt();
         // Batches of rays: each ray's Jacobian is 4·P floats.
         for batch in picked.chunks(ROW_BATCH / 3) {
             let jac = nerf.render_rays_sigma_jacobian(batch);
@@ -473,7 +482,7 @@ pub fn data_term(
                 for c in 0..3 {
                     let row = &src[c * p..(c + 1) * p];
                     for (j, &x) in row.iter().enumerate() {
-                        rows[(filled, j)] = x as f64;
+                        rows[(filled, j)] = stands_for * x as f64;
                     }
                     filled += 1;
                     if filled == ROW_BATCH {

@@ -55,18 +55,27 @@ fn ause_of_the_reversed_ranking_is_the_hand_computed_value() {
 }
 
 #[test]
-fn pixels_without_ground_truth_or_uncertainty_are_left_out() {
-    // 150 valid pixels plus NaNs in either map: only the valid ones count, and the result is
-    // that of the valid pixels alone.
+fn pixels_without_ground_truth_are_left_out_and_pixels_without_uncertainty_rank_most_uncertain() {
+    // 150 valid pixels plus one without ground truth (NaN error) and two with an error but no
+    // finite uncertainty: the first is left out, the two count as the most uncertain pixels,
+    // exactly as if their uncertainty were larger than any other.
     let (e, u) = exponential_errors_and_random_uncertainty(150, 3);
     let mut e2 = e.clone();
     let mut u2 = u.clone();
     e2.extend([f32::NAN, 0.5, 2.0]);
     u2.extend([0.1, f32::NAN, f32::INFINITY]);
-    let a = sparsification("r_0", &e, &u).unwrap();
     let b = sparsification("r_0", &e2, &u2).unwrap();
-    assert_eq!(b.pixels, 150);
-    assert_eq!(a, b);
+    assert_eq!((b.pixels, b.unscored), (152, 2));
+    let mut e3 = e.clone();
+    let mut u3 = u.clone();
+    e3.extend([0.5, 2.0]);
+    u3.extend([1e30, 1e30]);
+    let c = sparsification("r_0", &e3, &u3).unwrap();
+    assert_eq!((b.ause, &b.by_uncertainty, &b.oracle), (c.ause, &c.by_uncertainty, &c.oracle));
+    assert_eq!(c.unscored, 0);
+    // Leaving them out instead (scoring only the scored pixels) gives another figure.
+    let a = sparsification("r_0", &e, &u).unwrap();
+    assert_ne!(a.ause, b.ause);
     let e = sparsification("r_3", &e2[..99], &u2[..99]).unwrap_err();
     assert!(matches!(e, UqError::TooFewPixels { pixels: 99, .. }) && e.to_string().contains("r_3"), "{e}");
     assert!(matches!(sparsification("r_0", &e2, &u), Err(UqError::MapSize { .. })));

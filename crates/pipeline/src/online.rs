@@ -69,6 +69,9 @@ pub struct MethodStudy {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OnlineFigures {
     pub mode: UqMode,
+    /// What a view's uncertainty is, per method (`uq.ga_measure`, `uq.bla_measure`).
+    pub ga_measure: String,
+    pub bla_measure: String,
     pub studies: Vec<MethodStudy>,
 }
 
@@ -202,7 +205,12 @@ impl Stage for OnlineStage<'_> {
                 disagreement: disagreement_auroc(&searched, &replays),
             });
         }
-        let figures = OnlineFigures { mode: UqMode::Exact, studies };
+        let figures = OnlineFigures {
+            mode: UqMode::Exact,
+            ga_measure: self.uq.ga_measure.name().to_owned(),
+            bla_measure: self.uq.bla_measure.name().to_owned(),
+            studies,
+        };
         write_table(&cx.dir.join(ONLINE_TABLE_CSV), &figures)?;
         Ok(figures)
     }

@@ -530,6 +530,13 @@ fn page(
     }
     if section(&mut o, "online", "Tables 1–2: uncertainty in the search, with and without reward") {
         let online = &summary["online"];
+        let _ = writeln!(
+            o,
+            "<p>A step's uncertainty is the view's GA {} or BLA {} (<code>uq.ga_measure</code>, \
+             <code>uq.bla_measure</code>).</p>",
+            esc(online["ga_measure"].as_str().unwrap_or("σ_d")),
+            esc(online["bla_measure"].as_str().unwrap_or("rmv · normalised trace")),
+        );
         for m in online["studies"].as_array().cloned().unwrap_or_default() {
             let method = m["method"].as_str().unwrap_or("?").to_uppercase();
             let d = &m["disagreement"];

@@ -222,7 +222,7 @@ pub fn rotation_error(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
     so3_log(&(a.transpose() * b)).norm()
 }
 
-/// The per-step disturbance of the adversary, 12 numbers in DESIGN.md's order: Δposition (m),
+/// The per-step disturbance of the adversary, 12 numbers in this order: Δposition (m),
 /// Δvelocity (m/s), Δrotation as a **world-frame** rotation vector (rad), Δangular velocity
 /// (rad/s, body frame).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -411,6 +411,9 @@ pub struct LaplaceSummary {
     pub rmv: f64,
     /// `½·Σ_k ln(1 + e_k/(σ_n²α))`, nats: what the data taught, in their own directions.
     pub information_gain: f64,
+    /// `(1/k)·Σ_k α/(α + e_k/σ_n²)`: the mean posterior/prior variance ratio over the `k`
+    /// directions the residuals span (eigenvalues above 1e-12 of the largest; 1 without any).
+    pub data_variance_ratio: f64,
     /// Laplace log marginal likelihood at that α.
     pub log_evidence: f64,
     /// `(α, log evidence)` for every α of [`UqConfig::prior_precision_grid`].
@@ -445,10 +448,23 @@ pub fn laplace_summary_at<M: ResidualModel>(
         normalized_trace,
         rmv: normalized_trace.sqrt(),
         information_gain: 0.5 * eig.iter().map(|&e| (e.max(0.0) / (var * alpha)).ln_1p()).sum::<f64>(),
+        data_variance_ratio: data_variance_ratio(&eig, alpha, var),
         log_evidence: mode.evidence(alpha, mode.log_det(&eig, alpha)),
         evidence_grid,
         residuals: mode.m,
     })
+}
+
+/// `(1/k)·Σ_k α/(α + e_k/σ²)` over the `k` eigenvalues above `1e-12` of the largest (the
+/// directions the residuals span; rounding leaves the others at ~1e-16, not 0); 1 without any.
+fn data_variance_ratio(eig: &[f64], alpha: f64, var: f64) -> f64 {
+    let top = eig.iter().copied().fold(0.0, f64::max);
+    let spanned: Vec<f64> = eig.iter().copied().filter(|&e| top > 0.0 && e > 1e-12 * top).collect();
+    if spanned.is_empty() {
+        1.0
+    } else {
+        spanned.iter().map(|&e| alpha / (alpha + e / var)).sum::<f64>() / spanned.len() as f64
+    }
 }
 
 /// Residuals of a NeRF's rendered colours against reference colours, as functions of the

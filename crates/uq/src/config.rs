@@ -24,6 +24,49 @@ impl Method {
     }
 }
 
+/// Which of GA's σ_d the online measurement (and so the reward) uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GaMeasure {
+    /// With the pixel noise σ_n in the model: `r ~ N(μm, σ_d²s + σ_n²)` (default).
+    #[default]
+    NoiseFloored,
+    /// The paper's eq. 2, without a noise term: nearly transparent rays drive it.
+    Paper,
+}
+
+/// Which summary of BLA's posterior the online measurement (and so the reward) uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BlaMeasure {
+    /// The paper's eq. 11 product `rmv · tr(Σ)/P` (default): mostly the prior's 1/α when a
+    /// view has few rays.
+    #[default]
+    TraceRmv,
+    /// The mean posterior/prior variance ratio over the directions the view's residuals span,
+    /// `(1/k)·Σ_k α/(α + e_k/σ_n²)` ∈ (0, 1]: 1 where the view teaches nothing, small where it
+    /// pins the weights down.
+    DataVarianceRatio,
+}
+
+impl GaMeasure {
+    pub fn name(self) -> &'static str {
+        match self {
+            GaMeasure::NoiseFloored => "noise-floored σ_d",
+            GaMeasure::Paper => "the paper's σ_d",
+        }
+    }
+}
+
+impl BlaMeasure {
+    pub fn name(self) -> &'static str {
+        match self {
+            BlaMeasure::TraceRmv => "the paper's rmv · normalised trace",
+            BlaMeasure::DataVarianceRatio => "the posterior/prior variance ratio in the data's directions",
+        }
+    }
+}
+
 /// Settings of the Gaussian approximation and the Bayesian Laplace approximation.
 ///
 /// ```
@@ -37,7 +80,8 @@ pub struct UqConfig {
     /// GA: images whose fitted σ_d reaches this bound are excluded ("absolutely uncertain", the
     /// paper's σ_d ≥ 3, the default); σ_d ≤ 0 is always excluded ("absolutely certain").
     pub ga_sigma_max: f64,
-    /// BLA: precision α of the isotropic Gaussian prior N(0, α⁻¹·I) on the `sigma_net` weights
+    /// BLA: precision α of the isotropic Gaussian prior N(θ₀, α⁻¹·I) on the `sigma_net` weights,
+    /// centred at the trained weights θ₀
     /// (1/unit², default 1: about ten times the spread of torch's initialisation, ±1/√fan_in).
     pub prior_precision: f64,
     /// BLA: standard deviation σ_n of the Gaussian observation noise of each colour channel, in
@@ -85,6 +129,11 @@ pub struct UqConfig {
     /// about 2.6× the cost of K = 256 (the default, 4096); below, an upper bound that is far
     /// off on a trained model (K = 256: a median 284 % too large, BENCHMARKS.md).
     pub field_rank: usize,
+    /// Online, GA: which σ_d measures a view (`"noise_floored"`, the default, or `"paper"`).
+    pub ga_measure: GaMeasure,
+    /// Online, BLA: which summary measures a view (`"trace_rmv"`, the paper's and the default,
+    /// or `"data_variance_ratio"`).
+    pub bla_measure: BlaMeasure,
 }
 
 impl Default for UqConfig {
@@ -106,6 +155,8 @@ impl Default for UqConfig {
             field_cells_per_metre: 20.0,
             field_rays_per_image: 64,
             field_rank: 4096,
+            ga_measure: GaMeasure::default(),
+            bla_measure: BlaMeasure::default(),
         }
     }
 }

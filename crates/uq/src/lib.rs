@@ -58,7 +58,7 @@ pub use bla::{
     bla_image, bla_view, laplace_at, laplace_summary_at, lm_map, BlaFit, BlaSummary, Laplace, LaplaceSummary, MapFit,
     NerfResiduals, ResidualModel,
 };
-pub use config::{Method, UqConfig};
+pub use config::{BlaMeasure, GaMeasure, Method, UqConfig};
 pub use error::UqError;
 pub use field::{
     data_term, density_param_count, empty_density, field_geometry, model_id, DensityPosterior, FieldFigures,

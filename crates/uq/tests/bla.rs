@@ -211,12 +211,15 @@ fn unobserved_weights_keep_their_trained_values_and_the_information_gain_is_the_
     assert!((lap.information_gain - gain).abs() < 1e-10 * gain, "{} vs {gain}", lap.information_gain);
     let summary = laplace_summary_at("half", &mut model, &fit.theta, &trained, &cfg).unwrap();
     assert!((summary.information_gain - gain).abs() < 1e-9 * gain);
+    // The variance ratio over the 4 seen directions only.
+    let ratio: f64 = scales.iter().map(|s| alpha / (alpha + s * s / var)).sum::<f64>() / 4.0;
+    assert!((summary.data_variance_ratio - ratio).abs() < 1e-9, "{} vs {ratio}", summary.data_variance_ratio);
     // The trace still reads mostly the prior: half its weights are the prior's 1/α.
     assert!(lap.normalized_trace > 0.5 / alpha);
     // Data that see nothing teach nothing.
     let mut blind = Linear { a: vec![vec![0.0; p]; m], y: model.y.clone() };
     let none = laplace_summary_at("blind", &mut blind, &trained, &trained, &cfg).unwrap();
-    assert_eq!(none.information_gain, 0.0);
+    assert_eq!((none.information_gain, none.data_variance_ratio), (0.0, 1.0));
 }
 
 /// With a grid of prior precisions, the evidence of each (mode held at the configured α's) is

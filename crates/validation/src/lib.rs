@@ -1,4 +1,4 @@
-//! The adversary of nerfsv's safety validation (DESIGN.md §7): it searches the per-step
+//! The adversary of nerfsv's safety validation: it searches the per-step
 //! disturbances x_t ~ N(0, Σ) of a [`System`] for failures and estimates how likely they are.
 //!
 //! - [`monte_carlo`]: rollouts from the [`Prior`], failure rate with a Wilson interval.

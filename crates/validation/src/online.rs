@@ -1,4 +1,4 @@
-//! Online uncertainty (DESIGN.md, "Online uncertainty"): the uncertainty of the drone's camera
+//! Online uncertainty: the uncertainty of the drone's camera
 //! view at every simulated step, and the paper's rewards built from it.
 //!
 //! Two modes:
@@ -6,8 +6,10 @@
 //!   fit needs a reference image to compare the NeRF's samples with; the reference is the
 //!   ground-truth world's render of the same pixels. (The original code compared the NeRF with
 //!   its own render, where every residual is zero and σ_d → 0 whatever the view.) GA gives the
-//!   view's σ_d; BLA gives `rmv · normalised trace` of the Laplace posterior of the view's rays,
-//!   the product eq. 11 penalises.
+//!   view's σ_d (noise-floored by default, the paper's with `uq.ga_measure = "paper"`); BLA
+//!   gives `rmv · normalised trace` of the Laplace posterior of the view's rays, the product
+//!   eq. 11 penalises (or, with `uq.bla_measure = "data_variance_ratio"`, the posterior/prior
+//!   variance ratio in the directions the rays see).
 //! - **field** ([`FieldUncertainty`]): the precomputed [`UncertaintyField`] looked up along the
 //!   same rays; no ground truth and no fit, a few milliseconds per view. Its value is a relative
 //!   density standard deviation for both methods (σ_d's units; see [`nerfsv_uq::field`]).
@@ -21,7 +23,7 @@ use nerfsv_scene::{Camera, Intrinsics};
 use nerfsv_sim::estimator::stratified_pixels;
 use nerfsv_sim::world::pixel_rays;
 use nerfsv_sim::World;
-use nerfsv_uq::{bla_view, ga_image, Method, UncertaintyField, UqConfig};
+use nerfsv_uq::{bla_view, ga_image, BlaMeasure, GaMeasure, Method, UncertaintyField, UqConfig};
 use serde::{Deserialize, Serialize};
 
 use crate::record::RolloutRecord;
@@ -73,20 +75,29 @@ pub struct ExactUncertainty<'a> {
 }
 
 impl ViewUncertainty for ExactUncertainty<'_> {
-    /// GA: the view's σ_d (the paper's exclusions σ_d ≤ 0 or ≥ `ga_sigma_max` are kept: the
-    /// reward penalises what was measured). BLA: `rmv · normalised trace`. NaN when every ray
-    /// misses the model.
+    /// GA: the view's σ_d, noise-floored or the paper's (`uq.ga_measure`; the paper's
+    /// exclusions σ_d ≤ 0 or ≥ `ga_sigma_max` are kept: the reward penalises what was
+    /// measured). BLA: `rmv · normalised trace` or the data-direction variance ratio
+    /// (`uq.bla_measure`). NaN when every ray misses the model.
     fn view_uncertainty(&self, camera: &Camera) -> f64 {
         let rays = pixel_rays(camera, &self.pixels, self.background);
         let reference = self.reference.observe(camera, &self.pixels, self.background);
-        let value = match self.method {
-            Method::Ga => {
-                ga_image(self.nerf, "step view", &rays, &reference, self.cfg.ga_sigma_max, self.cfg.noise_std)
-                    .map(|f| f.sigma_d)
-            }
-            Method::Bla => bla_view(self.nerf, "step view", &rays, &reference, self.cfg, self.cfg.online_bla_rays)
-                .map(|s| s.laplace.rmv * s.laplace.normalized_trace),
-        };
+        let value =
+            match self.method {
+                Method::Ga => {
+                    ga_image(self.nerf, "step view", &rays, &reference, self.cfg.ga_sigma_max, self.cfg.noise_std).map(
+                        |f| match self.cfg.ga_measure {
+                            GaMeasure::NoiseFloored => f.floored.sigma_d,
+                            GaMeasure::Paper => f.sigma_d,
+                        },
+                    )
+                }
+                Method::Bla => bla_view(self.nerf, "step view", &rays, &reference, self.cfg, self.cfg.online_bla_rays)
+                    .map(|s| match self.cfg.bla_measure {
+                        BlaMeasure::TraceRmv => s.laplace.rmv * s.laplace.normalized_trace,
+                        BlaMeasure::DataVarianceRatio => s.laplace.data_variance_ratio,
+                    }),
+            };
         value.unwrap_or(f64::NAN)
     }
 }

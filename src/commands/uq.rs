@@ -249,7 +249,7 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
         rows.extend(offline_split(&nerf, method, &split, name, &indices, args.rays, &cfg, &progress, &note)?);
     }
 
-    let mut summary = OfflineSummary::new(method, &rows, &present, skipped_splits);
+    let mut summary = OfflineSummary::new(method, &rows, &present, skipped_splits, cfg.ga_sigma_max);
     // Every file is made in memory first, so a failure leaves nothing half written.
     let mut files: Vec<(String, Vec<u8>)> =
         vec![(format!("uq_{}.csv", method.name()), csv(&rows, method).into_bytes())];

@@ -353,6 +353,12 @@ pub struct SplitSummary {
     pub mean_sigma_d: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_mu_d: Option<f64>,
+    /// GA with the pixel noise in the model: images at or above the bound, mean σ_d over the
+    /// others.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floored_excluded: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_floored_sigma_d: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_trace: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -378,10 +384,16 @@ pub struct OfflineSummary {
 
 impl OfflineSummary {
     /// The summaries of `rows` for each of `splits`.
-    pub fn new(method: Method, rows: &[Row], splits: &[&'static str], skipped_splits: Vec<&'static str>) -> Self {
+    pub fn new(
+        method: Method,
+        rows: &[Row],
+        splits: &[&'static str],
+        skipped_splits: Vec<&'static str>,
+        sigma_max: f64,
+    ) -> Self {
         let mut s = Self { method: method.name(), train: None, val: None, test: None, skipped_splits, seconds: 0.0 };
         for name in splits {
-            let summary = summarise(rows.iter().filter(|r| r.split == *name), method);
+            let summary = summarise(rows.iter().filter(|r| r.split == *name), method, sigma_max);
             match *name {
                 "train" => s.train = Some(summary),
                 "val" => s.val = Some(summary),
@@ -457,7 +469,8 @@ fn bla_rows<'a>(rows: impl Iterator<Item = &'a Row>) -> impl Iterator<Item = &'a
 
 /// The summary of `rows` (one split's) for `method`; the means leave out the images whose rays
 /// all miss and, for GA, the excluded ones, as the paper does.
-pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method) -> SplitSummary {
+/// `sigma_max` is GA's exclusion bound (`uq.ga_sigma_max`).
+pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method, sigma_max: f64) -> SplitSummary {
     let images = rows.clone().count();
     let missed = rows.clone().filter(|r| r.fit.all_rays_miss()).count();
     let mut s = SplitSummary {
@@ -466,6 +479,8 @@ pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method
         excluded: None,
         mean_sigma_d: None,
         mean_mu_d: None,
+        floored_excluded: None,
+        mean_floored_sigma_d: None,
         mean_trace: None,
         mean_rmv: None,
         mean_information_gain: None,
@@ -477,6 +492,9 @@ pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method
             s.excluded = Some(fits.len() - kept.len());
             s.mean_sigma_d = mean(kept.iter().map(|g| g.sigma_d));
             s.mean_mu_d = mean(kept.iter().map(|g| g.mu_d));
+            let floored: Vec<&&GaRow> = fits.iter().filter(|g| floored_kept(g, sigma_max)).collect();
+            s.floored_excluded = Some(fits.len() - floored.len());
+            s.mean_floored_sigma_d = mean(floored.iter().map(|g| g.floored_sigma_d));
         }
         Method::Bla => {
             let fits: Vec<&BlaRow> = bla_rows(rows).collect();
@@ -763,8 +781,8 @@ fn floored_kept(g: &GaRow, sigma_max: f64) -> bool {
 
 fn split_figures(rows: &[Row], split: &str, sigma_max: f64) -> UqSplitFigures {
     let of = |r: &&Row| r.split == split;
-    let ga = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Ga(_))), Method::Ga);
-    let bla = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Bla(_))), Method::Bla);
+    let ga = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Ga(_))), Method::Ga, sigma_max);
+    let bla = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Bla(_))), Method::Bla, sigma_max);
     UqSplitFigures {
         ga_images: ga.images,
         ga_excluded: ga.excluded.unwrap_or(0),
@@ -1003,7 +1021,7 @@ mod tests {
             let line = text.lines().nth(1).unwrap();
             assert!(line.starts_with("test,3,./test/r_3,") && line.contains("all_rays_miss"), "{line}");
             assert_eq!(line.split(',').count(), text.lines().next().unwrap().split(',').count(), "{line}");
-            let s = summarise(rows.iter(), method);
+            let s = summarise(rows.iter(), method, 3.0);
             assert_eq!((s.images, s.all_rays_miss), (1, 1));
             assert!(s.mean_sigma_d.is_none() && s.mean_trace.is_none());
         }

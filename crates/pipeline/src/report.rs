@@ -433,6 +433,14 @@ fn page(
                     num(&s["avg_log_likelihood"], 2),
                     format!("{} ± {}", num(&s["p_fail"], 3), num(&s["p_fail_se"], 3)),
                     format!("[{}, {}]", num(&i[0], 3), num(&i[1], 3)),
+                ]
+            })
+            .collect();
+        let how: Vec<Vec<String>> = samplers
+            .iter()
+            .map(|s| {
+                vec![
+                    s["sampler"].as_str().unwrap_or("?").to_uppercase(),
                     esc(s["p_fail_estimator"].as_str().unwrap_or("?")),
                     format!("{} / {}", num(&s["effective_sample_size"], 1), num(&s["effective_failures"], 1)),
                     num(&s["p_fail_unnormalised"], 3),
@@ -450,11 +458,13 @@ fn page(
                 "avg. log-likelihood",
                 "P(fail) ± SE",
                 "95 % interval",
-                "estimator",
-                "effective rollouts / failures",
-                "paper's plain IS estimate",
             ],
             &rows,
+        );
+        table(
+            &mut o,
+            &["sampler", "P(fail) estimator", "effective rollouts / failures", "paper's plain IS estimate"],
+            &how,
         );
         o.push_str(
             "<p>Lost: rollouts whose state stopped being finite or left the field's grid without a collision, \
@@ -611,6 +621,15 @@ fn page(
                     num(&x["ga_floored_excluded"], 0),
                     num(&x["ga_floored_mean_sigma_d"], 3),
                     num(&x["ga_floored_median_sigma_d"], 3),
+                ]
+            })
+            .collect();
+        let bla_rows: Vec<Vec<String>> = ["train", "val", "test"]
+            .iter()
+            .map(|s| {
+                let x = &u[*s];
+                vec![
+                    s.to_string(),
                     num(&x["bla_images"], 0),
                     num(&x["bla_mean_normalized_trace"], 4),
                     num(&x["bla_mean_rmv"], 4),
@@ -629,12 +648,13 @@ fn page(
                 "noise-floored: excluded (≥ 3)",
                 "mean σ_d",
                 "median σ_d",
-                "BLA images",
-                "mean normalised trace",
-                "mean rmv",
-                "mean information gain (nats)",
             ],
             &rows,
+        );
+        table(
+            &mut o,
+            &["split", "BLA images", "mean normalised trace", "mean rmv", "mean information gain (nats)"],
+            &bla_rows,
         );
         o.push_str(
             "<p>GA's σ_d is the paper's eq. 2, which has no pixel-noise term: a nearly transparent ray (tiny \

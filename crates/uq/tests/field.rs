@@ -487,16 +487,21 @@ fn empty_space_skipping_leaves_the_view_value_unchanged() {
     assert_eq!(field.view_uncertainty(&cameras()[0], &pixels, BG), 0.0);
 }
 
+/// Two 32×32 views from 2.5 m and 2.4 m, most of whose rays composite samples.
+fn two_close_views() -> [Camera; 2] {
+    let k = Intrinsics::from_fov_x(32, 32, 60f32.to_radians());
+    [
+        Camera::look_at(Point3::new(0.0, -2.5, 0.3), Point3::origin(), Vector3::z(), k),
+        Camera::look_at(Point3::new(2.2, 1.0, 0.6), Point3::origin(), Vector3::z(), k),
+    ]
+}
+
 /// The data term accumulated in batches (rows flushed mid-image) equals `JᵀJ/σ_n²` of all the
 /// rows stacked, in one product (lower triangle, 1e-9 relative to its largest entry).
 #[test]
 fn data_term_in_batches_equals_one_product_of_all_rows() {
     let nerf = common::tiny_nerf();
-    let k = Intrinsics::from_fov_x(32, 32, 60f32.to_radians());
-    let cams = [
-        Camera::look_at(Point3::new(0.0, -2.5, 0.3), Point3::origin(), Vector3::z(), k),
-        Camera::look_at(Point3::new(2.2, 1.0, 0.6), Point3::origin(), Vector3::z(), k),
-    ];
+    let cams = two_close_views();
     let cfg = UqConfig { field_rays_per_image: 5000, ..cfg() };
     let refs: Vec<Vec<[f32; 3]>> = cams.iter().map(|c| vec![[0.5; 3]; c.intrinsics.pixels()]).collect();
     let (d, images, rays) = data_term(&nerf, &views(&cams, &refs), BG, &cfg, &mut no_progress);
@@ -531,11 +536,7 @@ fn data_term_in_batches_equals_one_product_of_all_rows() {
 #[test]
 fn a_weighted_subsample_of_rays_estimates_the_whole_images_information() {
     let nerf = common::tiny_nerf();
-    let k = Intrinsics::from_fov_x(32, 32, 60f32.to_radians());
-    let cams = [
-        Camera::look_at(Point3::new(0.0, -2.5, 0.3), Point3::origin(), Vector3::z(), k),
-        Camera::look_at(Point3::new(2.2, 1.0, 0.6), Point3::origin(), Vector3::z(), k),
-    ];
+    let cams = two_close_views();
     let refs: Vec<Vec<[f32; 3]>> = cams.iter().map(|c| vec![[0.5; 3]; c.intrinsics.pixels()]).collect();
     let trace = |rays: usize| {
         let cfg = UqConfig { field_rays_per_image: rays, ..cfg() };

@@ -88,15 +88,55 @@ pub struct BuiltField {
     pub build_seconds: f64,
 }
 
-/// The scene's exact SDF sampled at the nodes of `geometry`, and the signed field built from it.
+/// The scene's exact SDF sampled at the nodes of `geometry`, and the signed field built from it
+/// (contact planes repaired, see [`repair_contact_planes`]).
 pub fn scene_field(scene: &Scene, geometry: GridGeometry) -> (ScalarGrid, SdfGrid) {
     let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
-    let sdf = SdfGrid::from_field(&field, 0.0, true);
+    let sdf = SdfGrid::from_field(&repair_contact_planes(&field), 0.0, true);
     (field, sdf)
 }
 
+/// The sampled distance of a union of solids with its contact-plane zeros replaced.
+///
+/// The analytic distance of a union, the minimum of its solids' distances, is exactly 0 on a
+/// plane where two solids touch (a stone standing on the ground), although the solid continues
+/// on both sides. [`classify_nodes`] counts such a node as inside while none of its neighbours
+/// is strictly outside; where one is (the plane meets a solid's side: a stone overhanging the
+/// ground disc's rim, 1 mm outside across it, or float noise of 1e-9), the node stays on the
+/// surface and the field reads 0 between solid above and below. Here a node exactly at 0 whose
+/// two neighbours along some axis are both strictly inside takes the larger (nearer to 0) of
+/// those neighbours' values: inside, with the surface placed between it and the outside
+/// neighbour rather than on it. Values are read from the input, so the result does not depend
+/// on the order nodes are visited.
+pub fn repair_contact_planes(field: &ScalarGrid) -> ScalarGrid {
+    let g = field.geometry;
+    let strides = [1, g.dims[0], g.dims[0] * g.dims[1]];
+    let mut data = field.data.clone();
+    g.fill_par(&mut data, |i, j, k| {
+        let idx = g.index(i, j, k);
+        let v = field.data[idx];
+        if v != 0.0 {
+            return v;
+        }
+        let ijk = [i, j, k];
+        let mut repaired = v;
+        for a in 0..3 {
+            if ijk[a] > 0 && ijk[a] + 1 < g.dims[a] {
+                let (lo, hi) = (field.data[idx - strides[a]], field.data[idx + strides[a]]);
+                if lo < 0.0 && hi < 0.0 {
+                    let nearer = lo.max(hi);
+                    repaired = if repaired < 0.0 { repaired.max(nearer) } else { nearer };
+                }
+            }
+        }
+        repaired
+    });
+    ScalarGrid { geometry: g, data }
+}
+
 /// The paper's pipeline on the ground truth at `cells_per_metre` over
-/// [`field_bounds`]`(scene.bounds())`: sample the scene's SDF, marching cubes, signed EDT; plus
+/// [`field_bounds`]`(scene.bounds())`: sample the scene's SDF, repair its contact planes
+/// ([`repair_contact_planes`]), marching cubes, signed EDT; plus
 /// the grid field's error against the analytic SDF over nodes within 0.25 m of a surface.
 /// Refuses a resolution outside 1..=400 cells/m or a grid over the memory budget
 /// ([`CollisionError::Invalid`], field `cells_per_metre`).
@@ -106,7 +146,7 @@ pub fn ground_truth_field(scene: &Scene, cells_per_metre: f32) -> Result<(BuiltF
     check_grid_memory("cells_per_metre", &geometry)?;
     let start = Instant::now();
     let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
-    let (sdf, mesh) = build(&field, 0.0, true);
+    let (sdf, mesh) = build(&repair_contact_planes(&field), 0.0, true);
     let build_seconds = start.elapsed().as_secs_f64();
     let errors = error_stats(&field, &sdf);
     Ok((BuiltField { sdf, mesh, build_seconds }, errors))

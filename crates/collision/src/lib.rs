@@ -70,7 +70,7 @@ pub mod stats;
 pub use classify::{classify_nodes, crossing_parameter};
 pub use fields::{
     check_cells_per_metre, check_grid_memory, default_density_threshold, density_field, field_bounds,
-    ground_truth_field, scene_field, BuiltField, ErrorStats, FLIGHT_BAND,
+    ground_truth_field, repair_contact_planes, scene_field, BuiltField, ErrorStats, FLIGHT_BAND,
 };
 pub use grid::{GridGeometry, GridQuery, ScalarGrid};
 pub use mesh::{marching_cubes, Mesh};

@@ -156,7 +156,7 @@ pub fn build_ground_truth(
 
 impl Stage for GroundTruthField<'_> {
     const NAME: &'static str = "collision";
-    const VERSION: u32 = 2;
+    const VERSION: u32 = 3;
     const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];
     type Figures = GroundTruthFigures;
 

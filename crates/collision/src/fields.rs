@@ -111,7 +111,7 @@ pub fn scene_field(scene: &Scene, geometry: GridGeometry) -> (ScalarGrid, SdfGri
 pub fn repair_contact_planes(field: &ScalarGrid) -> ScalarGrid {
     let g = field.geometry;
     let strides = [1, g.dims[0], g.dims[0] * g.dims[1]];
-    let mut data = field.data.clone();
+    let mut data = vec![0f32; g.len()];
     g.fill_par(&mut data, |i, j, k| {
         let idx = g.index(i, j, k);
         let v = field.data[idx];
@@ -119,17 +119,14 @@ pub fn repair_contact_planes(field: &ScalarGrid) -> ScalarGrid {
             return v;
         }
         let ijk = [i, j, k];
-        let mut repaired = v;
-        for a in 0..3 {
-            if ijk[a] > 0 && ijk[a] + 1 < g.dims[a] {
-                let (lo, hi) = (field.data[idx - strides[a]], field.data[idx + strides[a]]);
-                if lo < 0.0 && hi < 0.0 {
-                    let nearer = lo.max(hi);
-                    repaired = if repaired < 0.0 { repaired.max(nearer) } else { nearer };
-                }
-            }
-        }
-        repaired
+        // The nearest-to-0 value among the axes with solid on both sides; 0 where there is none.
+        (0..3)
+            .filter(|&a| ijk[a] > 0 && ijk[a] + 1 < g.dims[a])
+            .map(|a| (field.data[idx - strides[a]], field.data[idx + strides[a]]))
+            .filter(|&(lo, hi)| lo < 0.0 && hi < 0.0)
+            .map(|(lo, hi)| lo.max(hi))
+            .reduce(f32::max)
+            .unwrap_or(v)
     });
     ScalarGrid { geometry: g, data }
 }

@@ -661,7 +661,9 @@ fn page(
              s = Σ c²d²) turns any noise in its colour into a huge (r − μm)²/s and drives σ_d, which is why the \
              paper's σ_d ≥ 3 exclusion removes many images. The noise-floored σ_d fits r ~ N(μm, σ_d²s + σ_n²) with \
              σ_n the pixel noise (uq.noise_std): 0 when the model explains the image up to its noise; it is shown \
-             beside the paper's, whose figures (and the online reward and the maps) are unchanged.</p>\n",
+             beside the paper's, and the online measure and reward use it by default (uq.ga_measure). GA's \
+             per-pixel maps keep the paper's σ_d: a map is σ_d times a per-pixel factor, so its ranking, which the \
+             AUSE measures, does not depend on it.</p>\n",
         );
         o.push_str(
             "<p>BLA's prior is centred at the trained weights. The normalised trace tr(Σ)/P and rmv are the \

@@ -435,7 +435,6 @@ impl ViewUncertainty for Timed<'_> {
     }
 }
 
-/// Counts finished rollouts for progress, passing everything to the journal.
 /// A sampler's failure probability and how it was estimated.
 struct Estimate {
     p: f64,
@@ -450,6 +449,7 @@ struct Estimate {
 /// Extension of the files that keep a journalled rollout's estimator errors.
 const ESTIMATES_EXTENSION: &str = "estimates";
 
+/// Counts finished rollouts for progress, passing everything to the journal.
 struct Counting<'a> {
     journal: &'a Journal,
     /// The estimator's errors of the rollouts, kept beside their journal files.
@@ -587,8 +587,8 @@ pub fn stress(
                 if let Some(s) = scorer {
                     r.records.iter_mut().for_each(|rec| rec.reward = Some(s.reward(rec)));
                 }
-                let se = (r.probability * (1.0 - r.probability) / r.records.len() as f64).sqrt();
                 let n = r.records.len() as f64;
+                let se = (r.probability * (1.0 - r.probability) / n).sqrt();
                 estimates.push(Estimate {
                     p: r.probability,
                     se,

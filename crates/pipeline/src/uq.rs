@@ -790,10 +790,8 @@ fn split_figures(rows: &[Row], split: &str, sigma_max: f64) -> UqSplitFigures {
         ga_mean_sigma_d: ga.mean_sigma_d,
         ga_mean_mu_d: ga.mean_mu_d,
         ga_median_sigma_d: median(ga_rows(rows.iter().filter(of)).map(|g| g.sigma_d).collect()),
-        ga_floored_excluded: ga_rows(rows.iter().filter(of)).filter(|g| !floored_kept(g, sigma_max)).count(),
-        ga_floored_mean_sigma_d: mean(
-            ga_rows(rows.iter().filter(of)).filter(|g| floored_kept(g, sigma_max)).map(|g| g.floored_sigma_d),
-        ),
+        ga_floored_excluded: ga.floored_excluded.unwrap_or(0),
+        ga_floored_mean_sigma_d: ga.mean_floored_sigma_d,
         ga_floored_median_sigma_d: median(ga_rows(rows.iter().filter(of)).map(|g| g.floored_sigma_d).collect()),
         bla_images: bla.images,
         bla_mean_normalized_trace: bla.mean_trace,

@@ -133,9 +133,9 @@ pub fn csv_header(dim: usize) -> String {
 /// `x,y,z` the position at the step's end (empty for systems without one); `collided` is 1 on
 /// the first step that touched geometry and 0 elsewhere (a step touched geometry where its
 /// clearance is ≤ 0); `lost` is 1 on the step at which the system was lost (its state stopped
-/// being finite or left the region where its score is defined) and 0 elsewhere. Floats are written with Rust's shortest round-trip formatting, so a value
-/// read back is the value written and the same records always give the same bytes. Refuses
-/// records of different dimensions.
+/// being finite or left the region where its score is defined) and 0 elsewhere. Floats are
+/// written with Rust's shortest round-trip formatting, so a value read back is the value written
+/// and the same records always give the same bytes. Refuses records of different dimensions.
 pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()> {
     let dim = records.iter().flat_map(|r| r.disturbances.first()).map(Vec::len).next().unwrap_or(0);
     writeln!(w, "{}", csv_header(dim))?;

@@ -69,6 +69,10 @@ fn main() -> anyhow::Result<()> {
     v.photometric_sigma = env("SIGMA", v.photometric_sigma);
     v.start_candidates = env("CANDIDATES", v.start_candidates);
     v.pixels = env("PIXELS", v.pixels);
+    v.recover_variance_factor = env("RECOVER", v.recover_variance_factor);
+    v.max_refused = env("REFUSED", v.max_refused);
+    v.stop_cost_decrease = env("STOP_COST", v.stop_cost_decrease);
+    v.model_error_per_rmse = [env("MODEL_M", v.model_error_per_rmse[0]), env("MODEL_DEG", v.model_error_per_rmse[1])];
     let stop_mm: f64 = env("STOP_MM", v.stop_step[0] * 1e3);
     v.stop_step = [stop_mm * 1e-3, stop_mm * 0.06];
     if env("COLLISION", String::new()) == "centre_cell" {
@@ -101,6 +105,61 @@ fn main() -> anyhow::Result<()> {
                             sim.fly(w.as_ref(), estimator, &ds, i as u64)
                         })
                         .collect();
+                    if std::env::var("DIAG").is_ok() && estimator == EstimatorKind::Vision {
+                        let rej: Vec<_> = rollouts.iter().flat_map(|r| &r.updates).filter(|u| !u.accepted).collect();
+                        let mut e: Vec<f64> = rej.iter().map(|u| 1e3 * u.predicted_position_error_m).collect();
+                        let mut sp: Vec<f64> = rej.iter().map(|u| 1e3 * u.position_spread_m).collect();
+                        let mut rm: Vec<f64> = rej.iter().map(|u| u.photometric_rmse).collect();
+                        let first = rej.iter().filter(|u| u.substep == 0).count();
+                        let mut vf: Vec<f64> = rej.iter().map(|u| u.variance_factor).collect();
+                        let mut vfa: Vec<f64> = rollouts
+                            .iter()
+                            .flat_map(|r| &r.updates)
+                            .filter(|u| u.accepted)
+                            .map(|u| u.variance_factor)
+                            .collect();
+                        let rec = rollouts.iter().flat_map(|r| &r.updates).filter(|u| u.recovered).count();
+                        if !vfa.is_empty() {
+                            println!(
+                                "recovered {rec}; vf accepted median {:.3} p90 {:.3} p99 {:.3}",
+                                percentile(&mut vfa, 0.5),
+                                percentile(&mut vfa, 0.9),
+                                percentile(&mut vfa, 0.99)
+                            );
+                        }
+                        if !vf.is_empty() {
+                            println!(
+                                "vf rejected median {:.3} p10 {:.3} p90 {:.3}",
+                                percentile(&mut vf, 0.5),
+                                percentile(&mut vf, 0.1),
+                                percentile(&mut vf, 0.9)
+                            );
+                        }
+                        if !rej.is_empty() {
+                            println!(
+                                "rejected: {} ({} first of step); predicted error median {:.1} mm p90 {:.1}; spread after median {:.2} mm; rmse median {:.3}",
+                                rej.len(), first, percentile(&mut e, 0.5), percentile(&mut e, 0.9), percentile(&mut sp, 0.5), percentile(&mut rm, 0.5)
+                            );
+                        }
+                        let acc: Vec<_> = rollouts.iter().flat_map(|r| &r.updates).filter(|u| u.accepted).collect();
+                        for u in acc.iter().filter(|u| u.position_error_m > 0.01).take(25) {
+                            println!(
+                                "  big: step {} sub {} pred {:.1} mm -> {:.1} mm, {:.2}° -> {:.2}°, d2 {:.1}, vf {:.3}, spread {:.2} mm, rec {}, renders {}",
+                                u.step, u.substep, 1e3 * u.predicted_position_error_m, 1e3 * u.position_error_m,
+                                u.predicted_rotation_error_deg, u.rotation_error_deg, u.mahalanobis_sq, u.variance_factor,
+                                1e3 * u.position_spread_m, u.recovered, u.renders
+                            );
+                        }
+                        let mut ratio: Vec<f64> =
+                            acc.iter().map(|u| u.position_error_m / u.position_spread_m.max(1e-12)).collect();
+                        let mut e: Vec<f64> = acc.iter().map(|u| 1e3 * u.position_error_m).collect();
+                        let mut sp: Vec<f64> = acc.iter().map(|u| 1e3 * u.position_spread_m).collect();
+                        println!(
+                            "accepted: error median {:.2} mm p90 {:.2} p99 {:.2}; spread median {:.2} mm; error/spread median {:.2} p90 {:.2} p99 {:.2}",
+                            percentile(&mut e, 0.5), percentile(&mut e, 0.9), percentile(&mut e, 0.99), percentile(&mut sp, 0.5),
+                            percentile(&mut ratio, 0.5), percentile(&mut ratio, 0.9), percentile(&mut ratio, 0.99)
+                        );
+                    }
                     let crashed = rollouts.iter().filter(|r| r.collided()).count();
                     let updates: Vec<_> = rollouts.iter().flat_map(|r| &r.updates).collect();
                     let images = updates.len().max(1) as f64;

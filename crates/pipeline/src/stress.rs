@@ -844,7 +844,7 @@ impl StressStage<'_> {
 
 impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
-    const VERSION: u32 = 3;
+    const VERSION: u32 = 4;
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
     const RESUMABLE: bool = true;

@@ -77,6 +77,30 @@ pub fn transition_jacobian(s: &State, a: &Action, params: &DroneParams) -> Covar
     f
 }
 
+/// A pose measurement: the minimiser of the photometric cost plus the Mahalanobis term under
+/// the prediction's pose covariance, and how much to believe it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseMeasurement {
+    pub position: Vector3<f64>,
+    pub rotation: Matrix3<f64>,
+    /// The photometric term's Gauss–Newton Hessian at the fit (`Λ`, the prior term excluded),
+    /// under the noise the fit assumed.
+    pub information: Matrix6<f64>,
+    /// `w` ∈ (0, 1]: the image carries only `w` times that information (its residuals were
+    /// `1/w` times the noise the fit assumed).
+    pub weight: f64,
+    /// `M`: the covariance of the error of the image's optimum itself, `(δp, δθ)`, which no
+    /// amount of pixels removes (a model that does not match the world is biased).
+    pub model_covariance: Matrix6<f64>,
+}
+
+impl PoseMeasurement {
+    /// A fit whose information is taken as it is.
+    pub fn exact(position: Vector3<f64>, rotation: Matrix3<f64>, information: Matrix6<f64>) -> Self {
+        Self { position, rotation, information, weight: 1.0, model_covariance: Matrix6::zeros() }
+    }
+}
+
 /// What a pose measurement did to the belief.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseUpdate {
@@ -123,29 +147,36 @@ impl Belief {
         inverse_spd(&self.pose_covariance())
     }
 
-    /// The measurement update with a fitted pose (`position`, `rotation`) whose photometric
-    /// Gauss–Newton Hessian at the fit is `information` (the prior term excluded). A fit farther
-    /// than `gate` (squared Mahalanobis distance under the prediction's pose covariance) is
-    /// rejected: the mean stays and the covariance is multiplied by `inflation`.
-    pub fn update_pose(
-        &mut self,
-        position: &Vector3<f64>,
-        rotation: &Matrix3<f64>,
-        information: &Matrix6<f64>,
-        gate: f64,
-        inflation: f64,
-    ) -> PoseUpdate {
+    /// `Δᵀ·P_pp⁻¹·Δ`: the squared Mahalanobis distance of a pose from the prediction.
+    pub fn mahalanobis_sq(&self, position: &Vector3<f64>, rotation: &Matrix3<f64>) -> f64 {
+        let innovation = pose_difference(position, rotation, &self.mean);
+        innovation.dot(&(self.pose_information() * innovation))
+    }
+
+    /// The measurement update with a pose fit (see [`PoseMeasurement`]). A fit farther than
+    /// `gate` (squared Mahalanobis distance under the prediction's pose covariance) is rejected:
+    /// the mean stays and the covariance is multiplied by `inflation`.
+    pub fn update_pose(&mut self, fit: &PoseMeasurement, gate: f64, inflation: f64) -> PoseUpdate {
         let p_pp = self.pose_covariance();
         let p_pp_inv = inverse_spd(&p_pp);
-        let innovation = pose_difference(position, rotation, &self.mean);
-        let mahalanobis_sq = innovation.dot(&(p_pp_inv * innovation));
+        let fitted = pose_difference(&fit.position, &fit.rotation, &self.mean);
+        let mahalanobis_sq = fitted.dot(&(p_pp_inv * fitted));
         if mahalanobis_sq.is_nan() || mahalanobis_sq > gate {
             self.covariance *= inflation;
             return PoseUpdate { mahalanobis_sq, accepted: false };
         }
+        // With Λ the fit's information, w its weight and M the model error: the measurement's
+        // information is Λ' = (Λ⁻¹/w + M)⁻¹ = (I/w + Λ·M)⁻¹·Λ, and since the fit satisfies
+        // (P_pp⁻¹ + Λ)·Δ = Λ·z (z the image's optimum, relative to the prediction), the update a
+        // fit with Λ' would give is (P_pp⁻¹ + Λ')⁻¹·Λ'·z = (P_pp⁻¹ + Λ')⁻¹·(I/w + Λ·M)⁻¹·(P_pp⁻¹ + Λ)·Δ.
+        let w = fit.weight.max(f64::MIN_POSITIVE);
+        let a = Matrix6::identity() / w + fit.information * fit.model_covariance;
+        let a_inv = a.try_inverse().unwrap_or_else(Matrix6::zeros);
+        let effective = symmetric(&(a_inv * fit.information));
+        let s = inverse_spd(&(p_pp_inv + effective));
+        let innovation = s * (a_inv * ((p_pp_inv + fit.information) * fitted));
         let p_xp = SMatrix::<f64, DIM, 6>::from_fn(|i, j| self.covariance[(i, POSE[j])]);
         let g = p_xp * p_pp_inv;
-        let s = inverse_spd(&(p_pp_inv + information));
         let mut shift = g * innovation;
         // The pose moves to the fit itself (G's pose rows are the identity up to rounding).
         for (k, &i) in POSE.iter().enumerate() {
@@ -209,10 +240,11 @@ mod tests {
         a * a.transpose() + SMatrix::<f64, N, N>::identity() * 1e-4
     }
 
-    /// A linear-Gaussian pose measurement `z = H·x + v`, `v ~ N(0, R)`: the fit is the MAP pose
-    /// under the prediction's marginal, its information `R⁻¹`; the filter's update must then be
-    /// the closed-form Kalman update `x̂ + K(z − Hx̂)`, `(I − KH)P`, `K = PHᵀ(HPHᵀ + R)⁻¹`, in
-    /// every component (velocity and rates through the cross-covariances).
+    /// A linear-Gaussian pose measurement `z = H·x + v`, `v ~ N(0, R/w + M)`: the fit is the
+    /// MAP pose under the prediction's marginal with the information `R⁻¹` it assumed; with the
+    /// weight `w` and the model error `M` the filter's update must be the closed-form Kalman
+    /// update `x̂ + K(z − Hx̂)`, `(I − KH)P`, `K = PHᵀ(HPHᵀ + R/w + M)⁻¹`, in every component
+    /// (velocity and rates through the cross-covariances).
     #[test]
     fn the_pose_update_is_the_kalman_filter_on_a_linear_gaussian_toy() {
         let p = spd::<DIM>(0.3);
@@ -234,26 +266,27 @@ mod tests {
             6..=8 => 0.0,
             _ => mean.omega[i - 9],
         });
-        // Closed form.
-        let k = p * h.transpose() * (h * p * h.transpose() + r).try_inverse().unwrap();
-        let x_kf = x0 + k * (z - h * x0);
-        let p_kf = (Covariance::identity() - k * h) * p;
         // The fit: argmin (y − Hx̂)ᵀP_pp⁻¹(y − Hx̂) + (y − z)ᵀR⁻¹(y − z).
         let p_pp = h * p * h.transpose();
         let (pi, ri) = (p_pp.try_inverse().unwrap(), r.try_inverse().unwrap());
         let y = (pi + ri).try_inverse().unwrap() * (pi * (h * x0) + ri * z);
-        let mut b = Belief { mean, covariance: p };
-        let u = b.update_pose(
-            &Vector3::new(y[0], y[1], y[2]),
-            &so3_exp(&Vector3::new(y[3], y[4], y[5])),
-            &ri,
-            f64::INFINITY,
-            1.0,
-        );
-        assert!(u.accepted);
-        let got = local(&State { rotation: Matrix3::identity(), ..State::at_rest(Vector3::zeros(), 0.0) }, &b.mean);
-        assert!((got - x_kf).abs().max() < 1e-12, "mean {got} vs Kalman {x_kf}");
-        assert!((b.covariance - p_kf).abs().max() < 1e-12 * p.abs().max().max(1.0), "covariance");
+        for (w, m) in [(1.0, Matrix6::zeros()), (0.25, Matrix6::zeros()), (0.5, spd::<6>(2.3) * 0.7)] {
+            // Closed form.
+            let k = p * h.transpose() * (h * p * h.transpose() + r / w + m).try_inverse().unwrap();
+            let x_kf = x0 + k * (z - h * x0);
+            let p_kf = (Covariance::identity() - k * h) * p;
+            let mut b = Belief { mean, covariance: p };
+            let fit = PoseMeasurement {
+                weight: w,
+                model_covariance: m,
+                ..PoseMeasurement::exact(Vector3::new(y[0], y[1], y[2]), so3_exp(&Vector3::new(y[3], y[4], y[5])), ri)
+            };
+            let u = b.update_pose(&fit, f64::INFINITY, 1.0);
+            assert!(u.accepted);
+            let got = local(&State { rotation: Matrix3::identity(), ..State::at_rest(Vector3::zeros(), 0.0) }, &b.mean);
+            assert!((got - x_kf).abs().max() < 1e-12, "w {w}: mean {got} vs Kalman {x_kf}");
+            assert!((b.covariance - p_kf).abs().max() < 1e-12 * p.abs().max().max(1.0), "w {w}: covariance");
+        }
     }
 
     #[test]
@@ -263,12 +296,20 @@ mod tests {
         let mut b = Belief::new(mean, &std);
         let before = b;
         let info = Matrix6::identity() * 1e6;
-        let u = b.update_pose(&(mean.position + Vector3::new(0.2, 0.0, 0.0)), &mean.rotation, &info, 22.46, 2.0);
+        let u = b.update_pose(
+            &PoseMeasurement::exact(mean.position + Vector3::new(0.2, 0.0, 0.0), mean.rotation, info),
+            22.46,
+            2.0,
+        );
         assert!(!u.accepted && (u.mahalanobis_sq - 100.0).abs() < 1e-9, "{u:?}");
         assert_eq!(b.mean, before.mean);
         assert_eq!(b.covariance, before.covariance * 2.0);
         // A fit 2 cm off (d² = 1) is taken.
-        let u = b.update_pose(&(mean.position + Vector3::new(0.02, 0.0, 0.0)), &mean.rotation, &info, 22.46, 2.0);
+        let u = b.update_pose(
+            &PoseMeasurement::exact(mean.position + Vector3::new(0.02, 0.0, 0.0), mean.rotation, info),
+            22.46,
+            2.0,
+        );
         assert!(u.accepted);
         assert!((b.mean.position - mean.position - Vector3::new(0.02, 0.0, 0.0)).norm() < 1e-15);
     }

@@ -30,7 +30,7 @@ pub mod world;
 pub use config::{CameraConfig, SimConfig};
 pub use dynamics::{Disturbance, DroneParams, State};
 pub use estimator::{EstimatorKind, PosePrior, VisionConfig};
-pub use filter::Belief;
+pub use filter::{Belief, PoseMeasurement};
 pub use flight::{plan_flight, Flight, SimError};
 pub use io::{read_disturbances, trajectory_csv, DisturbanceFileError};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};

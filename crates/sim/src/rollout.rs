@@ -24,7 +24,7 @@ use crate::camera::drone_camera;
 use crate::controller::{control, ControllerGains};
 use crate::dynamics::{rotation_error, step, Disturbance, DroneParams, State};
 use crate::estimator::{refine_pose, stratified_pixels, EstimatorKind, PoseFit, PosePrior, VisionConfig};
-use crate::filter::Belief;
+use crate::filter::{Belief, PoseMeasurement};
 use crate::reference::ReferenceTrajectory;
 use crate::world::World;
 
@@ -112,6 +112,12 @@ pub struct ImageUpdate {
     /// The fit's squared Mahalanobis distance from the prediction, and whether the gate took it.
     pub mahalanobis_sq: f64,
     pub accepted: bool,
+    /// The fit lay beyond the gate but explained the image (variance factor at most
+    /// [`VisionConfig::recover_variance_factor`]): the prediction's covariance was scaled up
+    /// until the fit lay on the gate, and the fit taken (`accepted` is then true).
+    pub recovered: bool,
+    /// The fit's a-posteriori variance factor ([`crate::PoseFit::variance_factor`]).
+    pub variance_factor: f64,
     /// The filter's expected position and attitude errors after the update, m and degrees.
     pub position_spread_m: f64,
     pub rotation_spread_deg: f64,
@@ -373,13 +379,21 @@ impl Simulator<'_> {
             information: belief.pose_information(),
         };
         let fit = self.observe_and_refine(world, truth, &prior, seed);
-        let u = belief.update_pose(
-            &fit.position,
-            &fit.rotation,
-            &(fit.information / fit.variance_factor.max(1.0)),
-            self.vision.gate_chi2,
-            self.vision.gate_inflation,
-        );
+        let d2 = belief.mahalanobis_sq(&fit.position, &fit.rotation);
+        let recovered = d2 > self.vision.gate_chi2 && fit.variance_factor <= self.vision.recover_variance_factor;
+        if recovered {
+            belief.covariance *= d2 / self.vision.gate_chi2;
+        }
+        let measurement = PoseMeasurement {
+            // The residuals' own scale: a fit that explains the image better than
+            // `photometric_sigma` says is worth more (a NeRF rendering its own image), one that
+            // explains it worse, less; the model error bounds what either can claim.
+            weight: 1.0 / fit.variance_factor.max(1e-4),
+            model_covariance: self.vision.model_covariance(fit.rmse),
+            ..PoseMeasurement::exact(fit.position, fit.rotation, fit.information)
+        };
+        let gate = if recovered { f64::INFINITY } else { self.vision.gate_chi2 };
+        let u = belief.update_pose(&measurement, gate, self.vision.gate_inflation);
         let [sp, sr] = belief.pose_spread();
         ImageUpdate {
             step,
@@ -392,6 +406,8 @@ impl Simulator<'_> {
             nees: belief.nees(truth),
             mahalanobis_sq: u.mahalanobis_sq,
             accepted: u.accepted,
+            recovered,
+            variance_factor: fit.variance_factor,
             position_spread_m: sp,
             rotation_spread_deg: sr.to_degrees(),
             renders: fit.renders,

@@ -54,23 +54,24 @@ fn gaussian_disturbance(rng: &mut ChaCha8Rng) -> Disturbance {
     }))
 }
 
-/// From a disturbance drawn from the paper's prior, one step's images at the default camera
-/// rate (four, the drone held at the disturbed state, new pixels each) cut the median position
-/// error of the prediction by 40 % and the median attitude error by half (measured: 32.1 mm /
-/// 2.06° → 16.2 mm / 0.67°).
+/// From a disturbance drawn from the paper's prior (the drone held at the disturbed state), one
+/// image brings the estimate within 1 cm / 0.5° of the truth in most cases, and one step's
+/// images at the default camera rate (eight, new pixels each) in all of them (measured on this
+/// small, blurry 48×48-pixel model: 89 of 100 after one image, 100 after eight; median 32.1 mm /
+/// 2.06° → 1.1 mm / 0.02°).
 ///
-/// What this does not reach (issue 21's bar, BENCHMARKS.md): within 1 cm / 0.5° after one image
-/// in ≥ 95 % of the cases. On this small, blurry model 14 of 100 do after one image with the
-/// defaults, 18 after four, 77 with 15 renders and `photometric_sigma` 0.05; and the filter is
-/// overconfident here (mean pose NEES ≈ 70 against 6).
+/// Issue 21's bar, ≥ 95 % after one image, is met on the default study's model (97 of 100,
+/// `cargo run --release --example estimator_study -- update 100`, BENCHMARKS.md), not on this
+/// one: its misses start 4–6 cm off, where the blurry model's basin ends.
 #[test]
-fn one_steps_images_halve_the_error_of_a_paper_prior_disturbance() {
+fn one_image_and_one_steps_images_bring_a_paper_prior_disturbance_within_1_cm() {
     let nerf = trained();
     let field = free_field();
     let world = NerfWorld { nerf, field: &field };
     let sim = simulator(nerf, 6);
     let mut rng = ChaCha8Rng::seed_from_u64(21);
     let (mut before, mut after, mut nees) = (Vec::new(), Vec::new(), 0.0);
+    let mut firsts = Vec::new();
     for case in 0..100u64 {
         // Somewhere along the approach, facing the sphere (yaw ≈ π), at rest.
         let along = case as f64 / 100.0;
@@ -82,6 +83,7 @@ fn one_steps_images_halve_the_error_of_a_paper_prior_disturbance() {
         belief.disturb(&sim.vision.disturbance_std);
         let truth = gaussian_disturbance(&mut rng).apply(&start);
         let first = sim.image_update(&world, &truth, &mut belief, case, 0, 0, 0.0);
+        firsts.push((first.position_error_m, first.rotation_error_deg));
         let mut last = first;
         for j in 1..sim.vision.images_per_step {
             last = sim.image_update(&world, &truth, &mut belief, case * 16 + j as u64, 0, j, 0.0);
@@ -100,6 +102,8 @@ fn one_steps_images_halve_the_error_of_a_paper_prior_disturbance() {
     let (p0, r0) = (median(&before, |e| e.0), median(&before, |e| e.1));
     let (p1, r1) = (median(&after, |e| e.0), median(&after, |e| e.1));
     let within = after.iter().filter(|e| e.0 <= 0.01 && e.1 <= 0.5).count();
+    let within_first = firsts.iter().filter(|e| e.0 <= 0.01 && e.1 <= 0.5).count();
+    eprintln!("after one image: {within_first}/100 within 1 cm / 0.5°");
     nees /= 100.0;
     eprintln!(
         "median {:.1} mm / {:.2}° → {:.1} mm / {:.2}°; {within}/100 within 1 cm / 0.5°; mean pose NEES {nees:.1}",
@@ -108,14 +112,15 @@ fn one_steps_images_halve_the_error_of_a_paper_prior_disturbance() {
         1e3 * p1,
         r1
     );
-    assert!(p1 <= 0.6 * p0 && r1 <= 0.5 * r0, "median error {p1} m / {r1}° from {p0} m / {r0}°");
+    assert!(within_first >= 85, "{within_first}/100 within 1 cm / 0.5° after one image");
+    assert!(within == 100, "{within}/100 within 1 cm / 0.5° after one step's images");
+    assert!(p1 <= 0.1 * p0 && r1 <= 0.1 * r0, "median error {p1} m / {r1}° from {p0} m / {r0}°");
 }
 
-/// A 2 cm sideways kick at step 2's start: the image right after it takes most of it back, and
-/// the velocity estimate moves less than the α–β rule this filter replaced would have moved it
-/// (0.5·Δp/Δt = 12.5 mm/s). It moves at all (measured 6.7 mm/s) because the filter's prior
-/// correlates position and velocity errors after two steps of weak images: the Bayesian share of
-/// an innovation the prior says could be drift.
+/// A 2 cm sideways kick at step 2's start: the image right after it takes it back, and the
+/// velocity estimate barely moves (measured: 0.7 mm, and below 1 µm/s), where the α–β rule this
+/// filter replaced would have moved it by 0.5·Δp/Δt = 12.5 mm/s. The images before the kick
+/// left position and velocity errors nearly uncorrelated, so the innovation goes to position.
 #[test]
 fn a_position_kick_is_corrected_without_creating_velocity() {
     let nerf = trained();
@@ -138,5 +143,5 @@ fn a_position_kick_is_corrected_without_creating_velocity() {
         1e3 * velocity_error_before
     );
     assert!(position_error < 0.01, "position error {position_error} m after the image");
-    assert!(velocity_error < 0.01, "velocity error {velocity_error} m/s after a position kick");
+    assert!(velocity_error < 0.002, "velocity error {velocity_error} m/s after a position kick");
 }

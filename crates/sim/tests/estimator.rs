@@ -13,7 +13,8 @@ use nerfsv_sim::VisionConfig;
 
 /// A prediction that is already the optimum (the image is the model's own render there)
 /// proposes a null step at every level: one render, one linearisation, and the prediction back;
-/// with a zero tolerance the search spends its whole budget instead.
+/// with every stopping rule off the search spends its whole budget instead, and with only the
+/// refused-steps rule, two refused steps per level.
 #[test]
 fn the_search_stops_at_the_first_step_below_its_tolerance() {
     let nerf = tiny_nerf();
@@ -32,9 +33,14 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     assert_eq!((fit.position, fit.rotation), (p, r));
     assert_eq!(fit.rmse, 0.0);
 
-    let exhaustive = VisionConfig { stop_step: [0.0, 0.0], ..cfg.clone() };
+    let exhaustive = VisionConfig { stop_step: [0.0, 0.0], max_refused: 0, stop_cost_decrease: 0.0, ..cfg.clone() };
     let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &exhaustive);
     assert_eq!(fit.renders, cfg.iterations);
     // Null steps do not lower the cost, so no trial is accepted and none is differentiated.
     assert_eq!(fit.linearisations, 1);
+
+    let refusing = VisionConfig { max_refused: 2, ..exhaustive };
+    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &refusing);
+    let levels = (cfg.levels[0] - cfg.levels[1] + 1) as usize;
+    assert_eq!((fit.renders, fit.linearisations), (1 + 2 * levels, 1));
 }

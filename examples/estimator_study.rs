@@ -13,8 +13,12 @@
 //! The run folder is `runs/stonehenge` (`RUN=DIR` for another); settings override the default
 //! `[sim.vision]` through the environment: `IMAGES` (images per step), `ITERATIONS`, `SIGMA`
 //! (photometric σ), `STOP_MM` (stop step in mm, with 0.06° per mm), `CANDIDATES`, `PIXELS`,
-//! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both). Disturbances come
-//! from a seeded generator of its own, so every setting is compared on the same draws.
+//! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both), `RECOVER`
+//! (`recover_variance_factor`), `MODEL_M` and `MODEL_DEG` (`model_error_per_rmse`), `REFUSED`
+//! (`max_refused`), `STOP_COST` (`stop_cost_decrease`). `DIAG=1` adds, for the vision
+//! estimator's Monte Carlo, what the gate refused and recovered and the largest accepted errors.
+//! Disturbances come from a seeded generator of its own, so every setting is compared on the
+//! same draws.
 
 use std::path::PathBuf;
 use std::time::Instant;

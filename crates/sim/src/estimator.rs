@@ -61,7 +61,7 @@ pub struct VisionConfig {
     /// on top): each renders the pixels once and evaluates one Levenberg–Marquardt step. The
     /// stopping rules ([`VisionConfig::stop_step`], [`VisionConfig::stop_cost_decrease`],
     /// [`VisionConfig::max_refused`]) end most searches long before: on the default study
-    /// 2.3 renders per NeRF-sim image and 8 per ground-truth image, 30 only for the first
+    /// 2.5 renders per NeRF-sim image and 10 per ground-truth image, 30 only for the first
     /// images after a disturbance that need them.
     pub iterations: usize,
     /// Pyramid levels `[coarsest, finest]`: level `l` compares colours averaged over blocks of
@@ -74,7 +74,7 @@ pub struct VisionConfig {
     /// the model error ([`VisionConfig::model_error_per_rmse`]), so this sets the search's
     /// balance, not how much the filter believes the result. Default 0.02: with 0.3 (before)
     /// the prediction outweighed even a perfect image, and one update from the paper's
-    /// disturbance left 15 mm of its error (19 of 100 cases within 1 cm / 0.5°; 97 now).
+    /// disturbance left 15 mm of its error (19 of 100 cases within 1 cm / 0.5°; 94 now).
     pub photometric_sigma: f64,
     /// Huber threshold on a pixel's colour error, in multiples of `photometric_sigma`.
     pub huber: f64,
@@ -110,8 +110,8 @@ pub struct VisionConfig {
     /// images the RMSE is ≈ 0.05 and the optimum lies 1–4.5 cm from the truth. Default
     /// `[1.0, 30.0]` (5 cm / 1.5° at an RMSE of 0.05): with `[0.3, 10]` the GT-sim filter was
     /// overconfident (mean NEES 34) and the nominal GT-sim flight ended 0.2 m from its goal; with
-    /// this, mean NEES ≈ 12 in GT-sim over 40 Monte Carlo rollouts, and NeRF-sim's estimates
-    /// keep a 1.5 mm floor at most (BENCHMARKS.md).
+    /// this, mean NEES ≈ 12 in GT-sim over 40 Monte Carlo rollouts, while NeRF-sim's filter is
+    /// conservative (mean NEES ≈ 3) at the same crash rate (BENCHMARKS.md).
     pub model_error_per_rmse: [f64; 2],
     /// A fit beyond the gate whose a-posteriori variance factor is at most this explains the
     /// image as well as the noise `photometric_sigma` describes: then the prediction, not the

@@ -109,7 +109,8 @@ pub struct ImageUpdate {
     /// Normalised estimation error squared of the full 12-D state after the update (χ²(12) for a
     /// consistent filter).
     pub nees: f64,
-    /// The fit's squared Mahalanobis distance from the prediction, and whether the gate took it.
+    /// The fit's squared Mahalanobis distance from the prediction (before any recovery scaled
+    /// the covariance), and whether the gate took it.
     pub mahalanobis_sq: f64,
     pub accepted: bool,
     /// The fit lay beyond the gate but explained the image (variance factor at most
@@ -404,7 +405,7 @@ impl Simulator<'_> {
             position_error_m: (belief.mean.position - truth.position).norm(),
             rotation_error_deg: rotation_error(&belief.mean.rotation, &truth.rotation).to_degrees(),
             nees: belief.nees(truth),
-            mahalanobis_sq: u.mahalanobis_sq,
+            mahalanobis_sq: d2,
             accepted: u.accepted,
             recovered,
             variance_factor: fit.variance_factor,

@@ -7,6 +7,7 @@
 //! cargo run --release --example estimator_study -- mc 100          # Monte Carlo, both worlds
 //! cargo run --release --example estimator_study -- update 36       # single updates from the prior
 //! cargo run --release --example estimator_study -- floor 36        # updates started at the truth
+//! cargo run --release --example estimator_study -- basin 36        # fits from 5 cm / 3° off vs from the truth
 //! cargo run --release --example estimator_study -- nominal         # the undisturbed flights
 //! ```
 //!
@@ -27,7 +28,8 @@ use nerfsv_pipeline::flight::{world, FlightInputs};
 use nerfsv_pipeline::stages::{GroundTruthField, NerfField, Train};
 use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
-use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, Rollout, WorldKind};
+use nerfsv_sim::dynamics::{so3_exp, so3_log};
+use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, PosePrior, Rollout, WorldKind};
 use rayon::prelude::*;
 
 fn env<T: std::str::FromStr>(key: &str, default: T) -> T {
@@ -185,6 +187,55 @@ fn main() -> anyhow::Result<()> {
                         start.elapsed().as_secs_f64()
                     );
                 }
+            }
+            "basin" => {
+                // From 5 cm / 3° off in a random direction, and from the true pose (the bias
+                // floor), under the same 5 cm / 3° prior: where does each fit land?
+                let mut rng = Normal(11);
+                let (mut to_truth, mut to_floor) = (0, 0);
+                let (mut floor_err, mut start_err) = (Vec::new(), Vec::new());
+                for case in 0..n {
+                    let k = case % cfg.sim.steps;
+                    let at = flight.reference.at_rest(k as f64 * sim.step_duration());
+                    let unit = |rng: &mut Normal| {
+                        let v = nalgebra::Vector3::new(rng.sample(), rng.sample(), rng.sample());
+                        v / v.norm()
+                    };
+                    let start_p = at.position + unit(&mut rng) * 0.05;
+                    let start_r = so3_exp(&(unit(&mut rng) * 3f64.to_radians())) * at.rotation;
+                    let seed = case as u64;
+                    let floor = sim.observe_and_refine(
+                        w.as_ref(),
+                        &at,
+                        &PosePrior::isotropic(at.position, at.rotation, 0.05, 3.0),
+                        seed,
+                    );
+                    let fit = sim.observe_and_refine(
+                        w.as_ref(),
+                        &at,
+                        &PosePrior::isotropic(start_p, start_r, 0.05, 3.0),
+                        seed,
+                    );
+                    let angle = |a: &nalgebra::Matrix3<f64>, b: &nalgebra::Matrix3<f64>| {
+                        so3_log(&(a * b.transpose())).norm().to_degrees()
+                    };
+                    let (tp, tr) = ((fit.position - at.position).norm(), angle(&fit.rotation, &at.rotation));
+                    let (fp, fr) = ((fit.position - floor.position).norm(), angle(&fit.rotation, &floor.rotation));
+                    to_truth += usize::from(tp <= 0.01 && tr <= 0.5);
+                    to_floor += usize::from(fp <= 0.005 && fr <= 0.3);
+                    floor_err.push(1e3 * (floor.position - at.position).norm());
+                    start_err.push(1e3 * fp);
+                }
+                println!(
+                    "{}-sim, basin from 5 cm / 3° off: {to_truth}/{n} within 1 cm / 0.5° of the truth, {to_floor}/{n} \
+                     within 5 mm / 0.3° of the fit from the true pose; that fit (the floor) is {:.1} mm from the truth \
+                     (median, p90 {:.1}); from the offset start, {:.1} mm from the floor (median, p90 {:.1})",
+                    kind.name(),
+                    percentile(&mut floor_err.clone(), 0.5),
+                    percentile(&mut floor_err, 0.9),
+                    percentile(&mut start_err.clone(), 0.5),
+                    percentile(&mut start_err, 0.9),
+                );
             }
             "update" | "floor" => {
                 let mut rng = Normal(7);

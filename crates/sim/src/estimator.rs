@@ -117,7 +117,7 @@ pub struct VisionConfig {
     /// image as well as the noise `photometric_sigma` describes: then the prediction, not the
     /// fit, is wrong (an estimate that drifted with a covariance too small to let the image
     /// correct it). Its covariance is scaled up until the fit lies on the gate, and the fit is
-    /// taken. 0 turns this off.
+    /// taken. 0 leaves only fits with no residual at all to this.
     pub recover_variance_factor: f64,
     /// `[metres, degrees]`: the search stops at the finest level when the step it proposes
     /// moves the pose less than this in both position and rotation, and leaves a coarser level
@@ -187,9 +187,7 @@ impl VisionConfig {
         non_negative("stop_step[1]", self.stop_step[1])?;
         in_range("jacobian_min_weight", self.jacobian_min_weight, 0.0, 1.0)
     }
-}
 
-impl VisionConfig {
     /// The model error's covariance `(δp, δθ)` for a fit of colour RMSE `rmse`
     /// ([`VisionConfig::model_error_per_rmse`]).
     pub fn model_covariance(&self, rmse: f64) -> Matrix6<f64> {
@@ -471,7 +469,8 @@ pub fn refine_pose(
     let mut information = Matrix6::zeros();
     let mut level = coarsest;
     let mut lambda = 1e-3;
-    let mut final_step = None;
+    // The pose of a search that ended on the step tolerance: its last step, taken unrendered.
+    let mut final_pose = None;
     let mut refused = 0;
     while renders < budget {
         while level > finest && renders - (budget - cfg.iterations.max(1)) > level_end(level) {
@@ -495,17 +494,16 @@ pub fn refine_pose(
         // Converged at this level when the undamped step is below the tolerance (four times it on
         // a coarser level, which only has to bring the next one into its basin): no render needed.
         let scale = if level == finest { 1.0 } else { 4.0 };
+        let candidate = (current.position + dp, crate::dynamics::reorthonormalise(&(so3_exp(&dr) * current.rotation)));
         if lambda <= 1e-2 && dp.norm() < scale * stop[0] && dr.norm() < scale * stop[1] {
             if level == finest {
-                // The last Gauss–Newton step, below the tolerance, is taken unrendered.
-                final_step = Some((dp, dr));
+                final_pose = Some(candidate);
                 break;
             }
             level -= 1;
             continue;
         }
-        let cand_r = crate::dynamics::reorthonormalise(&(so3_exp(&dr) * current.rotation));
-        render_at(&mut trial, current.position + dp, cand_r);
+        render_at(&mut trial, candidate.0, candidate.1);
         renders += 1;
         let trial_cost = linearise(&trial, None, level).0.cost;
         if trial_cost < lin.cost {
@@ -522,9 +520,9 @@ pub fn refine_pose(
         } else {
             lambda *= 10.0;
             refused += 1;
-            // At the finest level, steps refused in a row mean the search sits at an optimum it
-            // cannot improve on at this resolution (against a model that does not match the
-            // image the cost is rough on the scale of the stop tolerance).
+            // Steps refused in a row mean the search sits at an optimum it cannot improve on at
+            // this level's resolution (against a model that does not match the image the cost
+            // is rough on the scale of the stop tolerance).
             if cfg.max_refused > 0 && refused >= cfg.max_refused {
                 if level == finest {
                     break;
@@ -546,11 +544,6 @@ pub fn refine_pose(
     let blocks = levels[finest].iter().map(|&g| g as usize + 1).max().unwrap_or(0);
     let dof = (3 * blocks).saturating_sub(6).max(1) as f64;
     let variance_factor = photometric(current.render.rgb(), None, observed, &levels[finest], cfg).cost / dof;
-    let (position, rotation) = match final_step {
-        Some((dp, dr)) => {
-            (current.position + dp, crate::dynamics::reorthonormalise(&(so3_exp(&dr) * current.rotation)))
-        }
-        None => (current.position, current.rotation),
-    };
+    let (position, rotation) = final_pose.unwrap_or((current.position, current.rotation));
     PoseFit { position, rotation, information, variance_factor, renders, linearisations, rmse }
 }

@@ -17,10 +17,14 @@
 //!   photometric Gauss–Newton Hessian at the optimum, the posterior pose covariance is
 //!   `S = (P_pp⁻¹ + Λ)⁻¹` and the whole state follows through the cross-covariances:
 //!   `x̂ ← x̂ ⊞ G·Δ`, `P ← P + G·(S − P_pp)·Gᵀ`, `G = P_{·p}·P_pp⁻¹`, `Δ` the fit's pose minus the
-//!   prediction's. For a linear measurement this is the Kalman filter's update exactly (tested),
-//!   and it corrects velocity and body rates only through their correlation with the pose (no
-//!   gain rule). A fit whose Mahalanobis distance `Δᵀ·P_pp⁻¹·Δ` exceeds the gate is rejected:
-//!   the prediction stands and `P` is inflated.
+//!   prediction's. The fit's information may be reweighted (its residuals say how much the image
+//!   is worth) and a model error added ([`PoseMeasurement`]); `S` and `Δ` are then those of the
+//!   fit that information would have given. For a linear measurement this is the Kalman
+//!   filter's update exactly (tested), and it corrects velocity and body rates only through
+//!   their correlation with the pose (no gain rule). A fit whose Mahalanobis distance
+//!   `Δᵀ·P_pp⁻¹·Δ` exceeds the gate is rejected: the prediction stands and `P` is inflated;
+//!   unless the fit explains its image, in which case the prediction was wrong: `P` is scaled
+//!   up until the fit lies on the gate, and the fit is taken.
 
 use nalgebra::{Matrix3, Matrix6, SMatrix, SVector, Vector3, Vector6};
 
@@ -86,28 +90,35 @@ pub struct PoseMeasurement {
     /// The photometric term's Gauss–Newton Hessian at the fit (`Λ`, the prior term excluded),
     /// under the noise the fit assumed.
     pub information: Matrix6<f64>,
-    /// `w` ∈ (0, 1]: the image carries only `w` times that information (its residuals were
-    /// `1/w` times the noise the fit assumed).
+    /// `w` > 0: the image carries `w` times that information (its residuals were `1/w` times
+    /// the noise the fit assumed; above 1 when they were smaller).
     pub weight: f64,
     /// `M`: the covariance of the error of the image's optimum itself, `(δp, δθ)`, which no
     /// amount of pixels removes (a model that does not match the world is biased).
     pub model_covariance: Matrix6<f64>,
+    /// The fit explains its image as well as the noise it assumed: beyond the gate, the
+    /// prediction rather than the fit is taken to be wrong.
+    pub explains_image: bool,
 }
 
 impl PoseMeasurement {
-    /// A fit whose information is taken as it is.
+    /// A fit whose information is taken as it is, and which the gate may refuse.
     pub fn exact(position: Vector3<f64>, rotation: Matrix3<f64>, information: Matrix6<f64>) -> Self {
-        Self { position, rotation, information, weight: 1.0, model_covariance: Matrix6::zeros() }
+        Self { position, rotation, information, weight: 1.0, model_covariance: Matrix6::zeros(), explains_image: false }
     }
 }
 
 /// What a pose measurement did to the belief.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseUpdate {
-    /// `Δᵀ·P_pp⁻¹·Δ`: the fit's squared Mahalanobis distance from the prediction.
+    /// `Δᵀ·P_pp⁻¹·Δ`: the fit's squared Mahalanobis distance from the prediction (before any
+    /// recovery scaled the covariance).
     pub mahalanobis_sq: f64,
-    /// Whether the gate let the fit in.
+    /// Whether the fit was taken.
     pub accepted: bool,
+    /// The fit lay beyond the gate and explained its image: the covariance was scaled up until
+    /// the fit lay on the gate, and the fit taken.
+    pub recovered: bool,
 }
 
 /// The estimator's belief about the drone's state: mean and error covariance.
@@ -147,23 +158,24 @@ impl Belief {
         inverse_spd(&self.pose_covariance())
     }
 
-    /// `Δᵀ·P_pp⁻¹·Δ`: the squared Mahalanobis distance of a pose from the prediction.
-    pub fn mahalanobis_sq(&self, position: &Vector3<f64>, rotation: &Matrix3<f64>) -> f64 {
-        let innovation = pose_difference(position, rotation, &self.mean);
-        innovation.dot(&(self.pose_information() * innovation))
-    }
-
     /// The measurement update with a pose fit (see [`PoseMeasurement`]). A fit farther than
     /// `gate` (squared Mahalanobis distance under the prediction's pose covariance) is rejected:
-    /// the mean stays and the covariance is multiplied by `inflation`.
+    /// the mean stays and the covariance is multiplied by `inflation`; unless the fit explains its
+    /// image, in which case the covariance is scaled up until the fit lies on the gate and the
+    /// fit is taken.
     pub fn update_pose(&mut self, fit: &PoseMeasurement, gate: f64, inflation: f64) -> PoseUpdate {
-        let p_pp = self.pose_covariance();
-        let p_pp_inv = inverse_spd(&p_pp);
+        let mut p_pp = self.pose_covariance();
+        let mut p_pp_inv = inverse_spd(&p_pp);
         let fitted = pose_difference(&fit.position, &fit.rotation, &self.mean);
         let mahalanobis_sq = fitted.dot(&(p_pp_inv * fitted));
-        if mahalanobis_sq.is_nan() || mahalanobis_sq > gate {
+        let recovered = mahalanobis_sq > gate && fit.explains_image;
+        if recovered {
+            self.covariance *= mahalanobis_sq / gate;
+            p_pp = self.pose_covariance();
+            p_pp_inv = inverse_spd(&p_pp);
+        } else if mahalanobis_sq.is_nan() || mahalanobis_sq > gate {
             self.covariance *= inflation;
-            return PoseUpdate { mahalanobis_sq, accepted: false };
+            return PoseUpdate { mahalanobis_sq, accepted: false, recovered };
         }
         // With Λ the fit's information, w its weight and M the model error: the measurement's
         // information is Λ' = (Λ⁻¹/w + M)⁻¹ = (I/w + Λ·M)⁻¹·Λ, and since the fit satisfies
@@ -184,7 +196,7 @@ impl Belief {
         }
         self.mean = retract(&self.mean, &shift);
         self.covariance = symmetric(&(self.covariance + g * (s - p_pp) * g.transpose()));
-        PoseUpdate { mahalanobis_sq, accepted: true }
+        PoseUpdate { mahalanobis_sq, accepted: true, recovered }
     }
 
     /// The error of the belief about `truth`, `truth ⊟ mean`.
@@ -310,8 +322,36 @@ mod tests {
             22.46,
             2.0,
         );
-        assert!(u.accepted);
+        assert!(u.accepted && !u.recovered);
         assert!((b.mean.position - mean.position - Vector3::new(0.02, 0.0, 0.0)).norm() < 1e-15);
+    }
+
+    /// A fit 20 cm off that explains its image: the prediction gives way. The covariance is
+    /// scaled by d²/gate (the fit then lies on the gate) before the update, and the mean moves
+    /// to the fit (the image's information far outweighs the widened prediction).
+    #[test]
+    fn the_gate_takes_a_far_fit_that_explains_its_image_and_widens_the_prediction() {
+        let mean = State::at_rest(Vector3::new(0.3, 0.1, 0.2), 0.4);
+        let std = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
+        let before = Belief::new(mean, &std);
+        let fit = PoseMeasurement {
+            explains_image: true,
+            ..PoseMeasurement::exact(
+                mean.position + Vector3::new(0.2, 0.0, 0.0),
+                mean.rotation,
+                Matrix6::identity() * 1e6,
+            )
+        };
+        // The same update on the covariance scaled by hand, with the gate open.
+        let mut scaled = before;
+        scaled.covariance *= 100.0 / 22.46;
+        let open = scaled.update_pose(&PoseMeasurement { explains_image: false, ..fit }, f64::INFINITY, 2.0);
+        let mut b = before;
+        let u = b.update_pose(&fit, 22.46, 2.0);
+        assert!(u.accepted && u.recovered && (u.mahalanobis_sq - 100.0).abs() < 1e-9, "{u:?}");
+        assert!(open.accepted && !open.recovered);
+        assert_eq!(b, scaled);
+        assert!((b.mean.position - fit.position).norm() < 1e-3, "{}", b.mean.position);
     }
 
     /// The central-difference `F` carries a small error through one substep to first order,

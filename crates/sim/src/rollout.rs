@@ -114,8 +114,8 @@ pub struct ImageUpdate {
     pub mahalanobis_sq: f64,
     pub accepted: bool,
     /// The fit lay beyond the gate but explained the image (variance factor at most
-    /// [`VisionConfig::recover_variance_factor`]): the prediction's covariance was scaled up
-    /// until the fit lay on the gate, and the fit taken (`accepted` is then true).
+    /// [`VisionConfig::recover_variance_factor`]): see [`crate::filter::PoseUpdate::recovered`]
+    /// (`accepted` is then true).
     pub recovered: bool,
     /// The fit's a-posteriori variance factor ([`crate::PoseFit::variance_factor`]).
     pub variance_factor: f64,
@@ -380,21 +380,16 @@ impl Simulator<'_> {
             information: belief.pose_information(),
         };
         let fit = self.observe_and_refine(world, truth, &prior, seed);
-        let d2 = belief.mahalanobis_sq(&fit.position, &fit.rotation);
-        let recovered = d2 > self.vision.gate_chi2 && fit.variance_factor <= self.vision.recover_variance_factor;
-        if recovered {
-            belief.covariance *= d2 / self.vision.gate_chi2;
-        }
         let measurement = PoseMeasurement {
             // The residuals' own scale: a fit that explains the image better than
             // `photometric_sigma` says is worth more (a NeRF rendering its own image), one that
             // explains it worse, less; the model error bounds what either can claim.
             weight: 1.0 / fit.variance_factor.max(1e-4),
             model_covariance: self.vision.model_covariance(fit.rmse),
+            explains_image: fit.variance_factor <= self.vision.recover_variance_factor,
             ..PoseMeasurement::exact(fit.position, fit.rotation, fit.information)
         };
-        let gate = if recovered { f64::INFINITY } else { self.vision.gate_chi2 };
-        let u = belief.update_pose(&measurement, gate, self.vision.gate_inflation);
+        let u = belief.update_pose(&measurement, self.vision.gate_chi2, self.vision.gate_inflation);
         let [sp, sr] = belief.pose_spread();
         ImageUpdate {
             step,
@@ -405,9 +400,9 @@ impl Simulator<'_> {
             position_error_m: (belief.mean.position - truth.position).norm(),
             rotation_error_deg: rotation_error(&belief.mean.rotation, &truth.rotation).to_degrees(),
             nees: belief.nees(truth),
-            mahalanobis_sq: d2,
+            mahalanobis_sq: u.mahalanobis_sq,
             accepted: u.accepted,
-            recovered,
+            recovered: u.recovered,
             variance_factor: fit.variance_factor,
             position_spread_m: sp,
             rotation_spread_deg: sr.to_degrees(),

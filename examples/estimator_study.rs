@@ -16,7 +16,7 @@
 //! (photometric σ), `STOP_MM` (stop step in mm, with 0.06° per mm), `CANDIDATES`, `PIXELS`,
 //! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both), `RECOVER`
 //! (`recover_variance_factor`), `MODEL_M` and `MODEL_DEG` (`model_error_per_rmse`), `REFUSED`
-//! (`max_refused`), `STOP_COST` (`stop_cost_decrease`). `DIAG=1` adds, for the vision
+//! (`max_refused`), `STOP_COST` (`stop_cost_decrease`), `JACOBIAN_MIN_WEIGHT`. `DIAG=1` adds, for the vision
 //! estimator's Monte Carlo, what the gate refused and recovered and the largest accepted errors.
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
@@ -77,6 +77,7 @@ fn main() -> anyhow::Result<()> {
     v.pixels = env("PIXELS", v.pixels);
     v.recover_variance_factor = env("RECOVER", v.recover_variance_factor);
     v.max_refused = env("REFUSED", v.max_refused);
+    v.jacobian_min_weight = env("JACOBIAN_MIN_WEIGHT", v.jacobian_min_weight);
     v.stop_cost_decrease = env("STOP_COST", v.stop_cost_decrease);
     v.model_error_per_rmse = [env("MODEL_M", v.model_error_per_rmse[0]), env("MODEL_DEG", v.model_error_per_rmse[1])];
     let stop_mm: f64 = env("STOP_MM", v.stop_step[0] * 1e3);

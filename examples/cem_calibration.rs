@@ -12,7 +12,10 @@
 //! root-mean-square error, the mean estimate over P, the mean effective number of failures,
 //! and how often the estimate exceeds 1. BENCHMARKS.md's calibration table comes from it.
 
-use nerfsv_validation::{cross_entropy, monte_carlo, CemConfig, Gaussian, MonteCarloConfig, Outcome, Prior, System};
+use nerfsv_validation::{
+    cross_entropy, monte_carlo, subset_simulation, CemConfig, Gaussian, MonteCarloConfig, Outcome, Prior, SubsetConfig,
+    System,
+};
 
 /// Fails when a·x > z over the whole trajectory; the score is z − a·x.
 struct Linear72 {
@@ -53,6 +56,8 @@ struct Tally {
     sum: f64,
     effective_failures: f64,
     above_one: usize,
+    rollouts: usize,
+    sum_sq: f64,
 }
 
 impl Tally {
@@ -66,28 +71,36 @@ impl Tally {
             sum: 0.0,
             effective_failures: 0.0,
             above_one: 0,
+            rollouts: 0,
+            sum_sq: 0.0,
         }
     }
 
-    fn add(&mut self, truth: f64, p: f64, se: f64, interval: (f64, f64), effective_failures: f64) {
+    #[allow(clippy::too_many_arguments)]
+    fn add(&mut self, truth: f64, p: f64, se: f64, interval: (f64, f64), effective_failures: f64, rollouts: usize) {
+        self.rollouts += rollouts;
         self.two_se += usize::from((p - truth).abs() <= 2.0 * se);
         self.interval += usize::from(interval.0 <= truth && truth <= interval.1);
         self.width += interval.1 - interval.0;
         self.squared_error += (p - truth).powi(2);
         self.sum += p;
+        self.sum_sq += p * p;
         self.effective_failures += effective_failures;
         self.above_one += usize::from(p > 1.0);
     }
 
     fn print(&self, truth: f64, seeds: usize) {
         let n = seeds as f64;
+        let rollouts = self.rollouts as f64 / n;
         println!(
-            "| {} | {}/{seeds} | {}/{seeds} | {:.3} | {:.2} | {:.2} | {:.1} | {} |",
+            "| {} | {:.0} | {}/{seeds} | {}/{seeds} | {:.3} | {:.2} ({:.2}) | {:.2} | {:.1} | {} |",
             self.name,
+            rollouts,
             self.two_se,
             self.interval,
             self.width / n,
-            (self.squared_error / n).sqrt() / truth,
+            ((self.sum_sq / n - (self.sum / n).powi(2)).max(0.0)).sqrt() / truth,
+            ((1.0 - truth) / (rollouts * truth)).sqrt(),
             self.sum / n / truth,
             self.effective_failures / n,
             self.above_one
@@ -103,23 +116,40 @@ fn main() {
     let a: Vec<f64> = raw.iter().map(|v| v / norm).collect();
     let prior = Prior::new(Gaussian::diagonal(vec![0.0; 12], &[1.0; 12]).expect("unit prior"), 6);
     let cem = CemConfig::default();
+    // Subset simulation's settings: the defaults, or `SAMPLES`, `P0`, `CORRELATION` from the
+    // environment (how the defaults were chosen).
+    let env = |key: &str, default: f64| std::env::var(key).ok().and_then(|v| v.parse().ok()).unwrap_or(default);
+    let d = SubsetConfig::default();
+    let subset = SubsetConfig {
+        samples: env("SAMPLES", d.samples as f64) as usize,
+        p0: env("P0", d.p0),
+        correlation: env("CORRELATION", d.correlation),
+        ..d
+    };
     let budget = cem.m * cem.k_max + cem.is_samples;
     for z in [1.405_071_560_309_632_8, 3.090_232_306_167_813_5] {
         let system = Linear72 { a: a.clone(), z };
         let truth = upper_tail(z);
         println!("\nP(fail) = {truth:.4e}, {seeds} seeds, {budget} rollouts each\n");
-        println!("| estimator | ±2 SE covers P | 95 % interval covers P | mean width | relative RMSE | mean / P | effective failures | estimates > 1 |");
-        println!("|---|---|---|---|---|---|---|---|");
+        println!(
+            "| estimator | rollouts | ±2 SE covers P | 95 % interval covers P | mean width | relative sd (Monte Carlo's at these rollouts) | mean / P | effective failures | estimates > 1 |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|");
         let (mut c, mut m) = (Tally::new("CEM (default)"), Tally::new("Monte Carlo"));
+        let mut s = Tally::new("subset simulation (default)");
         for seed in 0..seeds as u64 {
             let e = cross_entropy(&system, &prior, &cem, seed, None, &()).expect("valid config").estimate;
-            c.add(truth, e.probability, e.standard_error, e.interval, e.effective_failures);
+            c.add(truth, e.probability, e.standard_error, e.interval, e.effective_failures, budget);
+            let e = subset_simulation(&system, &prior, &subset, seed + 2_000_000, &()).expect("valid config");
+            let e = e.estimate;
+            s.add(truth, e.probability, e.standard_error, e.interval, e.effective_failures, e.rollouts);
             let mc = monte_carlo(&system, &prior, &MonteCarloConfig { rollouts: budget }, seed + 1_000_000, &())
                 .expect("valid config");
             let se = (mc.probability * (1.0 - mc.probability) / budget as f64).sqrt();
-            m.add(truth, mc.probability, se, mc.interval, mc.probability * budget as f64);
+            m.add(truth, mc.probability, se, mc.interval, mc.probability * budget as f64, budget);
         }
         c.print(truth, seeds);
         m.print(truth, seeds);
+        s.print(truth, seeds);
     }
 }

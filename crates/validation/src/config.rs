@@ -18,6 +18,8 @@ pub struct ValidationConfig {
     pub monte_carlo: MonteCarloConfig,
     /// The Cross-Entropy Method and its importance-sampling estimate.
     pub cem: CemConfig,
+    /// Subset simulation, the failure-probability estimate of the stress stage.
+    pub subset: SubsetConfig,
 }
 
 impl ValidationConfig {
@@ -26,6 +28,7 @@ impl ValidationConfig {
         self.disturbance.validate().map_err(|e| e.within("disturbance"))?;
         self.monte_carlo.validate().map_err(|e| e.within("monte_carlo"))?;
         self.cem.validate().map_err(|e| e.within("cem"))?;
+        self.subset.validate().map_err(|e| e.within("subset"))?;
         Ok(())
     }
 }
@@ -166,5 +169,65 @@ impl CemConfig {
             return Err(InvalidValue::new("is_defensive", "must be in [0, 1)", self.is_defensive));
         }
         in_range("is_samples", self.is_samples, 1, 100_000_000)
+    }
+}
+
+/// Subset simulation (Au & Beck 2001) with preconditioned Crank–Nicolson chains: nested levels
+/// of `samples` trajectories each, every level the share `p0` of the last one that scored
+/// lowest, until failures are at least that share.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SubsetConfig {
+    /// Trajectories per level (default 200); `samples · p0` must be a whole number that
+    /// divides it (the chains' count, each chain `1/p0` long). The default is the smallest of
+    /// 100, 120, 150 and 200 whose estimate on the 72-dimensional calibration toy at
+    /// P(fail) = 10⁻³ has at most half of Monte Carlo's relative standard deviation for the
+    /// same rollouts with a margin (0.56 against 1.23 over 2000 runs; 150 gave 0.69 against
+    /// 1.42, 100 gave 0.92 against 1.74).
+    pub samples: usize,
+    /// Conditional probability of each level (default 0.1).
+    pub p0: f64,
+    /// Correlation ρ of a chain's move z' = ρ·z + √(1 − ρ²)·ξ in the prior's whitened
+    /// coordinates (default 0.8, the best of 0.6–0.9 on the calibration toy, 30–60 % of moves
+    /// accepted; adapting it level by level towards 44 % accepted did not do better): closer
+    /// to 1, smaller moves that are accepted more often.
+    pub correlation: f64,
+    /// Levels at most, the first included (default 6: probabilities down to p0⁵ · 1/samples);
+    /// the last one's failure share is the estimate's last factor, however small.
+    pub max_levels: usize,
+}
+
+impl Default for SubsetConfig {
+    fn default() -> Self {
+        Self { samples: 200, p0: 0.1, correlation: 0.8, max_levels: 6 }
+    }
+}
+
+impl SubsetConfig {
+    /// The chains per level, `samples · p0` rounded.
+    pub fn seeds(&self) -> usize {
+        (self.samples as f64 * self.p0).round() as usize
+    }
+
+    /// Refuses a p0 outside (0, 0.5], a sample count that p0 does not split into whole chains of
+    /// at least two, ρ outside [0, 1) and zero levels.
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("samples", self.samples, 4, 100_000_000)?;
+        if !(self.p0 > 0.0 && self.p0 <= 0.5) {
+            return Err(InvalidValue::new("p0", "must be in (0, 0.5]", self.p0));
+        }
+        let seeds = self.seeds();
+        let whole = (self.samples as f64 * self.p0 - seeds as f64).abs() < 1e-9;
+        if seeds == 0 || !whole || !self.samples.is_multiple_of(seeds) {
+            return Err(InvalidValue::new(
+                "samples",
+                format!("must be split by p0 = {} into whole chains (samples · p0 a divisor of samples)", self.p0),
+                self.samples,
+            ));
+        }
+        if !(0.0..1.0).contains(&self.correlation) {
+            return Err(InvalidValue::new("correlation", "must be in [0, 1)", self.correlation));
+        }
+        in_range("max_levels", self.max_levels, 1, 1000)
     }
 }

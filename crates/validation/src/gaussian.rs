@@ -126,6 +126,15 @@ impl Gaussian {
     pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Vec<f64> {
         let d = self.dim();
         let z: Vec<f64> = (0..d).map(|_| StandardNormal.sample(rng)).collect();
+        self.from_standard(&z)
+    }
+
+    /// The point `mean + L·z` of whitened coordinates `z` (`[dim]`): a draw when z ~ N(0, I).
+    ///
+    /// Panics if `z.len() != dim`.
+    pub fn from_standard(&self, z: &[f64]) -> Vec<f64> {
+        let d = self.dim();
+        assert_eq!(z.len(), d, "from_standard: one coordinate per dimension");
         (0..d).map(|i| self.mean[i] + (0..=i).map(|j| self.chol[(i, j)] * z[j]).sum::<f64>()).collect()
     }
 

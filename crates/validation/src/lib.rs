@@ -7,6 +7,8 @@
 //!   weights from the whole trajectory's likelihood ratio exp(Σ_t [ln p − ln q_t]) (the original
 //!   code used each step's own ratio, which biases the estimate), weighted refit — ending with
 //!   an importance-sampling estimate of the failure probability and its standard error.
+//! - [`subset_simulation`]: nested levels of pCN Markov chains (Au & Beck), a failure
+//!   probability whose accuracy does not degrade with the number of disturbances.
 //! - Online uncertainty ([`ViewUncertainty`]): each flown step's camera view measured by GA or
 //!   BLA against the ground truth's render ([`ExactUncertainty`]) or looked up in an
 //!   uncertainty field ([`FieldUncertainty`]); the paper's rewards of eq. 10–11
@@ -46,11 +48,12 @@ mod online;
 mod record;
 mod sampler;
 mod seed;
+mod subset;
 mod system;
 mod table;
 
 pub use compare::{compare, Agreement, Confusion, Spread};
-pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, ValidationConfig};
+pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, SubsetConfig, ValidationConfig};
 pub use drone::{drone_disturbances, DroneSystem, EstimateLog};
 pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
@@ -66,5 +69,6 @@ pub use sampler::{
     MonteCarloResult, Reward, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 pub use seed::rollout_seed;
+pub use subset::{correlation_factor, subset_simulation, SubsetEstimate, SubsetResult, SAMPLER_SUBSET};
 pub use system::{Outcome, System};
 pub use table::{table_row, TableRow};

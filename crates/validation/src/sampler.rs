@@ -55,12 +55,31 @@ pub fn rollout<S: System + ?Sized>(
     seed: u64,
     reward: Option<Reward<'_>>,
 ) -> RolloutRecord {
-    let disturbances = proposal.draw(seed);
+    let mut record = run_record(system, prior, Some(proposal), proposal.draw(seed), sampler, population, index, seed);
+    record.reward = reward.map(|r| r(&record));
+    record
+}
+
+/// Runs `system` on `disturbances` with `seed` and records them with their log-densities under
+/// `prior` and under `proposal` (without one, the prior's: a weight of 1).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn run_record<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    proposal: Option<&Proposal>,
+    disturbances: Vec<Vec<f64>>,
+    sampler: &str,
+    population: usize,
+    index: usize,
+    seed: u64,
+) -> RolloutRecord {
     let outcome = system.run(&disturbances, seed);
     let step_log_p = prior.step_log_pdfs(&disturbances);
-    let step_log_q = proposal.step_log_pdfs(&disturbances);
-    let log_q = proposal.log_pdf(&disturbances);
-    let mut record = RolloutRecord {
+    let (step_log_q, log_q) = match proposal {
+        Some(q) => (q.step_log_pdfs(&disturbances), q.log_pdf(&disturbances)),
+        None => (step_log_p.clone(), step_log_p.iter().sum()),
+    };
+    RolloutRecord {
         sampler: sampler.to_owned(),
         population,
         index,
@@ -72,9 +91,7 @@ pub fn rollout<S: System + ?Sized>(
         disturbances,
         ..RolloutRecord::default()
     }
-    .with_outcome(outcome);
-    record.reward = reward.map(|r| r(&record));
-    record
+    .with_outcome(outcome)
 }
 
 /// Re-runs a recorded rollout from its seed against the proposal it was drawn from
@@ -148,7 +165,7 @@ fn population<S: System + ?Sized>(
         .collect()
 }
 
-fn check_shapes<S: System + ?Sized>(system: &S, prior: &Prior) -> Result<(), InvalidValue> {
+pub(crate) fn check_shapes<S: System + ?Sized>(system: &S, prior: &Prior) -> Result<(), InvalidValue> {
     if system.dim() != prior.dim() {
         return Err(InvalidValue::new(
             "disturbance",
@@ -184,7 +201,7 @@ pub fn wilson_interval(failures: usize, n: usize) -> (f64, f64) {
 
 /// Wilson's 95 % score interval for a proportion `p` from `n` (possibly effective, not whole)
 /// trials, within [0, 1]; (0, 1) without trials.
-fn wilson(p: f64, n: f64) -> (f64, f64) {
+pub(crate) fn wilson(p: f64, n: f64) -> (f64, f64) {
     if n <= 0.0 || !n.is_finite() {
         return (0.0, 1.0);
     }

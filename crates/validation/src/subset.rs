@@ -1,0 +1,305 @@
+//! Subset simulation (Au & Beck 2001) with preconditioned Crank–Nicolson moves: a failure
+//! probability estimate whose cost does not grow with the number of disturbances.
+//!
+//! The failure event {score ≤ 0} is reached through nested events {score ≤ b_1} ⊃ {score ≤ b_2}
+//! ⊃ … : level 0 draws `n` trajectories from the prior; each next threshold b_j is the
+//! `p0`-quantile of the last level's scores, and the `n·p0` trajectories below it seed Markov
+//! chains that stay below it, so every level holds `n` samples of the prior conditioned on
+//! {score ≤ b_j}. The estimate is `p0^(L−1) · (failures at level L−1) / n`.
+//!
+//! The chains move in the prior's whitened coordinates z (x = mean + L·z per step) by
+//! preconditioned Crank–Nicolson (Cotter et al. 2013): z' = ρ·z + √(1−ρ²)·ξ with ξ ~ N(0, I).
+//! That proposal leaves the standard normal invariant, so a move is accepted exactly when the
+//! new trajectory stays below the level's threshold, whatever the dimension (a random walk's
+//! acceptance falls with it; the CEM's importance weights degrade with it: see the calibration
+//! in BENCHMARKS.md).
+//!
+//! Every flown trajectory is a [`RolloutRecord`] (sampler [`SAMPLER_SUBSET`], population =
+//! level, rollouts of a level's chains in chain order), seeded by [`rollout_seed`], so the run is
+//! deterministic, resumes from a [`Recorder`] and replays on another system.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+
+use crate::config::SubsetConfig;
+use crate::error::ValidationError;
+use crate::gaussian::Prior;
+use crate::journal::Recorder;
+use crate::record::RolloutRecord;
+use crate::sampler::{check_shapes, most_likely_failure, run_record, wilson};
+use crate::seed::rollout_seed;
+use crate::system::System;
+
+/// Sampler label of subset simulation's rollouts.
+pub const SAMPLER_SUBSET: &str = "subset";
+
+/// z of a two-sided 95 % interval.
+const Z95: f64 = 1.959_963_984_540_054;
+
+/// Subset simulation's failure probability and how far it can be trusted.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SubsetEstimate {
+    /// `p0^(levels − 1) · failures / n`, within [0, 1].
+    pub probability: f64,
+    /// Its standard error, `probability · cov`.
+    pub standard_error: f64,
+    /// Coefficient of variation (relative standard error) of the estimate, `Σ_j δ_j` over the
+    /// levels' own `δ_j² = (1 − p_j)/(n·p_j)·(1 + γ_j)`, γ_j the correlation factor of the
+    /// level's chains (Au & Beck 2001, eq. 29; 0 for level 0, whose draws are independent).
+    /// The sum of the δ_j is Au & Beck's upper bound (the levels' errors fully correlated);
+    /// their lower bound `√Σ δ_j²` (independent levels) covered P(fail) = 10⁻³ within ±2 SE in
+    /// 84 % of 1000 runs of the 72-dimensional calibration toy, this in 96 % (BENCHMARKS.md).
+    /// ∞ without any failure.
+    pub cov: f64,
+    /// 95 % interval: p̂ ± 1.96 SE within [0, 1], its upper bound at least the
+    /// higher levels' product times Wilson's bound for the last level's failures in its
+    /// effective size `n / (1 + γ)` when they are fewer than
+    /// [`crate::ImportanceEstimate::FEW_EVENTS`] (without any failure: Wilson's bound for none).
+    pub interval: (f64, f64),
+    /// Levels flown (1: plain Monte Carlo, enough failures among the prior's draws).
+    pub levels: usize,
+    /// Failures among the last level's `n` samples.
+    pub failures: usize,
+    /// The Monte Carlo rollouts with the same variance, `p̂(1 − p̂)/SE²`: above
+    /// [`SubsetEstimate::rollouts`] when the levels beat plain sampling.
+    pub equivalent_rollouts: f64,
+    /// Rollouts flown.
+    pub rollouts: usize,
+    /// The last level's failures in their effective number `failures / (1 + γ_last)`.
+    pub effective_failures: f64,
+}
+
+impl SubsetEstimate {
+    /// The name of the estimator, for outputs.
+    pub const ESTIMATOR: &'static str = "subset simulation (pCN chains)";
+}
+
+/// Subset simulation's run: every rollout and the levels' thresholds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SubsetResult {
+    /// Every rollout flown, level by level (population = level).
+    pub records: Vec<RolloutRecord>,
+    /// `[levels − 1]`: the threshold b_j the samples of level j lie below.
+    pub thresholds: Vec<f64>,
+    /// `[levels − 1]`: the share of the chains' moves that stayed below the threshold.
+    pub acceptance: Vec<f64>,
+    /// The estimate.
+    pub estimate: SubsetEstimate,
+    /// The most likely failure among all rollouts.
+    pub most_likely_failure: Option<RolloutRecord>,
+}
+
+/// One sample of a level: its whitened coordinates and the score it ranks by.
+#[derive(Clone)]
+struct State {
+    z: Vec<f64>,
+    score: f64,
+}
+
+/// The score a level ranks by: a NaN (lost without a score) ranks last.
+fn rank_score(r: &RolloutRecord) -> f64 {
+    if r.score.is_nan() {
+        f64::INFINITY
+    } else {
+        r.score
+    }
+}
+
+/// The trajectory `[steps][dim]` of whitened coordinates `z` (`steps·dim`, step-major).
+fn trajectory(prior: &Prior, z: &[f64]) -> Vec<Vec<f64>> {
+    z.chunks(prior.dim()).map(|zt| prior.step().from_standard(zt)).collect()
+}
+
+/// Flies (or recalls) the rollout (level, index) at whitened coordinates `z`.
+fn fly<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    level: usize,
+    index: usize,
+    z: &[f64],
+    seed: u64,
+    recorder: &dyn Recorder,
+) -> Result<RolloutRecord, ValidationError> {
+    if let Some(done) = recorder.recall(SAMPLER_SUBSET, level, index).filter(|d| d.seed == seed) {
+        return Ok(done);
+    }
+    let record = run_record(system, prior, None, trajectory(prior, z), SAMPLER_SUBSET, level, index, seed);
+    recorder.record(&record)?;
+    Ok(record)
+}
+
+/// The correlation factor γ of a level's indicator chains (Au & Beck 2001, eq. 27–29):
+/// `chains[c][l]` whether sample l of chain c lies in the event, `p` the share that does.
+pub fn correlation_factor(chains: &[Vec<bool>], p: f64) -> f64 {
+    let n: usize = chains.iter().map(Vec::len).sum();
+    let ns = chains.iter().map(Vec::len).max().unwrap_or(0);
+    let r0 = p * (1.0 - p);
+    if ns < 2 || r0 <= 0.0 {
+        return 0.0;
+    }
+    let mut gamma = 0.0;
+    for k in 1..ns {
+        let (mut both, mut pairs) = (0usize, 0usize);
+        for c in chains {
+            for l in 0..c.len().saturating_sub(k) {
+                both += usize::from(c[l] && c[l + k]);
+                pairs += 1;
+            }
+        }
+        let rk = both as f64 / pairs as f64 - p * p;
+        gamma += 2.0 * (1.0 - (k * chains.len()) as f64 / n as f64) * rk / r0;
+    }
+    gamma.max(0.0)
+}
+
+/// Subset simulation of the failure probability of `system` under `prior` (see the module
+/// docs): `config.samples` per level, conditional probability `config.p0`, pCN correlation
+/// `config.correlation`, at most `config.max_levels` levels. Level 0's rollouts run in
+/// parallel, then each level's chains in parallel (a chain's moves in order); results are
+/// byte-identical at any thread count.
+pub fn subset_simulation<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    config: &SubsetConfig,
+    run_seed: u64,
+    recorder: &dyn Recorder,
+) -> Result<SubsetResult, ValidationError> {
+    config.validate()?;
+    check_shapes(system, prior)?;
+    let n = config.samples;
+    let dim = prior.steps() * prior.dim();
+    let seeds = config.seeds();
+    let chain_len = n / seeds;
+    let (rho, spread) = (config.correlation, (1.0 - config.correlation * config.correlation).sqrt());
+    let normals = |seed: u64| -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        (0..dim).map(|_| StandardNormal.sample(&mut rng)).collect()
+    };
+
+    let first: Vec<(State, RolloutRecord)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let seed = rollout_seed(run_seed, SAMPLER_SUBSET, 0, i);
+            let z = normals(seed);
+            let record = fly(system, prior, 0, i, &z, seed, recorder)?;
+            Ok((State { z, score: rank_score(&record) }, record))
+        })
+        .collect::<Result<_, ValidationError>>()?;
+    let (mut level, mut records): (Vec<State>, Vec<RolloutRecord>) = first.into_iter().unzip();
+    // The current level's samples as chains (level 0: independent draws, no chains).
+    let mut chained = false;
+    let (mut thresholds, mut acceptance) = (Vec::new(), Vec::new());
+    // Σ δ_j over the levels so far.
+    let mut cov = 0.0;
+    loop {
+        let depth = thresholds.len();
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by(|&a, &b| level[a].score.total_cmp(&level[b].score).then(a.cmp(&b)));
+        let kth = level[order[seeds - 1]].score;
+        let last = kth <= 0.0 || !kth.is_finite() || depth + 1 >= config.max_levels;
+        // This level's event: failure on the last level, else below the next threshold, halfway
+        // between the last seed and the first sample above it.
+        let event = if last {
+            0.0
+        } else {
+            let above = level[order[seeds]].score;
+            if above.is_finite() {
+                0.5 * (kth + above)
+            } else {
+                kth
+            }
+        };
+        let inside: Vec<bool> = level.iter().map(|s| s.score <= event).collect();
+        let count = inside.iter().filter(|&&v| v).count();
+        let p = count as f64 / n as f64;
+        let gamma = if chained {
+            correlation_factor(&inside.chunks(chain_len).map(<[bool]>::to_vec).collect::<Vec<_>>(), p)
+        } else {
+            0.0
+        };
+        if p > 0.0 {
+            cov += ((1.0 - p) / (n as f64 * p) * (1.0 + gamma)).sqrt();
+        }
+        if last {
+            let scale = config.p0.powi(depth as i32);
+            let probability = (scale * p).clamp(0.0, 1.0);
+            let (cov, standard_error) = if count == 0 { (f64::INFINITY, 0.0) } else { (cov, probability * cov) };
+            let few = crate::ImportanceEstimate::FEW_EVENTS;
+            let wide = wilson(p, n as f64 / (1.0 + gamma));
+            let mut lo = (probability - Z95 * standard_error).max(0.0);
+            let mut hi = (probability + Z95 * standard_error).min(1.0);
+            if count < few {
+                hi = hi.max(scale * wide.1);
+            }
+            if n - count < few {
+                lo = lo.min(scale * wide.0);
+            }
+            let equivalent_rollouts = if standard_error > 0.0 {
+                probability * (1.0 - probability) / (standard_error * standard_error)
+            } else {
+                records.len() as f64
+            };
+            let estimate = SubsetEstimate {
+                probability,
+                standard_error,
+                cov,
+                interval: (lo.min(probability), hi.max(probability)),
+                levels: depth + 1,
+                failures: count,
+                equivalent_rollouts,
+                rollouts: records.len(),
+                effective_failures: count as f64 / (1.0 + gamma),
+            };
+            return Ok(SubsetResult {
+                most_likely_failure: most_likely_failure(&records).cloned(),
+                records,
+                thresholds,
+                acceptance,
+                estimate,
+            });
+        }
+        thresholds.push(event);
+        let next = depth + 1;
+        let starts: Vec<State> = order[..seeds].iter().map(|&i| level[i].clone()).collect();
+        let chains: Vec<(Vec<State>, Vec<RolloutRecord>, usize)> = starts
+            .into_par_iter()
+            .enumerate()
+            .map(|(c, start)| {
+                let mut chain = Vec::with_capacity(chain_len);
+                chain.push(start);
+                let mut flown = Vec::with_capacity(chain_len - 1);
+                let mut accepted = 0;
+                for l in 1..chain_len {
+                    let index = c * (chain_len - 1) + l - 1;
+                    let seed = rollout_seed(run_seed, SAMPLER_SUBSET, next, index);
+                    let current = chain.last().expect("a chain starts with its seed");
+                    let z: Vec<f64> =
+                        current.z.iter().zip(normals(seed)).map(|(z, xi)| rho * z + spread * xi).collect();
+                    let record = fly(system, prior, next, index, &z, seed, recorder)?;
+                    let score = rank_score(&record);
+                    flown.push(record);
+                    let state = if score <= event {
+                        accepted += 1;
+                        State { z, score }
+                    } else {
+                        current.clone()
+                    };
+                    chain.push(state);
+                }
+                Ok((chain, flown, accepted))
+            })
+            .collect::<Result<_, ValidationError>>()?;
+        let moves = seeds * (chain_len - 1);
+        level = Vec::with_capacity(n);
+        let mut accepted_total = 0;
+        for (chain, flown, accepted) in chains {
+            level.extend(chain);
+            records.extend(flown);
+            accepted_total += accepted;
+        }
+        acceptance.push(if moves > 0 { accepted_total as f64 / moves as f64 } else { 0.0 });
+        chained = true;
+    }
+}

@@ -18,8 +18,6 @@ pub struct ValidationConfig {
     pub monte_carlo: MonteCarloConfig,
     /// The Cross-Entropy Method and its importance-sampling estimate.
     pub cem: CemConfig,
-    /// Subset simulation, the failure-probability estimate of the stress stage.
-    pub subset: SubsetConfig,
 }
 
 impl ValidationConfig {
@@ -28,7 +26,6 @@ impl ValidationConfig {
         self.disturbance.validate().map_err(|e| e.within("disturbance"))?;
         self.monte_carlo.validate().map_err(|e| e.within("monte_carlo"))?;
         self.cem.validate().map_err(|e| e.within("cem"))?;
-        self.subset.validate().map_err(|e| e.within("subset"))?;
         Ok(())
     }
 }
@@ -174,7 +171,8 @@ impl CemConfig {
 
 /// Subset simulation (Au & Beck 2001) with preconditioned Crank–Nicolson chains: nested levels
 /// of `samples` trajectories each, every level the share `p0` of the last one that scored
-/// lowest, until failures are at least that share.
+/// lowest, until failures are at least that share. A library estimator
+/// ([`crate::subset_simulation`]); the stress stage does not run it yet.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SubsetConfig {

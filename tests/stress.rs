@@ -199,6 +199,38 @@ fn a_killed_stress_run_resumes_without_reflying_and_ends_with_the_uninterrupted_
 }
 
 #[test]
+fn subset_simulation_estimates_within_bounds_replays_nothing_and_writes_the_same_bytes_on_one_and_two_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    // Levels of 8 (2 chains of 4): at most 8 + 2 × 6 rollouts.
+    let cfg = config(dir.path(), "study.toml", 4, "[validation.subset]\nsamples = 8\np0 = 0.25\nmax_levels = 3\n");
+    let args = ["--sampler", "subset", "--replay", "--config", s(&cfg), "--json"];
+    let one = dir.path().join("one");
+    let (ok, stdout, err) = stress(&model, &field, &one, &args, "1");
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    let rollouts = v["rollouts"].as_u64().unwrap();
+    assert!([8, 14, 20].contains(&rollouts), "{stdout}");
+    let p = v["p_fail"].as_f64().unwrap();
+    let (lo, hi) = (v["p_fail_interval"][0].as_f64().unwrap(), v["p_fail_interval"][1].as_f64().unwrap());
+    assert!((0.0..=1.0).contains(&p) && lo <= p && p <= hi && hi <= 1.0, "{stdout}");
+    assert!(v["p_fail_estimator"].as_str().unwrap().starts_with("subset simulation"), "{stdout}");
+    // An estimator, not a search: nothing replayed, no confusion.
+    assert!(v["confusion"].is_null(), "{stdout}");
+    assert_eq!(std::fs::read_to_string(one.join("replay_gt.csv")).unwrap().lines().count(), 1);
+    let csv = std::fs::read_to_string(one.join("rollouts.csv")).unwrap();
+    assert_eq!(csv.lines().count() as u64, 1 + rollouts * 6);
+    assert!(csv.lines().skip(1).all(|l| l.starts_with("subset,")), "{csv}");
+    let table = std::fs::read_to_string(one.join("table.csv")).unwrap();
+    assert_eq!(table.lines().map(|l| l.split(',').nth(1).unwrap()).collect::<Vec<_>>(), ["sampler", "subset"]);
+
+    let two = dir.path().join("two");
+    let (ok, _, err) = stress(&model, &field, &two, &args, "2");
+    assert!(ok, "{err}");
+    assert_eq!(results(&one), results(&two), "results differ between 1 and 2 threads");
+}
+
+#[test]
 fn bad_studies_are_refused_by_name_and_write_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let (model, field) = common::tiny_model_and_field(dir.path());
@@ -222,6 +254,12 @@ fn bad_studies_are_refused_by_name_and_write_nothing() {
             edit("c.toml", "rollouts = 4", "rollouts = 0"),
             "mc",
             vec!["c.toml", "validation.monte_carlo.rollouts", "found 0"],
+        ),
+        // Levels that p0 does not split into whole chains.
+        (
+            edit("d.toml", "[validation.cem]", "[validation.subset]\nsamples = 10\np0 = 0.3\n[validation.cem]"),
+            "subset",
+            vec!["d.toml", "validation.subset.samples", "found 10"],
         ),
     ];
     for (cfg, sampler, expected) in cases {

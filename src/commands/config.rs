@@ -45,6 +45,7 @@ const TABLES: &[(&str, &str)] = &[
     ("validation.disturbance", "DisturbanceConfig"),
     ("validation.monte_carlo", "MonteCarloConfig"),
     ("validation.cem", "CemConfig"),
+    ("validation.subset", "SubsetConfig"),
     ("uq", "UqConfig"),
     ("uq_offline", "UqOfflineConfig"),
     ("online", "OnlineConfig"),

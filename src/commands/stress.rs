@@ -18,6 +18,9 @@ pub enum SamplerArg {
     Mc,
     /// Cross-Entropy Method (`validation.cem`), then importance sampling from its final proposal.
     Cem,
+    /// Subset simulation (`validation.subset`): nested levels of Markov chains, a failure
+    /// probability calibrated on a toy of the drone's dimension; its rollouts are not replayed.
+    Subset,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -133,6 +136,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let sampler = match args.sampler {
         SamplerArg::Mc => Sampler::Mc,
         SamplerArg::Cem => Sampler::Cem,
+        SamplerArg::Subset => Sampler::Subset,
     };
     let (scene, worlds) = d.load()?;
     let field = match (&args.field, online) {

@@ -15,10 +15,10 @@ use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
-    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, table_row, Agreement,
-    Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, ImportanceEstimate, Journal, Prior,
-    Recorder, Reward, RolloutRecord, TableRow, UncertaintyReward, UqMode, ValidationConfig, ValidationError,
-    ViewUncertainty, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, subset_simulation, table_row,
+    Agreement, Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, ImportanceEstimate, Journal,
+    Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, UncertaintyReward, UqMode, ValidationConfig,
+    ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 use serde::{Deserialize, Serialize};
 
@@ -35,6 +35,10 @@ pub enum Sampler {
     Mc,
     /// The Cross-Entropy Method, then importance sampling from its final proposal.
     Cem,
+    /// Subset simulation: a failure probability from nested levels of Markov chains; it
+    /// estimates, it does not search, so its rollouts are not replayed (like CEM's importance
+    /// batch).
+    Subset,
 }
 
 impl Sampler {
@@ -42,14 +46,20 @@ impl Sampler {
         match self {
             Sampler::Mc => SAMPLER_MC,
             Sampler::Cem => SAMPLER_CEM,
+            Sampler::Subset => SAMPLER_SUBSET,
         }
     }
 
-    /// Rollouts it flies under `cfg`: its search, then (CEM) the importance batch.
+    /// Rollouts it flies under `cfg`: its search, then (CEM) the importance batch; for subset
+    /// simulation, as many as its deepest level allows (it usually stops before).
     pub fn rollouts(self, cfg: &ValidationConfig) -> usize {
         match self {
             Sampler::Mc => self.searched(cfg),
             Sampler::Cem => self.searched(cfg) + cfg.cem.is_samples,
+            Sampler::Subset => {
+                let s = &cfg.subset;
+                s.samples + (s.max_levels - 1) * (s.samples - s.seeds())
+            }
         }
     }
 
@@ -58,6 +68,7 @@ impl Sampler {
         match self {
             Sampler::Mc => cfg.monte_carlo.rollouts,
             Sampler::Cem => cfg.cem.m * cfg.cem.k_max,
+            Sampler::Subset => 0,
         }
     }
 
@@ -66,6 +77,7 @@ impl Sampler {
         match self {
             Sampler::Mc => record.sampler == SAMPLER_MC,
             Sampler::Cem => record.sampler == SAMPLER_CEM || record.sampler == SAMPLER_IS,
+            Sampler::Subset => record.sampler == SAMPLER_SUBSET,
         }
     }
 }
@@ -156,7 +168,8 @@ pub struct SamplerFigures {
     pub sampler: Sampler,
     pub world: WorldKind,
     pub estimator: EstimatorKind,
-    /// Rollouts flown (CEM: its populations and the importance batch).
+    /// Rollouts flown (CEM: its populations and the importance batch; subset simulation: every
+    /// level's).
     pub rollouts: usize,
     /// The paper's Table 1–2 columns over the search's own rollouts (MC: all; CEM: its
     /// populations).
@@ -178,7 +191,9 @@ pub struct SamplerFigures {
     /// CEM: the paper's plain importance-sampling estimate (1/N) Σ 𝟙·p/q, unbiased but not
     /// bounded by 1; `None` for MC.
     pub p_fail_unnormalised: Option<f64>,
-    /// Kish's effective sample size of the estimate's weighted rollouts (MC: its rollouts).
+    /// Kish's effective sample size of the estimate's weighted rollouts (MC: its rollouts;
+    /// subset simulation: the Monte Carlo rollouts whose variance its estimate has,
+    /// p̂(1 − p̂)/SE²).
     pub effective_sample_size: f64,
     /// How many failures the estimate effectively rests on (Kish's size of the failures'
     /// weights; MC: its failures).
@@ -412,10 +427,11 @@ pub fn replay_csv(world: WorldKind) -> String {
     format!("replay_{}.csv", world.name())
 }
 
-/// The searches' own rollouts, in order: not the importance batch, which estimates a probability
-/// (the paper's confusion matrices are over MC's and CEM's own rollouts).
+/// The searches' own rollouts, in order: not the importance batch nor subset simulation's
+/// chains, which estimate a probability (the paper's confusion matrices are over MC's and CEM's
+/// own rollouts).
 fn searched(records: &[RolloutRecord]) -> impl Iterator<Item = &RolloutRecord> {
-    records.iter().filter(|r| r.sampler != SAMPLER_IS)
+    records.iter().filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET)
 }
 
 /// Times a [`ViewUncertainty`]'s views.
@@ -624,6 +640,36 @@ pub fn stress(
                 });
                 records.extend(r.records);
             }
+            Sampler::Subset => {
+                let r = subset_simulation(&system, setup.prior, &v.subset, v.seed, &counting)?;
+                let e = r.estimate;
+                if e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
+                    observer.note(
+                        setup.stage,
+                        &format!(
+                            "warning: subset simulation's P(fail) rests on {:.1} effective failures (of {} on its \
+                             last level): read it as an order of magnitude",
+                            e.effective_failures, e.failures
+                        ),
+                    );
+                }
+                estimates.push(Estimate {
+                    p: e.probability,
+                    se: e.standard_error,
+                    interval: e.interval,
+                    estimator: format!(
+                        "{}: {} levels, thresholds {:?} m, moves accepted {:?}",
+                        SubsetEstimate::ESTIMATOR,
+                        e.levels,
+                        r.thresholds.iter().map(|b| (b * 1e4).round() / 1e4).collect::<Vec<_>>(),
+                        r.acceptance.iter().map(|a| (a * 100.0).round() / 100.0).collect::<Vec<_>>()
+                    ),
+                    unnormalised: None,
+                    ess: e.equivalent_rollouts,
+                    effective_failures: e.effective_failures,
+                });
+                records.extend(r.records);
+            }
         }
     }
 
@@ -676,6 +722,7 @@ pub fn stress(
         let rows: Vec<TableRow> = match sampler {
             Sampler::Mc => vec![table_row(SAMPLER_MC, &records)],
             Sampler::Cem => vec![table_row(SAMPLER_CEM, &records), table_row(SAMPLER_IS, &records)],
+            Sampler::Subset => vec![table_row(SAMPLER_SUBSET, &records)],
         }
         .into_iter()
         .flatten()
@@ -686,7 +733,7 @@ pub fn stress(
             .ok_or_else(|| PipelineError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
         // The replays follow the searched records one for one, in order.
         let confusion = match &replays {
-            Some(rs) => {
+            Some(rs) if sampler.searched(v) > 0 => {
                 let (ours, theirs): (Vec<RolloutRecord>, Vec<RolloutRecord>) = searched(&records)
                     .zip(rs)
                     .filter(|(r, _)| sampler.owns(r))
@@ -695,7 +742,7 @@ pub fn stress(
                 let (nerf, gt) = if setup.world == WorldKind::Nerf { (&ours, &theirs) } else { (&theirs, &ours) };
                 Some(ConfusionFigures::new(&compare(nerf, gt).map_err(PipelineError::Internal)?))
             }
-            None => None,
+            _ => None,
         };
         let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)));
         let most_likely_failure = match mlf {
@@ -722,7 +769,7 @@ pub fn stress(
             sampler,
             world: setup.world,
             estimator: setup.estimator,
-            rollouts: sampler.rollouts(v),
+            rollouts: records.iter().filter(|r| sampler.owns(r)).count(),
             collision_rate: headline.collision_rate,
             lost_rate: headline.lost_rate,
             avg_collision_step: headline.avg_collision_step,

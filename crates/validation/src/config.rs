@@ -18,6 +18,10 @@ pub struct ValidationConfig {
     pub monte_carlo: MonteCarloConfig,
     /// The Cross-Entropy Method and its importance-sampling estimate.
     pub cem: CemConfig,
+    /// Subset simulation (`nerfsv stress --sampler subset`). Left out of the serialised config
+    /// while it holds the defaults, so the keys of results cached before it existed still match.
+    #[serde(skip_serializing_if = "SubsetConfig::is_default")]
+    pub subset: SubsetConfig,
 }
 
 impl ValidationConfig {
@@ -26,6 +30,7 @@ impl ValidationConfig {
         self.disturbance.validate().map_err(|e| e.within("disturbance"))?;
         self.monte_carlo.validate().map_err(|e| e.within("monte_carlo"))?;
         self.cem.validate().map_err(|e| e.within("cem"))?;
+        self.subset.validate().map_err(|e| e.within("subset"))?;
         Ok(())
     }
 }
@@ -171,8 +176,7 @@ impl CemConfig {
 
 /// Subset simulation (Au & Beck 2001) with preconditioned Crank–Nicolson chains: nested levels
 /// of `samples` trajectories each, every level the share `p0` of the last one that scored
-/// lowest, until failures are at least that share. A library estimator
-/// ([`crate::subset_simulation`]); the stress stage does not run it yet.
+/// lowest, until failures are at least that share ([`crate::subset_simulation`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SubsetConfig {
@@ -202,6 +206,11 @@ impl Default for SubsetConfig {
 }
 
 impl SubsetConfig {
+    /// Whether every key holds its default.
+    pub fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+
     /// The chains per level, `samples · p0` rounded.
     pub fn seeds(&self) -> usize {
         (self.samples as f64 * self.p0).round() as usize

@@ -3,7 +3,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::refuse_output_inside;
-use nerfsv_pipeline::stress::{stress, OnlineSettings, Sampler, StressSetup, JOURNAL, STRESS_JSON};
+use nerfsv_pipeline::stage::{stage_key, Stage};
+use nerfsv_pipeline::stress::{stress, OnlineSettings, Sampler, StressSetup, StressStage, JOURNAL, STRESS_JSON};
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::WorldKind;
 use nerfsv_uq::Method;
@@ -174,28 +175,28 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         field: field.as_ref(),
         stage: nerfsv_pipeline::stress::STAGE,
     };
-    // Everything the rollouts depend on: a --resume into results of anything else is refused.
-    let key = format!(
-        "{:016x}",
-        fnv1a(
-            serde_json::to_string(&(
-                &cfg.sim,
-                &cfg.validation,
-                setup.intrinsics,
-                setup.render.supersample,
-                &d.scene,
-                setup.world,
-                setup.estimator,
-                sampler,
-                file_hash(&d.model)?,
-                d.nerf_field.as_deref().map(file_hash).transpose()?,
-                online,
-                online.map(|_| &cfg.uq),
-                args.field.as_deref().map(file_hash).transpose()?,
-            ))?
-            .as_bytes()
-        )
-    );
+    // Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
+    // results (the code it runs included): a --resume into results of anything else is refused.
+    let key = stage_key(
+        nerfsv_pipeline::stress::STAGE,
+        <StressStage as Stage>::CODE,
+        &(
+            &cfg.sim,
+            &cfg.validation,
+            setup.intrinsics,
+            setup.render.supersample,
+            &d.scene,
+            setup.world,
+            setup.estimator,
+            sampler,
+            file_hash(&d.model)?,
+            d.nerf_field.as_deref().map(file_hash).transpose()?,
+            online,
+            online.map(|_| &cfg.uq),
+            args.field.as_deref().map(file_hash).transpose()?,
+        ),
+        &[],
+    )?;
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let reporter = crate::progress::Reporter::new(args.json);

@@ -307,7 +307,7 @@ pub fn world<'a>(
 
 impl Stage for FlightStage<'_> {
     const NAME: &'static str = "flight";
-    const VERSION: u32 = 3;
+    const CODE: &'static [&'static str] = &["nerfsv-sim", "nerfsv-plot", "flight.rs", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = Self::OUTPUT_FILES;
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
     type Figures = FlightStageFigures;

@@ -1,6 +1,6 @@
 //! The nerfsv study as a list of stages: what `nerfsv run` does, as library code.
 //!
-//! Each stage is a [`Stage`]: a name (its folder under the run folder), a code version, the
+//! Each stage is a [`Stage`]: a name (its folder under the run folder), the code it runs, the
 //! slice of the [`RunConfig`] it depends on, the stages it reads, the files it writes, whether
 //! a killed run resumes it, and a typed figures struct kept in its record and in
 //! `summary.json`. The [`Runner`] keys each stage by all of that, skips it when its record and
@@ -19,7 +19,7 @@
 //!
 //! impl Stage for CountTestViews {
 //!     const NAME: &'static str = "count";
-//!     const VERSION: u32 = 1;
+//!     const CODE: &'static [&'static str] = &["nerfsv-dataset"];
 //!     const OUTPUTS: &'static [&'static str] = &["count.txt"];
 //!     const INPUTS: &'static [&'static str] = &["dataset"];
 //!     type Figures = usize;
@@ -53,6 +53,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 pub mod config;
+pub mod digest;
 pub mod flight;
 pub mod online;
 pub mod report;

@@ -133,7 +133,17 @@ impl OnlineStage<'_> {
 
 impl Stage for OnlineStage<'_> {
     const NAME: &'static str = "online";
-    const VERSION: u32 = 3;
+    const CODE: &'static [&'static str] = &[
+        "nerfsv-sim",
+        "nerfsv-validation",
+        "nerfsv-uq",
+        "nerfsv-plot",
+        "online.rs",
+        "stress.rs",
+        "flight.rs",
+        "stages.rs",
+        "config.rs",
+    ];
     const OUTPUTS: &'static [&'static str] = &[ONLINE_TABLE_CSV];
     const INPUTS: &'static [&'static str] =
         &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, crate::stress::STAGE];

@@ -3,9 +3,9 @@
 //!
 //! A stage's folder `RUN/NAME/` holds its outputs and `stage.json`, the record
 //! `{"key": …, "figures": …}` written (atomically) after every output. The key hashes the
-//! stage's name, its code version ([`Stage::VERSION`] and this crate's version), its config
-//! slice and the keys of the stages it reads, so changing any of them redoes this stage and
-//! everything downstream, and nothing else.
+//! stage's name, the digest of the code it runs ([`Stage::CODE`], computed from the sources at
+//! build time: see [`crate::digest`]), its config slice and the keys of the stages it reads, so
+//! changing any of them redoes this stage and everything downstream, and nothing else.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -29,9 +29,12 @@ const STARTED: &str = "started.json";
 pub trait Stage {
     /// The stage's folder under the run folder, and its name in `summary.json` and messages.
     const NAME: &'static str;
-    /// The stage's code version. Bump it when a change to the stage or the library code it
-    /// calls changes what it computes: outputs recorded under an older version are recomputed.
-    const VERSION: u32;
+    /// The code the stage runs: workspace crates by package name (`"nerfsv-sim"`; the crates
+    /// they depend on are folded into their digest) and this crate's modules by file name
+    /// (`"stress.rs"`). Their digest, taken from the sources at build time, is part of the key:
+    /// a change to any of them redoes the stage, whatever else changed or not. A name that is
+    /// neither is an error when the key is computed.
+    const CODE: &'static [&'static str];
     /// Files (relative to the stage folder) that must exist for a recorded result to count.
     const OUTPUTS: &'static [&'static str];
     /// Whether an interrupted run continues from what it left in its folder (a training's
@@ -96,12 +99,40 @@ impl Observer for Silent {
 /// FNV-1a, 64 bit: stable across platforms and Rust versions, unlike `DefaultHasher`.
 pub use nerfsv_scene::seed::fnv1a;
 
-/// Salt shared by every stage key: outputs of another release are recomputed.
-const CODE_SALT: &str = concat!("nerfsv-pipeline ", env!("CARGO_PKG_VERSION"));
+mod generated {
+    include!(concat!(env!("OUT_DIR"), "/code_digests.rs"));
+}
 
-/// The key of a stage from its name, version, config slice and its inputs' keys.
-pub fn stage_key(name: &str, version: u32, config: &impl Serialize, inputs: &[&str]) -> Result<String, PipelineError> {
-    let text = serde_json::to_string(&(CODE_SALT, name, version, config, inputs))
+/// The digest of the code units `code` (see [`Stage::CODE`]) from the digests of this build's
+/// sources, as 16 hex digits; an error names a unit that is neither a workspace crate nor a
+/// module of this crate.
+pub fn code_digest(code: &[&str]) -> Result<String, PipelineError> {
+    code_digest_in(code, generated::CRATES, generated::PIPELINE_MODULES)
+}
+
+/// [`code_digest`] over given digest tables (`(name, digest)` of crates and of modules).
+pub fn code_digest_in(code: &[&str], crates: &[(&str, u64)], modules: &[(&str, u64)]) -> Result<String, PipelineError> {
+    let mut units: Vec<(&str, u64)> = code
+        .iter()
+        .map(|&unit| {
+            crates.iter().chain(modules).find(|(n, _)| *n == unit).map(|&(n, d)| (n, d)).ok_or_else(|| {
+                PipelineError::Internal(format!(
+                    "code unit {unit:?} is neither a workspace crate nor a pipeline module"
+                ))
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    units.sort_unstable();
+    units.dedup();
+    let text: String = units.iter().map(|(n, d)| format!("{n}={d:016x};")).collect();
+    Ok(format!("{:016x}", fnv1a(text.as_bytes())))
+}
+
+/// The key of a stage from its name, the code it runs ([`Stage::CODE`]), its config slice and
+/// its inputs' keys.
+pub fn stage_key(name: &str, code: &[&str], config: &impl Serialize, inputs: &[&str]) -> Result<String, PipelineError> {
+    let code = code_digest(code)?;
+    let text = serde_json::to_string(&(name, code, config, inputs))
         .map_err(|e| PipelineError::Internal(format!("stage {name}: config is not serialisable: {e}")))?;
     Ok(format!("{:016x}", fnv1a(text.as_bytes())))
 }
@@ -152,7 +183,7 @@ impl<'a> Runner<'a> {
                 self.keys.get(input).map(String::as_str).ok_or(PipelineError::MissingInput { stage: S::NAME, input })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        let key = stage_key(S::NAME, S::VERSION, &stage.config(), &inputs)?;
+        let key = stage_key(S::NAME, S::CODE, &stage.config(), &inputs)?;
         let dir = self.root.join(S::NAME);
         // What a killed writer left half-written is never an output, cached or not.
         nerfsv_scene::io::remove_stale_temporaries_in(&dir);
@@ -274,7 +305,7 @@ mod tests {
 
     impl Stage for Writer<'_> {
         const NAME: &'static str = "writer";
-        const VERSION: u32 = 1;
+        const CODE: &'static [&'static str] = &[];
         const OUTPUTS: &'static [&'static str] = &["out.txt"];
         type Figures = Written;
 
@@ -301,7 +332,7 @@ mod tests {
 
     impl Stage for Reader {
         const NAME: &'static str = "reader";
-        const VERSION: u32 = 1;
+        const CODE: &'static [&'static str] = &[];
         const OUTPUTS: &'static [&'static str] = &[];
         const INPUTS: &'static [&'static str] = &["writer"];
         type Figures = String;
@@ -348,11 +379,13 @@ mod tests {
 
     #[test]
     fn the_code_version_is_part_of_the_key() {
-        let a = stage_key("train", 1, &5u32, &["k"]).unwrap();
-        assert_ne!(a, stage_key("train", 2, &5u32, &["k"]).unwrap());
-        assert_ne!(a, stage_key("train", 1, &6u32, &["k"]).unwrap());
-        assert_ne!(a, stage_key("train", 1, &5u32, &["j"]).unwrap());
-        assert_eq!(a, stage_key("train", 1, &5u32, &["k"]).unwrap());
+        let a = stage_key("train", &["nerfsv-nerf"], &5u32, &["k"]).unwrap();
+        assert_ne!(a, stage_key("train", &["nerfsv-sim"], &5u32, &["k"]).unwrap());
+        assert_ne!(a, stage_key("train", &["nerfsv-nerf"], &6u32, &["k"]).unwrap());
+        assert_ne!(a, stage_key("train", &["nerfsv-nerf"], &5u32, &["j"]).unwrap());
+        assert_eq!(a, stage_key("train", &["nerfsv-nerf"], &5u32, &["k"]).unwrap());
+        let e = stage_key("train", &["nerfsv-nope"], &5u32, &["k"]).unwrap_err().to_string();
+        assert!(e.contains("nerfsv-nope"), "{e}");
     }
 
     #[test]
@@ -372,7 +405,7 @@ mod tests {
 
     impl Stage for Counter {
         const NAME: &'static str = "counter";
-        const VERSION: u32 = 1;
+        const CODE: &'static [&'static str] = &[];
         const OUTPUTS: &'static [&'static str] = &["count"];
         const RESUMABLE: bool = true;
         type Figures = (u32, bool);

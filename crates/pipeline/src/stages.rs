@@ -87,7 +87,7 @@ pub fn render_dataset(
 
 impl Stage for Dataset<'_> {
     const NAME: &'static str = "dataset";
-    const VERSION: u32 = 1;
+    const CODE: &'static [&'static str] = &["nerfsv-dataset", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &["transforms_train.json", "transforms_val.json", "transforms_test.json"];
     type Figures = DatasetFigures;
 
@@ -156,7 +156,7 @@ pub fn build_ground_truth(
 
 impl Stage for GroundTruthField<'_> {
     const NAME: &'static str = "collision";
-    const VERSION: u32 = 3;
+    const CODE: &'static [&'static str] = &["nerfsv-collision", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];
     type Figures = GroundTruthFigures;
 
@@ -208,7 +208,7 @@ pub fn train_status(p: &nerfsv_nerf::Progress) -> String {
 
 impl Stage for Train<'_> {
     const NAME: &'static str = "nerf";
-    const VERSION: u32 = 1;
+    const CODE: &'static [&'static str] = &["nerfsv-nerf", "stages.rs", "config.rs"];
     const OUTPUTS: &'static [&'static str] = &[Self::CHECKPOINT];
     const RESUMABLE: bool = true;
     const INPUTS: &'static [&'static str] = &[Dataset::NAME];
@@ -271,7 +271,7 @@ impl Eval {
 
 impl Stage for Eval {
     const NAME: &'static str = "eval";
-    const VERSION: u32 = 1;
+    const CODE: &'static [&'static str] = &["nerfsv-nerf", "nerfsv-collision", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[Self::METRICS, Self::COMPARE];
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, Train::NAME];
     type Figures = EvalFigures;
@@ -364,7 +364,7 @@ pub fn build_nerf_field(
 
 impl Stage for NerfField {
     const NAME: &'static str = "nerf_collision";
-    const VERSION: u32 = 2;
+    const CODE: &'static [&'static str] = &["nerfsv-nerf", "nerfsv-collision", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];
     const INPUTS: &'static [&'static str] = &[Train::NAME, GroundTruthField::NAME];
     type Figures = NerfFieldFigures;

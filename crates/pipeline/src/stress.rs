@@ -891,7 +891,8 @@ impl StressStage<'_> {
 
 impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
-    const VERSION: u32 = 4;
+    const CODE: &'static [&'static str] =
+        &["nerfsv-sim", "nerfsv-validation", "nerfsv-plot", "stress.rs", "flight.rs", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
     const RESUMABLE: bool = true;

@@ -858,7 +858,7 @@ pub fn maps_figure(nerf: &Nerf, frame: &Frame, bla: bool, cfg: &UqConfig) -> Res
 
 impl Stage for Uncertainty<'_> {
     const NAME: &'static str = "uq";
-    const VERSION: u32 = 3;
+    const CODE: &'static [&'static str] = &["nerfsv-uq", "nerfsv-plot", "uq.rs", "stages.rs", "config.rs"];
     const OUTPUTS: &'static [&'static str] = &[
         Self::GA_CSV,
         Self::BLA_CSV,

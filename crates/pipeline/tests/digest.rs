@@ -1,0 +1,177 @@
+//! Cache keys come from the code: a change to one crate's source changes the digest of exactly
+//! the crates that depend on it, and so the keys of exactly the stages that run them.
+
+use std::path::Path;
+
+use nerfsv_pipeline::digest::{workspace_dependencies, workspace_digests};
+use nerfsv_pipeline::stage::code_digest_in;
+
+fn write(path: &Path, text: &str) {
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    std::fs::write(path, text).unwrap();
+}
+
+/// A workspace of four crates: `low` ← `mid` ← `top`, and `apart` on its own.
+fn workspace(root: &Path) {
+    let manifest = |name: &str, deps: &[&str]| {
+        let mut m =
+            format!("[package]\nname = \"{name}\"\nversion = \"0.1.0\"\n\n[dependencies]\nserde.workspace = true\n");
+        for d in deps {
+            m.push_str(&format!("{d}.workspace = true\n"));
+        }
+        m.push_str("\n[dev-dependencies]\nnerfsv-apart.workspace = true\n");
+        m
+    };
+    for (dir, name, deps) in [
+        ("low", "nerfsv-low", &[][..]),
+        ("mid", "nerfsv-mid", &["nerfsv-low"][..]),
+        ("top", "nerfsv-top", &["nerfsv-mid"][..]),
+        ("apart", "nerfsv-apart", &[][..]),
+    ] {
+        write(&root.join(dir).join("Cargo.toml"), &manifest(name, deps));
+        write(&root.join(dir).join("src/lib.rs"), &format!("//! {name}\npub fn f() -> u32 {{ 1 }}\n"));
+    }
+    write(&root.join("low/src/inner/deep.rs"), "pub const X: u32 = 1;\n");
+    // Not a crate: skipped.
+    write(&root.join("notes/readme.txt"), "hello");
+}
+
+#[test]
+fn the_manifest_parser_reads_workspace_dependencies_only() {
+    let m = "[package]\nname = \"nerfsv-x\"\n[dependencies]\nnerfsv-scene.workspace = true\nnerfsv-nerf = { path = \"../nerf\" }\nrayon.workspace = true\n[dev-dependencies]\nnerfsv-testkit.workspace = true\n[build-dependencies]\nnerfsv-plot.workspace = true\n";
+    assert_eq!(workspace_dependencies(m), ["nerfsv-scene", "nerfsv-nerf"]);
+}
+
+#[test]
+fn a_change_to_one_crate_changes_the_digests_of_exactly_it_and_its_dependents() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    workspace(root);
+    let before = workspace_digests(root).unwrap();
+    assert_eq!(before.keys().collect::<Vec<_>>(), ["nerfsv-apart", "nerfsv-low", "nerfsv-mid", "nerfsv-top"]);
+    assert_eq!(workspace_digests(root).unwrap(), before, "digests are not deterministic");
+
+    // One line in a nested module of the lowest crate.
+    write(&root.join("low/src/inner/deep.rs"), "pub const X: u32 = 2;\n");
+    let after = workspace_digests(root).unwrap();
+    for name in ["nerfsv-low", "nerfsv-mid", "nerfsv-top"] {
+        assert_ne!(before[name], after[name], "{name} did not change");
+    }
+    assert_eq!(before["nerfsv-apart"], after["nerfsv-apart"]);
+
+    // The middle crate's manifest: it and its dependent, not the crate below.
+    let again = workspace_digests(root).unwrap();
+    let m = std::fs::read_to_string(root.join("mid/Cargo.toml")).unwrap();
+    write(&root.join("mid/Cargo.toml"), &m.replace("version = \"0.1.0\"", "version = \"0.2.0\""));
+    let third = workspace_digests(root).unwrap();
+    assert_eq!(again["nerfsv-low"], third["nerfsv-low"]);
+    assert_ne!(again["nerfsv-mid"], third["nerfsv-mid"]);
+    assert_ne!(again["nerfsv-top"], third["nerfsv-top"]);
+    assert_eq!(again["nerfsv-apart"], third["nerfsv-apart"]);
+
+    // A file renamed with the same bytes is a change; a file outside src/ is not.
+    std::fs::rename(root.join("apart/src/lib.rs"), root.join("apart/src/main.rs")).unwrap();
+    let fourth = workspace_digests(root).unwrap();
+    assert_ne!(third["nerfsv-apart"], fourth["nerfsv-apart"]);
+    write(&root.join("apart/tests/t.rs"), "#[test] fn t() {}\n");
+    assert_eq!(workspace_digests(root).unwrap(), fourth);
+}
+
+#[test]
+fn stage_keys_follow_the_digests_of_the_code_they_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    workspace(root);
+    let modules = [("stress.rs", 7u64), ("report.rs", 8)];
+    let keys = |digests: &std::collections::BTreeMap<String, u64>| {
+        let crates: Vec<(&str, u64)> = digests.iter().map(|(n, &d)| (n.as_str(), d)).collect();
+        // Three "stages": one runs the lowest crate, one the top one and a module, one apart.
+        [&["nerfsv-low"][..], &["nerfsv-top", "stress.rs"][..], &["nerfsv-apart"][..]]
+            .map(|code| code_digest_in(code, &crates, &modules).unwrap())
+    };
+    let before = keys(&workspace_digests(root).unwrap());
+    write(&root.join("top/src/lib.rs"), "//! changed\n");
+    let after = keys(&workspace_digests(root).unwrap());
+    assert_eq!(before[0], after[0], "the stage on the crate below the change was redone");
+    assert_ne!(before[1], after[1], "the stage on the changed crate was not redone");
+    assert_eq!(before[2], after[2]);
+    // The order of a stage's units does not matter; an unknown unit is refused by name.
+    let crates = [("nerfsv-low", 1u64)];
+    assert_eq!(
+        code_digest_in(&["nerfsv-low", "stress.rs"], &crates, &modules).unwrap(),
+        code_digest_in(&["stress.rs", "nerfsv-low"], &crates, &modules).unwrap()
+    );
+    let e = code_digest_in(&["nerfsv-gone"], &crates, &modules).unwrap_err().to_string();
+    assert!(e.contains("nerfsv-gone"), "{e}");
+}
+
+/// Copies every crate's `Cargo.toml` and `src/` of this workspace under `to`.
+fn copy_sources(from: &Path, to: &Path) {
+    for entry in std::fs::read_dir(from).unwrap().flatten() {
+        let dir = entry.path();
+        if !dir.join("Cargo.toml").is_file() {
+            continue;
+        }
+        let name = dir.file_name().unwrap();
+        let mut stack = vec![dir.join("src")];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap().flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    let rel = p.strip_prefix(&dir).unwrap();
+                    std::fs::create_dir_all(to.join(name).join(rel).parent().unwrap()).unwrap();
+                    std::fs::copy(&p, to.join(name).join(rel)).unwrap();
+                }
+            }
+        }
+        std::fs::copy(dir.join("Cargo.toml"), to.join(name).join("Cargo.toml")).unwrap();
+    }
+}
+
+#[test]
+fn a_line_changed_in_the_simulator_redoes_the_flight_stress_and_online_stages_and_nothing_upstream() {
+    use nerfsv_pipeline::flight::FlightStage;
+    use nerfsv_pipeline::online::OnlineStage;
+    use nerfsv_pipeline::stages::{Dataset, Eval, GroundTruthField, NerfField, Train};
+    use nerfsv_pipeline::stress::StressStage;
+    use nerfsv_pipeline::uq::Uncertainty;
+    use nerfsv_pipeline::Stage;
+
+    let stages: [(&str, &[&str]); 9] = [
+        (Dataset::NAME, Dataset::CODE),
+        (GroundTruthField::NAME, GroundTruthField::CODE),
+        (Train::NAME, Train::CODE),
+        (Eval::NAME, Eval::CODE),
+        (NerfField::NAME, NerfField::CODE),
+        (Uncertainty::NAME, Uncertainty::CODE),
+        (FlightStage::NAME, FlightStage::CODE),
+        (StressStage::NAME, StressStage::CODE),
+        (OnlineStage::NAME, OnlineStage::CODE),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let crates_dir = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+    copy_sources(crates_dir, dir.path());
+    let modules: Vec<(String, u64)> = std::fs::read_dir(dir.path().join("pipeline/src"))
+        .unwrap()
+        .flatten()
+        .map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            (name, nerfsv_pipeline::digest::file_digest(&e.path()).unwrap())
+        })
+        .collect();
+    let keys = || {
+        let digests = workspace_digests(dir.path()).unwrap();
+        let crates: Vec<(&str, u64)> = digests.iter().map(|(n, &d)| (n.as_str(), d)).collect();
+        let modules: Vec<(&str, u64)> = modules.iter().map(|(n, d)| (n.as_str(), *d)).collect();
+        stages.map(|(name, code)| (name, code_digest_in(code, &crates, &modules).unwrap()))
+    };
+    let before = keys();
+    let lib = dir.path().join("sim/src/lib.rs");
+    let text = std::fs::read_to_string(&lib).unwrap();
+    std::fs::write(&lib, format!("{text}\n// one more line\n")).unwrap();
+    let after = keys();
+    let redone: Vec<&str> = before.iter().zip(&after).filter(|(b, a)| b.1 != a.1).map(|(b, _)| b.0).collect();
+    assert_eq!(redone, ["flight", "stress", "online"]);
+}

@@ -43,6 +43,8 @@ pub struct DroneArgs {
     /// from --model on the scene's grid (about a second).
     #[arg(long)]
     pub nerf_field: Option<PathBuf>,
+    /// What the controller believes: `vision` (the pose fitted to camera images of the NeRF,
+    /// through the filter) or `truth` (the true state, for a baseline without estimation error).
     #[arg(long, value_enum, default_value = "vision")]
     pub estimator: EstimatorArg,
 }

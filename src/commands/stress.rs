@@ -51,6 +51,8 @@ pub enum UqModeArg {
 
 #[derive(Args)]
 pub struct StressArgs {
+    /// How the disturbances are drawn: Monte Carlo from the prior, the Cross-Entropy Method
+    /// (the paper's failure search), or subset simulation (a calibrated failure probability).
     #[arg(long, value_enum, default_value = "cem")]
     pub sampler: SamplerArg,
     /// The drone (`--world`: where the search flies).

@@ -33,6 +33,45 @@ fn zero_or_absurd_sizes_are_rejected_before_writing() {
 }
 
 #[test]
+fn out_of_range_flags_are_named_as_flags_before_anything_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no-model.safetensors");
+    let out = dir.path().join("out");
+    for (args, flag) in [
+        (
+            vec![
+                "collision",
+                "--model",
+                missing.to_str().unwrap(),
+                "--density-threshold",
+                "0",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            "--density-threshold",
+        ),
+        (
+            vec![
+                "eval",
+                "--model",
+                missing.to_str().unwrap(),
+                "--data",
+                dir.path().to_str().unwrap(),
+                "--max-images",
+                "0",
+            ],
+            "--max-images",
+        ),
+    ] {
+        let (ok, _, err) = nerfsv(&args);
+        assert!(!ok, "{args:?} was accepted");
+        assert!(err.contains(flag), "{flag} not named: {err}");
+        assert!(!err.contains("no-model"), "the model was read before the flag was checked: {err}");
+        assert!(!out.exists());
+    }
+}
+
+#[test]
 fn scene_writes_a_dataset_and_reports_json() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("ds");
@@ -76,6 +115,14 @@ fn bad_config_names_the_file_and_key() {
     let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap()]);
     assert!(!ok);
     assert!(err.contains("run.toml") && err.contains("widht"), "{err}");
+    // A start inside the ground disc: refused before any stage runs, naming the file and key, once.
+    std::fs::write(&cfg, "scene = \"monolith\"\n[sim]\nstart = [0.3, 0.2, -0.05]\n").unwrap();
+    let out = dir.path().join("inside");
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("run.toml") && err.contains("sim.start") && err.contains("inside"), "{err}");
+    assert_eq!(err.matches("sim.start").count(), 1, "{err}");
+    assert!(!out.exists(), "a stage ran before the start was checked");
 }
 
 #[test]

@@ -45,6 +45,9 @@ pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
             serde_json::to_value(build_ground_truth(&scene, args.cells_per_metre, &args.out, mesh)?)?
         }
         Some(model) => {
+            if let Some(t) = args.density_threshold {
+                nerfsv_scene::validate::positive("--density-threshold", f64::from(t))?;
+            }
             for out in std::iter::once(args.out.as_path()).chain(mesh) {
                 refuse_output_inside(out, &[("--model", model)])?;
             }

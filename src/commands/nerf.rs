@@ -144,6 +144,9 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
+    if let Some(n) = args.max_images {
+        in_range("--max-images", n, 1, usize::MAX)?;
+    }
     let (nerf, split) = args.input.load()?;
     let reporter = Reporter::new(args.json);
     let options = EvalOptions { max_images: args.max_images, ..EvalOptions::default() };

@@ -200,6 +200,35 @@ impl RunConfig {
     }
 }
 
+impl RunConfig {
+    /// The flight's start and goal against the scene's own geometry, before anything is built:
+    /// each must keep the planner's clearance (the body's half-diagonal and its margin) from
+    /// the ground truth, or no stage after hours of training could fly it.
+    fn check_endpoints(&self) -> Result<(), InvalidValue> {
+        let scene = nerfsv_scene::Scene::builtin(&self.scene)
+            .map_err(|e| InvalidValue::new("scene", e.to_string(), &self.scene))?;
+        let required =
+            nerfsv_sim::planner::required_clearance(nerfsv_collision::drone_half_extents(), self.sim.planner.margin);
+        for (key, p) in [("sim.start", self.sim.start), ("sim.goal", self.sim.goal)] {
+            let point = nalgebra::Point3::new(p[0] as f32, p[1] as f32, p[2] as f32);
+            let distance = f64::from(scene.distance(&point));
+            if distance < required {
+                let place = if distance < 0.0 { "inside" } else { "too close to" };
+                return Err(InvalidValue::new(
+                    key,
+                    format!(
+                        "must keep {required:.3} m from the {} scene's geometry (the drone's body and \
+                         sim.planner.margin), but it is {place} it ({distance:.3} m)",
+                        self.scene
+                    ),
+                    format!("[{}, {}, {}]", p[0], p[1], p[2]),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Validate for RunConfig {
     fn validate(&self) -> Result<(), InvalidValue> {
         if !nerfsv_scene::BUILTIN_SCENES.contains(&self.scene.as_str()) {
@@ -220,6 +249,7 @@ impl Validate for RunConfig {
             positive("nerf_density_threshold", t as f64)?;
         }
         self.sim.validate().map_err(|e| e.within("sim"))?;
+        self.check_endpoints()?;
         self.validation.validate().map_err(|e| e.within("validation"))?;
         let d = self.validation.disturbance.mean.len();
         if d != 12 {

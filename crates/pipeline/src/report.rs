@@ -372,6 +372,7 @@ fn page(
                 num(&a["band_p95_abs_diff"], 4),
             ]],
         );
+        pictures_of(&mut o, "nerf_collision");
     }
     if section(&mut o, "flight", "Nominal flights") {
         let rows: Vec<Vec<String>> = summary["flight"]["flights"]
@@ -427,7 +428,9 @@ fn page(
                 vec![
                     s["sampler"].as_str().unwrap_or("?").to_uppercase(),
                     num(&s["rollouts"], 0),
-                    pct(&s["collision_rate"]),
+                    // The rate is over the search's own rollouts (CEM: its populations, not the
+                    // importance batch), which the first row of the sampler's table counts.
+                    format!("{} of {}", pct(&s["collision_rate"]), num(&s["table"][0]["rollouts"], 0)),
                     pct(&s["lost_rate"]),
                     num(&s["avg_collision_step"], 2),
                     num(&s["avg_log_likelihood"], 2),
@@ -451,8 +454,8 @@ fn page(
             &mut o,
             &[
                 "sampler",
-                "rollouts",
-                "collision rate",
+                "rollouts flown",
+                "collision rate of the searched",
                 "lost",
                 "avg. collision step",
                 "avg. log-likelihood",

@@ -12,30 +12,11 @@
 //! root-mean-square error, the mean estimate over P, the mean effective number of failures,
 //! and how often the estimate exceeds 1. BENCHMARKS.md's calibration table comes from it.
 
-use nerfsv_validation::{
-    cross_entropy, monte_carlo, subset_simulation, CemConfig, Gaussian, MonteCarloConfig, Outcome, Prior, SubsetConfig,
-    System,
-};
+use nerfsv_validation::{cross_entropy, monte_carlo, subset_simulation, CemConfig, MonteCarloConfig, SubsetConfig};
 
-/// Fails when a·x > z over the whole trajectory; the score is z − a·x.
-struct Linear72 {
-    a: Vec<f64>,
-    z: f64,
-}
-
-impl System for Linear72 {
-    fn steps(&self) -> usize {
-        6
-    }
-    fn dim(&self) -> usize {
-        12
-    }
-    fn run(&self, x: &[Vec<f64>], _seed: u64) -> Outcome {
-        let s: f64 = x.iter().flatten().zip(&self.a).map(|(x, a)| x * a).sum();
-        let score = self.z - s;
-        Outcome::new(score, (score <= 0.0).then_some(5), vec![score; 6])
-    }
-}
+#[path = "../crates/validation/tests/common/linear72.rs"]
+mod linear72;
+use linear72::Linear72;
 
 /// Q(z) = ½ erfc(z/√2), erfc by its continued fraction (z > 0, 200 terms: ~1e-15).
 fn upper_tail(z: f64) -> f64 {
@@ -110,11 +91,7 @@ impl Tally {
 
 fn main() {
     let seeds: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(200);
-    // A fixed direction spread over every step and component.
-    let raw: Vec<f64> = (0..72).map(|i| (1.7 * i as f64 + 0.3).sin() + 0.2).collect();
-    let norm = raw.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let a: Vec<f64> = raw.iter().map(|v| v / norm).collect();
-    let prior = Prior::new(Gaussian::diagonal(vec![0.0; 12], &[1.0; 12]).expect("unit prior"), 6);
+    let prior = Linear72::prior();
     let cem = CemConfig::default();
     // Subset simulation's settings: the defaults, or `SAMPLES`, `P0`, `CORRELATION` from the
     // environment (how the defaults were chosen).
@@ -128,7 +105,7 @@ fn main() {
     };
     let budget = cem.m * cem.k_max + cem.is_samples;
     for z in [1.405_071_560_309_632_8, 3.090_232_306_167_813_5] {
-        let system = Linear72 { a: a.clone(), z };
+        let system = Linear72::new(z);
         let truth = upper_tail(z);
         println!("\nP(fail) = {truth:.4e}, {seeds} seeds, {budget} rollouts each\n");
         println!(

@@ -5,30 +5,11 @@ mod common;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use common::LinearToy;
+use common::{Counting, LinearToy};
 use nerfsv_validation::{
-    cross_entropy, monte_carlo, replay_all, CemConfig, Journal, MonteCarloConfig, Outcome, Recorder, RolloutRecord,
-    System, ValidationError,
+    cross_entropy, monte_carlo, replay_all, CemConfig, Journal, MonteCarloConfig, Recorder, RolloutRecord,
+    ValidationError,
 };
-
-/// The toy, counting its rollouts.
-struct Counting {
-    toy: LinearToy,
-    runs: AtomicUsize,
-}
-
-impl System for Counting {
-    fn steps(&self) -> usize {
-        self.toy.steps()
-    }
-    fn dim(&self) -> usize {
-        self.toy.dim()
-    }
-    fn run(&self, x: &[Vec<f64>], seed: u64) -> Outcome {
-        self.runs.fetch_add(1, Ordering::Relaxed);
-        self.toy.run(x, seed)
-    }
-}
 
 /// A journal whose process "dies" after `limit` records: later records fail as a kill would
 /// stop them, and the run stops with an error.
@@ -58,7 +39,7 @@ fn reward(r: &RolloutRecord) -> f64 {
 fn a_killed_cem_run_resumes_to_the_uninterrupted_result_without_redoing_finished_rollouts() {
     let cfg = CemConfig { m: 30, m_elite: 6, k_max: 3, is_samples: 40, ..CemConfig::default() };
     let total = cfg.m * cfg.k_max + cfg.is_samples;
-    let system = Counting { toy: LinearToy::new(2.0), runs: AtomicUsize::new(0) };
+    let system = Counting::new(LinearToy::new(2.0));
     let prior = system.toy.prior();
     let whole = cross_entropy(&system, &prior, &cfg, 5, Some(&reward), &()).unwrap();
     assert_eq!(system.runs.swap(0, Ordering::SeqCst), total);
@@ -88,7 +69,7 @@ fn a_killed_cem_run_resumes_to_the_uninterrupted_result_without_redoing_finished
 
 #[test]
 fn monte_carlo_and_replays_resume_too() {
-    let system = Counting { toy: LinearToy::new(1.5), runs: AtomicUsize::new(0) };
+    let system = Counting::new(LinearToy::new(1.5));
     let prior = system.toy.prior();
     let cfg = MonteCarloConfig { rollouts: 50 };
     let whole = monte_carlo(&system, &prior, &cfg, 9, &()).unwrap();

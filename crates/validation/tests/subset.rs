@@ -3,49 +3,16 @@
 
 mod common;
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 
-use common::{erfc, LinearToy};
+use common::{erfc, Counting, Linear72, LinearToy};
 use nerfsv_validation::{
-    correlation_factor, cross_entropy, subset_simulation, CemConfig, Gaussian, Journal, Outcome, Prior, SubsetConfig,
-    System, SAMPLER_SUBSET,
+    correlation_factor, cross_entropy, subset_simulation, CemConfig, Journal, SubsetConfig, SAMPLER_SUBSET,
 };
 
-/// 6 steps × 12 standard-normal disturbances, failing when a·x > z for a fixed unit direction
-/// spread over all 72 components: P(fail) = Q(z) exactly.
-struct Linear72 {
-    a: Vec<f64>,
-    z: f64,
-}
-
-impl Linear72 {
-    fn new(z: f64) -> Self {
-        let raw: Vec<f64> = (0..72).map(|i| (1.7 * i as f64 + 0.3).sin() + 0.2).collect();
-        let norm = raw.iter().map(|v| v * v).sum::<f64>().sqrt();
-        Self { a: raw.iter().map(|v| v / norm).collect(), z }
-    }
-
-    fn prior() -> Prior {
-        Prior::new(Gaussian::diagonal(vec![0.0; 12], &[1.0; 12]).unwrap(), 6)
-    }
-
-    fn p_fail(&self) -> f64 {
-        0.5 * erfc(self.z / std::f64::consts::SQRT_2)
-    }
-}
-
-impl System for Linear72 {
-    fn steps(&self) -> usize {
-        6
-    }
-    fn dim(&self) -> usize {
-        12
-    }
-    fn run(&self, x: &[Vec<f64>], _seed: u64) -> Outcome {
-        let s: f64 = x.iter().flatten().zip(&self.a).map(|(x, a)| x * a).sum();
-        let score = self.z - s;
-        Outcome::new(score, (score <= 0.0).then_some(5), vec![score; 6])
-    }
+/// Q(z) of the toy's threshold: its exact failure probability.
+fn p_fail(system: &Linear72) -> f64 {
+    0.5 * erfc(system.z / std::f64::consts::SQRT_2)
 }
 
 /// Over `seeds` runs of one estimator: how often ±2 SE covers the truth, the relative standard
@@ -80,7 +47,7 @@ fn the_default_subset_simulation_is_calibrated_on_72_dimensions_and_the_default_
     // z for P = 0.08 and for P = 10⁻³.
     for (z, seeds) in [(1.405_071_560_309_632_8, 300), (3.090_232_306_167_813_5, 4000)] {
         let system = Linear72::new(z);
-        let truth = system.p_fail();
+        let truth = p_fail(&system);
         let sus = calibrate(truth, seeds, |seed| {
             let e = subset_simulation(&system, &prior, &SubsetConfig::default(), seed, &()).unwrap().estimate;
             (e.probability, e.standard_error, e.rollouts)
@@ -153,28 +120,9 @@ fn the_correlation_factor_is_zero_for_independent_chains_and_large_for_stuck_one
     assert_eq!(correlation_factor(&stuck, 0.0), 0.0);
 }
 
-/// The toy, counting its rollouts.
-struct Counting {
-    toy: LinearToy,
-    runs: AtomicUsize,
-}
-
-impl System for Counting {
-    fn steps(&self) -> usize {
-        self.toy.steps()
-    }
-    fn dim(&self) -> usize {
-        self.toy.dim()
-    }
-    fn run(&self, x: &[Vec<f64>], seed: u64) -> Outcome {
-        self.runs.fetch_add(1, Ordering::Relaxed);
-        self.toy.run(x, seed)
-    }
-}
-
 #[test]
 fn subset_simulation_is_deterministic_resumes_from_its_journal_and_refuses_bad_settings() {
-    let system = Counting { toy: LinearToy::new(3.0), runs: AtomicUsize::new(0) };
+    let system = Counting::new(LinearToy::new(3.0));
     let prior = system.toy.prior();
     let cfg = SubsetConfig { samples: 50, ..SubsetConfig::default() };
     assert_eq!(cfg.seeds(), 5);

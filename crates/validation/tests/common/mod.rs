@@ -1,6 +1,8 @@
 //! A toy linear-Gaussian system with a closed-form failure probability, shared by the tests.
 #![allow(dead_code)]
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use nerfsv_validation::{Gaussian, Outcome, Prior, System};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -99,3 +101,33 @@ pub fn erfc(x: f64) -> f64 {
         pre / f
     }
 }
+
+/// The toy, counting its rollouts.
+pub struct Counting {
+    pub toy: LinearToy,
+    pub runs: AtomicUsize,
+}
+
+impl Counting {
+    pub fn new(toy: LinearToy) -> Self {
+        Self { toy, runs: AtomicUsize::new(0) }
+    }
+}
+
+impl System for Counting {
+    fn steps(&self) -> usize {
+        self.toy.steps()
+    }
+    fn dim(&self) -> usize {
+        self.toy.dim()
+    }
+    fn run(&self, x: &[Vec<f64>], seed: u64) -> Outcome {
+        self.runs.fetch_add(1, Ordering::Relaxed);
+        self.toy.run(x, seed)
+    }
+}
+
+#[path = "linear72.rs"]
+mod linear72;
+#[allow(unused_imports)]
+pub use linear72::Linear72;

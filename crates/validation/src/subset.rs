@@ -5,7 +5,8 @@
 //! ⊃ … : level 0 draws `n` trajectories from the prior; each next threshold b_j is the
 //! `p0`-quantile of the last level's scores, and the `n·p0` trajectories below it seed Markov
 //! chains that stay below it, so every level holds `n` samples of the prior conditioned on
-//! {score ≤ b_j}. The estimate is `p0^(L−1) · (failures at level L−1) / n`.
+//! {score ≤ b_j}. The estimate is `p0^(L−1) · (failures at level L−1) / n` (a level's share is
+//! more than p0 when samples tie at its threshold: the product uses the shares).
 //!
 //! The chains move in the prior's whitened coordinates z (x = mean + L·z per step) by
 //! preconditioned Crank–Nicolson (Cotter et al. 2013): z' = ρ·z + √(1−ρ²)·ξ with ξ ~ N(0, I).
@@ -41,7 +42,8 @@ const Z95: f64 = 1.959_963_984_540_054;
 /// Subset simulation's failure probability and how far it can be trusted.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SubsetEstimate {
-    /// `p0^(levels − 1) · failures / n`, within [0, 1].
+    /// `Π_j p_j · failures / n`, within [0, 1]: p_j the share of level j below the next
+    /// threshold, `p0` unless samples tie at the threshold.
     pub probability: f64,
     /// Its standard error, `probability · cov`.
     pub standard_error: f64,
@@ -191,8 +193,9 @@ pub fn subset_simulation<S: System + ?Sized>(
     // The current level's samples as chains (level 0: independent draws, no chains).
     let mut chained = false;
     let (mut thresholds, mut acceptance) = (Vec::new(), Vec::new());
-    // Σ δ_j over the levels so far.
+    // Σ δ_j over the levels so far, and the product of their conditional probabilities.
     let mut cov = 0.0;
+    let mut scale = 1.0;
     loop {
         let depth = thresholds.len();
         let mut order: Vec<usize> = (0..n).collect();
@@ -223,7 +226,6 @@ pub fn subset_simulation<S: System + ?Sized>(
             cov += ((1.0 - p) / (n as f64 * p) * (1.0 + gamma)).sqrt();
         }
         if last {
-            let scale = config.p0.powi(depth as i32);
             let probability = (scale * p).clamp(0.0, 1.0);
             let (cov, standard_error) = if count == 0 { (f64::INFINITY, 0.0) } else { (cov, probability * cov) };
             let few = crate::ImportanceEstimate::FEW_EVENTS;
@@ -260,6 +262,9 @@ pub fn subset_simulation<S: System + ?Sized>(
                 estimate,
             });
         }
+        // The share below the threshold: p0, or more when samples tie at it (a chain that refused
+        // its moves repeats its state, scores included).
+        scale *= p;
         thresholds.push(event);
         let next = depth + 1;
         let starts: Vec<State> = order[..seeds].iter().map(|&i| level[i].clone()).collect();

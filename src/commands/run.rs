@@ -20,7 +20,13 @@ pub struct RunArgs {
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let mut cfg = match &args.config {
-        Some(p) => RunConfig::load(p)?,
+        Some(p) => {
+            let cfg = RunConfig::load(p)?;
+            // Before any stage: a start or goal inside the scene, named with its file.
+            cfg.check_endpoints()
+                .map_err(|error| nerfsv_pipeline::PipelineError::InvalidConfig { path: p.clone(), error })?;
+            cfg
+        }
         None => RunConfig::default(),
     };
     if let Some(out) = args.out {

@@ -201,10 +201,11 @@ impl RunConfig {
 }
 
 impl RunConfig {
-    /// The flight's start and goal against the scene's own geometry, before anything is built:
-    /// each must keep the planner's clearance (the body's half-diagonal and its margin) from
-    /// the ground truth, or no stage after hours of training could fly it.
-    fn check_endpoints(&self) -> Result<(), InvalidValue> {
+    /// The flight's start and goal against the scene `scene`'s own geometry, before anything is
+    /// built: each must keep the planner's clearance (the body's half-diagonal and its margin)
+    /// from the ground truth, or no stage after hours of training could fly it. Not part of
+    /// [`Validate::validate`]: `nerfsv fly` and `stress` fly their `--scene`, not this config's.
+    pub fn check_endpoints(&self) -> Result<(), InvalidValue> {
         let scene = nerfsv_scene::Scene::builtin(&self.scene)
             .map_err(|e| InvalidValue::new("scene", e.to_string(), &self.scene))?;
         let required =
@@ -249,7 +250,6 @@ impl Validate for RunConfig {
             positive("nerf_density_threshold", t as f64)?;
         }
         self.sim.validate().map_err(|e| e.within("sim"))?;
-        self.check_endpoints()?;
         self.validation.validate().map_err(|e| e.within("validation"))?;
         let d = self.validation.disturbance.mean.len();
         if d != 12 {

@@ -167,6 +167,7 @@ impl Serialize for StageFigures {
 /// Runs the whole pipeline of `cfg` into `cfg.out` and writes `summary.json`.
 pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, PipelineError> {
     cfg.validate()?;
+    cfg.check_endpoints()?;
     let scene = nerfsv_scene::Scene::builtin(&cfg.scene)?;
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(&cfg.out, observer)?;

@@ -199,7 +199,7 @@ fn nonsense_options_are_refused_and_no_command_writes_over_its_inputs() {
     for (args, needle) in [
         (vec!["train", "--data", s(&ds), "--out", s(&out), "--steps", "0"], "--steps"),
         (vec!["train", "--data", s(&ds), "--out", s(&out), "--seconds", "-1"], "--seconds"),
-        (vec!["eval", "--model", s(&model), "--data", s(&ds), "--max-images", "0"], "max_images"),
+        (vec!["eval", "--model", s(&model), "--data", s(&ds), "--max-images", "0"], "--max-images"),
     ] {
         let (ok, _, err) = nerfsv(&args);
         assert!(!ok, "{args:?} must fail");

@@ -666,7 +666,9 @@ fn page(
              σ_n the pixel noise (uq.noise_std): 0 when the model explains the image up to its noise; it is shown \
              beside the paper's, and the online measure and reward use it by default (uq.ga_measure). GA's \
              per-pixel maps keep the paper's σ_d: a map is σ_d times a per-pixel factor, so its ranking, which the \
-             AUSE measures, does not depend on it.</p>\n",
+             AUSE measures, does not depend on it. Over the white background, colours are taken relative to it \
+             (c − bg, r = reference − bg): scaling the weights by μ scales the opacity too, so μ = 0.8 is exactly the \
+             render with every weight scaled by 0.8 (the paper writes eq. 2 without a background).</p>\n",
         );
         o.push_str(
             "<p>BLA's prior is centred at the trained weights. The normalised trace tr(Σ)/P and rmv are the \

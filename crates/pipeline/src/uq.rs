@@ -198,7 +198,7 @@ pub fn fit_with_depth_uncertainty(
         Method::Ga => {
             let samples = nerf.render_rays_samples(&rays);
             let fit = ga_fit_samples(name, &rays, &samples, &refs, cfg.ga_sigma_max, cfg.noise_std)?;
-            let maps = ga_maps_from_samples(name, &frame.camera, &samples, fit.sigma_d)?;
+            let maps = ga_maps_from_samples(name, &frame.camera, &samples, BACKGROUND, fit.sigma_d)?;
             Ok((Fit::Ga(Some(GaRow::new(&fit, rays.len()))), maps.depth_std))
         }
         Method::Bla => {

@@ -837,7 +837,9 @@ impl UncertaintyField {
                         for ((ci, &wi), &t) in c.iter().zip(w).zip(ts) {
                             let v = self.value_at(at(t)).map_or(fill, |v| v as f64);
                             let wi = wi as f64;
-                            vc += v * ci.iter().map(|&x| (x as f64 * wi).powi(2)).sum::<f64>() / 3.0;
+                            // Colours against the background, as GA's own maps.
+                            let bg = ray.background;
+                            vc += v * (0..3).map(|ch| ((ci[ch] - bg[ch]) as f64 * wi).powi(2)).sum::<f64>() / 3.0;
                             vd += v * (wi * t as f64).powi(2);
                         }
                         (vc, vd / (opacity as f64).powi(2))

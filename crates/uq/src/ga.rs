@@ -3,7 +3,8 @@
 //!
 //! A ray's colour is modelled as the composite of its samples with a density scale drawn per
 //! image, `r ~ N(μ_d·m, σ_d²·s)` with `m = Σ_i c_i d_i` and `s = Σ_i c_i² d_i²` (`c_i` the
-//! sample colours, `d_i` their compositing weights, per channel). The negative log-likelihood
+//! sample colours, `d_i` their compositing weights, per channel; over a background, colours
+//! relative to it: see the end of these docs). The negative log-likelihood
 //! of an image, up to constants, is eq. 2 summed over its `N` (ray, channel) terms with `s > 0`:
 //!
 //!   `f(μ, σ) = Σ_k [ log(s_k σ²) + (r_k − μ m_k)² / (s_k σ²) ]`
@@ -29,9 +30,16 @@
 //!
 //! Rays that composite no sample (they miss the box or cross only empty occupancy cells) have
 //! `s = 0` and no information about the density scale: they are left out of the fit, counted,
-//! and get a NaN residual. Colour that does not come from samples, the background seen through
-//! the remaining transmittance `T = 1 − Σ_i d_i`, is subtracted from the reference first:
-//! `r = reference − T·background`.
+//! and get a NaN residual.
+//!
+//! **Background.** A render is `Σ_i d_i c_i + (1 − Σ_i d_i)·bg`. Scaling the weights by μ
+//! scales the opacity with them, so the background seen through the remaining transmittance
+//! changes too: the render is `bg + μ·Σ_i d_i (c_i − bg)`. The paper writes eq. 2 without a
+//! background (black, where both agree); over any background nerfsv uses colours relative to
+//! it, `c_i − bg` in `m` and `s` and `r = reference − bg`, so μ = 1 is the render and every μ is
+//! the render of the weights scaled by μ. (Subtracting the background at the model's own
+//! transmittance, `reference − (1 − Σ d_i)·bg`, would hold the occlusion fixed while the
+//! density scales: on a white background that leaves a bias of `(μ − 1)·Σ d_i` per ray.)
 
 use nerfsv_nerf::{Nerf, RayInput, RaySamples};
 use rayon::prelude::*;
@@ -41,31 +49,29 @@ use crate::UqError;
 /// One ray's GA inputs, per colour channel.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GaRay {
-    /// `m = Σ_i c_i d_i`.
+    /// `m = Σ_i (c_i − bg) d_i`.
     pub m: [f64; 3],
-    /// `s = Σ_i c_i² d_i²` (0 for a ray without samples).
+    /// `s = Σ_i (c_i − bg)² d_i²` (0 for a ray without samples).
     pub s: [f64; 3],
-    /// The colour the samples must explain: reference minus the background term.
+    /// The colour the samples must explain: `reference − bg`.
     pub r: [f64; 3],
 }
 
 impl GaRay {
     /// From a ray's composited samples (`colours: [k, 3]`, `weights: [k]`), its reference colour
-    /// and its background.
+    /// and its background (see the [module docs](self) for why colours are taken relative to it).
     pub fn from_samples(colours: &[[f32; 3]], weights: &[f32], reference: [f32; 3], background: [f32; 3]) -> Self {
         let mut out = Self::default();
-        let mut opacity = 0.0f64;
         for (c, &w) in colours.iter().zip(weights) {
             let w = w as f64;
-            opacity += w;
             for (ch, &cc) in c.iter().enumerate() {
-                let cw = cc as f64 * w;
+                let cw = (cc as f64 - background[ch] as f64) * w;
                 out.m[ch] += cw;
                 out.s[ch] += cw * cw;
             }
         }
         for ch in 0..3 {
-            out.r[ch] = reference[ch] as f64 - (1.0 - opacity) * background[ch] as f64;
+            out.r[ch] = reference[ch] as f64 - background[ch] as f64;
         }
         out
     }

@@ -3,7 +3,8 @@
 //!
 //! - [`ga`]: the **Gaussian approximation** (eq. 2–3). Per image, a density scale
 //!   `μ_d ± σ_d` that explains the reference colours from the rendered samples
-//!   (`r ~ N(μ_d·Σc_i d_i, σ_d²·Σc_i² d_i²)` per ray and channel), fitted in closed form over
+//!   (`r ~ N(μ_d·Σc_i d_i, σ_d²·Σc_i² d_i²)` per ray and channel, colours relative to the
+//!   background), fitted in closed form over
 //!   every ray and channel of the image; the paper's exclusions (σ_d ≤ 0, σ_d ≥ 3) and a
 //!   per-pixel map of standardised residuals.
 //! - [`bla`]: the **Bayesian Laplace approximation** (eq. 4–9) over the 3072 `sigma_net`

@@ -60,10 +60,17 @@ pub struct UncertaintyMaps {
 }
 
 /// The GA standard deviations of one ray from its composited samples (`colours`, `weights`,
-/// `distances`, parallel): `[σ_d·√(mean_c s_c), σ_d·√(Σ w_i² t_i²)/A]` (colour, ray distance
-/// in metres). Both NaN when the ray has no sample (`s = 0`); the distance one NaN when
-/// `A ≤ 1e-6`.
-pub fn ga_ray_std(colours: &[[f32; 3]], weights: &[f32], distances: &[f32], sigma_d: f64) -> [f64; 2] {
+/// `distances`, parallel) over `background`: `[σ_d·√(mean_c s_c), σ_d·√(Σ w_i² t_i²)/A]`
+/// (colour, ray distance in metres), `s_c = Σ_i (c_i − bg)² w_i²` as in [`crate::GaRay`] (a
+/// weight's scale moves the colour by its own colour against the background it hides). Both
+/// NaN when the ray has no sample (`s = 0`); the distance one NaN when `A ≤ 1e-6`.
+pub fn ga_ray_std(
+    colours: &[[f32; 3]],
+    weights: &[f32],
+    distances: &[f32],
+    background: [f32; 3],
+    sigma_d: f64,
+) -> [f64; 2] {
     if weights.is_empty() {
         return [f64::NAN; 2];
     }
@@ -71,8 +78,8 @@ pub fn ga_ray_std(colours: &[[f32; 3]], weights: &[f32], distances: &[f32], sigm
     for ((c, &w), &t) in colours.iter().zip(weights).zip(distances) {
         let w = w as f64;
         a += w;
-        for &cc in c {
-            let cw = cc as f64 * w;
+        for (&cc, &bg) in c.iter().zip(&background) {
+            let cw = (cc as f64 - bg as f64) * w;
             s += cw * cw;
         }
         let tw = t as f64 * w;
@@ -103,7 +110,8 @@ fn check_sigma_d(sigma_d: f64) -> Result<(), UqError> {
 }
 
 /// GA maps from an already rendered view: `samples` of the pixel rays of `camera` (row-major,
-/// as [`camera_rays`] makes them) and the image's σ_d ([`crate::GaFit::sigma_d`]).
+/// as [`camera_rays`] makes them) over `background`, and the image's σ_d
+/// ([`crate::GaFit::sigma_d`]).
 ///
 /// Errors: σ_d negative or not finite ([`UqError::Config`], key `sigma_d`); a sample count
 /// other than the camera's pixels ([`UqError::LengthMismatch`]).
@@ -111,6 +119,7 @@ pub fn ga_maps_from_samples(
     image: &str,
     camera: &Camera,
     samples: &RaySamples,
+    background: [f32; 3],
     sigma_d: f64,
 ) -> Result<UncertaintyMaps, UqError> {
     check_sigma_d(sigma_d)?;
@@ -123,7 +132,7 @@ pub fn ga_maps_from_samples(
         .into_par_iter()
         .map(|p| {
             let (c, w) = samples.ray(p);
-            let [cs, ds] = ga_ray_std(c, w, samples.ray_distances(p), sigma_d);
+            let [cs, ds] = ga_ray_std(c, w, samples.ray_distances(p), background, sigma_d);
             (cs as f32, (ds * z[p] as f64) as f32)
         })
         .unzip();
@@ -141,7 +150,7 @@ pub fn ga_maps(
 ) -> Result<UncertaintyMaps, UqError> {
     check_sigma_d(sigma_d)?;
     let samples = nerf.render_rays_samples(&camera_rays(camera, background));
-    ga_maps_from_samples(image, camera, &samples, sigma_d)
+    ga_maps_from_samples(image, camera, &samples, background, sigma_d)
 }
 
 /// The Cholesky factor `L` of a posterior covariance, `Σ = L·Lᵀ` (lower triangular, `[P, P]`),

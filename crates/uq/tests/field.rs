@@ -177,7 +177,7 @@ fn references_with_constant_ray_variance(nerf: &Nerf, cam: &Camera, c: f64) -> V
             let mut u = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
             let n = (u.iter().map(|x| x * x).sum::<f64>() / 3.0).sqrt();
             u = u.map(|x| x / n);
-            // ga.r = 0 − T·bg, so the model's colour without the samples is −ga.r.
+            // ga.r = 0 − bg, so the reference is bg + m + √(c·s)·u.
             [0, 1, 2].map(|ch| (-ga.r[ch] + ga.m[ch] + (c * ga.s[ch]).sqrt() * u[ch]) as f32)
         })
         .collect()
@@ -198,7 +198,9 @@ fn ga_splat_of_rays_with_a_constant_variance_gives_it_at_every_node_with_weight(
     for (n, (&v, &w)) in field.variance.iter().zip(&field.weight).enumerate() {
         if w > 0.0 {
             with += 1;
-            assert!((v as f64 - c).abs() < 1e-4 * c, "node {n}: {v} with weight {w}");
+            // 5e-3 relative: the references are f32, and rays whose samples are nearly the
+            // background's grey have s ≈ 1e-8, where the rounding of the reference counts.
+            assert!((v as f64 - c).abs() < 5e-3 * c, "node {n}: {v} with weight {w}");
         } else {
             without += 1;
             assert_eq!(v, 0.0);
@@ -276,7 +278,7 @@ fn maps_of_a_constant_ga_field_are_ga_maps_with_that_sigma_d() {
     let field = constant_field(&nerf, Method::Ga, 0.09);
     let maps = field.maps(&nerf, &cam, BG);
     let samples = nerf.render_rays_samples(&camera_rays(&cam, BG));
-    let ga = ga_maps_from_samples("v", &cam, &samples, 0.3).unwrap();
+    let ga = ga_maps_from_samples("v", &cam, &samples, BG, 0.3).unwrap();
     let close = |a: f32, b: f32| (a.is_nan() && b.is_nan()) || (a - b).abs() <= 1e-5 * b.abs().max(1e-6);
     let mut finite = 0;
     for p in 0..maps.colour_std.len() {

@@ -97,8 +97,10 @@ fn ga_flags_the_papers_exclusions_and_refuses_an_image_whose_rays_all_miss() {
     assert!(err.to_string().starts_with("r_17: all 10 rays miss"), "{err}");
 }
 
-/// The model's own render as reference: the samples explain it exactly once the background
-/// seen through the transmittance is taken off, so μ_d = 1 and σ_d is f32 rounding.
+/// The model's own render as reference: the samples explain it exactly (colours relative to
+/// the background), so μ_d = 1 and σ_d is f32 rounding; the render of its weights scaled by 0.8
+/// (its opacity scaled with them, on a grey background) gives μ_d = 0.8 and σ_d ≈ 0 again,
+/// which a model holding the background term at the unscaled transmittance does not.
 #[test]
 fn ga_of_a_render_against_itself_has_unit_mu_and_vanishing_sigma() {
     let nerf = common::tiny_nerf();
@@ -111,10 +113,25 @@ fn ga_of_a_render_against_itself_has_unit_mu_and_vanishing_sigma() {
     assert!((fit.mu_d - 1.0).abs() < 1e-5, "μ_d {}", fit.mu_d);
     assert!(fit.sigma_d < 1e-3, "σ_d {}", fit.sigma_d);
     assert_eq!(fit.rays_without_samples, 1);
-    // A darker reference asks for less density... of colour: μ_d < 1, and a larger σ_d.
+    // The render with every compositing weight scaled by 0.8: bg + 0.8·Σ d_i (c_i − bg).
+    let samples = nerf.render_rays_samples(&rays);
+    let scaled: Vec<[f32; 3]> = (0..rays.len())
+        .map(|i| {
+            let (c, w) = samples.ray(i);
+            let bg = rays[i].background;
+            [0, 1, 2].map(|ch| {
+                let sum: f64 = c.iter().zip(w).map(|(c, &w)| (c[ch] - bg[ch]) as f64 * w as f64).sum();
+                (bg[ch] as f64 + 0.8 * sum) as f32
+            })
+        })
+        .collect();
+    let fit2 = ga_image(&nerf, "scaled", &rays, &scaled, 3.0, 0.05).unwrap();
+    assert!((fit2.mu_d - 0.8).abs() < 1e-4, "μ_d {}", fit2.mu_d);
+    assert!(fit2.sigma_d < 1e-3, "σ_d {}", fit2.sigma_d);
+    // A colour change no density scale explains (the reference 20 % darker): a larger σ_d.
     let dim: Vec<[f32; 3]> = reference.iter().map(|c| c.map(|v| 0.8 * v)).collect();
-    let fit2 = ga_image(&nerf, "dim", &rays, &dim, 3.0, 0.05).unwrap();
-    assert!(fit2.mu_d < 0.95 && fit2.sigma_d > 10.0 * fit.sigma_d, "{} {}", fit2.mu_d, fit2.sigma_d);
+    let fit3 = ga_image(&nerf, "dim", &rays, &dim, 3.0, 0.05).unwrap();
+    assert!(fit3.sigma_d > 10.0 * fit.sigma_d, "{} {}", fit3.mu_d, fit3.sigma_d);
     // Bad input names the image.
     let err = ga_image(&nerf, "short", &rays, &reference[1..], 3.0, 0.05).unwrap_err();
     assert!(err.to_string().starts_with("short: "), "{err}");

@@ -51,21 +51,23 @@ fn naive_quadratic_form(j: &[f32], sigma: &Mat<f64>) -> f64 {
 
 #[test]
 fn ga_ray_std_is_nan_without_samples_and_matches_its_closed_form() {
-    let [c, d] = ga_ray_std(&[], &[], &[], 0.4);
+    let [c, d] = ga_ray_std(&[], &[], &[], BG, 0.4);
     assert!(c.is_nan() && d.is_nan(), "a ray without samples (s = 0) must give NaN, got {c}, {d}");
     let colours = [[0.2f32, 0.4, 0.6], [0.8, 0.1, 0.5]];
     let weights = [0.3f32, 0.5];
     let t = [1.5f32, 2.0];
-    let [c, d] = ga_ray_std(&colours, &weights, &t, 0.4);
-    let s: [f64; 3] =
-        [0, 1, 2].map(|ch| (0..2).map(|i| (colours[i][ch] as f64 * weights[i] as f64).powi(2)).sum::<f64>());
+    let bg = [0.25f32, 0.5, 1.0];
+    let [c, d] = ga_ray_std(&colours, &weights, &t, bg, 0.4);
+    let s: [f64; 3] = [0, 1, 2].map(|ch| {
+        (0..2).map(|i| ((colours[i][ch] as f64 - bg[ch] as f64) * weights[i] as f64).powi(2)).sum::<f64>()
+    });
     let want_c = 0.4 * ((s[0] + s[1] + s[2]) / 3.0).sqrt();
     let a = 0.3f64 + 0.5f64;
     let want_d = 0.4 * ((0.3f64 * 1.5).powi(2) + (0.5f64 * 2.0).powi(2)).sqrt() / a;
     assert!((c - want_c).abs() < 1e-7, "colour std {c} vs {want_c}");
     assert!((d - want_d).abs() < 1e-7, "depth std {d} vs {want_d}");
     // Zero compositing weight: no information, NaN (not 0).
-    let [c, _] = ga_ray_std(&colours, &[0.0, 0.0], &t, 0.4);
+    let [c, _] = ga_ray_std(&colours, &[0.0, 0.0], &t, bg, 0.4);
     assert!(c.is_nan());
 }
 
@@ -99,7 +101,7 @@ fn ga_maps_scale_linearly_with_sigma_d_and_are_nan_where_rays_miss() {
     let (i, j) = (6u32, 5u32);
     let p = (j * 12 + i) as usize;
     let (c, w) = samples.ray(p);
-    let [_, d] = ga_ray_std(c, w, samples.ray_distances(p), 0.25);
+    let [_, d] = ga_ray_std(c, w, samples.ray_distances(p), BG, 0.25);
     let z = cam.z_depth_factor(i as f32 + 0.5, j as f32 + 0.5) as f64;
     assert!((a.depth_std[p] as f64 - d * z).abs() < 1e-6 * d.abs().max(1.0));
     assert!(matches!(ga_maps(&nerf, "r_0", &cam, BG, -1.0), Err(UqError::Config(_))));

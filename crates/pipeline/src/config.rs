@@ -78,6 +78,13 @@ pub struct RunConfig {
     /// The adversary: disturbance prior, Monte Carlo, Cross-Entropy Method, run seed (the
     /// `[validation]` table).
     pub validation: nerfsv_validation::ValidationConfig,
+    /// Whether the stress stage also estimates the failure probability by subset simulation
+    /// (`[validation.subset]`), after Monte Carlo and the CEM: the estimator whose calibration
+    /// holds at the drone's 72 dimensions with its default settings. Its first level starts from
+    /// the stage's Monte Carlo rollouts, so it costs about `samples·(1 − p0)` more NeRF-sim
+    /// rollouts per level beyond them (180 by default; 2 levels at the default study's
+    /// failure rate); false leaves it out.
+    pub stress_subset: bool,
     /// Uncertainty quantification: GA and BLA settings, the online rewards, the uncertainty
     /// field (the `[uq]` table).
     pub uq: nerfsv_uq::UqConfig,
@@ -168,6 +175,7 @@ impl Default for RunConfig {
             sim: nerfsv_sim::SimConfig::default(),
             flight_seed: 0,
             validation: nerfsv_validation::ValidationConfig::default(),
+            stress_subset: true,
             uq: nerfsv_uq::UqConfig::default(),
             uq_offline: UqOfflineConfig::default(),
             online: OnlineConfig::default(),

@@ -192,6 +192,7 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
         prior: &prior,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
+        subset: cfg.stress_subset,
     };
     r.run(&search)?;
     r.run(&online::OnlineStage { search: &search, uq: &cfg.uq, online: &cfg.online })?;

@@ -15,7 +15,7 @@ use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
-    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, subset_simulation, table_row,
+    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, subset_simulation_reusing, table_row,
     Agreement, Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, ImportanceEstimate, Journal,
     Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, UncertaintyReward, UqMode, ValidationConfig,
     ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
@@ -641,7 +641,10 @@ pub fn stress(
                 records.extend(r.records);
             }
             Sampler::Subset => {
-                let r = subset_simulation(&system, setup.prior, &v.subset, v.seed, &counting)?;
+                // Monte Carlo's rollouts, flown before in this run, are independent draws from
+                // the prior: the first of level 0.
+                let drawn: Vec<RolloutRecord> = records.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect();
+                let r = subset_simulation_reusing(&system, setup.prior, &v.subset, v.seed, &drawn, &counting)?;
                 let e = r.estimate;
                 if e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
                     observer.note(
@@ -658,9 +661,14 @@ pub fn stress(
                     se: e.standard_error,
                     interval: e.interval,
                     estimator: format!(
-                        "{}: {} levels, thresholds {:?} m, moves accepted {:?}",
+                        "{}: {} levels{}, thresholds {:?} m, moves accepted {:?}",
                         SubsetEstimate::ESTIMATOR,
                         e.levels,
+                        if e.reused > 0 {
+                            format!(" (level 0: {} Monte Carlo rollouts and {} more)", e.reused, v.subset.samples - e.reused)
+                        } else {
+                            String::new()
+                        },
                         r.thresholds.iter().map(|b| (b * 1e4).round() / 1e4).collect::<Vec<_>>(),
                         r.acceptance.iter().map(|a| (a * 100.0).round() / 100.0).collect::<Vec<_>>()
                     ),
@@ -875,7 +883,8 @@ fn write_table(
 }
 
 /// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
-/// rollout replayed in GT-sim.
+/// rollout of their searches replayed in GT-sim; then, with `subset`, subset simulation's
+/// estimate of the failure probability (its first level from the MC rollouts; not replayed).
 pub struct StressStage<'a> {
     pub scene: &'a Scene,
     pub sim: &'a SimConfig,
@@ -883,10 +892,17 @@ pub struct StressStage<'a> {
     pub prior: &'a Prior,
     pub intrinsics: Intrinsics,
     pub render: RenderSettings,
+    pub subset: bool,
 }
 
 impl StressStage<'_> {
-    const SAMPLERS: [Sampler; 2] = [Sampler::Mc, Sampler::Cem];
+    fn samplers(&self) -> &'static [Sampler] {
+        if self.subset {
+            &[Sampler::Mc, Sampler::Cem, Sampler::Subset]
+        } else {
+            &[Sampler::Mc, Sampler::Cem]
+        }
+    }
 }
 
 impl Stage for StressStage<'_> {
@@ -899,7 +915,7 @@ impl Stage for StressStage<'_> {
     type Figures = StressFigures;
 
     fn config(&self) -> impl Serialize {
-        (&self.scene.name, self.sim, self.validation, self.intrinsics, self.render.supersample)
+        (&self.scene.name, self.sim, self.validation, self.intrinsics, self.render.supersample, self.samplers())
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
@@ -916,7 +932,7 @@ impl Stage for StressStage<'_> {
             render: self.render,
             world: WorldKind::Nerf,
             estimator: EstimatorKind::Vision,
-            samplers: &Self::SAMPLERS,
+            samplers: self.samplers(),
             replay: true,
             online: None,
             uq: &UqConfig::default(),

@@ -138,19 +138,29 @@ impl Gaussian {
         (0..d).map(|i| self.mean[i] + (0..=i).map(|j| self.chol[(i, j)] * z[j]).sum::<f64>()).collect()
     }
 
+    /// The whitened coordinates `z = L⁻¹(x − mean)` of `x` (`[dim]`), the inverse of
+    /// [`Gaussian::from_standard`].
+    ///
+    /// Panics if `x.len() != dim`.
+    pub fn to_standard(&self, x: &[f64]) -> Vec<f64> {
+        let d = self.dim();
+        assert_eq!(x.len(), d, "to_standard: sample has {} entries, expected {d}", x.len());
+        // Forward substitution L·z = x − mean.
+        let mut z = vec![0.0; d];
+        for i in 0..d {
+            let s: f64 = (0..i).map(|j| self.chol[(i, j)] * z[j]).sum();
+            z[i] = (x[i] - self.mean[i] - s) / self.chol[(i, i)];
+        }
+        z
+    }
+
     /// ln N(x; mean, covariance) = −½(‖L⁻¹(x − mean)‖² + ln det Σ + d ln 2π).
     ///
     /// Panics if `x.len() != dim`.
     pub fn log_pdf(&self, x: &[f64]) -> f64 {
         let d = self.dim();
         assert_eq!(x.len(), d, "log_pdf: sample has {} entries, expected {d}", x.len());
-        // Forward substitution L·y = x − mean.
-        let mut y = vec![0.0; d];
-        for i in 0..d {
-            let s: f64 = (0..i).map(|j| self.chol[(i, j)] * y[j]).sum();
-            y[i] = (x[i] - self.mean[i] - s) / self.chol[(i, i)];
-        }
-        let m2: f64 = y.iter().map(|v| v * v).sum();
+        let m2: f64 = self.to_standard(x).iter().map(|v| v * v).sum();
         -0.5 * (m2 + self.log_det + d as f64 * LN_2PI)
     }
 }

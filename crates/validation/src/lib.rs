@@ -69,6 +69,7 @@ pub use sampler::{
     MonteCarloResult, Reward, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 pub use seed::rollout_seed;
-pub use subset::{correlation_factor, subset_simulation, SubsetEstimate, SubsetResult, SAMPLER_SUBSET};
+pub use subset::{
+    correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult, SAMPLER_SUBSET};
 pub use system::{Outcome, System};
 pub use table::{table_row, TableRow};

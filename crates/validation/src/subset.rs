@@ -24,6 +24,8 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
+use nerfsv_scene::InvalidValue;
+
 use crate::config::SubsetConfig;
 use crate::error::ValidationError;
 use crate::gaussian::Prior;
@@ -67,8 +69,11 @@ pub struct SubsetEstimate {
     /// The Monte Carlo rollouts with the same variance, `p̂(1 − p̂)/SE²`: above
     /// [`SubsetEstimate::rollouts`] when the levels beat plain sampling.
     pub equivalent_rollouts: f64,
-    /// Rollouts flown.
+    /// Rollouts flown by subset simulation itself.
     pub rollouts: usize,
+    /// Prior draws flown before (a Monte Carlo run's) that served as the first of level 0's
+    /// samples ([`subset_simulation_reusing`]); 0 when it drew them all.
+    pub reused: usize,
     /// The last level's failures in their effective number `failures / (1 + γ_last)`.
     pub effective_failures: f64,
 }
@@ -81,7 +86,7 @@ impl SubsetEstimate {
 /// Subset simulation's run: every rollout and the levels' thresholds.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SubsetResult {
-    /// Every rollout flown, level by level (population = level).
+    /// Every rollout it flew, level by level (population = level); not the reused ones.
     pub records: Vec<RolloutRecord>,
     /// `[levels − 1]`: the threshold b_j the samples of level j lie below.
     pub thresholds: Vec<f64>,
@@ -168,9 +173,52 @@ pub fn subset_simulation<S: System + ?Sized>(
     run_seed: u64,
     recorder: &dyn Recorder,
 ) -> Result<SubsetResult, ValidationError> {
+    subset_simulation_reusing(system, prior, config, run_seed, &[], recorder)
+}
+
+/// [`subset_simulation`] whose level 0 starts from rollouts already flown from the prior itself
+/// (`drawn`, e.g. a Monte Carlo run's records, in order): the first `min(n, drawn.len())` are
+/// level 0's first samples, the rest of the level is drawn as usual. Level 0 is `n` independent
+/// draws from the prior either way, so the estimate is the same estimator; it shares those
+/// rollouts with the run they came from (the two estimates are then correlated), and saves
+/// flying them again.
+///
+/// Errors, besides [`subset_simulation`]'s: a reused record of the wrong shape or not drawn from
+/// the prior (its `log_q` differs from its `log_p`: a CEM proposal's draw), naming it.
+pub fn subset_simulation_reusing<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    config: &SubsetConfig,
+    run_seed: u64,
+    drawn: &[RolloutRecord],
+    recorder: &dyn Recorder,
+) -> Result<SubsetResult, ValidationError> {
     config.validate()?;
     check_shapes(system, prior)?;
     let n = config.samples;
+    let reused = drawn.len().min(n);
+    let reused_states: Vec<State> = drawn[..reused]
+        .iter()
+        .map(|r| {
+            let name = || format!("reused rollout {}/{}/{}", r.sampler, r.population, r.index);
+            if r.disturbances.len() != prior.steps() || r.disturbances.iter().any(|x| x.len() != prior.dim()) {
+                return Err(InvalidValue::new(
+                    name(),
+                    format!("must have {} steps of {} components", prior.steps(), prior.dim()),
+                    format!("{} steps", r.disturbances.len()),
+                ));
+            }
+            if !((r.log_q - r.log_p).abs() <= 1e-9 * r.log_p.abs().max(1.0)) {
+                return Err(InvalidValue::new(
+                    name(),
+                    "must be drawn from the prior (log q = log p)",
+                    format!("log p {}, log q {}", r.log_p, r.log_q),
+                ));
+            }
+            let z = r.disturbances.iter().flat_map(|x| prior.step().to_standard(x)).collect();
+            Ok(State { z, score: rank_score(r) })
+        })
+        .collect::<Result<_, InvalidValue>>()?;
     let dim = prior.steps() * prior.dim();
     let seeds = config.seeds();
     let chain_len = n / seeds;
@@ -180,7 +228,7 @@ pub fn subset_simulation<S: System + ?Sized>(
         (0..dim).map(|_| StandardNormal.sample(&mut rng)).collect()
     };
 
-    let first: Vec<(State, RolloutRecord)> = (0..n)
+    let first: Vec<(State, RolloutRecord)> = (reused..n)
         .into_par_iter()
         .map(|i| {
             let seed = rollout_seed(run_seed, SAMPLER_SUBSET, 0, i);
@@ -189,7 +237,8 @@ pub fn subset_simulation<S: System + ?Sized>(
             Ok((State { z, score: rank_score(&record) }, record))
         })
         .collect::<Result<_, ValidationError>>()?;
-    let (mut level, mut records): (Vec<State>, Vec<RolloutRecord>) = first.into_iter().unzip();
+    let (drawn_states, mut records): (Vec<State>, Vec<RolloutRecord>) = first.into_iter().unzip();
+    let mut level: Vec<State> = reused_states.into_iter().chain(drawn_states).collect();
     // The current level's samples as chains (level 0: independent draws, no chains).
     let mut chained = false;
     let (mut thresholds, mut acceptance) = (Vec::new(), Vec::new());
@@ -241,7 +290,7 @@ pub fn subset_simulation<S: System + ?Sized>(
             let equivalent_rollouts = if standard_error > 0.0 {
                 probability * (1.0 - probability) / (standard_error * standard_error)
             } else {
-                records.len() as f64
+                (records.len() + reused) as f64
             };
             let estimate = SubsetEstimate {
                 probability,
@@ -252,6 +301,7 @@ pub fn subset_simulation<S: System + ?Sized>(
                 failures: count,
                 equivalent_rollouts,
                 rollouts: records.len(),
+                reused,
                 effective_failures: count as f64 / (1.0 + gamma),
             };
             return Ok(SubsetResult {

@@ -7,7 +7,8 @@ use std::sync::atomic::Ordering;
 
 use common::{erfc, Counting, Linear72, LinearToy};
 use nerfsv_validation::{
-    correlation_factor, cross_entropy, subset_simulation, CemConfig, Journal, SubsetConfig, SAMPLER_SUBSET,
+    correlation_factor, cross_entropy, monte_carlo, subset_simulation, subset_simulation_reusing, CemConfig, Journal,
+    MonteCarloConfig, SubsetConfig, SAMPLER_SUBSET,
 };
 
 /// Q(z) of the toy's threshold: its exact failure probability.
@@ -154,4 +155,50 @@ fn subset_simulation_is_deterministic_resumes_from_its_journal_and_refuses_bad_s
         let e = subset_simulation(&system, &prior, &bad, 4, &()).err().unwrap().to_string();
         assert!(e.contains(key), "{e}");
     }
+}
+
+/// Level 0 may start from prior draws flown before: given its own level-0 rollouts back, the
+/// run is the same run without flying them (the whitened coordinates are recovered from the
+/// disturbances); a Monte Carlo run's records serve as well and save their flights; records not
+/// drawn from the prior (a CEM proposal's) are refused by name.
+#[test]
+fn subset_simulation_reuses_prior_draws_for_its_first_level_and_refuses_others() {
+    let system = Counting::new(LinearToy::new(3.0));
+    let prior = system.toy.prior();
+    let cfg = SubsetConfig { samples: 50, ..SubsetConfig::default() };
+    let whole = subset_simulation(&system, &prior, &cfg, 4, &()).unwrap();
+    let level0: Vec<_> = whole.records.iter().filter(|r| r.population == 0).cloned().collect();
+    assert_eq!(level0.len(), 50);
+    system.runs.store(0, Ordering::SeqCst);
+    let again = subset_simulation_reusing(&system, &prior, &cfg, 4, &level0[..30], &()).unwrap();
+    assert_eq!(system.runs.load(Ordering::SeqCst), whole.records.len() - 30, "reused rollouts were flown");
+    assert_eq!((again.estimate.reused, again.estimate.rollouts), (30, whole.records.len() - 30));
+    // The same rollouts up to the rounding of x → z → x (a few ulps).
+    assert_eq!(again.records.len(), whole.records.len() - 30);
+    for (a, b) in again.records.iter().zip(&whole.records[30..]) {
+        assert_eq!((a.population, a.index, a.seed, a.failed), (b.population, b.index, b.seed, b.failed));
+        let far = a.disturbances.iter().flatten().zip(b.disturbances.iter().flatten()).any(|(x, y)| (x - y).abs() > 1e-12);
+        assert!(!far, "rollout {}/{} moved", a.population, a.index);
+    }
+    assert_eq!(again.thresholds.len(), whole.thresholds.len());
+    assert!(again.thresholds.iter().zip(&whole.thresholds).all(|(a, b)| (a - b).abs() < 1e-12));
+    assert_eq!(again.estimate.probability, whole.estimate.probability);
+
+    // A Monte Carlo run's 80 draws: the first 50 are level 0, nothing of it is flown.
+    let mc = monte_carlo(&system, &prior, &MonteCarloConfig { rollouts: 80 }, 9, &()).unwrap();
+    system.runs.store(0, Ordering::SeqCst);
+    let from_mc = subset_simulation_reusing(&system, &prior, &cfg, 4, &mc.records, &()).unwrap();
+    assert_eq!(from_mc.estimate.reused, 50);
+    assert!(from_mc.records.iter().all(|r| r.population > 0), "level 0 must be the Monte Carlo draws");
+    assert_eq!(system.runs.load(Ordering::SeqCst), from_mc.records.len());
+    assert!(from_mc.estimate.probability > 0.0 && from_mc.estimate.probability < 0.05);
+
+    let cem = cross_entropy(&system, &prior, &CemConfig::default(), 3, None, &()).unwrap();
+    let drawn = cem.records.iter().filter(|r| r.population > 0).cloned().collect::<Vec<_>>();
+    let e = subset_simulation_reusing(&system, &prior, &cfg, 4, &drawn, &()).err().unwrap().to_string();
+    assert!(e.contains("reused rollout cem/") && e.contains("drawn from the prior"), "{e}");
+    let mut short = level0[..2].to_vec();
+    short[1].disturbances.pop();
+    let e = subset_simulation_reusing(&system, &prior, &cfg, 4, &short, &()).err().unwrap().to_string();
+    assert!(e.contains("reused rollout subset/0/1"), "{e}");
 }

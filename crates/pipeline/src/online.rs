@@ -3,19 +3,21 @@
 //! where NeRF-sim and GT-sim disagree.
 //!
 //! For each method of `[online] methods` (folder `online/{ga,bla}/`):
-//! - `plain/`: Monte Carlo and CEM in NeRF-sim with the vision estimator, as the stress stage
-//!   flies them (the same seeds, so the same rollouts: the first `mc_rollouts` of its MC and all
-//!   of its CEM populations), now measuring each step's uncertainty. These are the rows without
-//!   reward.
+//! - `plain/`: Monte Carlo and CEM in NeRF-sim with the vision estimator as the stress stage
+//!   flew them (the first `mc_rollouts` of its MC and all of its CEM populations), each step's
+//!   uncertainty measured at the pose its record keeps for the step's end: the view the camera
+//!   had there, so the same values as flying them again with the measurement on, without the
+//!   flights. These are the rows without reward.
 //! - `reward/`: CEM again, ranking its samples by the method's reward (eq. 10 or 11).
 //! - Monte Carlo draws from the prior and never ranks, so a reward changes none of its rollouts:
 //!   its row with reward is the plain MC rollouts with the reward averaged (`avg_reward`), not a
 //!   second flight of the same rollouts.
 //! - The per-step uncertainty of `plain/` against the stress stage's GT-sim replay of the same
 //!   rollouts: the AUROC of a disagreeing step (and trajectory).
-//! - CEM ends with an importance-sampling batch (`[online] is_samples`, default 1); the study
-//!   reports no failure probability (the stress stage estimates it), so its rows are CEM's
-//!   populations only, as the paper's tables. The batch's rollouts are in `rollouts.csv`.
+//! - The CEM ranked by the reward ends with an importance-sampling batch (`[online]
+//!   is_samples`, default 1); the study reports no failure probability (the stress stage
+//!   estimates it), so its rows are CEM's populations only, as the paper's tables. The batch's
+//!   rollouts are in `reward/rollouts.csv`.
 //!
 //! The uncertainty is measured in exact mode (GA or BLA on the view's rays against the
 //! ground-truth render of the same pixels); `nerfsv stress --uncertainty field` looks it up in
@@ -27,7 +29,7 @@ use nerfsv_sim::{EstimatorKind, WorldKind};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
     disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, UncertaintyReward,
-    UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -35,7 +37,10 @@ use crate::config::OnlineConfig;
 use crate::flight::FlightInputs;
 use crate::stage::{Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
-use crate::stress::{replay_csv, stress, OnlineSettings, Sampler, StressSetup, StressStage};
+use crate::stress::{
+    measure_recorded, replay_csv, stress, write_table as write_stress_table, OnlineSettings, Sampler, StressSetup,
+    StressStage, ROLLOUTS_CSV, TABLE_CSV,
+};
 use crate::PipelineError;
 
 /// The stage's combined table.
@@ -56,9 +61,10 @@ pub struct OnlineRow {
 pub struct MethodStudy {
     pub method: Method,
     pub rows: Vec<OnlineRow>,
-    /// Views whose uncertainty this invocation measured (both runs; a resumed stage does not
-    /// measure the rollouts it recalls) and their mean wall-clock milliseconds (a timing: not
-    /// part of what a seed reproduces; `None` without a view).
+    /// Views whose uncertainty this invocation measured (the plain rollouts' steps and the
+    /// rewarded run's; a resumed stage does not fly again, nor measure, the rewarded rollouts it
+    /// recalls) and their mean wall-clock milliseconds (a timing: not part of what a seed
+    /// reproduces; `None` without a view).
     pub views: usize,
     pub milliseconds_per_view: Option<f64>,
     /// The per-step uncertainty of the plain rollouts against the stress stage's replays.
@@ -160,8 +166,9 @@ impl Stage for OnlineStage<'_> {
         let s = self.search;
         let flight = inputs.plan(s.sim)?;
         let validation = self.validation();
-        let replays_path = cx.input_dir(crate::stress::STAGE).join(replay_csv(WorldKind::Gt));
-        let replays = read_records(&replays_path)?;
+        let stress_dir = cx.input_dir(crate::stress::STAGE);
+        let replays = read_records(&stress_dir.join(replay_csv(WorldKind::Gt)))?;
+        let stress_records = read_records(&stress_dir.join(ROLLOUTS_CSV))?;
         let mut studies = Vec::new();
         for &method in &self.online.methods {
             let dir = cx.dir.join(method.name());
@@ -188,7 +195,44 @@ impl Stage for OnlineStage<'_> {
                 std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
                 stress(&setup, &out, &format!("online {} {name}", method.name()), cx.resume, cx.observer)
             };
-            let (plain, plain_records) = run(&[Sampler::Mc, Sampler::Cem], false, "plain")?;
+            let (plain_records, plain_views, plain_seconds) = {
+                let setup = StressSetup {
+                    inputs: &inputs,
+                    flight: &flight,
+                    scene: s.scene,
+                    sim: s.sim,
+                    validation: &validation,
+                    prior: s.prior,
+                    intrinsics: s.intrinsics,
+                    render: s.render,
+                    world: WorldKind::Nerf,
+                    estimator: EstimatorKind::Vision,
+                    samplers: &[],
+                    replay: false,
+                    online: Some(OnlineSettings { method, mode: UqMode::Exact, reward: false }),
+                    uq: self.uq,
+                    field: None,
+                    stage: Self::NAME,
+                };
+                let flown: Vec<RolloutRecord> = stress_records
+                    .iter()
+                    .filter(|r| {
+                        (r.sampler == SAMPLER_MC && r.index < validation.monte_carlo.rollouts)
+                            || r.sampler == SAMPLER_CEM
+                    })
+                    .cloned()
+                    .collect();
+                let (records, views, seconds) = measure_recorded(&setup, flown, cx.observer)?;
+                let out = dir.join("plain");
+                std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
+                let path = out.join(ROLLOUTS_CSV);
+                nerfsv_validation::write_csv_file(&path, &records).map_err(|e| PipelineError::io(&path, e))?;
+                let rows: Vec<TableRow> =
+                    [SAMPLER_MC, SAMPLER_CEM].into_iter().filter_map(|sampler| table_row(sampler, &records)).collect();
+                let settings = Some(OnlineSettings { method, mode: UqMode::Exact, reward: false });
+                write_stress_table(&out.join(TABLE_CSV), WorldKind::Nerf, settings, &rows)?;
+                (records, views, seconds)
+            };
             let (rewarded, reward_records) = run(&[Sampler::Cem], true, "reward")?;
             let scorer = UncertaintyReward::new(method, self.uq);
             let scored: Vec<RolloutRecord> =
@@ -204,15 +248,14 @@ impl Stage for OnlineStage<'_> {
                     rows.push(OnlineRow { method, reward, row });
                 }
             }
-            let searched: Vec<RolloutRecord> = plain_records.into_iter().filter(|r| r.sampler != SAMPLER_IS).collect();
-            let views = plain.uncertainty_views + rewarded.uncertainty_views;
-            let seconds = plain.uncertainty_seconds + rewarded.uncertainty_seconds;
+            let views = plain_views + rewarded.uncertainty_views;
+            let seconds = plain_seconds + rewarded.uncertainty_seconds;
             studies.push(MethodStudy {
                 method,
                 rows,
                 views,
                 milliseconds_per_view: (views > 0).then(|| 1e3 * seconds / views as f64),
-                disagreement: disagreement_auroc(&searched, &replays),
+                disagreement: disagreement_auroc(&plain_records, &replays),
             });
         }
         let figures = OnlineFigures {

@@ -10,15 +10,18 @@ use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use nerfsv_scene::Camera;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
-    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, subset_simulation_reusing, table_row,
-    Agreement, Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, ImportanceEstimate, Journal,
-    Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, UncertaintyReward, UqMode, ValidationConfig,
-    ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, subset_simulation_reusing,
+    table_row, Agreement, Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, ImportanceEstimate,
+    Journal, Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, UncertaintyReward, UqMode,
+    ValidationConfig, ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 use serde::{Deserialize, Serialize};
 
@@ -451,6 +454,89 @@ impl ViewUncertainty for Timed<'_> {
     }
 }
 
+/// What measures a view's uncertainty under `setup.online` (none without): exact mode compares
+/// the NeRF with `gt_world`'s render of the view, field mode looks it up in `setup.field`.
+fn view_meter<'a>(
+    setup: &'a StressSetup,
+    gt_world: &'a dyn World,
+    background: [f32; 3],
+) -> Result<Option<Box<dyn ViewUncertainty + 'a>>, PipelineError> {
+    let pixels = online_pixels(&setup.intrinsics, setup.uq);
+    Ok(match setup.online {
+        None => None,
+        Some(o) => Some(match o.mode {
+            UqMode::Exact => Box::new(ExactUncertainty {
+                method: o.method,
+                nerf: &setup.inputs.nerf,
+                reference: gt_world,
+                pixels,
+                background,
+                cfg: setup.uq,
+            }),
+            UqMode::Field => {
+                let field = setup.field.ok_or_else(|| {
+                    PipelineError::Internal("field mode needs an uncertainty field (`nerfsv uq field`)".into())
+                })?;
+                Box::new(FieldUncertainty { field, pixels, background })
+            }
+        }),
+    })
+}
+
+/// Rollouts already flown in `setup.world` (a stress run's records), each step's uncertainty
+/// measured under `setup.online` at the pose the record keeps for the step's end
+/// (`step_positions`, `step_attitudes`): what flying them again with the measurement on gives,
+/// without flying them. A step without a finite pose (not flown) gets NaN. Returns the records
+/// and the views measured with their wall-clock seconds (inside the parallel loop).
+///
+/// Errors: a record without poses (a system that records none), naming it.
+pub fn measure_recorded(
+    setup: &StressSetup,
+    records: Vec<RolloutRecord>,
+    observer: &dyn Observer,
+) -> Result<(Vec<RolloutRecord>, usize, f64), PipelineError> {
+    let sim = setup.flight.simulator(setup.sim, &setup.inputs.nerf, setup.intrinsics);
+    let gt_world = world(WorldKind::Gt, setup.inputs, setup.scene, setup.render);
+    let meter = view_meter(setup, gt_world.as_ref(), sim.background)?
+        .ok_or_else(|| PipelineError::Internal("measure_recorded: no uncertainty to measure".into()))?;
+    let timed = Timed { inner: meter.as_ref(), views: AtomicU64::new(0), nanos: AtomicU64::new(0) };
+    if let Some(r) = records
+        .iter()
+        .find(|r| r.step_positions.len() != r.step_scores.len() || r.step_attitudes.len() != r.step_scores.len())
+    {
+        return Err(PipelineError::Internal(format!(
+            "rollout {}/{}/{} keeps no pose per step: it cannot be measured without flying it",
+            r.sampler, r.population, r.index
+        )));
+    }
+    let status = format!("measuring {} rollouts' steps", records.len());
+    let done = AtomicU64::new(0);
+    let total = records.len() as u64;
+    let measured: Vec<RolloutRecord> = records
+        .into_par_iter()
+        .map(|mut r| {
+            r.step_uncertainty = r
+                .step_positions
+                .iter()
+                .zip(&r.step_attitudes)
+                .map(|(p, a)| {
+                    if p.iter().chain(a).all(|v| v.is_finite()) {
+                        let rotation = nerfsv_sim::dynamics::so3_exp(&nalgebra::Vector3::from(*a));
+                        timed.view_uncertainty(&drone_camera(sim.intrinsics, &nalgebra::Vector3::from(*p), &rotation))
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect();
+            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+            observer.progress(setup.stage, d, total, &status);
+            r
+        })
+        .collect();
+    let views = timed.views.load(Ordering::Relaxed) as usize;
+    Ok((measured, views, timed.nanos.load(Ordering::Relaxed) as f64 * 1e-9))
+}
+
 /// A sampler's failure probability and how it was estimated.
 struct Estimate {
     p: f64,
@@ -546,26 +632,7 @@ pub fn stress(
     };
     // Online uncertainty: exact mode compares the NeRF with the ground truth's render of the view.
     let gt_world = if setup.world == WorldKind::Gt { search_world.as_ref() } else { replay_world.as_ref() };
-    let pixels = online_pixels(&setup.intrinsics, setup.uq);
-    let meter: Option<Box<dyn ViewUncertainty + '_>> = match setup.online {
-        None => None,
-        Some(o) => Some(match o.mode {
-            UqMode::Exact => Box::new(ExactUncertainty {
-                method: o.method,
-                nerf: &setup.inputs.nerf,
-                reference: gt_world,
-                pixels,
-                background: sim.background,
-                cfg: setup.uq,
-            }),
-            UqMode::Field => {
-                let field = setup.field.ok_or_else(|| {
-                    PipelineError::Internal("field mode needs an uncertainty field (`nerfsv uq field`)".into())
-                })?;
-                Box::new(FieldUncertainty { field, pixels, background: sim.background })
-            }
-        }),
-    };
+    let meter = view_meter(setup, gt_world, sim.background)?;
     let timed = meter.as_deref().map(|inner| Timed { inner, views: AtomicU64::new(0), nanos: AtomicU64::new(0) });
     let scorer = setup.online.filter(|o| o.reward).map(|o| {
         let s = UncertaintyReward::new(o.method, setup.uq);
@@ -665,7 +732,11 @@ pub fn stress(
                         SubsetEstimate::ESTIMATOR,
                         e.levels,
                         if e.reused > 0 {
-                            format!(" (level 0: {} Monte Carlo rollouts and {} more)", e.reused, v.subset.samples - e.reused)
+                            format!(
+                                " (level 0: {} Monte Carlo rollouts and {} more)",
+                                e.reused,
+                                v.subset.samples - e.reused
+                            )
                         } else {
                             String::new()
                         },
@@ -866,7 +937,7 @@ fn write_failure(
 /// The Tables 1–2 rows as CSV: `world,` [`TableRow::CSV_HEADER`] `,uncertainty,mode,reward`
 /// (empty where undefined; `uncertainty` the method measured, `reward` the method CEM ranked
 /// by).
-fn write_table(
+pub(crate) fn write_table(
     path: &Path,
     world: WorldKind,
     online: Option<OnlineSettings>,

@@ -58,9 +58,8 @@ fn ga_ray_std_is_nan_without_samples_and_matches_its_closed_form() {
     let t = [1.5f32, 2.0];
     let bg = [0.25f32, 0.5, 1.0];
     let [c, d] = ga_ray_std(&colours, &weights, &t, bg, 0.4);
-    let s: [f64; 3] = [0, 1, 2].map(|ch| {
-        (0..2).map(|i| ((colours[i][ch] as f64 - bg[ch] as f64) * weights[i] as f64).powi(2)).sum::<f64>()
-    });
+    let s: [f64; 3] = [0, 1, 2]
+        .map(|ch| (0..2).map(|i| ((colours[i][ch] as f64 - bg[ch] as f64) * weights[i] as f64).powi(2)).sum::<f64>());
     let want_c = 0.4 * ((s[0] + s[1] + s[2]) / 3.0).sqrt();
     let a = 0.3f64 + 0.5f64;
     let want_d = 0.4 * ((0.3f64 * 1.5).powi(2) + (0.5f64 * 2.0).powi(2)).sqrt() / a;

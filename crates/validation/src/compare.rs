@@ -152,6 +152,7 @@ mod tests {
             score,
             step_scores: step_scores.to_vec(),
             step_positions: vec![],
+            step_attitudes: vec![],
             step_uncertainty: vec![],
             collision_step: step_scores.iter().position(|&s| s <= 0.0),
             lost_step: None,

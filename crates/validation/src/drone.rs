@@ -5,6 +5,7 @@ use std::path::Path;
 use std::sync::Mutex;
 
 use nerfsv_sim::camera::drone_camera;
+use nerfsv_sim::dynamics::so3_log;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
 
 use crate::error::ValidationError;
@@ -118,6 +119,8 @@ impl System for DroneSystem<'_> {
             step_ends[s.step] = Some(&s.truth);
         }
         let step_positions = step_ends.iter().map(|t| t.map_or([f64::NAN; 3], |t| t.position.into())).collect();
+        let step_attitudes =
+            step_ends.iter().map(|t| t.map_or([f64::NAN; 3], |t| so3_log(&t.rotation).into())).collect();
         let step_uncertainty = match self.uncertainty {
             None => Vec::new(),
             Some(u) => step_ends
@@ -136,6 +139,7 @@ impl System for DroneSystem<'_> {
             collision_step: r.first_collision.map(|e| e.step),
             step_scores,
             step_positions,
+            step_attitudes,
             step_uncertainty,
         }
     }

@@ -70,6 +70,7 @@ pub use sampler::{
 };
 pub use seed::rollout_seed;
 pub use subset::{
-    correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult, SAMPLER_SUBSET};
+    correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult, SAMPLER_SUBSET,
+};
 pub use system::{Outcome, System};
 pub use table::{table_row, TableRow};

@@ -41,6 +41,9 @@ pub struct RolloutRecord {
     pub step_scores: Vec<f64>,
     /// Position at the end of each step, `[steps]` (empty for a system without positions).
     pub step_positions: Vec<[f64; 3]>,
+    /// Attitude at the end of each step as a rotation vector (axis × angle, radians, body to
+    /// world), `[steps]` (empty for a system without attitudes).
+    pub step_attitudes: Vec<[f64; 3]>,
     /// Uncertainty of each step's observation, `[steps]` (empty when none is measured).
     pub step_uncertainty: Vec<f64>,
     /// First step that touched geometry, if any.
@@ -63,6 +66,7 @@ impl RolloutRecord {
             score: outcome.score,
             step_scores: outcome.step_scores,
             step_positions: outcome.step_positions,
+            step_attitudes: outcome.step_attitudes,
             step_uncertainty: outcome.step_uncertainty,
             collision_step: outcome.collision_step,
             lost_step: outcome.lost_step,
@@ -94,7 +98,7 @@ impl RolloutRecord {
 }
 
 /// The columns after the disturbances.
-const TAIL: [&str; 12] = [
+const TAIL: [&str; 15] = [
     "log_p",
     "log_q",
     "uncertainty",
@@ -105,12 +109,15 @@ const TAIL: [&str; 12] = [
     "x",
     "y",
     "z",
+    "rx",
+    "ry",
+    "rz",
     "collided",
     "lost",
 ];
 
 /// The CSV header for disturbances of dimension `dim`:
-/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,collided,lost`.
+/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,rx,ry,rz,collided,lost`.
 pub fn csv_header(dim: usize) -> String {
     let mut s = String::from("sampler,population,index,seed,step");
     for j in 0..dim {
@@ -130,7 +137,8 @@ pub fn csv_header(dim: usize) -> String {
 /// clearance) and `trajectory_log_q` (ln q of the whole trajectory: the sum of the rows'
 /// `log_q`, except for a defensive mixture, which does not factor over steps) repeat on every
 /// row of the rollout; `clearance` is the step's minimum clearance;
-/// `x,y,z` the position at the step's end (empty for systems without one); `collided` is 1 on
+/// `x,y,z` the position at the step's end and `rx,ry,rz` the attitude there as a rotation vector
+/// (axis × angle, radians, body to world; both empty for systems without them); `collided` is 1 on
 /// the first step that touched geometry and 0 elsewhere (a step touched geometry where its
 /// clearance is ≤ 0); `lost` is 1 on the step at which the system was lost (its state stopped
 /// being finite or left the region where its score is defined) and 0 elsewhere. Floats are
@@ -169,12 +177,16 @@ pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()
                 let _ = write!(line, "{reward}");
             }
             let _ = write!(line, ",{},{},{},", r.score, r.log_q, at(&r.step_scores));
-            match r.step_positions.get(t) {
-                Some([x, y, z]) => {
-                    let _ = write!(line, "{x},{y},{z}");
+            for v in [&r.step_positions, &r.step_attitudes] {
+                match v.get(t) {
+                    Some([x, y, z]) => {
+                        let _ = write!(line, "{x},{y},{z}");
+                    }
+                    None => line.push_str(",,"),
                 }
-                None => line.push_str(",,"),
+                line.push(',');
             }
+            line.pop();
             let _ = write!(line, ",{},{}", u8::from(r.collision_step == Some(t)), u8::from(r.lost_step == Some(t)));
             writeln!(w, "{line}")?;
         }
@@ -234,12 +246,13 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         let trajectory_log_q = float(tail + 5)?;
         let clearance = float(tail + 6)?;
         let position = [optional(tail + 7)?, optional(tail + 8)?, optional(tail + 9)?];
+        let attitude = [optional(tail + 10)?, optional(tail + 11)?, optional(tail + 12)?];
         let flag = |i: usize| match fields[i] {
             "0" => Ok(false),
             "1" => Ok(true),
             other => Err((n, format!("column {}: `{other}` is not 0 or 1", col(i)))),
         };
-        let (collided, lost) = (flag(tail + 10)?, flag(tail + 11)?);
+        let (collided, lost) = (flag(tail + 13)?, flag(tail + 14)?);
         let continues = records.last().is_some_and(|r| {
             r.sampler == fields[0] && r.population == population && r.index == index && r.seed == seed
         });
@@ -257,6 +270,7 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
                 score,
                 step_scores: Vec::new(),
                 step_positions: Vec::new(),
+                step_attitudes: Vec::new(),
                 step_uncertainty: Vec::new(),
                 collision_step: None,
                 lost_step: None,
@@ -280,10 +294,14 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         r.step_log_p.push(log_p);
         r.step_log_q.push(log_q);
         r.step_scores.push(clearance);
-        match (position, step == 0 || !r.step_positions.is_empty()) {
-            ([Some(x), Some(y), Some(z)], true) => r.step_positions.push([x, y, z]),
-            ([None, None, None], _) if r.step_positions.is_empty() => {}
-            _ => return Err((n, "x, y, z must be all given or all empty, on every row of a rollout".to_owned())),
+        for (value, v, names) in
+            [(position, &mut r.step_positions, "x, y, z"), (attitude, &mut r.step_attitudes, "rx, ry, rz")]
+        {
+            match (value, step == 0 || !v.is_empty()) {
+                ([Some(x), Some(y), Some(z)], true) => v.push([x, y, z]),
+                ([None, None, None], _) if v.is_empty() => {}
+                _ => return Err((n, format!("{names} must be all given or all empty, on every row of a rollout"))),
+            }
         }
         match (uncertainty, step == 0 || !r.step_uncertainty.is_empty()) {
             (Some(u), true) => r.step_uncertainty.push(u),

@@ -208,7 +208,8 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
                     format!("{} steps", r.disturbances.len()),
                 ));
             }
-            if !((r.log_q - r.log_p).abs() <= 1e-9 * r.log_p.abs().max(1.0)) {
+            let from_prior = (r.log_q - r.log_p).abs() <= 1e-9 * r.log_p.abs().max(1.0);
+            if !from_prior {
                 return Err(InvalidValue::new(
                     name(),
                     "must be drawn from the prior (log q = log p)",

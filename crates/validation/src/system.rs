@@ -29,6 +29,9 @@ pub struct Outcome {
     pub step_scores: Vec<f64>,
     /// Position at the end of each step, `[steps]`, or empty for a system without one.
     pub step_positions: Vec<[f64; 3]>,
+    /// Attitude at the end of each step as a rotation vector (axis × angle, radians, body to
+    /// world), `[steps]`, or empty for a system without one.
+    pub step_attitudes: Vec<[f64; 3]>,
     /// Uncertainty of each step's observation, `[steps]`, or empty when none is measured.
     pub step_uncertainty: Vec<f64>,
     /// First step at which the system was lost: its state stopped being finite or left the
@@ -45,6 +48,7 @@ impl Outcome {
             collision_step,
             step_scores,
             step_positions: Vec::new(),
+            step_attitudes: Vec::new(),
             step_uncertainty: Vec::new(),
             lost_step: None,
         }

@@ -95,6 +95,7 @@ mod tests {
             score: if collision_step.is_some() { -0.01 } else { 0.2 },
             step_scores: vec![],
             step_positions: vec![],
+            step_attitudes: vec![],
             step_uncertainty: vec![],
             collision_step,
             lost_step: None,

@@ -41,7 +41,7 @@ fn same_seed_gives_byte_identical_csv_with_one_and_two_threads() {
     let mut lines = text.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "sampler,population,index,seed,step,d0,d1,log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,collided,lost"
+        "sampler,population,index,seed,step,d0,d1,log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,rx,ry,rz,collided,lost"
     );
     // (200 MC + 3·40 CEM + 50 IS) rollouts × 6 steps.
     assert_eq!(lines.count(), (200 + 120 + 50) * 6);
@@ -88,6 +88,7 @@ fn csv_file_is_written_atomically_matches_the_stream_and_reads_back_bit_for_bit(
     let mut mc = monte_carlo(&toy, &toy.prior(), &MonteCarloConfig { rollouts: 5 }, 1, &()).unwrap();
     // Positions, uncertainties, rewards and non-finite clearances survive too.
     mc.records[1].step_positions = (0..6).map(|t| [t as f64, -0.1 / 3.0, 1e-300]).collect();
+    mc.records[1].step_attitudes = (0..6).map(|t| [-(t as f64), 0.1 / 3.0, 7e-9]).collect();
     mc.records[1].step_uncertainty = vec![0.25, 1.0 / 7.0, 0.0, -0.0, 3e10, 5e-324];
     mc.records[2].reward = Some(-123.456_789_012_345_67);
     mc.records[3].step_scores[4] = f64::INFINITY;

@@ -20,6 +20,7 @@ fn records(scores: &[f64]) -> Vec<RolloutRecord> {
             score: s,
             step_scores: vec![s],
             step_positions: vec![],
+            step_attitudes: vec![],
             step_uncertainty: vec![],
             collision_step: (s <= 0.0).then_some(0),
             lost_step: None,

@@ -177,7 +177,8 @@ fn subset_simulation_reuses_prior_draws_for_its_first_level_and_refuses_others()
     assert_eq!(again.records.len(), whole.records.len() - 30);
     for (a, b) in again.records.iter().zip(&whole.records[30..]) {
         assert_eq!((a.population, a.index, a.seed, a.failed), (b.population, b.index, b.seed, b.failed));
-        let far = a.disturbances.iter().flatten().zip(b.disturbances.iter().flatten()).any(|(x, y)| (x - y).abs() > 1e-12);
+        let far =
+            a.disturbances.iter().flatten().zip(b.disturbances.iter().flatten()).any(|(x, y)| (x - y).abs() > 1e-12);
         assert!(!far, "rollout {}/{} moved", a.population, a.index);
     }
     assert_eq!(again.thresholds.len(), whole.thresholds.len());

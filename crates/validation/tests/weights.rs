@@ -50,6 +50,7 @@ fn cem_elite_weights_use_the_trajectory_ratio_not_the_mean_of_step_ratios() {
             score: -1.0,
             step_scores: vec![-1.0; 3],
             step_positions: vec![],
+            step_attitudes: vec![],
             step_uncertainty: vec![],
             collision_step: Some(2),
             lost_step: None,

@@ -1,0 +1,81 @@
+//! The online stage measures the stress stage's rollouts without flying them again: each step's
+//! uncertainty from the pose the record keeps for the step's end (through its CSV) equals what
+//! flying the rollout again with the measurement on gives, bit for bit, for GA and BLA.
+
+mod common;
+
+use nerfsv_pipeline::flight::FlightInputs;
+use nerfsv_pipeline::stress::{measure_recorded, stress, OnlineSettings, Sampler, StressSetup, STAGE};
+use nerfsv_pipeline::{RunConfig, Silent};
+use nerfsv_scene::Scene;
+use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_uq::Method;
+use nerfsv_validation::{parse_csv, write_csv, UqMode};
+
+#[test]
+fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let inputs = FlightInputs::load(&model, &field, &field).unwrap();
+    let text = "[sim.vision]\npixels = 16\niterations = 2\n[validation]\nseed = 3\n[validation.disturbance]\n\
+                std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]\n\
+                [validation.monte_carlo]\nrollouts = 6\n[uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n\
+                online_rays = 64\nonline_bla_rays = 16\n";
+    let cfg: RunConfig = toml::from_str(text).unwrap();
+    let scene = Scene::builtin("monolith").unwrap();
+    let prior = cfg.disturbance_prior().unwrap();
+    let flight = inputs.plan(&cfg.sim).unwrap();
+    for method in [Method::Ga, Method::Bla] {
+        let setup = StressSetup {
+            inputs: &inputs,
+            flight: &flight,
+            scene: &scene,
+            sim: &cfg.sim,
+            validation: &cfg.validation,
+            prior: &prior,
+            intrinsics: cfg.camera_intrinsics(),
+            render: cfg.dataset.render_settings(),
+            world: WorldKind::Nerf,
+            estimator: EstimatorKind::Vision,
+            samplers: &[Sampler::Mc],
+            replay: false,
+            online: Some(OnlineSettings { method, mode: UqMode::Exact, reward: false }),
+            uq: &cfg.uq,
+            field: None,
+            stage: STAGE,
+        };
+        let out = dir.path().join(method.name());
+        std::fs::create_dir_all(&out).unwrap();
+        let (_, flown) = stress(&setup, &out, "k", false, &Silent).unwrap();
+        assert_eq!(flown.len(), 6);
+        assert!(flown.iter().any(|r| r.collision_step.is_some()), "the wide prior should crash the drone");
+        // Through the CSV, as the online stage reads the stress stage's rollouts, measurement off.
+        let mut bytes = Vec::new();
+        write_csv(&mut bytes, &flown).unwrap();
+        let mut recorded = parse_csv(std::str::from_utf8(&bytes).unwrap()).unwrap();
+        recorded.iter_mut().for_each(|r| r.step_uncertainty.clear());
+        let (measured, views, _) = measure_recorded(&setup, recorded, &Silent).unwrap();
+        let steps_flown: usize = flown.iter().map(|r| r.step_scores.iter().filter(|s| !s.is_nan()).count()).sum();
+        assert_eq!(views, steps_flown, "{}: one view per flown step", method.name());
+        for (a, b) in flown.iter().zip(&measured) {
+            assert_eq!(a.step_uncertainty.len(), 6);
+            let bits = |r: &nerfsv_validation::RolloutRecord| {
+                r.step_uncertainty.iter().map(|u| u.to_bits()).collect::<Vec<_>>()
+            };
+            assert_eq!(
+                bits(a),
+                bits(b),
+                "{} rollout {}: {:?} vs {:?}",
+                method.name(),
+                a.index,
+                a.step_uncertainty,
+                b.step_uncertainty
+            );
+        }
+        // A record without poses cannot be measured.
+        let mut bare = flown[0].clone();
+        bare.step_attitudes.clear();
+        let e = measure_recorded(&setup, vec![bare], &Silent).unwrap_err().to_string();
+        assert!(e.contains("keeps no pose per step"), "{e}");
+    }
+}

@@ -203,6 +203,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\n\
              [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
              [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n[uq_offline]\nbla_images_per_split = 1\nga_images_per_split = {ga_images}\n"
         );
         std::fs::write(&cfg, text).unwrap();
@@ -221,6 +222,14 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert_uq_stage(&out, &summary["uq"]);
     assert_online_stage(&out, &summary["online"]);
     assert_report(&out, &first);
+    // The stress stage estimates P(fail) by subset simulation too, its level 0 from the MC rollouts.
+    let samplers = summary["stress"]["samplers"].as_array().unwrap();
+    let names: Vec<&str> = samplers.iter().map(|s| s["sampler"].as_str().unwrap()).collect();
+    assert_eq!(names, ["mc", "cem", "subset"]);
+    let subset = &samplers[2];
+    let how = subset["p_fail_estimator"].as_str().unwrap();
+    assert!(how.contains("level 0: 4 Monte Carlo rollouts and 6 more"), "{how}");
+    assert!(subset["p_fail"].as_f64().is_some_and(|p| (0.0..=1.0).contains(&p)), "{subset}");
 
     let (second, again) = run();
     for stage in ["dataset", "collision", "nerf", "eval", "uq", "nerf_collision", "flight", "stress", "online"] {
@@ -261,8 +270,12 @@ fn assert_report(run: &std::path::Path, stderr: &str) {
     let index = dir.join("index.html");
     assert!(stderr.contains(&format!("report: {}", index.display())), "{stderr}");
     let html = std::fs::read_to_string(&index).unwrap();
+    // The answer first, then the contents, the stages' sections, the config, the timings last.
+    let mut at = 0;
     for heading in [
-        "Stages",
+        "The study's answer",
+        "How likely does the drone crash",
+        "Contents:",
         "The NeRF against the ground truth",
         "Collision fields",
         "Nominal flights",
@@ -270,9 +283,16 @@ fn assert_report(run: &std::path::Path, stderr: &str) {
         "Tables 1–2",
         "Offline uncertainty",
         "Run config",
+        "Stage timings",
     ] {
-        assert!(html.contains(heading), "{heading} missing from the report");
+        let found =
+            html[at..].find(heading).unwrap_or_else(|| panic!("{heading} missing from the report, or out of order"));
+        at += found;
     }
+    assert!(
+        html.contains("<a href=\"#stress\">") && html.contains("<h2 id=\"stress\">"),
+        "contents link to the sections"
+    );
     assert!(!html.contains("has not run in this folder"), "a stage is missing from the report");
     let images: Vec<&str> = html.split("<img src=\"").skip(1).map(|s| s.split('"').next().unwrap()).collect();
     // The comparison, two flights and five uncertainty figures (the tiny drone does not crash,

@@ -43,6 +43,7 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
             uq: &cfg.uq,
             field: None,
             stage: STAGE,
+            reports_p_fail: true,
         };
         let out = dir.path().join(method.name());
         std::fs::create_dir_all(&out).unwrap();

@@ -176,6 +176,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         uq: &cfg.uq,
         field: field.as_ref(),
         stage: nerfsv_pipeline::stress::STAGE,
+        reports_p_fail: true,
     };
     // Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
     // results (the code it runs included): a --resume into results of anything else is refused.

@@ -203,10 +203,15 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
 }
 
 /// `cfg` as TOML without its run folder (the report shows it; a copied run folder's report
-/// stays right).
+/// stays right). Values read as a user writes them: an `f32` setting shows its shortest
+/// decimal (`camera_angle_x = 0.8`, not the `0.800000011920929` of its widening to `f64`).
 pub fn config_toml(cfg: &RunConfig) -> Result<String, PipelineError> {
-    let mut table = toml::Table::try_from(cfg)
+    // Through text: the serialiser writes each f32 in its own shortest form, and the table read
+    // back from that text holds those decimals.
+    let text = toml::to_string(cfg)
         .map_err(|e| PipelineError::Internal(format!("the run config is not serialisable as TOML: {e}")))?;
+    let mut table: toml::Table =
+        text.parse().map_err(|e| PipelineError::Internal(format!("the run config's own TOML: {e}")))?;
     table.remove("out");
     toml::to_string(&table).map_err(|e| PipelineError::Internal(format!("the run config as TOML: {e}")))
 }
@@ -235,5 +240,20 @@ mod tests {
         }
         assert!(refuse_output_inside(&root.path().join("renders"), &inputs).is_ok());
         assert!(refuse_output_inside(&root.path().join("data2"), &inputs).is_ok());
+    }
+
+    #[test]
+    fn the_reported_config_shows_f32_settings_as_written_and_loads_back_to_the_same_config() {
+        let cfg = RunConfig::default();
+        let text = config_toml(&cfg).unwrap();
+        assert!(text.contains("camera_angle_x = 0.8\n"), "{text}");
+        assert!(text.contains("close_up_fraction = 0.3\n"), "{text}");
+        assert!(text.contains("betas = [0.9, 0.99]\n") && text.contains("grid_decay = 0.95\n"), "{text}");
+        assert!(!text.contains("out = "), "{text}");
+        let back: RunConfig = toml::from_str(&text).unwrap();
+        assert_eq!(
+            toml::to_string(&RunConfig { out: cfg.out.clone(), ..back }).unwrap(),
+            toml::to_string(&cfg).unwrap()
+        );
     }
 }

@@ -190,6 +190,7 @@ impl Stage for OnlineStage<'_> {
                     uq: self.uq,
                     field: None,
                     stage: Self::NAME,
+                    reports_p_fail: false,
                 };
                 let out = dir.join(name);
                 std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
@@ -213,6 +214,7 @@ impl Stage for OnlineStage<'_> {
                     uq: self.uq,
                     field: None,
                     stage: Self::NAME,
+                    reports_p_fail: false,
                 };
                 let flown: Vec<RolloutRecord> = stress_records
                     .iter()

@@ -312,6 +312,128 @@ fn figure(out: &mut String, file: &str, caption: &str) {
     );
 }
 
+/// The report's sections after the answer, `(anchor, title)`, in page order.
+const CONTENTS: &[(&str, &str)] = &[
+    ("eval", "NeRF"),
+    ("nerf_collision", "collision fields"),
+    ("flight", "nominal flights"),
+    ("stress", "stress tests"),
+    ("online", "Tables 1–2"),
+    ("uq", "offline uncertainty"),
+    ("config", "run config"),
+    ("stages", "stage timings"),
+];
+
+/// The study's answer, first on the page: how likely the drone fails under the disturbance
+/// prior (subset simulation's estimate where the stress stage ran it, else Monte Carlo's), how
+/// NeRF-sim's failures carry over to GT-sim, the most likely failure, and the uncertainty
+/// figures that say how far the NeRF can be trusted. Each line only when its stage ran.
+fn answer(o: &mut String, summary: &Value) {
+    let mut lines: Vec<String> = Vec::new();
+    let samplers = summary["stress"]["samplers"].as_array().cloned().unwrap_or_default();
+    let find = |name: &str| samplers.iter().find(|s| s["sampler"].as_str() == Some(name));
+    let world = |s: &Value| {
+        format!("{}-sim, {} estimator", s["world"].as_str().unwrap_or("?"), s["estimator"].as_str().unwrap_or("?"))
+    };
+    if let Some(s) = find("subset").or_else(|| find("mc")) {
+        let i = &s["p_fail_interval"];
+        let how = if s["sampler"].as_str() == Some("subset") {
+            format!("subset simulation, {} rollouts", num(&s["rollouts"], 0))
+        } else {
+            format!("Monte Carlo, {} rollouts", num(&s["rollouts"], 0))
+        };
+        let mut line = format!(
+            "<b>How likely does the drone crash</b> under the disturbance prior ({})? P(fail) = {}, 95 % interval [{}, {}] ({how})",
+            esc(&world(s)),
+            num(&s["p_fail"], 3),
+            num(&i[0], 3),
+            num(&i[1], 3),
+        );
+        if let (Some(mc), Some("subset")) = (find("mc"), s["sampler"].as_str()) {
+            let j = &mc["p_fail_interval"];
+            let _ = write!(
+                line,
+                "; Monte Carlo alone: {} of {} [{}, {}]",
+                pct(&mc["p_fail"]),
+                num(&mc["rollouts"], 0),
+                num(&j[0], 3),
+                num(&j[1], 3)
+            );
+        }
+        lines.push(line + ".");
+    }
+    if let Some(c) = find("mc").map(|s| &s["confusion"]).filter(|c| c.is_object()) {
+        let t = &c["trajectories"];
+        let n = |k: &str| t[k].as_u64().unwrap_or(0);
+        let (tp, fp, fneg, tn) = (n("true_positive"), n("false_positive"), n("false_negative"), n("true_negative"));
+        lines.push(format!(
+            "<b>Do NeRF-sim's failures hold in GT-sim?</b> Of the Monte Carlo rollouts, {} crashed in NeRF-sim and {} in              GT-sim with the same disturbances; {tp} crashed in both (precision {}, recall {}), {fp} only in NeRF-sim,              {fneg} only in GT-sim, {tn} in neither.",
+            tp + fp,
+            tp + fneg,
+            num(&c["precision"], 2),
+            num(&c["recall"], 2),
+        ));
+    }
+    if let Some(f) = find("cem").or_else(|| find("mc")).map(|s| &s["most_likely_failure"]).filter(|f| f.is_object()) {
+        let replay = match f["replay_collided"].as_bool() {
+            Some(true) => "it crashes in GT-sim too",
+            Some(false) => "it does not crash in GT-sim",
+            None => "not replayed",
+        };
+        lines.push(format!(
+            "<b>The most likely failure</b> found ({} {}/{}): log-likelihood {}, collision at step {}; {replay}.",
+            esc(&f["sampler"].as_str().unwrap_or("?").to_uppercase()),
+            num(&f["population"], 0),
+            num(&f["index"], 0),
+            num(&f["log_likelihood"], 2),
+            num(&f["collision_step"], 0),
+        ));
+    }
+    let u = &summary["uq"]["test"];
+    if u.is_object() {
+        lines.push(format!(
+            "<b>How far can the NeRF be trusted?</b> On its test images GA's noise-floored σ_d has median {} (the              paper's σ_d: {}, {} of {} images excluded at σ_d ≥ 3); BLA's information gain averages {} nats; depth              AUSE GA {}, BLA {} (lower ranks errors better).",
+            num(&u["ga_floored_median_sigma_d"], 3),
+            num(&u["ga_median_sigma_d"], 2),
+            num(&u["ga_excluded"], 0),
+            num(&u["ga_images"], 0),
+            num(&u["bla_mean_information_gain"], 1),
+            num(&summary["uq"]["ause_ga"], 3),
+            num(&summary["uq"]["ause_bla"], 3),
+        ));
+    }
+    let studies = summary["online"]["studies"].as_array().cloned().unwrap_or_default();
+    if !studies.is_empty() {
+        let parts: Vec<String> = studies
+            .iter()
+            .map(|m| {
+                let d = &m["disagreement"];
+                format!(
+                    "{} {} ({} of {} steps disagree)",
+                    esc(&m["method"].as_str().unwrap_or("?").to_uppercase()),
+                    num(&d["step_auroc"], 2),
+                    num(&d["disagreeing_steps"], 0),
+                    num(&d["steps"], 0)
+                )
+            })
+            .collect();
+        lines.push(format!(
+            "<b>Does the uncertainty flag where NeRF-sim and GT-sim disagree?</b> AUROC of a step's uncertainty for a              disagreeing step (0.5 is chance): {}.",
+            parts.join(", ")
+        ));
+    }
+    o.push_str("<h2 id=\"answer\">The study's answer</h2>\n");
+    if lines.is_empty() {
+        o.push_str("<p class=\"missing\">No stage that answers it has run in this folder.</p>\n");
+        return;
+    }
+    o.push_str("<ul class=\"answer\">\n");
+    for l in lines {
+        let _ = writeln!(o, "<li>{l}</li>");
+    }
+    o.push_str("</ul>\n");
+}
+
 fn page(
     summary: &Value,
     config: Option<&str>,
@@ -329,11 +451,17 @@ fn page(
          figure{display:inline-block;margin:0.5em;max-width:100%;vertical-align:top}\n\
          img{max-width:100%;height:auto;border:1px solid #ddd}figcaption{font-size:0.85em;color:#555}\n\
          pre{background:#f6f6f6;padding:0.8em;overflow:auto;max-height:30em;font-size:0.8em}\n\
-         .missing{color:#a00}\n</style></head><body>\n<h1>nerfsv report</h1>\n",
+         .missing{color:#a00}ul.answer li{margin:0.4em 0}nav{font-size:0.9em}\n</style></head><body>\n<h1>nerfsv report</h1>\n",
     );
     let _ = writeln!(o, "<p>Run folder: <code>{}</code></p>", esc(summary["run"].as_str().unwrap_or("?")));
+    answer(&mut o, summary);
+    o.push_str("<nav><p>Contents:");
+    for (i, (id, title)) in CONTENTS.iter().enumerate() {
+        let _ = write!(o, "{} <a href=\"#{id}\">{}</a>", if i == 0 { "" } else { " ·" }, esc(title));
+    }
+    o.push_str("</p></nav>\n");
     let section = |o: &mut String, stage: &str, title: &str| -> bool {
-        let _ = writeln!(o, "<h2>{}</h2>", esc(title));
+        let _ = writeln!(o, "<h2 id=\"{}\">{}</h2>", esc(stage), esc(title));
         if summary.get(stage).is_none() {
             let _ = writeln!(o, "<p class=\"missing\">The {} stage has not run in this folder.</p>", esc(stage));
             return false;
@@ -345,11 +473,6 @@ fn page(
             figure(o, file, caption);
         }
     };
-
-    o.push_str("<h2>Stages</h2>\n");
-    let rows: Vec<Vec<String>> =
-        seconds.iter().map(|(s, what, t)| vec![s.to_string(), what.to_string(), format!("{t:.1}")]).collect();
-    table(&mut o, &["stage", "what", "seconds (when it last ran)"], &rows);
 
     if section(&mut o, "eval", "The NeRF against the ground truth") {
         let e = &summary["eval"];
@@ -699,13 +822,17 @@ fn page(
         );
         pictures_of(&mut o, "uq");
     }
-    o.push_str("<h2>Run config</h2>\n");
+    o.push_str("<h2 id=\"config\">Run config</h2>\n");
     match config {
         Some(c) => {
             let _ = writeln!(o, "<pre>{}</pre>", esc(c));
         }
         None => o.push_str("<p class=\"missing\">No config was recorded with this report.</p>\n"),
     }
+    o.push_str("<h2 id=\"stages\">Stage timings</h2>\n");
+    let rows: Vec<Vec<String>> =
+        seconds.iter().map(|(s, what, t)| vec![s.to_string(), what.to_string(), format!("{t:.1}")]).collect();
+    table(&mut o, &["stage", "what", "seconds (when it last ran)"], &rows);
     o.push_str("<p>Files: <a href=\"summary.json\">summary.json</a>");
     for name in tables {
         let _ = write!(o, ", <a href=\"{0}\">{0}</a>", esc(name));

@@ -414,6 +414,10 @@ pub struct StressSetup<'a> {
     pub field: Option<&'a UncertaintyField>,
     /// The name progress and notes are reported under ([`STAGE`], or the calling stage's).
     pub stage: &'static str,
+    /// Whether the caller reports the failure probability. Without (the online stage's
+    /// rewarded CEM, whose one-sample batch only closes the search) the warnings that an
+    /// estimate rests on few effective failures are not given.
+    pub reports_p_fail: bool,
 }
 
 /// Files a stress run writes (besides the journal and the most likely failures).
@@ -686,7 +690,7 @@ pub fn stress(
             Sampler::Cem => {
                 let r = cross_entropy(&system, setup.prior, &v.cem, v.seed, reward, &counting)?;
                 let e = r.estimate;
-                if e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
+                if setup.reports_p_fail && e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
                     observer.note(
                         setup.stage,
                         &format!(
@@ -713,7 +717,7 @@ pub fn stress(
                 let drawn: Vec<RolloutRecord> = records.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect();
                 let r = subset_simulation_reusing(&system, setup.prior, &v.subset, v.seed, &drawn, &counting)?;
                 let e = r.estimate;
-                if e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
+                if setup.reports_p_fail && e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
                     observer.note(
                         setup.stage,
                         &format!(
@@ -1009,6 +1013,7 @@ impl Stage for StressStage<'_> {
             uq: &UqConfig::default(),
             field: None,
             stage: STAGE,
+            reports_p_fail: true,
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.

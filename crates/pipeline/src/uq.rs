@@ -578,6 +578,9 @@ pub enum Figure {
     Scatter(ScatterFigure),
 }
 
+/// Groups with fewer values than this are drawn as points, not as a histogram.
+const FEW_FOR_A_HISTOGRAM: usize = 10;
+
 /// Bins for histograms of at most `n` values per group.
 fn bins(n: usize) -> usize {
     ((2.0 * (n as f64).sqrt()).round() as usize).clamp(5, 40)
@@ -602,6 +605,22 @@ pub fn figures(rows: &[Row], splits: &[&'static str], method: Method, cfg: &UqCo
         groups.iter().map(|(_, v)| v.len()).max().unwrap_or(0)
     }
     fn hist<L: ToString>(groups: &[(L, Vec<[f64; 2]>)], axis: usize, title: String, x_title: &str) -> Figure {
+        // A histogram of a handful of values says less than the values: draw them as points,
+        // each image at its value, one row per image of its split.
+        if largest(groups) < FEW_FOR_A_HISTOGRAM {
+            return Figure::Scatter(ScatterFigure {
+                title,
+                x_title: x_title.to_string(),
+                y_title: "image (in its split's order)".into(),
+                groups: groups
+                    .iter()
+                    .map(|(s, v)| PointGroup {
+                        label: s.to_string(),
+                        points: v.iter().enumerate().map(|(k, p)| [p[axis], (k + 1) as f64]).collect(),
+                    })
+                    .collect(),
+            });
+        }
         Figure::Histogram(HistogramFigure {
             title,
             x_title: x_title.to_string(),
@@ -1023,6 +1042,21 @@ mod tests {
             assert_eq!((s.images, s.all_rays_miss), (1, 1));
             assert!(s.mean_sigma_d.is_none() && s.mean_trace.is_none());
         }
+    }
+
+    #[test]
+    fn a_handful_of_values_is_drawn_as_points_and_many_as_a_histogram() {
+        let cfg = UqConfig::default();
+        let few: Vec<Row> = (0..3).map(|k| ga("test", 0.5 + k as f64, false)).collect();
+        match &figures(&few, &["test"], Method::Ga, &cfg)[0].1 {
+            Figure::Scatter(s) => {
+                assert_eq!(s.groups[0].points, [[0.5, 1.0], [1.5, 2.0], [2.5, 3.0]]);
+                assert_eq!(s.x_title, "σ_d");
+            }
+            Figure::Histogram(_) => panic!("3 values drawn as a histogram"),
+        }
+        let many: Vec<Row> = (0..FEW_FOR_A_HISTOGRAM).map(|k| ga("test", 0.1 * k as f64, false)).collect();
+        assert!(matches!(&figures(&many, &["test"], Method::Ga, &cfg)[0].1, Figure::Histogram(_)));
     }
 
     #[test]

@@ -172,50 +172,27 @@ impl Stage for OnlineStage<'_> {
         let mut studies = Vec::new();
         for &method in &self.online.methods {
             let dir = cx.dir.join(method.name());
-            let run = |samplers: &[Sampler], reward: bool, name: &str| {
-                let setup = StressSetup {
-                    inputs: &inputs,
-                    flight: &flight,
-                    scene: s.scene,
-                    sim: s.sim,
-                    validation: &validation,
-                    prior: s.prior,
-                    intrinsics: s.intrinsics,
-                    render: s.render,
-                    world: WorldKind::Nerf,
-                    estimator: EstimatorKind::Vision,
-                    samplers,
-                    replay: false,
-                    online: Some(OnlineSettings { method, mode: UqMode::Exact, reward }),
-                    uq: self.uq,
-                    field: None,
-                    stage: Self::NAME,
-                    reports_p_fail: false,
-                };
-                let out = dir.join(name);
-                std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
-                stress(&setup, &out, &format!("online {} {name}", method.name()), cx.resume, cx.observer)
+            let setup = |samplers: &'static [Sampler], reward: bool| StressSetup {
+                inputs: &inputs,
+                flight: &flight,
+                scene: s.scene,
+                sim: s.sim,
+                validation: &validation,
+                prior: s.prior,
+                intrinsics: s.intrinsics,
+                render: s.render,
+                world: WorldKind::Nerf,
+                estimator: EstimatorKind::Vision,
+                samplers,
+                replay: false,
+                online: Some(OnlineSettings { method, mode: UqMode::Exact, reward }),
+                uq: self.uq,
+                field: None,
+                stage: Self::NAME,
+                reports_p_fail: false,
             };
             let (plain_records, plain_views, plain_seconds) = {
-                let setup = StressSetup {
-                    inputs: &inputs,
-                    flight: &flight,
-                    scene: s.scene,
-                    sim: s.sim,
-                    validation: &validation,
-                    prior: s.prior,
-                    intrinsics: s.intrinsics,
-                    render: s.render,
-                    world: WorldKind::Nerf,
-                    estimator: EstimatorKind::Vision,
-                    samplers: &[],
-                    replay: false,
-                    online: Some(OnlineSettings { method, mode: UqMode::Exact, reward: false }),
-                    uq: self.uq,
-                    field: None,
-                    stage: Self::NAME,
-                    reports_p_fail: false,
-                };
+                let setup = setup(&[], false);
                 let flown: Vec<RolloutRecord> = stress_records
                     .iter()
                     .filter(|r| {
@@ -231,11 +208,15 @@ impl Stage for OnlineStage<'_> {
                 nerfsv_validation::write_csv_file(&path, &records).map_err(|e| PipelineError::io(&path, e))?;
                 let rows: Vec<TableRow> =
                     [SAMPLER_MC, SAMPLER_CEM].into_iter().filter_map(|sampler| table_row(sampler, &records)).collect();
-                let settings = Some(OnlineSettings { method, mode: UqMode::Exact, reward: false });
-                write_stress_table(&out.join(TABLE_CSV), WorldKind::Nerf, settings, &rows)?;
+                write_stress_table(&out.join(TABLE_CSV), WorldKind::Nerf, setup.online, &rows)?;
                 (records, views, seconds)
             };
-            let (rewarded, reward_records) = run(&[Sampler::Cem], true, "reward")?;
+            let (rewarded, reward_records) = {
+                let out = dir.join("reward");
+                std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
+                let key = format!("online {} reward", method.name());
+                stress(&setup(&[Sampler::Cem], true), &out, &key, cx.resume, cx.observer)?
+            };
             let scorer = UncertaintyReward::new(method, self.uq);
             let scored: Vec<RolloutRecord> =
                 plain_records.iter().map(|r| RolloutRecord { reward: Some(scorer.reward(r)), ..r.clone() }).collect();

@@ -293,7 +293,12 @@ fn maps_of_a_constant_ga_field_are_ga_maps_with_that_sigma_d() {
                 maps.colour_std[p],
                 ga.colour_std[p]
             );
-            assert!(close(maps.depth_std[p], ga.depth_std[p]), "pixel {p}: {} vs {}", maps.depth_std[p], ga.depth_std[p]);
+            assert!(
+                close(maps.depth_std[p], ga.depth_std[p]),
+                "pixel {p}: {} vs {}",
+                maps.depth_std[p],
+                ga.depth_std[p]
+            );
             finite += maps.colour_std[p].is_finite() as usize;
             visible += (maps.colour_std[p] > 1e-3) as usize;
         }

@@ -54,14 +54,15 @@ impl Sampler {
     }
 
     /// Rollouts it flies under `cfg`: its search, then (CEM) the importance batch; for subset
-    /// simulation, as many as its deepest level allows (it usually stops before).
+    /// simulation, level 0 and one more level (where it stops when failures are about as
+    /// common as `p0`; rarer failures take more levels, so this is a progress estimate).
     pub fn rollouts(self, cfg: &ValidationConfig) -> usize {
         match self {
             Sampler::Mc => self.searched(cfg),
             Sampler::Cem => self.searched(cfg) + cfg.cem.is_samples,
             Sampler::Subset => {
                 let s = &cfg.subset;
-                s.samples + (s.max_levels - 1) * (s.samples - s.seeds())
+                s.samples + (s.samples - s.seeds())
             }
         }
     }
@@ -588,7 +589,8 @@ impl Recorder for Counting<'_> {
         self.journal.record(r)?;
         self.fresh.fetch_add(1, Ordering::Relaxed);
         let done = self.done.fetch_add(1, Ordering::Relaxed) + 1;
-        self.observer.progress(self.stage, done, self.total, &self.status);
+        // Subset simulation may go deeper than planned: the total then grows with it.
+        self.observer.progress(self.stage, done, self.total.max(done), &self.status);
         Ok(())
     }
 }
@@ -618,7 +620,12 @@ pub fn stress(
     let replay_kind = other_world(setup.world);
     let replay_world = world(replay_kind, setup.inputs, setup.scene, setup.render);
     let journal_dir = out.join(JOURNAL);
-    let planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
+    let mut planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
+    // Subset simulation starts from the Monte Carlo rollouts when they fly before it.
+    let at = |s: Sampler| setup.samplers.iter().position(|&x| x == s);
+    if matches!((at(Sampler::Mc), at(Sampler::Subset)), (Some(mc), Some(subset)) if mc < subset) {
+        planned -= setup.validation.monte_carlo.rollouts.min(setup.validation.subset.samples);
+    }
     let to_replay: usize = setup.samplers.iter().map(|s| s.searched(setup.validation)).sum();
     let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
 

@@ -15,6 +15,23 @@ pub trait Recorder: Sync {
     fn record(&self, record: &RolloutRecord) -> Result<(), ValidationError>;
 }
 
+/// The rollout (sampler, population, index) flown with `seed`: recalled from `recorder` when
+/// one with that seed finished earlier (then `true`), else `run` and kept in it. Every sampler
+/// and the replays go through here, so a resumed run flies exactly what it had not finished.
+pub(crate) fn recall_or_run(
+    recorder: &dyn Recorder,
+    (sampler, population, index): (&str, usize, usize),
+    seed: u64,
+    run: impl FnOnce() -> RolloutRecord,
+) -> Result<(RolloutRecord, bool), ValidationError> {
+    if let Some(done) = recorder.recall(sampler, population, index).filter(|d| d.seed == seed) {
+        return Ok((done, true));
+    }
+    let record = run();
+    recorder.record(&record)?;
+    Ok((record, false))
+}
+
 /// Keeps nothing: every rollout runs.
 impl Recorder for () {
     fn recall(&self, _: &str, _: usize, _: usize) -> Option<RolloutRecord> {

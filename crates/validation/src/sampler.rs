@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use crate::config::{CemConfig, MonteCarloConfig};
 use crate::error::ValidationError;
 use crate::gaussian::{Gaussian, Prior, Proposal};
-use crate::journal::Recorder;
+use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
 use crate::seed::rollout_seed;
 use crate::system::System;
@@ -123,17 +123,7 @@ pub fn replay_all<S: System + ?Sized>(
     records: &[RolloutRecord],
     recorder: &dyn Recorder,
 ) -> Result<Vec<RolloutRecord>, ValidationError> {
-    records
-        .par_iter()
-        .map(|r| {
-            if let Some(done) = recorder.recall(&r.sampler, r.population, r.index).filter(|d| d.seed == r.seed) {
-                return Ok(done);
-            }
-            let replayed = replay_on(system, r);
-            recorder.record(&replayed)?;
-            Ok(replayed)
-        })
-        .collect()
+    records.par_iter().map(|r| Ok(recall_or_run(recorder, r.key(), r.seed, || replay_on(system, r))?.0)).collect()
 }
 
 /// `n` rollouts of one population in parallel, in index order; rollouts `recorder` recalls
@@ -154,12 +144,12 @@ fn population<S: System + ?Sized>(
         .into_par_iter()
         .map(|i| {
             let seed = rollout_seed(run_seed, sampler, population, i);
-            if let Some(mut done) = recorder.recall(sampler, population, i).filter(|d| d.seed == seed) {
-                done.reward = reward.map(|r| r(&done));
-                return Ok(done);
+            let run = || rollout(system, prior, proposal, sampler, population, i, seed, reward);
+            let (mut record, recalled) = recall_or_run(recorder, (sampler, population, i), seed, run)?;
+            if recalled {
+                // Scored by this run's reward, whatever the journal kept.
+                record.reward = reward.map(|r| r(&record));
             }
-            let record = rollout(system, prior, proposal, sampler, population, i, seed, reward);
-            recorder.record(&record)?;
             Ok(record)
         })
         .collect()

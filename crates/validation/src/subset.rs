@@ -29,7 +29,7 @@ use nerfsv_scene::InvalidValue;
 use crate::config::SubsetConfig;
 use crate::error::ValidationError;
 use crate::gaussian::Prior;
-use crate::journal::Recorder;
+use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
 use crate::sampler::{check_shapes, most_likely_failure, run_record, wilson};
 use crate::seed::rollout_seed;
@@ -129,12 +129,8 @@ fn fly<S: System + ?Sized>(
     seed: u64,
     recorder: &dyn Recorder,
 ) -> Result<RolloutRecord, ValidationError> {
-    if let Some(done) = recorder.recall(SAMPLER_SUBSET, level, index).filter(|d| d.seed == seed) {
-        return Ok(done);
-    }
-    let record = run_record(system, prior, None, trajectory(prior, z), SAMPLER_SUBSET, level, index, seed);
-    recorder.record(&record)?;
-    Ok(record)
+    let run = || run_record(system, prior, None, trajectory(prior, z), SAMPLER_SUBSET, level, index, seed);
+    Ok(recall_or_run(recorder, (SAMPLER_SUBSET, level, index), seed, run)?.0)
 }
 
 /// The correlation factor γ of a level's indicator chains (Au & Beck 2001, eq. 27–29):

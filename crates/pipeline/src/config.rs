@@ -209,9 +209,9 @@ impl RunConfig {
 }
 
 impl RunConfig {
-    /// The flight's start and goal against the scene `scene`'s own geometry, before anything is
-    /// built: each must keep the planner's clearance (the body's half-diagonal and its margin)
-    /// from the ground truth, or no stage after hours of training could fly it. Not part of
+    /// The flight's start and goal against the geometry of the config's own `scene`, before
+    /// anything is built: each must keep the planner's clearance (the body's half-diagonal and its
+    /// margin) from the ground truth, or no stage after hours of training could fly it. Not part of
     /// [`Validate::validate`]: `nerfsv fly` and `stress` fly their `--scene`, not this config's.
     pub fn check_endpoints(&self) -> Result<(), InvalidValue> {
         let scene = nerfsv_scene::Scene::builtin(&self.scene)

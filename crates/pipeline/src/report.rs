@@ -367,7 +367,9 @@ fn answer(o: &mut String, summary: &Value) {
         let n = |k: &str| t[k].as_u64().unwrap_or(0);
         let (tp, fp, fneg, tn) = (n("true_positive"), n("false_positive"), n("false_negative"), n("true_negative"));
         lines.push(format!(
-            "<b>Do NeRF-sim's failures hold in GT-sim?</b> Of the Monte Carlo rollouts, {} crashed in NeRF-sim and {} in              GT-sim with the same disturbances; {tp} crashed in both (precision {}, recall {}), {fp} only in NeRF-sim,              {fneg} only in GT-sim, {tn} in neither.",
+            "<b>Do NeRF-sim's failures hold in GT-sim?</b> Of the Monte Carlo rollouts, {} crashed in NeRF-sim and {} in \
+             GT-sim with the same disturbances; {tp} crashed in both (precision {}, recall {}), {fp} only in NeRF-sim, \
+             {fneg} only in GT-sim, {tn} in neither.",
             tp + fp,
             tp + fneg,
             num(&c["precision"], 2),
@@ -392,7 +394,9 @@ fn answer(o: &mut String, summary: &Value) {
     let u = &summary["uq"]["test"];
     if u.is_object() {
         lines.push(format!(
-            "<b>How far can the NeRF be trusted?</b> On its test images GA's noise-floored σ_d has median {} (the              paper's σ_d: {}, {} of {} images excluded at σ_d ≥ 3); BLA's information gain averages {} nats; depth              AUSE GA {}, BLA {} (lower ranks errors better).",
+            "<b>How far can the NeRF be trusted?</b> On its test images GA's noise-floored σ_d has median {} (the \
+             paper's σ_d: {}, {} of {} images excluded at σ_d ≥ 3); BLA's information gain averages {} nats; depth \
+             AUSE GA {}, BLA {} (lower ranks errors better).",
             num(&u["ga_floored_median_sigma_d"], 3),
             num(&u["ga_median_sigma_d"], 2),
             num(&u["ga_excluded"], 0),
@@ -418,7 +422,8 @@ fn answer(o: &mut String, summary: &Value) {
             })
             .collect();
         lines.push(format!(
-            "<b>Does the uncertainty flag where NeRF-sim and GT-sim disagree?</b> AUROC of a step's uncertainty for a              disagreeing step (0.5 is chance): {}.",
+            "<b>Does the uncertainty flag where NeRF-sim and GT-sim disagree?</b> AUROC of a step's uncertainty for a \
+             disagreeing step (0.5 is chance): {}.",
             parts.join(", ")
         ));
     }

@@ -55,6 +55,7 @@ fn default_run() -> &'static DefaultRun {
 }
 
 #[test]
+#[ignore = "trains the default model (minutes the first time): an acceptance test, run by .ci/run"]
 fn undisturbed_flights_reach_the_goal_without_collision_in_both_worlds_with_both_estimators() {
     let run = default_run();
     let (cfg, sim) = (&run.cfg, run.simulator());
@@ -72,6 +73,7 @@ fn undisturbed_flights_reach_the_goal_without_collision_in_both_worlds_with_both
 }
 
 #[test]
+#[ignore = "trains the default model (minutes the first time): an acceptance test, run by .ci/run"]
 fn vision_estimator_reduces_a_5_cm_3_degree_error_five_fold_on_nerf_images_at_most_step_ends() {
     let run = default_run();
     let (cfg, sim) = (&run.cfg, run.simulator());

@@ -17,7 +17,7 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
     let dir = tempfile::tempdir().unwrap();
     let (model, field) = common::tiny_model_and_field(dir.path());
     let inputs = FlightInputs::load(&model, &field, &field).unwrap();
-    let text = "[sim.vision]\npixels = 16\niterations = 2\n[validation]\nseed = 3\n[validation.disturbance]\n\
+    let text = "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[validation]\nseed = 3\n[validation.disturbance]\n\
                 std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]\n\
                 [validation.monte_carlo]\nrollouts = 6\n[uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n\
                 online_rays = 64\nonline_bla_rays = 16\n";

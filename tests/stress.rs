@@ -17,7 +17,7 @@ fn config(dir: &Path, name: &str, mc: usize, extra: &str) -> PathBuf {
     std::fs::write(
         &p,
         format!(
-            "[sim.vision]\npixels = 16\niterations = 2\n[validation]\nseed = 5\n[validation.disturbance]\n\
+            "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[validation]\nseed = 5\n[validation.disturbance]\n\
              std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]\n\
              [validation.monte_carlo]\nrollouts = {mc}\n[validation.cem]\nm = 6\nm_elite = 2\nk_max = 2\nis_samples = 6\n{extra}"
         ),

@@ -18,7 +18,11 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
     let (model, field) = common::tiny_model_and_field(dir.path());
     let cfg = dir.path().join("run.toml");
     // The whole flight, whatever it hits (a crash would end it early).
-    std::fs::write(&cfg, "[sim]\nstop_at_collision = false\n[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n").unwrap();
+    std::fs::write(
+        &cfg,
+        "[sim]\nstop_at_collision = false\n[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n",
+    )
+    .unwrap();
     let out = dir.path().join("fly");
     let (ok, stdout, err) =
         fly(&model, &field, &out, &["--world", "gt", "--random-seed", "3", "--config", s(&cfg), "--json"]);

@@ -5,13 +5,16 @@
 //! a killed run resumes it, and a typed figures struct kept in its record and in
 //! `summary.json`. The [`Runner`] keys each stage by all of that, skips it when its record and
 //! outputs are current, and otherwise runs it into an empty (or, if resumable, its partial)
-//! folder. [`run`] is the list.
+//! folder. [`run`] is the list. Each stage is also a [`Report`]: its section of the run's
+//! report, built from its typed figures ([`report`] assembles the page).
 //!
 //! # Adding a stage
-//! One `impl Stage` that calls its library function, and one line in [`run`]:
+//! One module with an `impl Stage` that calls its library function and an `impl Report` that
+//! shows its figures, and one line in [`run`]:
 //!
 //! ```
-//! use nerfsv_pipeline::{PipelineError, Runner, Silent, Stage, StageContext};
+//! use nerfsv_pipeline::report::{Section, Table};
+//! use nerfsv_pipeline::{PipelineError, Report, ReportContext, Runner, Silent, Stage, StageContext};
 //! use serde::Serialize;
 //!
 //! /// Counts the views of the dataset stage's test split.
@@ -38,6 +41,16 @@
 //!     }
 //! }
 //!
+//! impl Report for CountTestViews {
+//!     const ABOUT: &'static str = "counts the test views";
+//!
+//!     fn report(n: &usize, _: &ReportContext) -> Option<Section> {
+//!         let mut s = Section::new("count", "Test views", "test views");
+//!         s.table(Table::new(&["test views"]).row(vec![n.to_string()]));
+//!         Some(s)
+//!     }
+//! }
+//!
 //! # let root = tempfile::tempdir().unwrap();
 //! # let scene = nerfsv_scene::Scene::builtin("monolith").unwrap();
 //! # let options = nerfsv_dataset::GenerateOptions { width: 4, height: 4, train: 1, val: 1, test: 2,
@@ -57,13 +70,14 @@ pub mod digest;
 pub mod flight;
 pub mod online;
 pub mod report;
+mod sections;
 pub mod stage;
 pub mod stages;
 pub mod stress;
 pub mod uq;
 
 pub use config::{load_toml, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate};
-pub use stage::{Observer, Outcome, Runner, Silent, Stage, StageContext};
+pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext};
 
 /// Everything that can stop a stage; each variant names the file, stage or key involved.
 #[derive(Debug, thiserror::Error)]
@@ -196,10 +210,18 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     };
     r.run(&search)?;
     r.run(&online::OnlineStage { search: &search, uq: &cfg.uq, online: &cfg.online })?;
-    let summary = Summary { run: cfg.out.clone(), stages: StageFigures(r.figures().to_vec()) };
-    stage::write_json(&summary_path(&cfg.out), &summary)?;
-    report::write_report(&cfg.out, Some(&config_toml(cfg)?))?;
-    Ok(summary)
+    r.finish(Some(&config_toml(cfg)?))
+}
+
+impl Runner<'_> {
+    /// Writes `summary.json` (every stage's figures so far, in run order) and the report, which
+    /// shows `config` (the run's config as TOML) when given.
+    pub fn finish(&self, config: Option<&str>) -> Result<Summary, PipelineError> {
+        let summary = Summary { run: self.root().to_path_buf(), stages: StageFigures(self.figures().to_vec()) };
+        stage::write_json(&summary_path(self.root()), &summary)?;
+        report::write_report(self.root(), config)?;
+        Ok(summary)
+    }
 }
 
 /// `cfg` as TOML without its run folder (the report shows it; a copied run folder's report

@@ -14,18 +14,22 @@ use std::time::Instant;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+use crate::report::{Section, StageReport};
 use crate::PipelineError;
 
 /// The record a completed stage leaves in its folder.
 pub const RECORD: &str = "stage.json";
+/// The stage's part of the report ([`StageReport`]), rebuilt by every run of the stage.
+pub const REPORT_SECTION: &str = "report.json";
 /// The marker a resumable stage leaves in its folder: whatever is there (partial or complete)
 /// was computed for this key, so a run that finds no record may continue from it.
 const STARTED: &str = "started.json";
 
 /// One step of the pipeline.
 ///
-/// Adding a stage is one `impl Stage` (calling its library function) and one
-/// `runner.run(&MyStage { … })?` line in [`crate::run`]; see the crate docs for an example.
+/// Adding a stage is one module holding its `impl Stage` (calling its library function) and
+/// `impl Report` (its part of the report), and one `runner.run(&MyStage { … })?` line in
+/// [`crate::run`]; see the crate docs for an example.
 pub trait Stage {
     /// The stage's folder under the run folder, and its name in `summary.json` and messages.
     const NAME: &'static str;
@@ -54,6 +58,31 @@ pub trait Stage {
 
     /// One line for the user once the stage has run.
     fn describe(figures: &Self::Figures) -> String;
+}
+
+/// A stage's part of the report: what it computes, and its section, built from its typed
+/// figures (a renamed figure is a compile error, not a blank cell). The [`Runner`] builds the
+/// section after every run of the stage, up to date or not, and keeps it in the stage's folder
+/// ([`REPORT_SECTION`]), from which [`crate::report::write_report`] assembles the page.
+///
+/// A trait of its own so that it may live outside the stage's code: a stage's key digests its
+/// [`Stage::CODE`], and changing how a table looks must not rerun a stage. The built-in
+/// stages' sections are in `sections.rs`, which no stage's key includes.
+pub trait Report: Stage {
+    /// What the stage computes, in a few words (the report's table of stage timings).
+    const ABOUT: &'static str;
+
+    /// The stage's section; `None` shows none. It may draw pictures into `cx.dir`.
+    fn report(figures: &Self::Figures, cx: &ReportContext) -> Option<Section> {
+        let _ = (figures, cx);
+        None
+    }
+}
+
+/// What a stage's [`Report::report`] sees: the run folder and its own folder.
+pub struct ReportContext<'a> {
+    pub root: &'a Path,
+    pub dir: &'a Path,
 }
 
 /// What a running stage sees.
@@ -176,7 +205,7 @@ impl<'a> Runner<'a> {
 
     /// Brings `stage` up to date and returns its figures: the recorded ones if its key and
     /// outputs are unchanged, else those of a fresh (or resumed) run.
-    pub fn run<S: Stage>(&mut self, stage: &S) -> Result<S::Figures, PipelineError> {
+    pub fn run<S: Report>(&mut self, stage: &S) -> Result<S::Figures, PipelineError> {
         let inputs = S::INPUTS
             .iter()
             .map(|&input| {
@@ -216,12 +245,19 @@ impl<'a> Runner<'a> {
                 (record.figures, if resume { Outcome::Resumed } else { Outcome::Computed })
             }
         };
+        let section = S::report(&figures, &ReportContext { root: &self.root, dir: &dir });
+        write_json(&dir.join(REPORT_SECTION), &StageReport { about: S::ABOUT.to_owned(), section })?;
         let value = serde_json::to_value(&figures)
             .map_err(|e| PipelineError::Internal(format!("stage {}: figures: {e}", S::NAME)))?;
         self.keys.insert(S::NAME, key);
         self.figures.push((S::NAME, value));
         self.outcomes.push((S::NAME, outcome));
         Ok(figures)
+    }
+
+    /// The run folder.
+    pub fn root(&self) -> &Path {
+        &self.root
     }
 
     /// Every stage's figures so far, in the order the stages ran.
@@ -327,6 +363,10 @@ mod tests {
         }
     }
 
+    impl Report for Writer<'_> {
+        const ABOUT: &'static str = "writes its value";
+    }
+
     /// Reads the writer's output.
     struct Reader;
 
@@ -346,6 +386,10 @@ mod tests {
         fn describe(f: &String) -> String {
             f.clone()
         }
+    }
+
+    impl Report for Reader {
+        const ABOUT: &'static str = "reads the writer's output";
     }
 
     #[test]
@@ -430,6 +474,10 @@ mod tests {
         fn describe(f: &(u32, bool)) -> String {
             format!("{f:?}")
         }
+    }
+
+    impl Report for Counter {
+        const ABOUT: &'static str = "counts to 5";
     }
 
     #[test]

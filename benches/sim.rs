@@ -17,7 +17,8 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{plan_flight, Disturbance, EstimatorKind, GroundTruthWorld, SimConfig, State, World, WorldKind};
-use nerfsv_validation::{drone_disturbances, Prior};
+use nerfsv_study::drone_disturbances;
+use nerfsv_validation::Prior;
 use rayon::prelude::*;
 
 fn truth_rollouts(c: &mut Criterion) {

@@ -14,7 +14,8 @@ mod common;
 use common::BenchRun;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use nerfsv_sim::{EstimatorKind, WorldKind};
-use nerfsv_validation::{monte_carlo, replay_all, DroneSystem, MonteCarloConfig, Prior};
+use nerfsv_study::DroneSystem;
+use nerfsv_validation::{monte_carlo, replay_all, MonteCarloConfig, Prior};
 
 fn mc_truth_replay(c: &mut Criterion) {
     let Some(run) = BenchRun::load("stress") else { return };

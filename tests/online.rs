@@ -9,8 +9,9 @@ use nerfsv_pipeline::stress::{measure_recorded, stress, OnlineSettings, Sampler,
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
-use nerfsv_validation::{parse_csv, write_csv, UqMode};
+use nerfsv_validation::{parse_csv, write_csv};
 
 #[test]
 fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {

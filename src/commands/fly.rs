@@ -9,7 +9,7 @@ use nerfsv_pipeline::stages::nerf_density_field;
 use nerfsv_pipeline::{refuse_output_inside, RunConfig};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
-use nerfsv_validation::drone_disturbances;
+use nerfsv_study::drone_disturbances;
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum WorldArg {

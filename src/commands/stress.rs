@@ -7,9 +7,10 @@ use nerfsv_pipeline::stage::{stage_key, Stage};
 use nerfsv_pipeline::stress::{stress, OnlineSettings, Sampler, StressSetup, StressStage, JOURNAL, STRESS_JSON};
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::WorldKind;
+use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
 use nerfsv_uq::{model_id, UncertaintyField};
-use nerfsv_validation::{Journal, UqMode};
+use nerfsv_validation::Journal;
 
 use crate::commands::fly::{load_config, DroneArgs};
 

@@ -26,10 +26,11 @@
 use std::path::Path;
 
 use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
-    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, UncertaintyReward,
-    UqMode, ValidationConfig, SAMPLER_CEM, SAMPLER_MC,
+    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, ValidationConfig,
+    SAMPLER_CEM, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -142,6 +143,7 @@ impl Stage for OnlineStage<'_> {
     const CODE: &'static [&'static str] = &[
         "nerfsv-sim",
         "nerfsv-validation",
+        "nerfsv-study",
         "nerfsv-uq",
         "nerfsv-plot",
         "online.rs",

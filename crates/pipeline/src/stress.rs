@@ -16,12 +16,15 @@ use nerfsv_scene::Camera;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
+use nerfsv_study::{
+    drone_disturbances, online_pixels, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, UncertaintyReward,
+    UqMode, ViewUncertainty,
+};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
-    compare, cross_entropy, drone_disturbances, monte_carlo, online_pixels, replay_all, subset_simulation_reusing,
-    table_row, Agreement, Confusion, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, ImportanceEstimate,
-    Journal, Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, UncertaintyReward, UqMode,
-    ValidationConfig, ValidationError, ViewUncertainty, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    compare, cross_entropy, monte_carlo, replay_all, subset_simulation_reusing, table_row, Agreement, Confusion,
+    ImportanceEstimate, Journal, Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, ValidationConfig,
+    ValidationError, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 use serde::{Deserialize, Serialize};
 
@@ -990,7 +993,7 @@ impl StressStage<'_> {
 impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
     const CODE: &'static [&'static str] =
-        &["nerfsv-sim", "nerfsv-validation", "nerfsv-plot", "stress.rs", "flight.rs", "stages.rs"];
+        &["nerfsv-sim", "nerfsv-validation", "nerfsv-study", "nerfsv-plot", "stress.rs", "flight.rs", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
     const RESUMABLE: bool = true;

@@ -9,16 +9,16 @@
 //!   an importance-sampling estimate of the failure probability and its standard error.
 //! - [`subset_simulation`]: nested levels of pCN Markov chains (Au & Beck), a failure
 //!   probability whose accuracy does not degrade with the number of disturbances.
-//! - Online uncertainty ([`ViewUncertainty`]): each flown step's camera view measured by GA or
-//!   BLA against the ground truth's render ([`ExactUncertainty`]) or looked up in an
-//!   uncertainty field ([`FieldUncertainty`]); the paper's rewards of eq. 10–11
-//!   ([`UncertaintyReward`]) for CEM's ranking; [`disagreement_auroc`], how well the per-step
-//!   uncertainty predicts where NeRF-sim and GT-sim disagree.
+//! - [`Reward`]s for CEM's ranking of whole rollout records, and [`disagreement_auroc`]: how
+//!   well a per-step uncertainty the system recorded predicts where a search's rollouts and
+//!   their replays in another world disagree.
 //! - Every rollout's stream comes from [`rollout_seed`]`(run seed, sampler, population, index)`
 //!   and is recorded in a [`RolloutRecord`], so any single rollout [`replay`]s; [`write_csv`]
 //!   lays records out one row per (rollout, step).
 //!
-//! The crate is generic over the system under test; the simulator implements [`System`].
+//! The crate is generic over the system under test and knows nothing else of it: it depends on
+//! no simulator, NeRF or uncertainty crate. The drone is a [`System`] in `nerfsv-study`, which
+//! also measures its views' uncertainty and builds the paper's rewards from it.
 //!
 //! ```
 //! use nerfsv_validation::{monte_carlo, Gaussian, MonteCarloConfig, Outcome, Prior, System};
@@ -40,7 +40,6 @@
 
 mod compare;
 mod config;
-mod drone;
 mod error;
 mod gaussian;
 mod journal;
@@ -54,14 +53,10 @@ mod table;
 
 pub use compare::{compare, Agreement, Confusion, Spread};
 pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, SubsetConfig, ValidationConfig};
-pub use drone::{drone_disturbances, DroneSystem, EstimateLog};
 pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};
-pub use online::{
-    auroc, disagreement_auroc, online_pixels, DisagreementAuroc, ExactUncertainty, FieldUncertainty, UncertaintyReward,
-    UqMode, ViewUncertainty,
-};
+pub use online::{auroc, disagreement_auroc, DisagreementAuroc};
 pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,

@@ -4,9 +4,8 @@
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{plan_flight, EstimatorKind, GroundTruthWorld, SimConfig};
-use nerfsv_validation::{
-    monte_carlo, replay, DroneSystem, MonteCarloConfig, Prior, System, ViewUncertainty, DRONE_STD,
-};
+use nerfsv_study::{DroneSystem, ViewUncertainty};
+use nerfsv_validation::{monte_carlo, replay, MonteCarloConfig, Prior, System, DRONE_STD};
 
 #[test]
 fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {

@@ -8,10 +8,9 @@ use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::dynamics::so3_log;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
 
-use crate::error::ValidationError;
-use crate::online::ViewUncertainty;
+use nerfsv_validation::{Outcome, System, ValidationError};
 
-use crate::system::{Outcome, System};
+use crate::uncertainty::ViewUncertainty;
 
 /// The system under test of the paper: the simulator flying in one world.
 pub struct DroneSystem<'a> {

@@ -33,61 +33,7 @@ use crate::stage::{Observer, Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
-/// A search over the disturbances.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Sampler {
-    /// Plain Monte Carlo from the prior.
-    Mc,
-    /// The Cross-Entropy Method, then importance sampling from its final proposal.
-    Cem,
-    /// Subset simulation: a failure probability from nested levels of Markov chains; it
-    /// estimates, it does not search, so its rollouts are not replayed (like CEM's importance
-    /// batch).
-    Subset,
-}
-
-impl Sampler {
-    pub fn name(self) -> &'static str {
-        match self {
-            Sampler::Mc => SAMPLER_MC,
-            Sampler::Cem => SAMPLER_CEM,
-            Sampler::Subset => SAMPLER_SUBSET,
-        }
-    }
-
-    /// Rollouts it flies under `cfg`: its search, then (CEM) the importance batch; for subset
-    /// simulation, level 0 and one more level (where it stops when failures are about as
-    /// common as `p0`; rarer failures take more levels, so this is a progress estimate).
-    pub fn rollouts(self, cfg: &ValidationConfig) -> usize {
-        match self {
-            Sampler::Mc => self.searched(cfg),
-            Sampler::Cem => self.searched(cfg) + cfg.cem.is_samples,
-            Sampler::Subset => {
-                let s = &cfg.subset;
-                s.samples + (s.samples - s.seeds())
-            }
-        }
-    }
-
-    /// Rollouts of its search proper, the ones a replay flies again: MC's, CEM's populations.
-    pub fn searched(self, cfg: &ValidationConfig) -> usize {
-        match self {
-            Sampler::Mc => cfg.monte_carlo.rollouts,
-            Sampler::Cem => cfg.cem.m * cfg.cem.k_max,
-            Sampler::Subset => 0,
-        }
-    }
-
-    /// Whether `record` belongs to this sampler's run.
-    fn owns(self, record: &RolloutRecord) -> bool {
-        match self {
-            Sampler::Mc => record.sampler == SAMPLER_MC,
-            Sampler::Cem => record.sampler == SAMPLER_CEM || record.sampler == SAMPLER_IS,
-            Sampler::Subset => record.sampler == SAMPLER_SUBSET,
-        }
-    }
-}
+pub use nerfsv_validation::Sampler;
 
 /// The other world: where a search's disturbances are replayed.
 pub fn other_world(kind: WorldKind) -> WorldKind {

@@ -61,7 +61,7 @@ pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
     replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate,
-    MonteCarloResult, Reward, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    MonteCarloResult, Reward, Sampler, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
 };
 pub use seed::rollout_seed;
 pub use subset::{

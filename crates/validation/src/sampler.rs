@@ -8,12 +8,15 @@ use nalgebra::{DMatrix, DVector};
 use nerfsv_scene::validate::InvalidValue;
 use rayon::prelude::*;
 
-use crate::config::{CemConfig, MonteCarloConfig};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{CemConfig, MonteCarloConfig, ValidationConfig};
 use crate::error::ValidationError;
 use crate::gaussian::{Gaussian, Prior, Proposal};
 use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
 use crate::seed::rollout_seed;
+use crate::subset::SAMPLER_SUBSET;
 use crate::system::System;
 
 /// Sampler label of Monte Carlo rollouts.
@@ -22,6 +25,62 @@ pub const SAMPLER_MC: &str = "mc";
 pub const SAMPLER_CEM: &str = "cem";
 /// Sampler label of the importance-sampling batch drawn from CEM's final proposal.
 pub const SAMPLER_IS: &str = "cem-is";
+
+/// A search over the disturbances.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampler {
+    /// Plain Monte Carlo from the prior.
+    Mc,
+    /// The Cross-Entropy Method, then importance sampling from its final proposal.
+    Cem,
+    /// Subset simulation: a failure probability from nested levels of Markov chains; it
+    /// estimates, it does not search, so its rollouts are not replayed (like CEM's importance
+    /// batch).
+    Subset,
+}
+
+impl Sampler {
+    pub fn name(self) -> &'static str {
+        match self {
+            Sampler::Mc => SAMPLER_MC,
+            Sampler::Cem => SAMPLER_CEM,
+            Sampler::Subset => SAMPLER_SUBSET,
+        }
+    }
+
+    /// Rollouts it flies under `cfg`: its search, then (CEM) the importance batch; for subset
+    /// simulation, level 0 and one more level (where it stops when failures are about as
+    /// common as `p0`; rarer failures take more levels, so this is a progress estimate).
+    pub fn rollouts(self, cfg: &ValidationConfig) -> usize {
+        match self {
+            Sampler::Mc => self.searched(cfg),
+            Sampler::Cem => self.searched(cfg) + cfg.cem.is_samples,
+            Sampler::Subset => {
+                let s = &cfg.subset;
+                s.samples + (s.samples - s.seeds())
+            }
+        }
+    }
+
+    /// Rollouts of its search proper, the ones a replay flies again: MC's, CEM's populations.
+    pub fn searched(self, cfg: &ValidationConfig) -> usize {
+        match self {
+            Sampler::Mc => cfg.monte_carlo.rollouts,
+            Sampler::Cem => cfg.cem.m * cfg.cem.k_max,
+            Sampler::Subset => 0,
+        }
+    }
+
+    /// Whether `record` belongs to this sampler's run.
+    pub fn owns(self, record: &RolloutRecord) -> bool {
+        match self {
+            Sampler::Mc => record.sampler == SAMPLER_MC,
+            Sampler::Cem => record.sampler == SAMPLER_CEM || record.sampler == SAMPLER_IS,
+            Sampler::Subset => record.sampler == SAMPLER_SUBSET,
+        }
+    }
+}
 
 /// z of a two-sided 95 % interval.
 const Z95: f64 = 1.959_963_984_540_054;
@@ -545,4 +604,28 @@ pub fn cross_entropy<S: System + ?Sized>(
     let (batch, estimate) = importance_sampling(system, prior, last, config.is_samples, run_seed, recorder)?;
     records.extend(batch);
     Ok(CemResult { most_likely_failure: most_likely_failure(&records).cloned(), records, proposals, estimate })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sampler's name is its records' label and its serialised form; CEM owns its importance
+    /// batch too.
+    #[test]
+    fn a_samplers_name_is_its_label_and_it_owns_exactly_its_records() {
+        let record = |label: &str| RolloutRecord { sampler: label.into(), ..RolloutRecord::default() };
+        for (sampler, label) in
+            [(Sampler::Mc, SAMPLER_MC), (Sampler::Cem, SAMPLER_CEM), (Sampler::Subset, SAMPLER_SUBSET)]
+        {
+            assert_eq!(sampler.name(), label);
+            assert_eq!(serde_json::to_string(&sampler).unwrap(), format!("\"{label}\""));
+            assert!(sampler.owns(&record(label)));
+        }
+        assert!(Sampler::Cem.owns(&record(SAMPLER_IS)));
+        assert!(!Sampler::Mc.owns(&record(SAMPLER_IS)) && !Sampler::Subset.owns(&record(SAMPLER_MC)));
+        let cfg = ValidationConfig::default();
+        assert_eq!(Sampler::Cem.rollouts(&cfg), cfg.cem.m * cfg.cem.k_max + cfg.cem.is_samples);
+        assert_eq!(Sampler::Subset.searched(&cfg), 0);
+    }
 }

@@ -9,11 +9,11 @@ use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::uq::{
-    ause_frames, csv, figure_files, has_split, offline_split, write_files, ImageAuse, Method, OfflineSummary, SPLITS,
-};
 use nerfsv_pipeline::{refuse_output_inside, Observer};
 use nerfsv_scene::validate::in_range;
+use nerfsv_uq::offline::{
+    ause_frames, csv, figure_files, has_split, offline_split, write_files, ImageAuse, Method, OfflineSummary, SPLITS,
+};
 use nerfsv_uq::UqConfig;
 use serde::Serialize;
 

@@ -205,7 +205,7 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
     let summary: serde_json::Value = serde_json::from_str(&text).map_err(not_a_summary)?;
     let order = stage_order(&text).map_err(not_a_summary)?;
     let dir = root.join(REPORT);
-    // Everything is gathered first and written all or nothing (`uq::write_files`).
+    // Everything is gathered first and written all or nothing.
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let config = match config {
         Some(c) => {
@@ -254,7 +254,7 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
     let run = summary["run"].as_str().unwrap_or("?");
     let html = page(run, &stages, config.as_deref(), &tables);
     files.push((INDEX.to_owned(), html.into_bytes()));
-    crate::uq::write_files(&dir, &files)?;
+    nerfsv_uq::offline::write_files(&dir, &files)?;
     Ok(ReportFigures {
         index: dir.join(INDEX),
         pictures,

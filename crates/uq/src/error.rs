@@ -53,4 +53,27 @@ pub enum UqError {
         path.display()
     )]
     FieldCheckpoint { path: std::path::PathBuf, field_checkpoint: String, built_from: String, checkpoint: String },
+    /// A file of the offline study that cannot be written.
+    #[error("{}: {error}", path.display())]
+    Io { path: std::path::PathBuf, error: std::io::Error },
+    /// A model whose box the dataset's cameras do not see, or another model error.
+    #[error(transparent)]
+    Nerf(#[from] Box<nerfsv_nerf::NerfError>),
+    #[error(transparent)]
+    Plot(#[from] nerfsv_plot::PlotError),
+    /// A frame index outside its split.
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl UqError {
+    pub fn io(path: impl Into<std::path::PathBuf>, error: std::io::Error) -> Self {
+        Self::Io { path: path.into(), error }
+    }
+}
+
+impl From<nerfsv_nerf::NerfError> for UqError {
+    fn from(e: nerfsv_nerf::NerfError) -> Self {
+        Self::Nerf(Box::new(e))
+    }
 }

@@ -53,6 +53,7 @@ mod error;
 pub mod field;
 pub mod ga;
 pub mod maps;
+pub mod offline;
 
 pub use ause::{depth_ause, depth_errors, mean_ause, sparsification, Sparsification};
 pub use bla::{

@@ -1,0 +1,910 @@
+//! The paper's offline uncertainty: GA and BLA on the images of a dataset's splits, a CSV row
+//! per image, per-split summaries and the paper's figures, the depth AUSE of either method's
+//! per-pixel depth uncertainty, and the per-pixel picture of one view. `nerfsv uq offline`,
+//! `nerfsv uq ause` and the `uq` stage of `nerfsv run` all call these functions; and the
+//! uncertainty field of a dataset's training split saved beside its slice picture (`nerfsv uq
+//! field`).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use nerfsv_dataset::{Frame, Split};
+use nerfsv_nerf::render::camera_rays;
+use nerfsv_nerf::{Nerf, RayInput};
+use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
+use serde::Serialize;
+
+pub use crate::Method;
+use crate::{
+    bla_image, bla_maps, depth_errors, ga_fit_samples, ga_image, ga_maps_from_samples, mean_ause, sparsification,
+    BlaFit, GaExclusion, GaFit, Sparsification, TrainingView, UncertaintyField, UqConfig, UqError,
+};
+
+/// The splits looked for, in this order.
+pub const SPLITS: [&str; 3] = ["train", "val", "test"];
+/// Background the reference images are composited on (and the rays carry), as `nerfsv render`.
+pub const BACKGROUND: [f32; 3] = [1.0, 1.0, 1.0];
+/// Figure size, pixels.
+pub const FIGURE: (u32, u32) = (1200, 560);
+
+/// One image's result; `None`: every ray missed the model, so there is nothing to fit.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Fit {
+    Ga(Option<GaRow>),
+    Bla(Option<BlaRow>),
+}
+
+impl Fit {
+    /// The empty result of `method` (every ray missed).
+    fn missed(method: Method) -> Self {
+        match method {
+            Method::Ga => Fit::Ga(None),
+            Method::Bla => Fit::Bla(None),
+        }
+    }
+
+    /// Whether every ray missed the model.
+    pub fn all_rays_miss(&self) -> bool {
+        matches!(self, Fit::Ga(None) | Fit::Bla(None))
+    }
+}
+
+/// A GA row: the image's μ_d and σ_d.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GaRow {
+    pub mu_d: f64,
+    pub sigma_d: f64,
+    pub excluded: Option<GaExclusion>,
+    pub objective: f64,
+    pub rays: usize,
+    pub rays_without_samples: usize,
+    /// The noise-floored fit's μ_d and σ_d (pixel noise in the model).
+    pub floored_mu_d: f64,
+    pub floored_sigma_d: f64,
+}
+
+impl GaRow {
+    fn new(f: &GaFit, rays: usize) -> Self {
+        Self {
+            mu_d: f.mu_d,
+            sigma_d: f.sigma_d,
+            excluded: f.excluded,
+            objective: f.objective,
+            rays,
+            rays_without_samples: f.rays_without_samples,
+            floored_mu_d: f.floored.mu_d,
+            floored_sigma_d: f.floored.sigma_d,
+        }
+    }
+}
+
+/// A BLA row: the summaries of the image's posterior covariance.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlaRow {
+    pub normalized_trace: f64,
+    pub rmv: f64,
+    /// Nats the image taught the weights, in the directions its rays see (0 for none).
+    pub information_gain: f64,
+    pub map_loss: f64,
+    pub initial_loss: f64,
+    pub perturbation: usize,
+    pub prior_precision: f64,
+    pub log_evidence: f64,
+    pub rays: usize,
+}
+
+impl BlaRow {
+    fn new(f: &BlaFit) -> Self {
+        Self {
+            normalized_trace: f.laplace.normalized_trace,
+            rmv: f.laplace.rmv,
+            information_gain: f.laplace.information_gain,
+            map_loss: f.map.loss,
+            initial_loss: f.map.losses.first().copied().unwrap_or(f.map.loss),
+            perturbation: f.perturbation,
+            prior_precision: f.laplace.prior_precision,
+            log_evidence: f.laplace.log_evidence,
+            rays: f.rays,
+        }
+    }
+}
+
+/// One CSV row: an image of a split and its fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Row {
+    pub split: &'static str,
+    pub index: usize,
+    pub file_path: String,
+    pub fit: Fit,
+}
+
+/// Whether `dir` holds a transforms file for `split` (its own, or instant-ngp's shared one).
+pub fn has_split(dir: &Path, split: &str) -> bool {
+    dir.join(format!("transforms_{split}.json")).is_file() || dir.join("transforms.json").is_file()
+}
+
+/// The straight colours of `frame` composited on [`BACKGROUND`], `[pixels]`.
+pub fn reference(frame: &Frame) -> Vec<[f32; 3]> {
+    frame.image.rgba.chunks_exact(4).map(|p| [0, 1, 2].map(|c| p[c] * p[3] + BACKGROUND[c] * (1.0 - p[3]))).collect()
+}
+
+/// At most `n` of `items`, an even stride through them (all when `n` is `None` or larger).
+pub fn stride<T: Copy>(items: &[T], n: Option<usize>) -> Vec<T> {
+    let len = items.len();
+    let n = n.unwrap_or(len).min(len);
+    (0..n).map(|q| items[q * len / n.max(1)]).collect()
+}
+
+/// The fit of `method` to `rays` and their reference colours `refs`; an image whose rays all
+/// miss the model is an empty result, not an error.
+pub fn fit_image(
+    nerf: &Nerf,
+    method: Method,
+    name: &str,
+    rays: &[RayInput],
+    refs: &[[f32; 3]],
+    cfg: &UqConfig,
+) -> Result<Fit, UqError> {
+    let fit = match method {
+        Method::Ga => ga_image(nerf, name, rays, refs, cfg.ga_sigma_max, cfg.noise_std)
+            .map(|f| Fit::Ga(Some(GaRow::new(&f, rays.len())))),
+        Method::Bla => bla_image(nerf, name, rays, refs, cfg).map(|f| Fit::Bla(Some(BlaRow::new(&f)))),
+    };
+    match fit {
+        Err(UqError::AllRaysMiss { .. }) => Ok(Fit::missed(method)),
+        other => other,
+    }
+}
+
+/// The fit of `method` to the pixels of `frame`: GA on at most `ga_rays` of them (an even
+/// stride; all when `None`), BLA on the rays that composite a sample (at most `cfg.max_rays`).
+pub fn fit_frame(
+    nerf: &Nerf,
+    method: Method,
+    name: &str,
+    frame: &Frame,
+    ga_rays: Option<usize>,
+    cfg: &UqConfig,
+) -> Result<Fit, UqError> {
+    let all_rays = camera_rays(&frame.camera, BACKGROUND);
+    let all_refs = reference(frame);
+    let (rays, refs) = match method {
+        // GA: an even stride through the pixels; BLA strides through the rays with samples.
+        Method::Ga if ga_rays.is_some() => {
+            let idx: Vec<usize> = stride(&(0..all_rays.len()).collect::<Vec<_>>(), ga_rays);
+            (idx.iter().map(|&i| all_rays[i]).collect(), idx.iter().map(|&i| all_refs[i]).collect())
+        }
+        _ => (all_rays, all_refs),
+    };
+    fit_image(nerf, method, name, &rays, &refs, cfg)
+}
+
+/// The fit of `method` to every pixel of `frame` and its per-pixel depth standard deviation
+/// (metres, `[pixels]`, NaN where a ray composites no sample); BLA linearised at its posterior
+/// mode. GA renders the view once for both.
+pub fn fit_with_depth_uncertainty(
+    nerf: &Nerf,
+    method: Method,
+    name: &str,
+    frame: &Frame,
+    cfg: &UqConfig,
+) -> Result<(Fit, Vec<f32>), UqError> {
+    let rays = camera_rays(&frame.camera, BACKGROUND);
+    let refs = reference(frame);
+    match method {
+        Method::Ga => {
+            let samples = nerf.render_rays_samples(&rays);
+            let fit = ga_fit_samples(name, &rays, &samples, &refs, cfg.ga_sigma_max, cfg.noise_std)?;
+            let maps = ga_maps_from_samples(name, &frame.camera, &samples, BACKGROUND, fit.sigma_d)?;
+            Ok((Fit::Ga(Some(GaRow::new(&fit, rays.len()))), maps.depth_std))
+        }
+        Method::Bla => {
+            let fit = bla_image(nerf, name, &rays, &refs, cfg)?;
+            let mut at_mode = nerf.clone();
+            for (w, &v) in at_mode.sigma_net_params_mut().iter_mut().zip(&fit.map.theta) {
+                *w = v as f32;
+            }
+            let maps = bla_maps(&at_mode, name, &frame.camera, BACKGROUND, &fit.laplace.covariance)?;
+            Ok((Fit::Bla(Some(BlaRow::new(&fit))), maps.depth_std))
+        }
+    }
+}
+
+/// How an image's AUSE ended.
+#[derive(Debug)]
+pub enum AuseOutcome {
+    /// Its sparsification curve.
+    Scored(Sparsification),
+    /// Not scored, and why: no ground-truth depth, every ray missing the model, or too few
+    /// pixels with both a ground-truth depth and a finite uncertainty.
+    Skipped(UqError),
+}
+
+/// The depth AUSE of `method` on `frame` (named by its file path), and the fit made on the way
+/// (`None` when the image has no ground-truth depth: it is not fitted).
+pub fn ause_frame(
+    nerf: &Nerf,
+    method: Method,
+    frame: &Frame,
+    cfg: &UqConfig,
+) -> Result<(Option<Fit>, AuseOutcome), UqError> {
+    let name = frame.file_path.as_str();
+    let view = nerf.render_camera(&frame.camera, BACKGROUND);
+    let errors = match depth_errors(name, &view.depth, frame.depth.as_ref().map(|d| &d.metres[..])) {
+        Ok(e) => e,
+        Err(e @ UqError::NoGroundTruthDepth { .. }) => return Ok((None, AuseOutcome::Skipped(e))),
+        Err(e) => return Err(e),
+    };
+    let (fit, uncertainty) = match fit_with_depth_uncertainty(nerf, method, name, frame, cfg) {
+        Ok(f) => f,
+        Err(e @ UqError::AllRaysMiss { .. }) => return Ok((Some(Fit::missed(method)), AuseOutcome::Skipped(e))),
+        Err(e) => return Err(e),
+    };
+    match sparsification(name, &errors, &uncertainty) {
+        Ok(curve) => Ok((Some(fit), AuseOutcome::Scored(curve))),
+        Err(e @ UqError::TooFewPixels { .. }) => Ok((Some(fit), AuseOutcome::Skipped(e))),
+        Err(e) => Err(e),
+    }
+}
+
+/// One image's depth AUSE.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ImageAuse {
+    pub image: String,
+    pub ause: f64,
+    /// Pixels with a valid ground-truth depth.
+    pub pixels: usize,
+    /// Of those, pixels without a finite uncertainty (no sample on the ray), ranked as the
+    /// most uncertain.
+    pub unscored: usize,
+}
+
+/// The depth AUSE of a set of images.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct AuseResult {
+    pub per_image: Vec<ImageAuse>,
+    /// Images skipped, with the reason.
+    pub skipped: Vec<String>,
+    pub mean_ause: Option<f64>,
+}
+
+/// The depth AUSE of `method` on each of `frames`, reporting each image scored to `progress`
+/// (done, total) and each one skipped to `note`.
+pub fn ause_frames(
+    nerf: &Nerf,
+    method: Method,
+    frames: &[Frame],
+    cfg: &UqConfig,
+    progress: &dyn Fn(usize, usize),
+    note: &dyn Fn(&str),
+) -> Result<AuseResult, UqError> {
+    let (mut out, mut scored) = (AuseResult::default(), Vec::new());
+    for (i, frame) in frames.iter().enumerate() {
+        progress(i, frames.len());
+        match ause_frame(nerf, method, frame, cfg)?.1 {
+            AuseOutcome::Scored(curve) => {
+                out.per_image.push(ImageAuse {
+                    image: frame.file_path.clone(),
+                    ause: curve.ause,
+                    pixels: curve.pixels,
+                    unscored: curve.unscored,
+                });
+                scored.push(curve);
+            }
+            AuseOutcome::Skipped(e) => {
+                note(&format!("skipped: {e}"));
+                out.skipped.push(e.to_string());
+            }
+        }
+    }
+    progress(frames.len(), frames.len());
+    out.mean_ause = mean_ause(&scored);
+    Ok(out)
+}
+
+/// `method` on the images `indices` of `split` (named `name` in the rows), after checking
+/// that the model's box is in view of the split's cameras. Reports each image fitted to
+/// `progress` (done, total) and each one whose rays all miss to `note`.
+#[allow(clippy::too_many_arguments)]
+pub fn offline_split(
+    nerf: &Nerf,
+    method: Method,
+    split: &Split,
+    name: &'static str,
+    indices: &[usize],
+    ga_rays: Option<usize>,
+    cfg: &UqConfig,
+    progress: &dyn Fn(usize, usize),
+    note: &dyn Fn(&str),
+) -> Result<Vec<Row>, UqError> {
+    nerfsv_nerf::check_bounds(&nerf.config, split)?;
+    let total = indices.len();
+    progress(0, total);
+    let mut rows = Vec::with_capacity(total);
+    for (done, &index) in indices.iter().enumerate() {
+        let frame = split
+            .frames
+            .get(index)
+            .ok_or_else(|| UqError::Internal(format!("{}: no frame {index}", split.path.display())))?;
+        let image = format!("{}: frame {index} ({})", split.path.display(), frame.file_path);
+        let fit = fit_frame(nerf, method, &image, frame, ga_rays, cfg)?;
+        if fit.all_rays_miss() {
+            note(&format!("{image}: all rays miss the model; its row is left empty"));
+        }
+        rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
+        progress(done + 1, total);
+    }
+    Ok(rows)
+}
+
+/// A split's summary (GA fields or BLA fields).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SplitSummary {
+    pub images: usize,
+    /// Images whose rays all miss the model (a row with empty values; left out of the means).
+    pub all_rays_miss: usize,
+    /// GA: the paper's exclusions (σ_d ≤ 0 or σ_d ≥ ga_sigma_max), left out of the means.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub excluded: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_sigma_d: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_mu_d: Option<f64>,
+    /// GA with the pixel noise in the model: images at or above the bound, mean σ_d over the
+    /// others.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floored_excluded: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_floored_sigma_d: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_trace: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_rmv: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_information_gain: Option<f64>,
+}
+
+/// What `nerfsv uq offline` prints and writes to `uq_{method}.json`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OfflineSummary {
+    pub method: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub train: Option<SplitSummary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub val: Option<SplitSummary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub test: Option<SplitSummary>,
+    /// Splits whose transforms file is absent.
+    pub skipped_splits: Vec<&'static str>,
+    pub seconds: f64,
+}
+
+impl OfflineSummary {
+    /// The summaries of `rows` for each of `splits`.
+    pub fn new(
+        method: Method,
+        rows: &[Row],
+        splits: &[&'static str],
+        skipped_splits: Vec<&'static str>,
+        sigma_max: f64,
+    ) -> Self {
+        let mut s = Self { method: method.name(), train: None, val: None, test: None, skipped_splits, seconds: 0.0 };
+        for name in splits {
+            let summary = summarise(rows.iter().filter(|r| r.split == *name), method, sigma_max);
+            match *name {
+                "train" => s.train = Some(summary),
+                "val" => s.val = Some(summary),
+                _ => s.test = Some(summary),
+            }
+        }
+        s
+    }
+
+    /// A few lines for a person: per split the images, exclusions and means.
+    pub fn describe(&self, out: &Path) -> String {
+        let mut text = String::new();
+        for (name, s) in [("train", &self.train), ("val", &self.val), ("test", &self.test)] {
+            let Some(s) = s else { continue };
+            let _ = match self.method {
+                "ga" => writeln!(
+                    text,
+                    "{name}: {} images, {} excluded, {} all rays miss; mean σ_d {}, mean μ_d {}",
+                    s.images,
+                    s.excluded.unwrap_or(0),
+                    s.all_rays_miss,
+                    short(s.mean_sigma_d),
+                    short(s.mean_mu_d)
+                ),
+                _ => writeln!(
+                    text,
+                    "{name}: {} images, {} all rays miss; mean normalised trace {}, mean rmv {}, mean information \
+                     gain {} nats",
+                    s.images,
+                    s.all_rays_miss,
+                    short(s.mean_trace),
+                    short(s.mean_rmv),
+                    short(s.mean_information_gain)
+                ),
+            };
+        }
+        let _ = write!(text, "{:.1} s → {}", self.seconds, out.display());
+        text
+    }
+}
+
+/// A figure for a person: 4 decimals, or scientific notation outside [1e-3, 1e5).
+pub fn short(v: Option<f64>) -> String {
+    match v {
+        None => "n/a".to_string(),
+        Some(v) if (1e-3..1e5).contains(&v.abs()) => format!("{v:.4}"),
+        Some(v) => format!("{v:.4e}"),
+    }
+}
+
+pub fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+pub fn median(mut values: Vec<f64>) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(values[n / 2]),
+        _ => Some(0.5 * (values[n / 2 - 1] + values[n / 2])),
+    }
+}
+
+pub fn ga_rows<'a>(rows: impl Iterator<Item = &'a Row>) -> impl Iterator<Item = &'a GaRow> {
+    rows.filter_map(|r| if let Fit::Ga(Some(g)) = &r.fit { Some(g) } else { None })
+}
+
+pub fn bla_rows<'a>(rows: impl Iterator<Item = &'a Row>) -> impl Iterator<Item = &'a BlaRow> {
+    rows.filter_map(|r| if let Fit::Bla(Some(b)) = &r.fit { Some(b) } else { None })
+}
+
+/// The summary of `rows` (one split's) for `method`; the means leave out the images whose rays
+/// all miss and, for GA, the excluded ones, as the paper does.
+/// `sigma_max` is GA's exclusion bound (`uq.ga_sigma_max`).
+pub fn summarise<'a>(rows: impl Iterator<Item = &'a Row> + Clone, method: Method, sigma_max: f64) -> SplitSummary {
+    let images = rows.clone().count();
+    let missed = rows.clone().filter(|r| r.fit.all_rays_miss()).count();
+    let mut s = SplitSummary {
+        images,
+        all_rays_miss: missed,
+        excluded: None,
+        mean_sigma_d: None,
+        mean_mu_d: None,
+        floored_excluded: None,
+        mean_floored_sigma_d: None,
+        mean_trace: None,
+        mean_rmv: None,
+        mean_information_gain: None,
+    };
+    match method {
+        Method::Ga => {
+            let fits: Vec<&GaRow> = ga_rows(rows).collect();
+            let kept: Vec<&&GaRow> = fits.iter().filter(|g| g.excluded.is_none()).collect();
+            s.excluded = Some(fits.len() - kept.len());
+            s.mean_sigma_d = mean(kept.iter().map(|g| g.sigma_d));
+            s.mean_mu_d = mean(kept.iter().map(|g| g.mu_d));
+            let floored: Vec<&&GaRow> = fits.iter().filter(|g| floored_kept(g, sigma_max)).collect();
+            s.floored_excluded = Some(fits.len() - floored.len());
+            s.mean_floored_sigma_d = mean(floored.iter().map(|g| g.floored_sigma_d));
+        }
+        Method::Bla => {
+            let fits: Vec<&BlaRow> = bla_rows(rows).collect();
+            s.mean_trace = mean(fits.iter().map(|b| b.normalized_trace));
+            s.mean_rmv = mean(fits.iter().map(|b| b.rmv));
+            s.mean_information_gain = mean(fits.iter().map(|b| b.information_gain));
+        }
+    }
+    s
+}
+
+/// A CSV field, quoted when it holds a separator, a quote or a line break.
+pub fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn exclusion_name(e: Option<GaExclusion>) -> &'static str {
+    match e {
+        None => "",
+        Some(GaExclusion::AbsolutelyCertain) => "absolutely_certain",
+        Some(GaExclusion::AbsolutelyUncertain) => "absolutely_uncertain",
+    }
+}
+
+/// One row per image. An image whose rays all miss has empty values (GA: `excluded` is
+/// `all_rays_miss`; BLA: `note` is).
+pub fn csv(rows: &[Row], method: Method) -> String {
+    let mut out = String::new();
+    match method {
+        Method::Ga => out.push_str(
+            "split,index,file_path,mu_d,sigma_d,excluded,objective,rays,rays_without_samples,floored_mu_d,\
+             floored_sigma_d\n",
+        ),
+        Method::Bla => out.push_str(
+            "split,index,file_path,normalized_trace,rmv,information_gain,map_loss,initial_loss,perturbation,\
+             prior_precision,log_evidence,rays,note\n",
+        ),
+    }
+    for r in rows {
+        let _ = write!(out, "{},{},{},", r.split, r.index, csv_field(&r.file_path));
+        let _ = match &r.fit {
+            Fit::Ga(Some(g)) => writeln!(
+                out,
+                "{},{},{},{},{},{},{},{}",
+                g.mu_d,
+                g.sigma_d,
+                exclusion_name(g.excluded),
+                g.objective,
+                g.rays,
+                g.rays_without_samples,
+                g.floored_mu_d,
+                g.floored_sigma_d
+            ),
+            Fit::Ga(None) => writeln!(out, ",,all_rays_miss,,,,,"),
+            Fit::Bla(Some(b)) => writeln!(
+                out,
+                "{},{},{},{},{},{},{},{},{},",
+                b.normalized_trace,
+                b.rmv,
+                b.information_gain,
+                b.map_loss,
+                b.initial_loss,
+                b.perturbation,
+                b.prior_precision,
+                b.log_evidence,
+                b.rays
+            ),
+            Fit::Bla(None) => writeln!(out, ",,,,,,,,,all_rays_miss"),
+        };
+    }
+    out
+}
+
+/// A figure of a method.
+pub enum Figure {
+    Histogram(HistogramFigure),
+    Scatter(ScatterFigure),
+}
+
+/// Groups with fewer values than this are drawn as points, not as a histogram.
+pub const FEW_FOR_A_HISTOGRAM: usize = 10;
+
+/// Bins for histograms of at most `n` values per group.
+fn bins(n: usize) -> usize {
+    ((2.0 * (n as f64).sqrt()).round() as usize).clamp(5, 40)
+}
+
+/// The file stems of a method's figures, in the order [`figures`] makes them.
+pub fn figure_stems(method: Method) -> &'static [&'static str] {
+    match method {
+        Method::Ga => &["uq_ga_sigma_d", "uq_ga_mu_sigma"],
+        Method::Bla => &["uq_bla_trace", "uq_bla_rmv", "uq_bla_trace_rmv"],
+    }
+}
+
+/// The figures of a method: (file stem, figure). GA: σ_d histograms per split and the μ_d–σ_d
+/// scatter, excluded images left out (and counted in the titles); BLA: normalised trace and
+/// rmv histograms and their scatter.
+pub fn figures(rows: &[Row], splits: &[&'static str], method: Method, cfg: &UqConfig) -> Vec<(String, Figure)> {
+    let per_split = |value: &dyn Fn(&Row) -> Option<[f64; 2]>| -> Vec<(&'static str, Vec<[f64; 2]>)> {
+        splits.iter().map(|s| (*s, rows.iter().filter(|r| r.split == *s).filter_map(value).collect())).collect()
+    };
+    fn largest<L>(groups: &[(L, Vec<[f64; 2]>)]) -> usize {
+        groups.iter().map(|(_, v)| v.len()).max().unwrap_or(0)
+    }
+    fn hist<L: ToString>(groups: &[(L, Vec<[f64; 2]>)], axis: usize, title: String, x_title: &str) -> Figure {
+        // A histogram of a handful of values says less than the values: draw them as points,
+        // each image at its value, one row per image of its split.
+        if largest(groups) < FEW_FOR_A_HISTOGRAM {
+            return Figure::Scatter(ScatterFigure {
+                title,
+                x_title: x_title.to_string(),
+                y_title: "image (in its split's order)".into(),
+                groups: groups
+                    .iter()
+                    .map(|(s, v)| PointGroup {
+                        label: s.to_string(),
+                        points: v.iter().enumerate().map(|(k, p)| [p[axis], (k + 1) as f64]).collect(),
+                    })
+                    .collect(),
+            });
+        }
+        Figure::Histogram(HistogramFigure {
+            title,
+            x_title: x_title.to_string(),
+            y_title: "images".into(),
+            groups: groups
+                .iter()
+                .map(|(s, v)| Group { label: s.to_string(), values: v.iter().map(|p| p[axis]).collect() })
+                .collect(),
+            bins: bins(largest(groups)),
+        })
+    }
+    let scatter = |groups: &[(&'static str, Vec<[f64; 2]>)], title: String, x: &str, y: &str| {
+        Figure::Scatter(ScatterFigure {
+            title,
+            x_title: x.to_string(),
+            y_title: y.to_string(),
+            groups: groups.iter().map(|(s, v)| PointGroup { label: s.to_string(), points: v.clone() }).collect(),
+        })
+    };
+    let stems = figure_stems(method);
+    match method {
+        Method::Ga => {
+            // The paper's statistics leave the excluded images out.
+            let kept = per_split(&|r| match &r.fit {
+                Fit::Ga(Some(g)) if g.excluded.is_none() => Some([g.mu_d, g.sigma_d]),
+                _ => None,
+            });
+            let excluded = rows.iter().filter(|r| matches!(&r.fit, Fit::Ga(Some(g)) if g.excluded.is_some())).count();
+            let note = if excluded > 0 {
+                format!(" ({excluded} excluded: σ_d ≤ 0 or ≥ {})", cfg.ga_sigma_max)
+            } else {
+                String::new()
+            };
+            // Histogram panels say how many of their split's images were left out.
+            let labelled: Vec<(String, Vec<[f64; 2]>)> = kept
+                .iter()
+                .map(|(s, v)| {
+                    let n = rows
+                        .iter()
+                        .filter(|r| r.split == *s && matches!(&r.fit, Fit::Ga(Some(g)) if g.excluded.is_some()))
+                        .count();
+                    let label = if n > 0 { format!("{s} ({n} excluded)") } else { s.to_string() };
+                    (label, v.clone())
+                })
+                .collect();
+            vec![
+                (stems[0].into(), hist(&labelled, 1, format!("GA: σ_d per image{note}"), "σ_d")),
+                (stems[1].into(), scatter(&kept, format!("GA: μ_d and σ_d per image{note}"), "μ_d", "σ_d")),
+            ]
+        }
+        Method::Bla => {
+            let fits = per_split(&|r| match &r.fit {
+                Fit::Bla(Some(b)) => Some([b.normalized_trace, b.rmv]),
+                _ => None,
+            });
+            vec![
+                (stems[0].into(), hist(&fits, 0, "BLA: normalised trace per image".into(), "normalised trace tr(Σ)/P")),
+                (stems[1].into(), hist(&fits, 1, "BLA: root-mean-variance per image".into(), "rmv")),
+                (
+                    stems[2].into(),
+                    scatter(&fits, "BLA: normalised trace and rmv per image".into(), "normalised trace tr(Σ)/P", "rmv"),
+                ),
+            ]
+        }
+    }
+}
+
+/// The figures of a method as files: `STEM.png` and `STEM.svg` for each, in memory.
+pub fn figure_files(
+    rows: &[Row],
+    splits: &[&'static str],
+    method: Method,
+    cfg: &UqConfig,
+) -> Result<Vec<(String, Vec<u8>)>, UqError> {
+    let mut files = Vec::new();
+    for (stem, fig) in figures(rows, splits, method, cfg) {
+        let (png, svg) = match &fig {
+            Figure::Histogram(h) => (
+                nerfsv_plot::histograms_png(h, FIGURE.0, FIGURE.1)?,
+                nerfsv_plot::histograms_svg(h, FIGURE.0, FIGURE.1)?,
+            ),
+            Figure::Scatter(s) => {
+                (nerfsv_plot::scatter_png(s, FIGURE.0, FIGURE.1)?, nerfsv_plot::scatter_svg(s, FIGURE.0, FIGURE.1)?)
+            }
+        };
+        files.push((format!("{stem}.png"), png));
+        files.push((format!("{stem}.svg"), svg.into_bytes()));
+    }
+    Ok(files)
+}
+
+/// The per-pixel figure of the first test image the stage fits with both methods (or GA
+/// alone): the NeRF's depth error against the ground truth beside GA's and BLA's depth standard
+/// deviations, on log scales (`uq/uq_maps.png`; written when the test split has an image with
+/// ground-truth depth).
+pub const MAPS_PNG: &str = "uq_maps.png";
+
+/// See [`MAPS_PNG`]; `None` when `frame` has no ground-truth depth or every ray misses.
+pub fn maps_figure(nerf: &Nerf, frame: &Frame, bla: bool, cfg: &UqConfig) -> Result<Option<Vec<u8>>, UqError> {
+    let name = frame.file_path.as_str();
+    let view = nerf.render_camera(&frame.camera, BACKGROUND);
+    let Ok(errors) = depth_errors(name, &view.depth, frame.depth.as_ref().map(|d| &d.metres[..])) else {
+        return Ok(None);
+    };
+    let k = frame.camera.intrinsics;
+    let panel = |caption: String, values: Vec<f64>| nerfsv_plot::Heatmap {
+        caption,
+        x_title: "column (px)".into(),
+        y_title: "row from the bottom (px)".into(),
+        colour_title: "metres (log scale)".into(),
+        // Row 0 of the image is its top.
+        origin: [0.0, f64::from(k.height) - 1.0],
+        cell: [1.0, -1.0],
+        dims: [k.width as usize, k.height as usize],
+        values,
+        scale: nerfsv_plot::ColourScale::Log,
+    };
+    let mut panels = vec![panel("|NeRF depth − ground truth|".into(), errors.iter().map(|&e| f64::from(e)).collect())];
+    let methods: &[Method] = if bla { &[Method::Ga, Method::Bla] } else { &[Method::Ga] };
+    for &method in methods {
+        match fit_with_depth_uncertainty(nerf, method, name, frame, cfg) {
+            Ok((_, std)) => panels.push(panel(
+                format!("{} depth standard deviation", method.name().to_uppercase()),
+                std.iter().map(|&v| f64::from(v)).collect(),
+            )),
+            Err(UqError::AllRaysMiss { .. }) => return Ok(None),
+            Err(e) => return Err(e),
+        }
+    }
+    let fig = nerfsv_plot::HeatmapFigure { title: format!("Per-pixel depth error and uncertainty, {name}"), panels };
+    let width = 500 * fig.panels.len() as u32;
+    Ok(Some(nerfsv_plot::heatmap_png(&fig, width, 470)?))
+}
+
+/// Whether a noise-floored σ_d stays in the statistics: below the bound. (σ_d = 0 is kept: with
+/// the noise in the model it says the image is explained up to its noise, not that the fit
+/// degenerated, as the paper's σ_d = 0 does.)
+pub fn floored_kept(g: &GaRow, sigma_max: f64) -> bool {
+    g.floored_sigma_d < sigma_max
+}
+
+/// Writes `files` (name, bytes) into `dir` (created if needed), each atomically, all or
+/// nothing: if one cannot be written, those already written are removed again.
+pub fn write_files(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<(), UqError> {
+    std::fs::create_dir_all(dir).map_err(|e| UqError::io(dir, e))?;
+    nerfsv_scene::io::remove_stale_temporaries_in(dir);
+    for (k, (name, bytes)) in files.iter().enumerate() {
+        let path = dir.join(name);
+        if let Err(e) = nerfsv_scene::io::atomic_write_bytes(&path, bytes) {
+            for (done, _) in &files[..k] {
+                let _ = std::fs::remove_file(dir.join(done));
+            }
+            return Err(UqError::io(path, e));
+        }
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// The uncertainty field of a dataset (`nerfsv uq field`).
+
+/// Altitude of the slice picture, metres (the drone flies at 0.15–0.5 m).
+pub const FIELD_SLICE_ALTITUDE: f32 = 0.3;
+/// The slice picture's size, pixels.
+const FIELD_SLICE_SIZE: (u32, u32) = (640, 520);
+
+/// The `method` field of `nerf` (named `checkpoint` in the file) from every frame of `split`,
+/// each compared with its ground-truth colours on the white background; `progress(done,
+/// total)` per training image.
+pub fn build_field(
+    nerf: &Nerf,
+    checkpoint: &str,
+    split: &Split,
+    method: Method,
+    cfg: &UqConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<UncertaintyField, UqError> {
+    nerfsv_nerf::check_bounds(&nerf.config, split)?;
+    let names: Vec<String> = split
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| format!("{}: frame {i} ({})", split.path.display(), f.file_path))
+        .collect();
+    let refs: Vec<Vec<[f32; 3]>> = split.frames.iter().map(reference).collect();
+    let views: Vec<TrainingView> = split
+        .frames
+        .iter()
+        .zip(&refs)
+        .zip(&names)
+        .map(|((f, r), n)| TrainingView { name: n, camera: &f.camera, reference: r })
+        .collect();
+    Ok(match method {
+        Method::Ga => UncertaintyField::build_ga(nerf, checkpoint, &views, BACKGROUND, cfg, progress)?,
+        Method::Bla => UncertaintyField::build_bla(nerf, checkpoint, &views, BACKGROUND, cfg, progress)?,
+    })
+}
+
+/// `<stem>_z0.30.png` next to `out`.
+pub fn field_slice_path(out: &Path) -> PathBuf {
+    let stem = out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "field".into());
+    out.with_file_name(format!("{stem}_z{FIELD_SLICE_ALTITUDE:.2}.png"))
+}
+
+/// The slice at [`FIELD_SLICE_ALTITUDE`] as a PNG: `√v` per node (GA σ_d, BLA relative density
+/// standard deviation: the units [`UncertaintyField::view_uncertainty`] reports) on a log colour
+/// scale, clipped to its 2nd–98th percentile (a few rays that composite little give GA nodes
+/// huge values), metre axes, grey where there is no data. `None` when the altitude is outside
+/// the grid.
+pub fn field_slice_png(field: &UncertaintyField) -> Result<Option<Vec<u8>>, UqError> {
+    let g = &field.geometry;
+    let [nx, ny, _] = g.dims;
+    if g.bounds().min.z > FIELD_SLICE_ALTITUDE || g.bounds().max.z < FIELD_SLICE_ALTITUDE {
+        return Ok(None);
+    }
+    let values: Vec<f64> = (0..nx * ny)
+        .map(|n| {
+            let p = g.position_of(n % nx, n / nx, 0);
+            field.value_at([p.x, p.y, FIELD_SLICE_ALTITUDE]).map_or(f64::NAN, |v| f64::from(v.max(0.0)).sqrt())
+        })
+        .collect();
+    let mut positive: Vec<f64> = values.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
+    positive.sort_by(f64::total_cmp);
+    let values = match (
+        positive.get(positive.len() * 2 / 100),
+        positive.get((positive.len() * 98 / 100).min(positive.len().saturating_sub(1))),
+    ) {
+        (Some(&lo), Some(&hi)) => values.iter().map(|&v| if v > 0.0 { v.clamp(lo, hi) } else { v }).collect(),
+        _ => values,
+    };
+    let method = field.method.name().to_uppercase();
+    let quantity = match field.method {
+        Method::Ga => "σ_d (relative density std)",
+        Method::Bla => "relative density std √Var[σ]/σ",
+    };
+    let fig = nerfsv_plot::HeatmapFigure {
+        title: format!("{method} uncertainty field at z = {FIELD_SLICE_ALTITUDE:.2} m"),
+        panels: vec![nerfsv_plot::Heatmap {
+            caption: format!("{quantity}, 2nd–98th percentile"),
+            x_title: "x (m)".into(),
+            y_title: "y (m)".into(),
+            colour_title: format!("{quantity} (log scale)"),
+            origin: [f64::from(g.origin.x), f64::from(g.origin.y)],
+            cell: [f64::from(g.cell); 2],
+            dims: [nx, ny],
+            values,
+            scale: nerfsv_plot::ColourScale::Log,
+        }],
+    };
+    Ok(Some(nerfsv_plot::heatmap_png(&fig, FIELD_SLICE_SIZE.0, FIELD_SLICE_SIZE.1)?))
+}
+
+/// Saves `field` to `out` (its folder created if needed) and its slice picture to
+/// [`field_slice_path`]`(out)`, both or neither (both are made before either is written; if the
+/// picture cannot be written, the field is removed again). Returns the picture's path, `None`
+/// when [`FIELD_SLICE_ALTITUDE`] is outside the grid (then only the field is written).
+pub fn save_field_with_slice(field: &UncertaintyField, out: &Path) -> Result<Option<PathBuf>, UqError> {
+    let png = field_slice_png(field)?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| UqError::io(dir, e))?;
+    }
+    field.save(out)?;
+    let Some(bytes) = png else { return Ok(None) };
+    let png_path = field_slice_path(out);
+    if let Err(e) = nerfsv_scene::io::atomic_write_bytes(&png_path, &bytes) {
+        let _ = std::fs::remove_file(out);
+        return Err(UqError::io(png_path, e));
+    }
+    Ok(Some(png_path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn several_files_are_written_all_or_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let files = vec![("a.txt".to_owned(), b"a".to_vec()), ("b.txt".to_owned(), b"b".to_vec())];
+        write_files(dir.path(), &files).unwrap();
+        assert_eq!(std::fs::read(dir.path().join("b.txt")).unwrap(), b"b");
+        // A name that cannot be written (a folder is in its way): the files before it go again.
+        let out = dir.path().join("out");
+        std::fs::create_dir_all(out.join("c.txt")).unwrap();
+        let files = vec![("a.txt".to_owned(), b"a".to_vec()), ("c.txt".to_owned(), b"c".to_vec())];
+        let e = write_files(&out, &files).unwrap_err().to_string();
+        assert!(e.contains("c.txt"), "{e}");
+        assert!(!out.join("a.txt").exists());
+    }
+}

@@ -5,7 +5,7 @@
 mod common;
 
 use nerfsv_pipeline::flight::FlightInputs;
-use nerfsv_pipeline::stress::{measure_recorded, stress, OnlineSettings, Sampler, StressSetup, STAGE};
+use nerfsv_pipeline::stress::{measure_recorded, stress, Drone, OnlineSettings, Sampler, StressSetup};
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{EstimatorKind, WorldKind};
@@ -27,24 +27,18 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
     let prior = cfg.disturbance_prior().unwrap();
     let flight = inputs.plan(&cfg.sim).unwrap();
     for method in [Method::Ga, Method::Bla] {
-        let setup = StressSetup {
+        let drone = Drone {
             inputs: &inputs,
             flight: &flight,
             scene: &scene,
             sim: &cfg.sim,
-            validation: &cfg.validation,
-            prior: &prior,
             intrinsics: cfg.camera_intrinsics(),
             render: cfg.dataset.render_settings(),
-            world: WorldKind::Nerf,
-            estimator: EstimatorKind::Vision,
-            samplers: &[Sampler::Mc],
+        };
+        let setup = StressSetup {
             replay: false,
             online: Some(OnlineSettings { method, mode: UqMode::Exact, reward: false }),
-            uq: &cfg.uq,
-            field: None,
-            stage: STAGE,
-            reports_p_fail: true,
+            ..StressSetup::new(drone, &cfg.validation, &prior, &[Sampler::Mc], &cfg.uq)
         };
         let out = dir.path().join(method.name());
         std::fs::create_dir_all(&out).unwrap();

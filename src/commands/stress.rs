@@ -4,7 +4,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::refuse_output_inside;
 use nerfsv_pipeline::stage::{stage_key, Stage};
-use nerfsv_pipeline::stress::{stress, OnlineSettings, Sampler, StressSetup, StressStage, JOURNAL, STRESS_JSON};
+use nerfsv_pipeline::stress::{stress, Drone, OnlineSettings, Sampler, StressSetup, StressStage, JOURNAL, STRESS_JSON};
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::WorldKind;
 use nerfsv_study::UqMode;
@@ -160,24 +160,22 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         _ => None,
     };
     let flight = worlds.plan(&cfg.sim).context("planning the flight")?;
-    let setup = StressSetup {
+    let drone = Drone {
         inputs: &worlds,
         flight: &flight,
         scene: &scene,
         sim: &cfg.sim,
-        validation: &cfg.validation,
-        prior: &prior,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
+    };
+    let samplers = [sampler];
+    let setup = StressSetup {
         world: d.world.into(),
         estimator: d.estimator.into(),
-        samplers: &[sampler],
         replay: args.replay,
         online,
-        uq: &cfg.uq,
         field: field.as_ref(),
-        stage: nerfsv_pipeline::stress::STAGE,
-        reports_p_fail: true,
+        ..StressSetup::new(drone, &cfg.validation, &prior, &samplers, &cfg.uq)
     };
     // Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
     // results (the code it runs included): a --resume into results of anything else is refused.
@@ -187,8 +185,8 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         &(
             &cfg.sim,
             &cfg.validation,
-            setup.intrinsics,
-            setup.render.supersample,
+            setup.drone.intrinsics,
+            setup.drone.render.supersample,
             &d.scene,
             setup.world,
             setup.estimator,

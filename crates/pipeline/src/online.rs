@@ -175,23 +175,11 @@ impl Stage for OnlineStage<'_> {
         for &method in &self.online.methods {
             let dir = cx.dir.join(method.name());
             let setup = |samplers: &'static [Sampler], reward: bool| StressSetup {
-                inputs: &inputs,
-                flight: &flight,
-                scene: s.scene,
-                sim: s.sim,
-                validation: &validation,
-                prior: s.prior,
-                intrinsics: s.intrinsics,
-                render: s.render,
-                world: WorldKind::Nerf,
-                estimator: EstimatorKind::Vision,
-                samplers,
                 replay: false,
                 online: Some(OnlineSettings { method, mode: UqMode::Exact, reward }),
-                uq: self.uq,
-                field: None,
                 stage: Self::NAME,
                 reports_p_fail: false,
+                ..StressSetup::new(s.drone(&inputs, &flight), &validation, s.prior, samplers, self.uq)
             };
             let (plain_records, plain_views, plain_seconds) = {
                 let setup = setup(&[], false);

@@ -342,16 +342,24 @@ impl StressFigures {
     }
 }
 
-/// What a stress run needs.
-pub struct StressSetup<'a> {
+/// The drone flying its planned path, and the worlds it can fly in: what every search over its
+/// disturbances shares.
+#[derive(Clone, Copy)]
+pub struct Drone<'a> {
     pub inputs: &'a FlightInputs,
     pub flight: &'a Flight,
     pub scene: &'a Scene,
     pub sim: &'a SimConfig,
-    pub validation: &'a ValidationConfig,
-    pub prior: &'a Prior,
     pub intrinsics: Intrinsics,
     pub render: RenderSettings,
+}
+
+/// What a stress run needs. [`StressSetup::new`] is the stress stage's search; a caller
+/// changes what differs with struct update syntax.
+pub struct StressSetup<'a> {
+    pub drone: Drone<'a>,
+    pub validation: &'a ValidationConfig,
+    pub prior: &'a Prior,
     pub world: WorldKind,
     pub estimator: EstimatorKind,
     pub samplers: &'a [Sampler],
@@ -368,6 +376,34 @@ pub struct StressSetup<'a> {
     /// rewarded CEM, whose one-sample batch only closes the search) the warnings that an
     /// estimate rests on few effective failures are not given.
     pub reports_p_fail: bool,
+}
+
+impl<'a> StressSetup<'a> {
+    /// `samplers` over `drone` under `prior`, as the stress stage searches: in NeRF-sim with the
+    /// vision estimator, every search replayed in GT-sim, no per-step uncertainty (`uq` is used
+    /// only when a caller asks for it), reported under [`STAGE`] with its failure probability.
+    pub fn new(
+        drone: Drone<'a>,
+        validation: &'a ValidationConfig,
+        prior: &'a Prior,
+        samplers: &'a [Sampler],
+        uq: &'a UqConfig,
+    ) -> Self {
+        Self {
+            drone,
+            validation,
+            prior,
+            world: WorldKind::Nerf,
+            estimator: EstimatorKind::Vision,
+            samplers,
+            replay: true,
+            online: None,
+            uq,
+            field: None,
+            stage: STAGE,
+            reports_p_fail: true,
+        }
+    }
 }
 
 /// Files a stress run writes (besides the journal and the most likely failures).
@@ -415,13 +451,13 @@ fn view_meter<'a>(
     gt_world: &'a dyn World,
     background: [f32; 3],
 ) -> Result<Option<Box<dyn ViewUncertainty + 'a>>, PipelineError> {
-    let pixels = online_pixels(&setup.intrinsics, setup.uq);
+    let pixels = online_pixels(&setup.drone.intrinsics, setup.uq);
     Ok(match setup.online {
         None => None,
         Some(o) => Some(match o.mode {
             UqMode::Exact => Box::new(ExactUncertainty {
                 method: o.method,
-                nerf: &setup.inputs.nerf,
+                nerf: &setup.drone.inputs.nerf,
                 reference: gt_world,
                 pixels,
                 background,
@@ -449,8 +485,8 @@ pub fn measure_recorded(
     records: Vec<RolloutRecord>,
     observer: &dyn Observer,
 ) -> Result<(Vec<RolloutRecord>, usize, f64), PipelineError> {
-    let sim = setup.flight.simulator(setup.sim, &setup.inputs.nerf, setup.intrinsics);
-    let gt_world = world(WorldKind::Gt, setup.inputs, setup.scene, setup.render);
+    let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
+    let gt_world = world(WorldKind::Gt, setup.drone.inputs, setup.drone.scene, setup.drone.render);
     let meter = view_meter(setup, gt_world.as_ref(), sim.background)?
         .ok_or_else(|| PipelineError::Internal("measure_recorded: no uncertainty to measure".into()))?;
     let timed = Timed { inner: meter.as_ref(), views: AtomicU64::new(0), nanos: AtomicU64::new(0) };
@@ -564,10 +600,10 @@ pub fn stress(
 ) -> Result<(StressFigures, Vec<RolloutRecord>), PipelineError> {
     let progress = |done: u64, total: u64, status: &str| observer.progress(setup.stage, done, total, status);
     let start = Instant::now();
-    let sim = setup.flight.simulator(setup.sim, &setup.inputs.nerf, setup.intrinsics);
-    let search_world = world(setup.world, setup.inputs, setup.scene, setup.render);
+    let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
+    let search_world = world(setup.world, setup.drone.inputs, setup.drone.scene, setup.drone.render);
     let replay_kind = other_world(setup.world);
-    let replay_world = world(replay_kind, setup.inputs, setup.scene, setup.render);
+    let replay_world = world(replay_kind, setup.drone.inputs, setup.drone.scene, setup.drone.render);
     let journal_dir = out.join(JOURNAL);
     let mut planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
     // Subset simulation starts from the Monte Carlo rollouts when they fly before it.
@@ -876,10 +912,10 @@ fn write_failure(
     for w in std::iter::once(search).chain(setup.replay.then_some(other)) {
         let stem = format!("{name}_{}", w.kind().name());
         let (figures, _) = fly_and_write(
-            setup.flight,
-            setup.sim,
-            &setup.inputs.nerf,
-            setup.intrinsics,
+            setup.drone.flight,
+            setup.drone.sim,
+            &setup.drone.inputs.nerf,
+            setup.drone.intrinsics,
             w,
             setup.estimator,
             &ds,
@@ -927,6 +963,11 @@ pub struct StressStage<'a> {
 }
 
 impl StressStage<'_> {
+    /// The drone of this stage's config flying `flight` in `inputs`' worlds.
+    pub fn drone<'b>(&'b self, inputs: &'b FlightInputs, flight: &'b Flight) -> Drone<'b> {
+        Drone { inputs, flight, scene: self.scene, sim: self.sim, intrinsics: self.intrinsics, render: self.render }
+    }
+
     fn samplers(&self) -> &'static [Sampler] {
         if self.subset {
             &[Sampler::Mc, Sampler::Cem, Sampler::Subset]
@@ -952,25 +993,8 @@ impl Stage for StressStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
         let inputs = FlightInputs::from_run(cx.root)?;
         let flight = inputs.plan(self.sim)?;
-        let setup = StressSetup {
-            inputs: &inputs,
-            flight: &flight,
-            scene: self.scene,
-            sim: self.sim,
-            validation: self.validation,
-            prior: self.prior,
-            intrinsics: self.intrinsics,
-            render: self.render,
-            world: WorldKind::Nerf,
-            estimator: EstimatorKind::Vision,
-            samplers: self.samplers(),
-            replay: true,
-            online: None,
-            uq: &UqConfig::default(),
-            field: None,
-            stage: STAGE,
-            reports_p_fail: true,
-        };
+        let uq = UqConfig::default();
+        let setup = StressSetup::new(self.drone(&inputs, &flight), self.validation, self.prior, self.samplers(), &uq);
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
         Ok(stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)?.0)

@@ -8,7 +8,6 @@ use nerfsv_pipeline::flight::FlightInputs;
 use nerfsv_pipeline::stress::{measure_recorded, stress, Drone, OnlineSettings, Sampler, StressSetup};
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
-use nerfsv_sim::{EstimatorKind, WorldKind};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
 use nerfsv_validation::{parse_csv, write_csv};

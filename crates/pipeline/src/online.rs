@@ -25,7 +25,7 @@
 
 use std::path::Path;
 
-use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_sim::WorldKind;
 use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{

@@ -1,6 +1,7 @@
 //! `nerfsv config --default`: the embedded default run config as TOML, every key preceded by
 //! its documentation (what it is, its unit) taken from the doc comments of the config structs
-//! themselves, so the file and the code cannot drift apart. Saved to a file, it is a starting
+//! themselves (`#[derive(FieldDocs)]`, `nerfsv-derive`), so the file and the code cannot drift
+//! apart. Saved to a file, it is a starting
 //! point for `nerfsv run my.toml` and loads back to exactly the default.
 
 use anyhow::Context;
@@ -15,40 +16,28 @@ pub struct ConfigArgs {
     pub default: bool,
 }
 
-/// The sources of the config structs, read for their doc comments.
-const SOURCES: &[&str] = &[
-    include_str!("../../crates/pipeline/src/config.rs"),
-    include_str!("../../crates/dataset/src/generate.rs"),
-    include_str!("../../crates/nerf/src/config.rs"),
-    include_str!("../../crates/sim/src/config.rs"),
-    include_str!("../../crates/sim/src/dynamics.rs"),
-    include_str!("../../crates/sim/src/controller.rs"),
-    include_str!("../../crates/sim/src/planner.rs"),
-    include_str!("../../crates/sim/src/estimator.rs"),
-    include_str!("../../crates/validation/src/config.rs"),
-    include_str!("../../crates/uq/src/config.rs"),
-];
-
-/// The struct behind each table of the run config (`""` is the top level).
-const TABLES: &[(&str, &str)] = &[
-    ("", "RunConfig"),
-    ("dataset", "GenerateOptions"),
-    ("nerf", "NerfConfig"),
-    ("train", "TrainConfig"),
-    ("sim", "SimConfig"),
-    ("sim.drone", "DroneParams"),
-    ("sim.controller", "ControllerGains"),
-    ("sim.planner", "PlannerConfig"),
-    ("sim.vision", "VisionConfig"),
-    ("sim.camera", "CameraConfig"),
-    ("validation", "ValidationConfig"),
-    ("validation.disturbance", "DisturbanceConfig"),
-    ("validation.monte_carlo", "MonteCarloConfig"),
-    ("validation.cem", "CemConfig"),
-    ("validation.subset", "SubsetConfig"),
-    ("uq", "UqConfig"),
-    ("uq_offline", "UqOfflineConfig"),
-    ("online", "OnlineConfig"),
+/// Each table of the run config (`""` is the top level), the struct behind it and that
+/// struct's fields with their doc comments (`#[derive(FieldDocs)]`).
+type FieldDocs = &'static [(&'static str, &'static str)];
+const TABLES: &[(&str, &str, FieldDocs)] = &[
+    ("", "RunConfig", RunConfig::FIELD_DOCS),
+    ("dataset", "GenerateOptions", nerfsv_dataset::GenerateOptions::FIELD_DOCS),
+    ("nerf", "NerfConfig", nerfsv_nerf::NerfConfig::FIELD_DOCS),
+    ("train", "TrainConfig", nerfsv_nerf::TrainConfig::FIELD_DOCS),
+    ("sim", "SimConfig", nerfsv_sim::SimConfig::FIELD_DOCS),
+    ("sim.drone", "DroneParams", nerfsv_sim::DroneParams::FIELD_DOCS),
+    ("sim.controller", "ControllerGains", nerfsv_sim::controller::ControllerGains::FIELD_DOCS),
+    ("sim.planner", "PlannerConfig", nerfsv_sim::PlannerConfig::FIELD_DOCS),
+    ("sim.vision", "VisionConfig", nerfsv_sim::VisionConfig::FIELD_DOCS),
+    ("sim.camera", "CameraConfig", nerfsv_sim::CameraConfig::FIELD_DOCS),
+    ("validation", "ValidationConfig", nerfsv_validation::ValidationConfig::FIELD_DOCS),
+    ("validation.disturbance", "DisturbanceConfig", nerfsv_validation::DisturbanceConfig::FIELD_DOCS),
+    ("validation.monte_carlo", "MonteCarloConfig", nerfsv_validation::MonteCarloConfig::FIELD_DOCS),
+    ("validation.cem", "CemConfig", nerfsv_validation::CemConfig::FIELD_DOCS),
+    ("validation.subset", "SubsetConfig", nerfsv_validation::SubsetConfig::FIELD_DOCS),
+    ("uq", "UqConfig", nerfsv_uq::UqConfig::FIELD_DOCS),
+    ("uq_offline", "UqOfflineConfig", nerfsv_pipeline::UqOfflineConfig::FIELD_DOCS),
+    ("online", "OnlineConfig", nerfsv_pipeline::OnlineConfig::FIELD_DOCS),
 ];
 
 /// Comment lines are wrapped at this width.
@@ -58,32 +47,6 @@ pub fn run(args: ConfigArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.default, "nothing to print: say --default");
     print!("{}", default_toml()?);
     Ok(())
-}
-
-/// The fields of `pub struct {name}` in [`SOURCES`] with their doc comments (joined into one
-/// line, intra-doc link brackets dropped), in declaration order; `None` when no source has it.
-fn struct_fields(name: &str) -> Option<Vec<(String, String)>> {
-    let header = format!("pub struct {name} {{");
-    let source = SOURCES.iter().find(|s| s.contains(&header))?;
-    let body = &source[source.find(&header)? + header.len()..];
-    let body = &body[..body.find("\n}")?];
-    let mut fields = Vec::new();
-    let mut doc: Vec<&str> = Vec::new();
-    for line in body.lines() {
-        let t = line.trim();
-        if let Some(d) = t.strip_prefix("///") {
-            doc.push(d.trim());
-        } else if t.starts_with("#[") || t.is_empty() {
-            continue;
-        } else {
-            if let Some((field, _)) = t.strip_prefix("pub ").and_then(|rest| rest.split_once(':')) {
-                let text = doc.join(" ").replace("[`", "`").replace("`]", "`");
-                fields.push((field.trim().to_owned(), text.trim().to_owned()));
-            }
-            doc.clear();
-        }
-    }
-    Some(fields)
 }
 
 /// `text` as `# ` comment lines of at most [`WIDTH`] characters.
@@ -120,12 +83,11 @@ pub fn default_toml() -> anyhow::Result<String> {
 /// own documentation `doc` above the header), its keys in declaration order, then its
 /// sub-tables.
 fn table(path: &str, value: &toml::Table, doc: Option<&str>, out: &mut String) -> anyhow::Result<()> {
-    let name = TABLES
+    let (name, fields) = TABLES
         .iter()
-        .find(|(p, _)| *p == path)
-        .map(|(_, n)| *n)
+        .find(|(p, ..)| *p == path)
+        .map(|&(_, n, f)| (n, f))
         .with_context(|| format!("no struct is known for the table [{path}]"))?;
-    let fields = struct_fields(name).with_context(|| format!("struct {name} not found in the config sources"))?;
     if !path.is_empty() {
         out.push('\n');
         if let Some(d) = doc.filter(|d| !d.is_empty()) {
@@ -134,13 +96,13 @@ fn table(path: &str, value: &toml::Table, doc: Option<&str>, out: &mut String) -
         out.push_str(&format!("[{path}]\n"));
     }
     let mut tables = Vec::new();
-    for (field, text) in &fields {
+    for &(field, text) in fields {
         match value.get(field) {
             Some(toml::Value::Table(t)) => tables.push((field, text, t)),
             Some(v) => {
                 comment(text, out);
                 let mut one = toml::Table::new();
-                one.insert(field.clone(), shortest(v));
+                one.insert(field.to_owned(), shortest(v));
                 out.push_str(&toml::to_string(&one).with_context(|| format!("formatting {path}.{field}"))?);
             }
             None => {
@@ -152,7 +114,7 @@ fn table(path: &str, value: &toml::Table, doc: Option<&str>, out: &mut String) -
         anyhow::bail!("[{path}] {extra}: a key of the default config that struct {name} does not declare");
     }
     for (field, text, t) in tables {
-        let sub = if path.is_empty() { field.clone() } else { format!("{path}.{field}") };
+        let sub = if path.is_empty() { field.to_owned() } else { format!("{path}.{field}") };
         table(&sub, t, Some(text), out)?;
     }
     Ok(())
@@ -178,10 +140,9 @@ mod tests {
     #[test]
     fn every_key_of_the_default_config_is_documented() {
         let mut missing = Vec::new();
-        for (path, name) in TABLES {
-            let fields = struct_fields(name).unwrap_or_else(|| panic!("struct {name} not found"));
+        for (path, name, fields) in TABLES {
             assert!(!fields.is_empty(), "struct {name} has no fields");
-            for (field, doc) in fields {
+            for &(field, doc) in *fields {
                 if doc.is_empty() {
                     missing.push(format!("[{path}] {field} ({name})"));
                 }
@@ -203,6 +164,27 @@ mod tests {
             }
         }
         assert!(text.contains("[validation.cem]\n") && text.contains("[online]\n"), "{text}");
+    }
+
+    /// Doc comments become data: each line trimmed, the lines joined by one space, intra-doc
+    /// link brackets dropped, fields in declaration order (undocumented ones empty).
+    #[test]
+    fn field_docs_are_the_fields_doc_comments_joined() {
+        #[derive(nerfsv_derive::FieldDocs)]
+        #[allow(dead_code)]
+        struct Example {
+            /// First line,
+            ///   second line with a [`link`].
+            a: u32,
+            b: u32,
+            /// Last.
+            c: u32,
+        }
+        assert_eq!(Example::FIELD_DOCS, &[("a", "First line, second line with a `link`."), ("b", ""), ("c", "Last.")]);
+        assert_eq!(
+            nerfsv_sim::SimConfig::FIELD_DOCS[0],
+            ("start", "Start position, metres (the paper's (0.39, −0.67, 0.2)).")
+        );
     }
 
     #[test]

@@ -18,7 +18,7 @@ use crate::SPLITS;
 const BYTES_PER_PIXEL: u64 = 16 + 4;
 
 /// What to render. Defaults follow the paper: 200/150/150 views of 100×100 pixels.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct GenerateOptions {
     /// Image width in pixels.

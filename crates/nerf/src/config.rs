@@ -4,7 +4,7 @@ use nerfsv_scene::validate::{finite, in_open_range, in_range, non_negative, posi
 use serde::{Deserialize, Serialize};
 
 /// The model: scene box, hash grid, MLP widths, sampling and occupancy grid.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct NerfConfig {
     /// Scene box minimum corner, metres (world frame, z up). Default `[-2, -2, -2]` (bound 2).
@@ -314,7 +314,7 @@ pub enum BackgroundMode {
 }
 
 /// The optimiser and schedule.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrainConfig {
     /// Adam learning rate. Default 1e-2.

@@ -50,7 +50,7 @@ impl Validate for NerfSettings {
 }
 
 /// Everything `nerfsv run` does, with its defaults.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RunConfig {
     /// Built-in scene: stonehenge, monolith or pillars.
@@ -99,7 +99,7 @@ pub struct RunConfig {
 /// The online uncertainty stage of `nerfsv run`, the `[online]` table: for each method, MC
 /// and CEM measuring every step's uncertainty, and CEM ranked by the method's reward (the rows
 /// with and without reward of Tables 1–2). The CEM populations are `[validation.cem]`'s.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OnlineConfig {
     /// Methods whose study runs: `"ga"`, `"bla"` (default both; empty skips them).
@@ -135,7 +135,7 @@ impl Validate for OnlineConfig {
 /// The offline uncertainty stage of `nerfsv run`: how many images of each split GA and BLA
 /// fit (an even stride through the split), the `[uq_offline]` table. The depth AUSE of each
 /// method is taken over its test images.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct UqOfflineConfig {
     /// GA: images per split, at most (default 50; about 0.15 s per 100×100 image on two

@@ -11,7 +11,7 @@ use crate::planner::PlannerConfig;
 use crate::rollout::Collision;
 
 /// The drone camera's intrinsics, when they differ from the dataset's.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraConfig {
     /// Image width, pixels.
@@ -36,7 +36,7 @@ impl CameraConfig {
 
 /// Everything about a flight: where, how long, the drone, its controller, planner and
 /// estimator.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimConfig {
     /// Start position, metres (the paper's (0.39, −0.67, 0.2)).

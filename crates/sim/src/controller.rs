@@ -45,7 +45,7 @@ use crate::dynamics::{vee, Action, DroneParams, State};
 use crate::reference::Reference;
 
 /// Feedback gains of [`control`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ControllerGains {
     /// Position gain, N/m.

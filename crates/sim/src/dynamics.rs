@@ -21,7 +21,7 @@ use nerfsv_scene::validate::{positive, InvalidValue};
 use serde::{Deserialize, Serialize};
 
 /// Physical constants of the drone and the integration step.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DroneParams {
     /// Mass, kg. Default 1.

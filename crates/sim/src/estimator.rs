@@ -52,7 +52,7 @@ impl EstimatorKind {
 }
 
 /// Settings of the vision estimator, the `[sim.vision]` table.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct VisionConfig {
     /// Pixels of each camera image compared with the NeRF.

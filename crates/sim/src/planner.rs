@@ -41,7 +41,7 @@ use nerfsv_scene::validate::{finite, non_negative, InvalidValue};
 use serde::{Deserialize, Serialize};
 
 /// Planner settings.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlannerConfig {
     /// Clearance kept beyond the body's half-diagonal, metres: room for tracking error.

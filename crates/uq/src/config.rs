@@ -74,7 +74,7 @@ impl BlaMeasure {
 /// assert_eq!(c.noise_std, 0.05);
 /// assert!(c.validate().is_ok());
 /// ```
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct UqConfig {
     /// GA: images whose fitted σ_d reaches this bound are excluded ("absolutely uncertain", the

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use crate::gaussian::{Gaussian, DRONE_STD};
 
 /// The `[validation]` table.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ValidationConfig {
     /// Run seed: every rollout's seed derives from it (with sampler, population and index).
@@ -36,7 +36,7 @@ impl ValidationConfig {
 }
 
 /// The per-step disturbance x_t ~ N(mean, Σ): Σ = diag(std²) unless `covariance` is given.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DisturbanceConfig {
     /// Mean, one entry per disturbance component (default 12 zeros).
@@ -88,7 +88,7 @@ impl DisturbanceConfig {
 }
 
 /// Plain Monte Carlo: `rollouts` trajectories from the prior.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MonteCarloConfig {
     /// Number of rollouts (paper: 100).
@@ -110,7 +110,7 @@ impl MonteCarloConfig {
 
 /// The Cross-Entropy Method (Kochenderfer et al., *Algorithms for Validation*) and the
 /// importance-sampling estimate drawn from its final proposal.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CemConfig {
     /// Population size per iteration (paper: 10).
@@ -177,7 +177,7 @@ impl CemConfig {
 /// Subset simulation (Au & Beck 2001) with preconditioned Crank–Nicolson chains: nested levels
 /// of `samples` trajectories each, every level the share `p0` of the last one that scored
 /// lowest, until failures are at least that share ([`crate::subset_simulation`]).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SubsetConfig {
     /// Trajectories per level (default 200); `samples · p0` must be a whole number that

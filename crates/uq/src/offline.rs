@@ -759,6 +759,56 @@ pub fn floored_kept(g: &GaRow, sigma_max: f64) -> bool {
     g.floored_sigma_d < sigma_max
 }
 
+/// One split's figures of the offline study (the `uq` stage's per split).
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct UqSplitFigures {
+    /// Images GA was run on, and those of them excluded (σ_d ≤ 0 or ≥ `uq.ga_sigma_max`) or
+    /// whose rays all miss the model.
+    pub ga_images: usize,
+    pub ga_excluded: usize,
+    pub ga_all_rays_miss: usize,
+    /// Mean σ_d and μ_d over the images kept (the paper's statistics).
+    pub ga_mean_sigma_d: Option<f64>,
+    pub ga_mean_mu_d: Option<f64>,
+    /// Median σ_d over every fitted image, excluded ones included (where the split sits
+    /// against the exclusion bound).
+    pub ga_median_sigma_d: Option<f64>,
+    /// The same with the pixel noise in the model (`uq.noise_std`): images whose noise-floored
+    /// σ_d is ≥ the bound, the mean over the others, the median over all.
+    pub ga_floored_excluded: usize,
+    pub ga_floored_mean_sigma_d: Option<f64>,
+    pub ga_floored_median_sigma_d: Option<f64>,
+    /// Images BLA was run on, and their mean normalised trace and rmv.
+    pub bla_images: usize,
+    pub bla_mean_normalized_trace: Option<f64>,
+    pub bla_mean_rmv: Option<f64>,
+    /// Mean information gain (nats): what an image teaches in its own directions, where the
+    /// trace is mostly the prior's 1/α in the directions it does not see.
+    pub bla_mean_information_gain: Option<f64>,
+}
+
+/// The figures of the rows of `split`: GA's and BLA's summaries, the medians over every fitted image.
+pub fn split_figures(rows: &[Row], split: &str, sigma_max: f64) -> UqSplitFigures {
+    let of = |r: &&Row| r.split == split;
+    let ga = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Ga(_))), Method::Ga, sigma_max);
+    let bla = summarise(rows.iter().filter(of).filter(|r| matches!(r.fit, Fit::Bla(_))), Method::Bla, sigma_max);
+    UqSplitFigures {
+        ga_images: ga.images,
+        ga_excluded: ga.excluded.unwrap_or(0),
+        ga_all_rays_miss: ga.all_rays_miss,
+        ga_mean_sigma_d: ga.mean_sigma_d,
+        ga_mean_mu_d: ga.mean_mu_d,
+        ga_median_sigma_d: median(ga_rows(rows.iter().filter(of)).map(|g| g.sigma_d).collect()),
+        ga_floored_excluded: ga.floored_excluded.unwrap_or(0),
+        ga_floored_mean_sigma_d: ga.mean_floored_sigma_d,
+        ga_floored_median_sigma_d: median(ga_rows(rows.iter().filter(of)).map(|g| g.floored_sigma_d).collect()),
+        bla_images: bla.images,
+        bla_mean_normalized_trace: bla.mean_trace,
+        bla_mean_rmv: bla.mean_rmv,
+        bla_mean_information_gain: bla.mean_information_gain,
+    }
+}
+
 /// Writes `files` (name, bytes) into `dir` (created if needed), each atomically, all or
 /// nothing: if one cannot be written, those already written are removed again.
 pub fn write_files(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<(), UqError> {
@@ -906,5 +956,93 @@ mod tests {
         let e = write_files(&out, &files).unwrap_err().to_string();
         assert!(e.contains("c.txt"), "{e}");
         assert!(!out.join("a.txt").exists());
+    }
+
+    /// Rays from far outside the model's box, pointing away from it.
+    fn missing_rays() -> (Vec<RayInput>, Vec<[f32; 3]>) {
+        let ray =
+            RayInput { origin: [10.0, 10.0, 10.0], direction: [1.0, 0.0, 0.0], background: BACKGROUND, jitter: 0.0 };
+        (vec![ray; 6], vec![[0.5; 3]; 6])
+    }
+
+    #[test]
+    fn an_image_whose_rays_all_miss_gets_an_empty_row_and_a_count_not_an_error() {
+        let nerf = Nerf::new(nerfsv_nerf::NerfConfig::default(), 0).unwrap();
+        let (rays, refs) = missing_rays();
+        let cfg = UqConfig::default();
+        for method in [Method::Ga, Method::Bla] {
+            let fit = fit_image(&nerf, method, "r_3", &rays, &refs, &cfg).unwrap();
+            assert!(fit.all_rays_miss());
+            let rows = vec![Row { split: "test", index: 3, file_path: "./test/r_3".into(), fit }];
+            let text = csv(&rows, method);
+            let line = text.lines().nth(1).unwrap();
+            assert!(line.starts_with("test,3,./test/r_3,") && line.contains("all_rays_miss"), "{line}");
+            assert_eq!(line.split(',').count(), text.lines().next().unwrap().split(',').count(), "{line}");
+            let s = summarise(rows.iter(), method, 3.0);
+            assert_eq!((s.images, s.all_rays_miss), (1, 1));
+            assert!(s.mean_sigma_d.is_none() && s.mean_trace.is_none());
+        }
+    }
+
+    #[test]
+    fn a_handful_of_values_is_drawn_as_points_and_many_as_a_histogram() {
+        let cfg = UqConfig::default();
+        let few: Vec<Row> = (0..3).map(|k| ga("test", 0.5 + k as f64, false)).collect();
+        match &figures(&few, &["test"], Method::Ga, &cfg)[0].1 {
+            Figure::Scatter(s) => {
+                assert_eq!(s.groups[0].points, [[0.5, 1.0], [1.5, 2.0], [2.5, 3.0]]);
+                assert_eq!(s.x_title, "σ_d");
+            }
+            Figure::Histogram(_) => panic!("3 values drawn as a histogram"),
+        }
+        let many: Vec<Row> = (0..FEW_FOR_A_HISTOGRAM).map(|k| ga("test", 0.1 * k as f64, false)).collect();
+        assert!(matches!(&figures(&many, &["test"], Method::Ga, &cfg)[0].1, Figure::Histogram(_)));
+    }
+
+    #[test]
+    fn csv_fields_with_commas_or_quotes_are_quoted() {
+        assert_eq!(csv_field("./train/r_0"), "./train/r_0");
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"x\""), "\"say \"\"x\"\"\"");
+    }
+
+    #[test]
+    fn stride_takes_an_even_spread_of_at_most_n() {
+        let v: Vec<usize> = (0..10).collect();
+        assert_eq!(stride(&v, Some(5)), [0, 2, 4, 6, 8]);
+        assert_eq!(stride(&v, Some(2)), [0, 5]);
+        assert_eq!(stride(&v, Some(20)), v);
+        assert_eq!(stride(&v, None), v);
+        assert_eq!(stride(&v, Some(0)), Vec::<usize>::new());
+    }
+
+    fn ga(split: &'static str, sigma_d: f64, excluded: bool) -> Row {
+        let excluded = excluded.then_some(GaExclusion::AbsolutelyUncertain);
+        let g = GaRow {
+            mu_d: 1.0,
+            sigma_d,
+            excluded,
+            objective: 0.0,
+            rays: 4,
+            rays_without_samples: 0,
+            floored_mu_d: 1.0,
+            floored_sigma_d: 0.1 * sigma_d,
+        };
+        Row { split, index: 0, file_path: "r_0".into(), fit: Fit::Ga(Some(g)) }
+    }
+
+    #[test]
+    fn split_figures_leave_exclusions_out_of_the_mean_but_not_the_median() {
+        let rows = [ga("test", 1.0, false), ga("test", 2.0, false), ga("test", 4.0, true), ga("val", 9.0, true)];
+        let f = split_figures(&rows, "test", 3.0);
+        assert_eq!((f.ga_images, f.ga_excluded, f.ga_all_rays_miss, f.bla_images), (3, 1, 0, 0));
+        assert_eq!(f.ga_mean_sigma_d, Some(1.5));
+        assert_eq!(f.ga_median_sigma_d, Some(2.0));
+        // The noise-floored σ_d (0.1, 0.2, 0.4): none at the bound, all kept.
+        assert_eq!(f.ga_floored_excluded, 0);
+        assert!((f.ga_floored_mean_sigma_d.unwrap() - 0.7 / 3.0).abs() < 1e-12);
+        assert_eq!(f.ga_floored_median_sigma_d, Some(0.2));
+        assert_eq!(f.bla_mean_rmv, None);
+        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
     }
 }

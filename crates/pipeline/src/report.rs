@@ -217,7 +217,6 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
     files.push(("summary.json".to_owned(), text.into_bytes()));
     let mut stages = Vec::new();
     let mut tables = Vec::new();
-    let mut pictures = 0;
     for name in order {
         let stage_dir = root.join(&name);
         let seconds = std::fs::read_to_string(stage_dir.join(RECORD))
@@ -244,7 +243,6 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
                             if file.starts_with(&shown.name) { file.clone() } else { format!("{}_{file}", shown.name) };
                         files.push((as_named.clone(), bytes));
                         shown.pictures.push((file.clone(), as_named));
-                        pictures += 1;
                     }
                 }
             }
@@ -257,7 +255,7 @@ pub fn write_report(root: &Path, config: Option<&str>) -> Result<ReportFigures, 
     nerfsv_uq::offline::write_files(&dir, &files)?;
     Ok(ReportFigures {
         index: dir.join(INDEX),
-        pictures,
+        pictures: stages.iter().map(|s| s.pictures.len()).sum(),
         tables: tables.len(),
         missing_stages: stages.iter().filter(|s| s.seconds.is_none()).map(|s| s.name.clone()).collect(),
     })

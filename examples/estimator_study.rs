@@ -24,12 +24,12 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use nerfsv_pipeline::flight::{world, FlightInputs};
 use nerfsv_pipeline::stages::{GroundTruthField, NerfField, Train};
 use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{so3_exp, so3_log};
 use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, PosePrior, Rollout, WorldKind};
+use nerfsv_study::flight::{world, FlightInputs};
 use rayon::prelude::*;
 
 fn env<T: std::str::FromStr>(key: &str, default: T) -> T {

@@ -9,12 +9,12 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use nalgebra::Vector3;
-use nerfsv_pipeline::flight::{world, FlightInputs};
 use nerfsv_pipeline::stages::{Dataset, GroundTruthField, NerfField, Train};
 use nerfsv_pipeline::{RunConfig, Runner, Silent, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{rotation_error, so3_exp};
 use nerfsv_sim::{EstimatorKind, Flight, PosePrior, Simulator, WorldKind};
+use nerfsv_study::flight::{world, FlightInputs};
 
 /// The default run's config, model and fields (built or found in the target folder), and its
 /// planned flight.

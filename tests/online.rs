@@ -4,10 +4,10 @@
 
 mod common;
 
-use nerfsv_pipeline::flight::FlightInputs;
-use nerfsv_pipeline::stress::{measure_recorded, stress, Drone, OnlineSettings, Sampler, StressSetup};
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
+use nerfsv_study::flight::FlightInputs;
+use nerfsv_study::stress::{measure_recorded, stress, Drone, OnlineSettings, Sampler, StressSetup};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
 use nerfsv_validation::{parse_csv, write_csv};

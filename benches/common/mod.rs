@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-use nerfsv_pipeline::flight::{world, FlightInputs};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{Flight, SimConfig, Simulator, World, WorldKind};
+use nerfsv_study::flight::{world, FlightInputs};
 
 /// The run's model and fields, the default flight planned on them.
 pub struct BenchRun {
@@ -19,7 +19,7 @@ impl BenchRun {
     /// The run, or `None` (with a line saying `bench` is skipped) when there is none.
     pub fn load(bench: &str) -> Option<Self> {
         let run = std::env::var_os("NERFSV_BENCH_RUN").map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
-        let Ok(inputs) = FlightInputs::from_run(&run) else {
+        let Ok(inputs) = nerfsv_pipeline::flight::flight_inputs(&run) else {
             eprintln!("{bench}: no trained run at {} (set NERFSV_BENCH_RUN); skipped", run.display());
             return None;
         };

@@ -4,12 +4,12 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::flight::{fly_and_write, world, FlightInputs};
 use nerfsv_pipeline::stages::nerf_density_field;
 use nerfsv_pipeline::{refuse_output_inside, RunConfig};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
 use nerfsv_study::drone_disturbances;
+use nerfsv_study::flight::{fly_and_write, world, FlightInputs};
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum WorldArg {

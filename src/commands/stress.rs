@@ -4,9 +4,10 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::refuse_output_inside;
 use nerfsv_pipeline::stage::{stage_key, Stage};
-use nerfsv_pipeline::stress::{stress, Drone, OnlineSettings, Sampler, StressSetup, StressStage, JOURNAL, STRESS_JSON};
+use nerfsv_pipeline::stress::StressStage;
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::WorldKind;
+use nerfsv_study::stress::{stress, Drone, OnlineSettings, Sampler, StressSetup, JOURNAL, STRESS_JSON};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
 use nerfsv_uq::{model_id, UncertaintyField};
@@ -180,7 +181,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     // Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
     // results (the code it runs included): a --resume into results of anything else is refused.
     let key = stage_key(
-        nerfsv_pipeline::stress::STAGE,
+        nerfsv_study::stress::STAGE,
         <StressStage as Stage>::CODE,
         &(
             &cfg.sim,

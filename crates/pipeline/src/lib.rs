@@ -106,6 +106,8 @@ pub enum PipelineError {
     Uq(#[from] nerfsv_uq::UqError),
     #[error(transparent)]
     Plot(#[from] nerfsv_plot::PlotError),
+    #[error(transparent)]
+    Study(#[from] nerfsv_study::StudyError),
     #[error("stage {stage} reads stage {input}, which has not run before it")]
     MissingInput { stage: &'static str, input: &'static str },
     #[error("{}: is inside {option} {}; refusing to write over an input", .output.display(), .input.display())]

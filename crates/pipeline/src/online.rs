@@ -35,14 +35,15 @@ use nerfsv_validation::{
 use serde::{Deserialize, Serialize};
 
 use crate::config::OnlineConfig;
-use crate::flight::FlightInputs;
+use crate::flight::flight_inputs;
 use crate::stage::{Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
-use crate::stress::{
-    measure_recorded, replay_csv, stress, write_table as write_stress_table, OnlineSettings, Sampler, StressSetup,
-    StressStage, ROLLOUTS_CSV, TABLE_CSV,
-};
+use crate::stress::StressStage;
 use crate::PipelineError;
+use nerfsv_study::stress::{
+    measure_recorded, replay_csv, stress, write_table as write_stress_table, OnlineSettings, Sampler, StressSetup,
+    ROLLOUTS_CSV, TABLE_CSV,
+};
 
 /// The stage's combined table.
 pub const ONLINE_TABLE_CSV: &str = "table.csv";
@@ -140,21 +141,11 @@ impl OnlineStage<'_> {
 
 impl Stage for OnlineStage<'_> {
     const NAME: &'static str = "online";
-    const CODE: &'static [&'static str] = &[
-        "nerfsv-sim",
-        "nerfsv-validation",
-        "nerfsv-study",
-        "nerfsv-uq",
-        "nerfsv-plot",
-        "online.rs",
-        "stress.rs",
-        "flight.rs",
-        "stages.rs",
-        "config.rs",
-    ];
+    const CODE: &'static [&'static str] =
+        &["nerfsv-study", "online.rs", "stress.rs", "flight.rs", "stages.rs", "config.rs"];
     const OUTPUTS: &'static [&'static str] = &[ONLINE_TABLE_CSV];
     const INPUTS: &'static [&'static str] =
-        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, crate::stress::STAGE];
+        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, nerfsv_study::stress::STAGE];
     const RESUMABLE: bool = true;
     type Figures = OnlineFigures;
 
@@ -164,11 +155,11 @@ impl Stage for OnlineStage<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
-        let inputs = FlightInputs::from_run(cx.root)?;
+        let inputs = flight_inputs(cx.root)?;
         let s = self.search;
         let flight = inputs.plan(s.sim)?;
         let validation = self.validation();
-        let stress_dir = cx.input_dir(crate::stress::STAGE);
+        let stress_dir = cx.input_dir(nerfsv_study::stress::STAGE);
         let replays = read_records(&stress_dir.join(replay_csv(WorldKind::Gt)))?;
         let stress_records = read_records(&stress_dir.join(ROLLOUTS_CSV))?;
         let mut studies = Vec::new();

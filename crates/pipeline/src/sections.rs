@@ -12,9 +12,10 @@ use crate::flight::{FlightStage, FlightStageFigures};
 use crate::online::{OnlineFigures, OnlineStage};
 use crate::report::{esc, Section, Table};
 use crate::stages::{Eval, EvalFigures, GroundTruthField, NerfField, NerfFieldFigures};
-use crate::stress::{Sampler, SamplerFigures, StressFigures, StressStage};
+use crate::stress::StressStage;
 use crate::uq::{Uncertainty, UqFigures};
 use crate::{Report, ReportContext, Stage};
+use nerfsv_study::stress::{Sampler, SamplerFigures, StressFigures};
 
 /// A number for a table: `digits` decimals, or "–" when absent.
 fn num(v: impl Into<Option<f64>>, digits: usize) -> String {
@@ -321,8 +322,8 @@ const CLEARANCE_PNG: &str = "clearance_difference.png";
 /// Histograms of |clearance in NeRF-sim − in GT-sim| (mm) per sampler, per trajectory and per
 /// step, from the stress stage's rollouts and their replays in `dir`; `None` without them.
 fn clearance_figure(dir: &Path) -> Option<Vec<u8>> {
-    let records = nerfsv_validation::read_csv_file(&dir.join(crate::stress::ROLLOUTS_CSV)).ok()?;
-    let replays = nerfsv_validation::read_csv_file(&dir.join(crate::stress::replay_csv(WorldKind::Gt))).ok()?;
+    let records = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::ROLLOUTS_CSV)).ok()?;
+    let replays = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::replay_csv(WorldKind::Gt))).ok()?;
     let mut groups = Vec::new();
     for sampler in [nerfsv_validation::SAMPLER_MC, nerfsv_validation::SAMPLER_CEM] {
         let ours: Vec<_> = records.iter().filter(|r| r.sampler == sampler).cloned().collect();
@@ -546,7 +547,7 @@ impl Report for StressStage<'_> {
         if draw(cx, CLEARANCE_PNG, clearance_figure(cx.dir)) {
             s.picture(CLEARANCE_PNG, "|clearance in NeRF-sim − in GT-sim| on the same disturbances");
         }
-        s.csv(crate::stress::TABLE_CSV, "stress_table.csv");
+        s.csv(nerfsv_study::stress::TABLE_CSV, "stress_table.csv");
         Some(s)
     }
 }

@@ -109,21 +109,7 @@ impl StageContext<'_> {
     }
 }
 
-/// Receives what the stages report (the binary shows it as progress bars and lines).
-pub trait Observer: Sync {
-    /// `stage` has done `done` of `total` units.
-    fn progress(&self, stage: &str, done: u64, total: u64, status: &str);
-    /// A line about `stage` (up to date, resumed, finished with its figures).
-    fn note(&self, stage: &str, message: &str);
-}
-
-/// An observer that drops everything.
-pub struct Silent;
-
-impl Observer for Silent {
-    fn progress(&self, _: &str, _: u64, _: u64, _: &str) {}
-    fn note(&self, _: &str, _: &str) {}
-}
+pub use nerfsv_study::{Observer, Silent};
 
 /// FNV-1a, 64 bit: stable across platforms and Rust versions, unlike `DefaultHasher`.
 pub use nerfsv_scene::seed::fnv1a;

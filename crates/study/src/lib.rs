@@ -8,12 +8,65 @@
 //!   BLA against the ground truth's render ([`ExactUncertainty`]) or looked up in an
 //!   uncertainty field ([`FieldUncertainty`]), on a fixed set of pixels ([`online_pixels`]);
 //!   the paper's rewards of eqs. 10–11 ([`UncertaintyReward`]) for CEM's ranking.
+//! - [`flight`]: one flight planned, flown, written and plotted ([`flight::fly_and_write`]).
+//! - [`stress`]: the searches over the drone's disturbances in one world, replayed in the other,
+//!   with the paper's tables, the confusion matrices and the most likely failures
+//!   ([`stress::stress`]), and uncertainty measured at recorded poses
+//!   ([`stress::measure_recorded`]).
+//!
+//! The stages of `nerfsv run`, the subcommands and the Python package call these functions;
+//! progress goes to an [`Observer`].
 
 mod drone;
+pub mod flight;
+pub mod stress;
 mod uncertainty;
+
+use std::path::PathBuf;
 
 pub use drone::{drone_disturbances, DroneSystem, EstimateLog};
 pub use uncertainty::{online_pixels, ExactUncertainty, FieldUncertainty, UncertaintyReward, UqMode, ViewUncertainty};
+
+/// Where long-running work reports: progress of a named stage and one-line notes about it.
+pub trait Observer: Sync {
+    /// `stage` has done `done` of `total` units.
+    fn progress(&self, stage: &str, done: u64, total: u64, status: &str);
+    /// A line about `stage` (up to date, resumed, finished with its figures).
+    fn note(&self, stage: &str, message: &str);
+}
+
+/// An observer that drops everything.
+pub struct Silent;
+
+impl Observer for Silent {
+    fn progress(&self, _: &str, _: u64, _: u64, _: &str) {}
+    fn note(&self, _: &str, _: &str) {}
+}
+
+/// What the study's functions refuse or fail at; each names the file or the rollout.
+#[derive(Debug, thiserror::Error)]
+pub enum StudyError {
+    #[error("{}: {error}", .path.display())]
+    Io { path: PathBuf, error: std::io::Error },
+    #[error(transparent)]
+    Nerf(#[from] nerfsv_nerf::NerfError),
+    #[error(transparent)]
+    Collision(#[from] nerfsv_collision::CollisionError),
+    #[error(transparent)]
+    Sim(#[from] nerfsv_sim::SimError),
+    #[error(transparent)]
+    Validation(#[from] nerfsv_validation::ValidationError),
+    #[error(transparent)]
+    Uq(#[from] nerfsv_uq::UqError),
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl StudyError {
+    pub fn io(path: impl Into<PathBuf>, error: std::io::Error) -> Self {
+        Self::Io { path: path.into(), error }
+    }
+}
 
 #[cfg(test)]
 mod tests {

@@ -1,0 +1,250 @@
+//! One flight of the drone: plan the nominal path on the NeRF's signed field, fly it in a world
+//! with an estimator, write its trajectory CSV and plots, and report its figures. The flight
+//! stage of `nerfsv run`, `nerfsv fly` and the stress searches' most likely failures use it.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nerfsv_collision::SdfGrid;
+use nerfsv_nerf::Nerf;
+use nerfsv_plot::{FieldSlice, PointGroup, ScatterFigure, Track, TrackKind, TrajectoryFigure};
+use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::dynamics::rotation_error;
+use nerfsv_sim::{
+    plan_flight, trajectory_csv, Disturbance, EstimatorKind, Flight, GroundTruthWorld, NerfWorld, Rollout, SimConfig,
+    World, WorldKind,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::StudyError;
+
+/// What one flight reports (the object `nerfsv fly --json` prints).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FlightFigures {
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    pub collided: bool,
+    /// Step and substep of the first collision (substep 0: right after the step's disturbance).
+    pub collision_step: Option<usize>,
+    pub collision_substep: Option<usize>,
+    /// Step and substep where the body first left the world's field grid, if it did.
+    pub left_grid_step: Option<usize>,
+    pub min_clearance_m: Option<f32>,
+    /// Step and substep where the true state stopped being finite (the rollout ended there).
+    pub diverged_step: Option<usize>,
+    pub reached_goal: bool,
+    pub goal_distance_m: f64,
+    /// Steps flown.
+    pub steps: usize,
+    /// Camera images the estimator used, and how many of their fits the innovation gate refused.
+    pub images: usize,
+    pub rejected_images: usize,
+    /// Mean normalised estimation error squared of the 12-D state after the image updates (12
+    /// for a consistent filter; none without images).
+    pub mean_nees: Option<f64>,
+    /// The estimate's errors after the image updates (0 for the truth estimator).
+    pub mean_position_error_m: f64,
+    pub mean_rotation_error_deg: f64,
+    pub max_position_error_m: f64,
+    pub max_rotation_error_deg: f64,
+    /// Wall-clock time per step (a timing: not part of what the same seed reproduces).
+    pub seconds_per_step: f64,
+}
+
+impl FlightFigures {
+    pub fn new(world: WorldKind, estimator: EstimatorKind, r: &Rollout, seconds: f64) -> Self {
+        let max = |f: fn(&nerfsv_sim::ImageUpdate) -> f64| r.updates.iter().map(f).fold(0.0, f64::max);
+        let n = r.updates.len();
+        Self {
+            world,
+            estimator,
+            collided: r.collided(),
+            collision_step: r.first_collision.map(|e| e.step),
+            collision_substep: r.first_collision.map(|e| e.substep),
+            left_grid_step: r.left_grid.map(|e| e.step),
+            min_clearance_m: r.min_clearance,
+            diverged_step: r.diverged.map(|e| e.step),
+            reached_goal: r.reached_goal,
+            goal_distance_m: r.goal_distance_m,
+            steps: r.steps_flown(),
+            images: n,
+            rejected_images: r.updates.iter().filter(|u| !u.accepted).count(),
+            mean_nees: (n > 0).then(|| r.updates.iter().map(|u| u.nees).sum::<f64>() / n as f64),
+            mean_position_error_m: r.mean_position_error_m(),
+            mean_rotation_error_deg: r.mean_rotation_error_deg(),
+            max_position_error_m: max(|e| e.position_error_m),
+            max_rotation_error_deg: max(|e| e.rotation_error_deg),
+            seconds_per_step: seconds / r.steps_flown().max(1) as f64,
+        }
+    }
+
+    pub fn describe(&self) -> String {
+        format!(
+            "{}-sim, {} estimator: {}, min clearance {}, {} (goal {:.3} m away), mean error {:.1} mm / {:.2}°, {:.1} ms/step",
+            self.world.name(),
+            self.estimator.name(),
+            match (self.collision_step, self.collision_substep) {
+                (Some(s), Some(u)) => format!("COLLIDED at step {s} substep {u}"),
+                _ => "no collision".into(),
+            },
+            self.min_clearance_m.map_or("n/a".into(), |c| format!("{c:.3} m")),
+            if self.reached_goal { "reached the goal" } else { "did NOT reach the goal" },
+            self.goal_distance_m,
+            1e3 * self.mean_position_error_m,
+            self.mean_rotation_error_deg,
+            1e3 * self.seconds_per_step,
+        )
+    }
+}
+
+/// The top-down slice of `field` at `altitude` (nearest node layer).
+pub fn field_slice(field: &SdfGrid, altitude: f64) -> FieldSlice {
+    let g = &field.geometry;
+    let [nx, ny, nz] = g.dims;
+    let k = (((altitude - g.origin.z as f64) / g.cell as f64).round().max(0.0) as usize).min(nz - 1);
+    FieldSlice {
+        origin: [g.origin.x as f64, g.origin.y as f64],
+        cell: g.cell as f64,
+        dims: [nx, ny],
+        values: (0..ny).flat_map(|j| (0..nx).map(move |i| (i, j))).map(|(i, j)| field.get(i, j, k)).collect(),
+        altitude: g.origin.z as f64 + k as f64 * g.cell as f64,
+    }
+}
+
+/// The plot of one flight over its world's field at the mean planned altitude.
+pub fn flight_figure(
+    flight: &Flight,
+    cfg: &SimConfig,
+    world: &dyn World,
+    estimator: EstimatorKind,
+    r: &Rollout,
+) -> TrajectoryFigure {
+    let points = |f: &dyn Fn(&nerfsv_sim::Substep) -> [f64; 3]| r.substeps.iter().map(f).collect::<Vec<_>>();
+    let altitude = flight.path.points.iter().map(|p| p.z).sum::<f64>() / flight.path.points.len() as f64;
+    let planned = (0..=200).map(|i| flight.path.point_at(flight.path.length() * i as f64 / 200.0).into()).collect();
+    TrajectoryFigure {
+        title: format!(
+            "{}-sim, {} estimator: {}",
+            world.kind().name(),
+            estimator.name(),
+            match r.first_collision {
+                Some(e) => format!("collision at step {} substep {}", e.step, e.substep),
+                None => format!("no collision, min clearance {:.3} m", r.min_clearance.unwrap_or(f32::NAN)),
+            }
+        ),
+        slice: field_slice(world.field(), altitude),
+        tracks: vec![
+            Track { label: "planned".into(), points: planned, kind: TrackKind::Planned },
+            Track { label: "true".into(), points: points(&|s| s.truth.position.into()), kind: TrackKind::True },
+            Track {
+                label: "estimated".into(),
+                points: points(&|s| s.estimate.position.into()),
+                kind: TrackKind::Estimated,
+            },
+        ],
+        waypoints: flight.waypoints.iter().map(|&w| w.into()).collect(),
+        collision: r.first_collision.map(|e| e.position),
+        start: cfg.start,
+        goal: cfg.goal,
+        altitude_band: cfg.planner.altitude,
+    }
+}
+
+/// The estimator's error along a flight, one figure per quantity: the error's norm at every
+/// substep beside the filter's 2σ (twice `√tr P` of that block), `[position (mm), attitude (°)]`.
+pub fn estimate_figures(world: WorldKind, r: &Rollout) -> [ScatterFigure; 2] {
+    let series = |f: &dyn Fn(&nerfsv_sim::Substep) -> [f64; 2]| -> [Vec<[f64; 2]>; 2] {
+        let (mut e, mut b) = (Vec::new(), Vec::new());
+        for s in &r.substeps {
+            let [err, band] = f(s);
+            e.push([s.time, err]);
+            b.push([s.time, band]);
+        }
+        [e, b]
+    };
+    let position = series(&|s| [1e3 * (s.estimate.position - s.truth.position).norm(), 2e3 * s.estimate_spread[0]]);
+    let attitude = series(&|s| {
+        [rotation_error(&s.estimate.rotation, &s.truth.rotation).to_degrees(), 2.0 * s.estimate_spread[1].to_degrees()]
+    });
+    let figure = |what: &str, unit: &str, [e, b]: [Vec<[f64; 2]>; 2]| ScatterFigure {
+        title: format!("{}-sim, vision estimator: {what} error of the estimate and the filter's 2σ", world.name()),
+        x_title: "time (s)".into(),
+        y_title: format!("{what} error ({unit})"),
+        groups: vec![
+            PointGroup { label: format!("|{what} error|"), points: e },
+            PointGroup { label: "2σ (filter)".into(), points: b },
+        ],
+    };
+    [figure("position", "mm", position), figure("attitude", "°", attitude)]
+}
+
+/// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths; for
+/// the vision estimator also its error figures beside the PNG (`…_position_error.png`,
+/// `…_attitude_error.png`).
+#[allow(clippy::too_many_arguments)]
+pub fn fly_and_write(
+    flight: &Flight,
+    cfg: &SimConfig,
+    nerf: &Nerf,
+    intrinsics: Intrinsics,
+    world: &dyn World,
+    estimator: EstimatorKind,
+    disturbances: &[Disturbance],
+    seed: u64,
+    csv_path: &Path,
+    png_path: &Path,
+) -> Result<(FlightFigures, Rollout), StudyError> {
+    let sim = flight.simulator(cfg, nerf, intrinsics);
+    let start = Instant::now();
+    let rollout = sim.fly(world, estimator, disturbances, seed);
+    let figures = FlightFigures::new(world.kind(), estimator, &rollout, start.elapsed().as_secs_f64());
+    let csv = trajectory_csv(&rollout);
+    nerfsv_scene::io::atomic_write_bytes(csv_path, csv.as_bytes()).map_err(|e| StudyError::io(csv_path, e))?;
+    let png = nerfsv_plot::trajectory_png(&flight_figure(flight, cfg, world, estimator, &rollout), 1200, 640)
+        .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", png_path.display())))?;
+    nerfsv_scene::io::atomic_write_bytes(png_path, &png).map_err(|e| StudyError::io(png_path, e))?;
+    if estimator == EstimatorKind::Vision {
+        let stem = png_path.with_extension("");
+        for (fig, what) in estimate_figures(world.kind(), &rollout).iter().zip(["position", "attitude"]) {
+            let path = PathBuf::from(format!("{}_{what}_error.png", stem.display()));
+            let png = nerfsv_plot::scatter_png(fig, 1000, 480)
+                .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", path.display())))?;
+            nerfsv_scene::io::atomic_write_bytes(&path, &png).map_err(|e| StudyError::io(&path, e))?;
+        }
+    }
+    Ok((figures, rollout))
+}
+
+/// Everything a flight needs from a run folder (or from files a user names).
+pub struct FlightInputs {
+    pub nerf: Nerf,
+    pub nerf_field: SdfGrid,
+    pub gt_field: SdfGrid,
+}
+
+impl FlightInputs {
+    pub fn load(checkpoint: &Path, nerf_field: &Path, gt_field: &Path) -> Result<Self, StudyError> {
+        Ok(Self {
+            nerf: Nerf::load(checkpoint)?,
+            nerf_field: SdfGrid::load(nerf_field)?,
+            gt_field: SdfGrid::load(gt_field)?,
+        })
+    }
+
+    pub fn plan(&self, cfg: &SimConfig) -> Result<Flight, StudyError> {
+        Ok(plan_flight(cfg, &self.nerf_field, (self.nerf.config.aabb_min, self.nerf.config.aabb_max))?)
+    }
+}
+
+/// The world of `kind` over `inputs` and `scene`.
+pub fn world<'a>(
+    kind: WorldKind,
+    inputs: &'a FlightInputs,
+    scene: &'a Scene,
+    render: RenderSettings,
+) -> Box<dyn World + 'a> {
+    match kind {
+        WorldKind::Nerf => Box::new(NerfWorld { nerf: &inputs.nerf, field: &inputs.nerf_field }),
+        WorldKind::Gt => Box::new(GroundTruthWorld { scene, field: &inputs.gt_field, render }),
+    }
+}

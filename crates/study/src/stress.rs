@@ -1,0 +1,947 @@
+//! Stress testing the drone (the stress stage and `nerfsv stress`): Monte Carlo and the Cross-Entropy Method over the
+//! drone's disturbances in one world, the same disturbances replayed in the other world, the
+//! paper's Tables 1–2, the confusion of NeRF-sim against GT-sim, and the most likely failures
+//! flown and plotted in both worlds.
+//!
+//! Every finished rollout is kept in a journal under the output folder as it completes, so a
+//! killed run resumes without flying it again and ends with the same bytes.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use nerfsv_scene::Camera;
+use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::camera::drone_camera;
+use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
+use nerfsv_uq::{Method, UncertaintyField, UqConfig};
+use nerfsv_validation::{
+    compare, cross_entropy, monte_carlo, replay_all, subset_simulation_reusing, table_row, Agreement, Confusion,
+    ImportanceEstimate, Journal, Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, ValidationConfig,
+    ValidationError, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::flight::{fly_and_write, world, FlightFigures, FlightInputs};
+use crate::{
+    drone_disturbances, online_pixels, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Observer,
+    StudyError, UncertaintyReward, UqMode, ViewUncertainty,
+};
+
+pub use nerfsv_validation::Sampler;
+
+/// The other world: where a search's disturbances are replayed.
+pub fn other_world(kind: WorldKind) -> WorldKind {
+    match kind {
+        WorldKind::Nerf => WorldKind::Gt,
+        WorldKind::Gt => WorldKind::Nerf,
+    }
+}
+
+/// The failure of highest trajectory log-likelihood a sampler found.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FailureFigures {
+    pub sampler: String,
+    pub population: usize,
+    pub index: usize,
+    /// Replays it: `nerfsv fly --disturbances <its CSV> --seed <seed>`.
+    pub seed: u64,
+    /// Trajectory log-likelihood, eq. 1.
+    pub log_likelihood: f64,
+    /// First step that touched geometry, counted from 1 as in the paper's tables.
+    pub collision_step: Option<usize>,
+    pub min_clearance_m: f64,
+    /// The same disturbances in the other world, when replayed.
+    pub replay_collided: Option<bool>,
+    pub replay_min_clearance_m: Option<f64>,
+}
+
+/// A distribution's summary, metres.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SpreadFigures {
+    pub count: usize,
+    pub mean: f64,
+    pub median: f64,
+    pub p90: f64,
+    pub max: f64,
+}
+
+/// NeRF-sim against GT-sim on one sampler's disturbances (failure is the positive class,
+/// NeRF-sim the prediction, GT-sim the truth). Ratios are `None` where undefined (no
+/// predicted or no real failures).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ConfusionFigures {
+    pub accuracy: Option<f64>,
+    pub precision: Option<f64>,
+    pub recall: Option<f64>,
+    pub trajectories: Confusion,
+    /// Per step: did the body touch geometry during that step?
+    pub steps: Confusion,
+    pub step_accuracy: Option<f64>,
+    pub step_precision: Option<f64>,
+    pub step_recall: Option<f64>,
+    /// |min clearance in NeRF-sim − in GT-sim| per trajectory.
+    pub clearance_difference_m: SpreadFigures,
+    /// The same per step.
+    pub step_clearance_difference_m: SpreadFigures,
+}
+
+impl ConfusionFigures {
+    fn new(a: &Agreement) -> Self {
+        let spread = |s: &nerfsv_validation::Spread| SpreadFigures {
+            count: s.count,
+            mean: s.mean,
+            median: s.median,
+            p90: s.p90,
+            max: s.max,
+        };
+        Self {
+            accuracy: a.trajectories.accuracy(),
+            precision: a.trajectories.precision(),
+            recall: a.trajectories.recall(),
+            trajectories: a.trajectories,
+            steps: a.steps,
+            step_accuracy: a.steps.accuracy(),
+            step_precision: a.steps.precision(),
+            step_recall: a.steps.recall(),
+            clearance_difference_m: spread(&a.clearance_difference),
+            step_clearance_difference_m: spread(&a.step_clearance_difference),
+        }
+    }
+}
+
+/// One sampler's figures: the object `nerfsv stress --json` prints.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SamplerFigures {
+    pub sampler: Sampler,
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    /// Rollouts flown (CEM: its populations and the importance batch; subset simulation: every
+    /// level's).
+    pub rollouts: usize,
+    /// The paper's Table 1–2 columns over the search's own rollouts (MC: all; CEM: its
+    /// populations).
+    pub collision_rate: f64,
+    /// Rollouts lost without a collision (state not finite, or out of the field's grid).
+    pub lost_rate: f64,
+    pub avg_collision_step: Option<f64>,
+    pub avg_log_likelihood: f64,
+    pub avg_uncertainty: Option<f64>,
+    /// Failure probability: MC's failure rate, or CEM's importance-sampling estimate.
+    pub p_fail: f64,
+    /// Its standard error (MC: √(p(1−p)/N)).
+    pub p_fail_se: f64,
+    /// 95 % interval within [0, 1] (MC: Wilson; CEM: p ± 1.96 SE, widened to Wilson's in the
+    /// effective sample size on a side with fewer than ten rollouts).
+    pub p_fail_interval: (f64, f64),
+    /// The estimator `p_fail` is.
+    pub p_fail_estimator: String,
+    /// CEM: the paper's plain importance-sampling estimate (1/N) Σ 𝟙·p/q, unbiased but not
+    /// bounded by 1; `None` for MC.
+    pub p_fail_unnormalised: Option<f64>,
+    /// Kish's effective sample size of the estimate's weighted rollouts (MC: its rollouts;
+    /// subset simulation: the Monte Carlo rollouts whose variance its estimate has,
+    /// p̂(1 − p̂)/SE²).
+    pub effective_sample_size: f64,
+    /// How many failures the estimate effectively rests on (Kish's size of the failures'
+    /// weights; MC: its failures).
+    pub effective_failures: f64,
+    pub most_likely_failure: Option<FailureFigures>,
+    /// Over the search's own rollouts (MC: all; CEM: its populations), when replayed.
+    pub confusion: Option<ConfusionFigures>,
+    /// The table's rows (MC: `mc`; CEM: `cem` and `cem-is`).
+    pub table: Vec<TableRow>,
+}
+
+impl SamplerFigures {
+    pub fn describe(&self) -> String {
+        let mut s = format!(
+            "{} in {}-sim ({} estimator), {} rollouts: collision rate {:.3}, lost {:.3}, avg collision step {}, avg \
+             log-likelihood {:.2}, P(fail) {:.3e} ± {:.1e}",
+            self.sampler.name().to_uppercase(),
+            self.world.name(),
+            self.estimator.name(),
+            self.rollouts,
+            self.collision_rate,
+            self.lost_rate,
+            self.avg_collision_step.map_or("n/a".into(), |v| format!("{v:.2}")),
+            self.avg_log_likelihood,
+            self.p_fail,
+            self.p_fail_se,
+        );
+        s.push_str(&format!(
+            " [{:.3}, {:.3}] by {}, {:.1} effective rollouts, {:.1} effective failures",
+            self.p_fail_interval.0,
+            self.p_fail_interval.1,
+            self.p_fail_estimator,
+            self.effective_sample_size,
+            self.effective_failures
+        ));
+        if let Some(u) = self.p_fail_unnormalised {
+            s.push_str(&format!(" (the paper's plain estimate: {u:.3e})"));
+        }
+        if let Some(f) = &self.most_likely_failure {
+            s.push_str(&format!(
+                "; most likely failure {}/{}/{} (seed {}, log-likelihood {:.2})",
+                f.sampler, f.population, f.index, f.seed, f.log_likelihood
+            ));
+        }
+        if let Some(c) = &self.confusion {
+            let t = &c.trajectories;
+            let pct = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{v:.2}"));
+            s.push_str(&format!(
+                "; vs replay: accuracy {}, precision {}, recall {} (TP {} FP {} FN {} TN {}), median |Δclearance| {:.1} mm",
+                pct(c.accuracy),
+                pct(c.precision),
+                pct(c.recall),
+                t.true_positive,
+                t.false_positive,
+                t.false_negative,
+                t.true_negative,
+                1e3 * c.clearance_difference_m.median
+            ));
+        }
+        s
+    }
+}
+
+/// Per-step uncertainty in a stress run: which method measures it, how, and whether CEM ranks
+/// its samples by the method's reward (eq. 10 or 11; MC's rollouts only record it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OnlineSettings {
+    pub method: Method,
+    pub mode: UqMode,
+    pub reward: bool,
+}
+
+impl OnlineSettings {
+    pub fn describe(&self) -> String {
+        format!(
+            "{} uncertainty ({} mode){}",
+            self.method.name().to_uppercase(),
+            self.mode.name(),
+            if self.reward { ", CEM ranked by its reward" } else { "" }
+        )
+    }
+}
+
+/// Everything a stress run reports (`stress.json`, and the stress stage's figures).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StressFigures {
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    /// The per-step uncertainty measured, if any.
+    #[serde(default)]
+    pub online: Option<OnlineSettings>,
+    /// Views whose uncertainty this invocation measured, and the wall-clock seconds they took
+    /// inside the parallel rollouts (timings).
+    #[serde(default)]
+    pub uncertainty_views: usize,
+    #[serde(default)]
+    pub uncertainty_seconds: f64,
+    /// Where the disturbances were replayed, if they were.
+    pub replay_world: Option<WorldKind>,
+    pub samplers: Vec<SamplerFigures>,
+    /// The estimator's errors after its image updates, per world (the search's, then the
+    /// replay's), over the rollouts this invocation flew (a resumed run's recalled rollouts are
+    /// not flown again and not counted); empty for the truth estimator.
+    #[serde(default)]
+    pub estimate_errors: Vec<EstimateErrorFigures>,
+    /// Rollouts flown in all (searches and replays; resumed ones included).
+    pub rollouts: usize,
+    /// Wall-clock seconds of this invocation (a timing: not part of what a seed reproduces).
+    pub seconds: f64,
+    /// Rollouts flown by this invocation per second (a timing).
+    pub rollouts_per_second: f64,
+}
+
+/// The distribution of the estimator's errors after its image updates in one world.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EstimateErrorFigures {
+    pub world: WorldKind,
+    pub images: usize,
+    pub median_position_m: f64,
+    pub p90_position_m: f64,
+    pub median_attitude_deg: f64,
+    pub p90_attitude_deg: f64,
+}
+
+impl EstimateErrorFigures {
+    /// From `[position (m), attitude (°)]` errors; none without errors.
+    pub fn new(world: WorldKind, errors: &[[f64; 2]]) -> Option<Self> {
+        if errors.is_empty() {
+            return None;
+        }
+        let quantile = |i: usize, q: f64| {
+            let mut v: Vec<f64> = errors.iter().map(|e| e[i]).collect();
+            v.sort_by(f64::total_cmp);
+            v[((v.len() - 1) as f64 * q).round() as usize]
+        };
+        Some(Self {
+            world,
+            images: errors.len(),
+            median_position_m: quantile(0, 0.5),
+            p90_position_m: quantile(0, 0.9),
+            median_attitude_deg: quantile(1, 0.5),
+            p90_attitude_deg: quantile(1, 0.9),
+        })
+    }
+}
+
+/// The file of the estimate-error histograms.
+pub const ESTIMATE_ERRORS_PNG: &str = "estimate_errors.png";
+
+/// Histograms of the estimator's position errors after its image updates, one panel per world,
+/// up to the 99th percentile of all of them (the rest, a crashed rollout's last images, would
+/// squeeze the bulk into one bar; the title says how many are left out).
+fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<Vec<u8>, StudyError> {
+    let mut all: Vec<f64> = logs.iter().flat_map(|(_, e)| e.iter().map(|e| 1e3 * e[0])).collect();
+    all.sort_by(f64::total_cmp);
+    let cut = all.get(((all.len().max(1) - 1) as f64 * 0.99).round() as usize).copied().unwrap_or(f64::INFINITY);
+    let left_out = all.iter().filter(|&&v| v > cut).count();
+    let groups = logs
+        .iter()
+        .map(|(w, e)| nerfsv_plot::Group {
+            label: format!("{}-sim", w.name()),
+            values: e.iter().map(|e| 1e3 * e[0]).filter(|&v| v <= cut).collect(),
+        })
+        .collect();
+    let fig = nerfsv_plot::HistogramFigure {
+        title: format!(
+            "Position error of the estimate after each image update, both worlds ({left_out} above {cut:.0} mm, the 99th \
+             percentile, left out)"
+        ),
+        x_title: "position error (mm)".into(),
+        y_title: "images".into(),
+        groups,
+        bins: 40,
+    };
+    nerfsv_plot::histograms_png(&fig, 1100, 560).map_err(|e| StudyError::Internal(format!("plotting: {e}")))
+}
+
+impl StressFigures {
+    pub fn describe(&self) -> String {
+        let mut s = format!("{} rollouts in {:.0} s", self.rollouts, self.seconds);
+        if let Some(o) = &self.online {
+            s.push_str(&format!("; {}: {} views", o.describe(), self.uncertainty_views));
+            // A resumed run recalls its rollouts and measures no view.
+            if self.uncertainty_views > 0 {
+                s.push_str(&format!(", {:.1} ms each", 1e3 * self.uncertainty_seconds / self.uncertainty_views as f64));
+            }
+        }
+        for f in &self.samplers {
+            s.push_str("\n    ");
+            s.push_str(&f.describe());
+        }
+        s
+    }
+}
+
+/// The drone flying its planned path, and the worlds it can fly in: what every search over its
+/// disturbances shares.
+#[derive(Clone, Copy)]
+pub struct Drone<'a> {
+    pub inputs: &'a FlightInputs,
+    pub flight: &'a Flight,
+    pub scene: &'a Scene,
+    pub sim: &'a SimConfig,
+    pub intrinsics: Intrinsics,
+    pub render: RenderSettings,
+}
+
+/// What a stress run needs. [`StressSetup::new`] is the stress stage's search; a caller
+/// changes what differs with struct update syntax.
+pub struct StressSetup<'a> {
+    pub drone: Drone<'a>,
+    pub validation: &'a ValidationConfig,
+    pub prior: &'a Prior,
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    pub samplers: &'a [Sampler],
+    pub replay: bool,
+    /// Measure each step's uncertainty (and rank CEM by its reward), or not.
+    pub online: Option<OnlineSettings>,
+    /// GA and BLA settings, the online pixels and the reward's penalty.
+    pub uq: &'a UqConfig,
+    /// The uncertainty field `UqMode::Field` looks the uncertainty up in.
+    pub field: Option<&'a UncertaintyField>,
+    /// The name progress and notes are reported under ([`STAGE`], or the calling stage's).
+    pub stage: &'static str,
+    /// Whether the caller reports the failure probability. Without (the online stage's
+    /// rewarded CEM, whose one-sample batch only closes the search) the warnings that an
+    /// estimate rests on few effective failures are not given.
+    pub reports_p_fail: bool,
+}
+
+impl<'a> StressSetup<'a> {
+    /// `samplers` over `drone` under `prior`, as the stress stage searches: in NeRF-sim with the
+    /// vision estimator, every search replayed in GT-sim, no per-step uncertainty (`uq` is used
+    /// only when a caller asks for it), reported under [`STAGE`] with its failure probability.
+    pub fn new(
+        drone: Drone<'a>,
+        validation: &'a ValidationConfig,
+        prior: &'a Prior,
+        samplers: &'a [Sampler],
+        uq: &'a UqConfig,
+    ) -> Self {
+        Self {
+            drone,
+            validation,
+            prior,
+            world: WorldKind::Nerf,
+            estimator: EstimatorKind::Vision,
+            samplers,
+            replay: true,
+            online: None,
+            uq,
+            field: None,
+            stage: STAGE,
+            reports_p_fail: true,
+        }
+    }
+}
+
+/// Files a stress run writes (besides the journal and the most likely failures).
+pub const ROLLOUTS_CSV: &str = "rollouts.csv";
+pub const TABLE_CSV: &str = "table.csv";
+pub const STRESS_JSON: &str = "stress.json";
+/// The journal's folder under the output folder.
+pub const JOURNAL: &str = "journal";
+/// The name progress and notes are reported under.
+pub const STAGE: &str = "stress";
+
+/// `replay_{world}.csv`: the replays' rows.
+pub fn replay_csv(world: WorldKind) -> String {
+    format!("replay_{}.csv", world.name())
+}
+
+/// The searches' own rollouts, in order: not the importance batch nor subset simulation's
+/// chains, which estimate a probability (the paper's confusion matrices are over MC's and CEM's
+/// own rollouts).
+fn searched(records: &[RolloutRecord]) -> impl Iterator<Item = &RolloutRecord> {
+    records.iter().filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET)
+}
+
+/// Times a [`ViewUncertainty`]'s views.
+struct Timed<'a> {
+    inner: &'a dyn ViewUncertainty,
+    views: AtomicU64,
+    nanos: AtomicU64,
+}
+
+impl ViewUncertainty for Timed<'_> {
+    fn view_uncertainty(&self, camera: &Camera) -> f64 {
+        let start = Instant::now();
+        let value = self.inner.view_uncertainty(camera);
+        self.nanos.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.views.fetch_add(1, Ordering::Relaxed);
+        value
+    }
+}
+
+/// What measures a view's uncertainty under `setup.online` (none without): exact mode compares
+/// the NeRF with `gt_world`'s render of the view, field mode looks it up in `setup.field`.
+fn view_meter<'a>(
+    setup: &'a StressSetup,
+    gt_world: &'a dyn World,
+    background: [f32; 3],
+) -> Result<Option<Box<dyn ViewUncertainty + 'a>>, StudyError> {
+    let pixels = online_pixels(&setup.drone.intrinsics, setup.uq);
+    Ok(match setup.online {
+        None => None,
+        Some(o) => Some(match o.mode {
+            UqMode::Exact => Box::new(ExactUncertainty {
+                method: o.method,
+                nerf: &setup.drone.inputs.nerf,
+                reference: gt_world,
+                pixels,
+                background,
+                cfg: setup.uq,
+            }),
+            UqMode::Field => {
+                let field = setup.field.ok_or_else(|| {
+                    StudyError::Internal("field mode needs an uncertainty field (`nerfsv uq field`)".into())
+                })?;
+                Box::new(FieldUncertainty { field, pixels, background })
+            }
+        }),
+    })
+}
+
+/// Rollouts already flown in `setup.world` (a stress run's records), each step's uncertainty
+/// measured under `setup.online` at the pose the record keeps for the step's end
+/// (`step_positions`, `step_attitudes`): what flying them again with the measurement on gives,
+/// without flying them. A step without a finite pose (not flown) gets NaN. Returns the records
+/// and the views measured with their wall-clock seconds (inside the parallel loop).
+///
+/// Errors: a record without poses (a system that records none), naming it.
+pub fn measure_recorded(
+    setup: &StressSetup,
+    records: Vec<RolloutRecord>,
+    observer: &dyn Observer,
+) -> Result<(Vec<RolloutRecord>, usize, f64), StudyError> {
+    let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
+    let gt_world = world(WorldKind::Gt, setup.drone.inputs, setup.drone.scene, setup.drone.render);
+    let meter = view_meter(setup, gt_world.as_ref(), sim.background)?
+        .ok_or_else(|| StudyError::Internal("measure_recorded: no uncertainty to measure".into()))?;
+    let timed = Timed { inner: meter.as_ref(), views: AtomicU64::new(0), nanos: AtomicU64::new(0) };
+    if let Some(r) = records
+        .iter()
+        .find(|r| r.step_positions.len() != r.step_scores.len() || r.step_attitudes.len() != r.step_scores.len())
+    {
+        return Err(StudyError::Internal(format!(
+            "rollout {}/{}/{} keeps no pose per step: it cannot be measured without flying it",
+            r.sampler, r.population, r.index
+        )));
+    }
+    let status = format!("measuring {} rollouts' steps", records.len());
+    let done = AtomicU64::new(0);
+    let total = records.len() as u64;
+    let measured: Vec<RolloutRecord> = records
+        .into_par_iter()
+        .map(|mut r| {
+            r.step_uncertainty = r
+                .step_positions
+                .iter()
+                .zip(&r.step_attitudes)
+                .map(|(p, a)| {
+                    if p.iter().chain(a).all(|v| v.is_finite()) {
+                        let rotation = nerfsv_sim::dynamics::so3_exp(&nalgebra::Vector3::from(*a));
+                        timed.view_uncertainty(&drone_camera(sim.intrinsics, &nalgebra::Vector3::from(*p), &rotation))
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect();
+            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+            observer.progress(setup.stage, d, total, &status);
+            r
+        })
+        .collect();
+    let views = timed.views.load(Ordering::Relaxed) as usize;
+    Ok((measured, views, timed.nanos.load(Ordering::Relaxed) as f64 * 1e-9))
+}
+
+/// A sampler's failure probability and how it was estimated.
+struct Estimate {
+    p: f64,
+    se: f64,
+    interval: (f64, f64),
+    estimator: String,
+    unnormalised: Option<f64>,
+    ess: f64,
+    effective_failures: f64,
+}
+
+/// Extension of the files that keep a journalled rollout's estimator errors.
+const ESTIMATES_EXTENSION: &str = "estimates";
+
+/// Counts finished rollouts for progress, passing everything to the journal.
+struct Counting<'a> {
+    journal: &'a Journal,
+    /// The estimator's errors of the rollouts, kept beside their journal files.
+    estimates: &'a EstimateLog,
+    done: AtomicU64,
+    fresh: AtomicU64,
+    total: u64,
+    observer: &'a dyn Observer,
+    stage: &'static str,
+    status: String,
+}
+
+impl Recorder for Counting<'_> {
+    fn recall(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
+        // A rollout whose estimator errors cannot be read back is flown again (to the same
+        // result), so the errors cover every rollout as in an uninterrupted run.
+        let r = self
+            .journal
+            .recall(s, p, i)
+            .filter(|r| self.estimates.load(r.seed, &self.journal.beside(s, p, i, ESTIMATES_EXTENSION)).is_ok());
+        if r.is_some() {
+            self.done.fetch_add(1, Ordering::Relaxed);
+        }
+        r
+    }
+
+    fn record(&self, r: &RolloutRecord) -> Result<(), ValidationError> {
+        let beside = self.journal.beside(&r.sampler, r.population, r.index, ESTIMATES_EXTENSION);
+        self.estimates.save(r.seed, &beside)?;
+        self.journal.record(r)?;
+        self.fresh.fetch_add(1, Ordering::Relaxed);
+        let done = self.done.fetch_add(1, Ordering::Relaxed) + 1;
+        // Subset simulation may go deeper than planned: the total then grows with it.
+        self.observer.progress(self.stage, done, self.total.max(done), &self.status);
+        Ok(())
+    }
+}
+
+/// Runs the searches of `setup` into `out` (which exists): every sampler in `setup.world`, then,
+/// with `replay`, every rollout again in the other world; writes [`ROLLOUTS_CSV`],
+/// `replay_{world}.csv`, [`TABLE_CSV`], and for each sampler's most likely failure its
+/// disturbances (`most_likely_failure_{sampler}.csv`, for `nerfsv fly --disturbances`) and its
+/// flight in each world (`most_likely_failure_{sampler}_{world}.csv/.png`).
+///
+/// `key` identifies everything the rollouts depend on; with `resume`, the journal in `out` must
+/// carry the same key and its rollouts are not flown again. Progress and notes go to `observer`
+/// under the name `setup.stage`.
+///
+/// Returns the figures and the searches' records (what [`ROLLOUTS_CSV`] holds).
+pub fn stress(
+    setup: &StressSetup,
+    out: &Path,
+    key: &str,
+    resume: bool,
+    observer: &dyn Observer,
+) -> Result<(StressFigures, Vec<RolloutRecord>), StudyError> {
+    let progress = |done: u64, total: u64, status: &str| observer.progress(setup.stage, done, total, status);
+    let start = Instant::now();
+    let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
+    let search_world = world(setup.world, setup.drone.inputs, setup.drone.scene, setup.drone.render);
+    let replay_kind = other_world(setup.world);
+    let replay_world = world(replay_kind, setup.drone.inputs, setup.drone.scene, setup.drone.render);
+    let journal_dir = out.join(JOURNAL);
+    let mut planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
+    // Subset simulation starts from the Monte Carlo rollouts when they fly before it.
+    let at = |s: Sampler| setup.samplers.iter().position(|&x| x == s);
+    if matches!((at(Sampler::Mc), at(Sampler::Subset)), (Some(mc), Some(subset)) if mc < subset) {
+        planned -= setup.validation.monte_carlo.rollouts.min(setup.validation.subset.samples);
+    }
+    let to_replay: usize = setup.samplers.iter().map(|s| s.searched(setup.validation)).sum();
+    let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
+
+    let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume)?;
+    let (search_log, replay_log) = (EstimateLog::default(), EstimateLog::default());
+    let mut counting = Counting {
+        journal: &journal,
+        estimates: &search_log,
+        done: AtomicU64::new(0),
+        fresh: AtomicU64::new(0),
+        total,
+        observer,
+        stage: setup.stage,
+        status: String::new(),
+    };
+    // Online uncertainty: exact mode compares the NeRF with the ground truth's render of the view.
+    let gt_world = if setup.world == WorldKind::Gt { search_world.as_ref() } else { replay_world.as_ref() };
+    let meter = view_meter(setup, gt_world, sim.background)?;
+    let timed = meter.as_deref().map(|inner| Timed { inner, views: AtomicU64::new(0), nanos: AtomicU64::new(0) });
+    let scorer = setup.online.filter(|o| o.reward).map(|o| {
+        let s = UncertaintyReward::new(o.method, setup.uq);
+        if o.mode == UqMode::Field {
+            s.for_field()
+        } else {
+            s
+        }
+    });
+    let score = scorer.map(|s| move |r: &RolloutRecord| s.reward(r));
+    let reward: Option<Reward> = score.as_ref().map(|f| f as Reward);
+    let system = DroneSystem {
+        sim: &sim,
+        world: search_world.as_ref(),
+        estimator: setup.estimator,
+        uncertainty: timed.as_ref().map(|t| t as &dyn ViewUncertainty),
+        estimate_log: Some(&search_log),
+    };
+    let v = setup.validation;
+    if resume {
+        observer.note(setup.stage, &format!("{} of {planned} rollouts were already flown", journal.len()));
+    }
+    let mut records = Vec::with_capacity(planned);
+    let mut estimates: Vec<Estimate> = Vec::new();
+    for &sampler in setup.samplers {
+        counting.status = format!("{} in {}-sim", sampler.name().to_uppercase(), setup.world.name());
+        if let Some(o) = &setup.online {
+            counting.status.push_str(&format!(", {}", o.describe()));
+        }
+        progress(counting.done.load(Ordering::Relaxed), total, &counting.status);
+        match sampler {
+            Sampler::Mc => {
+                let mut r = monte_carlo(&system, setup.prior, &v.monte_carlo, v.seed, &counting)?;
+                // Monte Carlo never ranks: the reward is only recorded.
+                if let Some(s) = scorer {
+                    r.records.iter_mut().for_each(|rec| rec.reward = Some(s.reward(rec)));
+                }
+                let n = r.records.len() as f64;
+                let se = (r.probability * (1.0 - r.probability) / n).sqrt();
+                estimates.push(Estimate {
+                    p: r.probability,
+                    se,
+                    interval: r.interval,
+                    estimator: "Monte Carlo: failure fraction, Wilson interval".into(),
+                    unnormalised: None,
+                    ess: n,
+                    effective_failures: r.probability * n,
+                });
+                records.extend(r.records);
+            }
+            Sampler::Cem => {
+                let r = cross_entropy(&system, setup.prior, &v.cem, v.seed, reward, &counting)?;
+                let e = r.estimate;
+                if setup.reports_p_fail && e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
+                    observer.note(
+                        setup.stage,
+                        &format!(
+                            "warning: the CEM's P(fail) rests on {:.1} effective failures (of {} in its importance \
+                             batch): read it as an order of magnitude",
+                            e.effective_failures, e.failures
+                        ),
+                    );
+                }
+                estimates.push(Estimate {
+                    p: e.probability,
+                    se: e.standard_error,
+                    interval: e.interval,
+                    estimator: ImportanceEstimate::ESTIMATOR.into(),
+                    unnormalised: Some(e.unnormalised),
+                    ess: e.effective_sample_size,
+                    effective_failures: e.effective_failures,
+                });
+                records.extend(r.records);
+            }
+            Sampler::Subset => {
+                // Monte Carlo's rollouts, flown before in this run, are independent draws from
+                // the prior: the first of level 0.
+                let drawn: Vec<RolloutRecord> = records.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect();
+                let r = subset_simulation_reusing(&system, setup.prior, &v.subset, v.seed, &drawn, &counting)?;
+                let e = r.estimate;
+                if setup.reports_p_fail && e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
+                    observer.note(
+                        setup.stage,
+                        &format!(
+                            "warning: subset simulation's P(fail) rests on {:.1} effective failures (of {} on its \
+                             last level): read it as an order of magnitude",
+                            e.effective_failures, e.failures
+                        ),
+                    );
+                }
+                estimates.push(Estimate {
+                    p: e.probability,
+                    se: e.standard_error,
+                    interval: e.interval,
+                    estimator: format!(
+                        "{}: {} levels{}, thresholds {:?} m, moves accepted {:?}",
+                        SubsetEstimate::ESTIMATOR,
+                        e.levels,
+                        if e.reused > 0 {
+                            format!(
+                                " (level 0: {} Monte Carlo rollouts and {} more)",
+                                e.reused,
+                                v.subset.samples - e.reused
+                            )
+                        } else {
+                            String::new()
+                        },
+                        r.thresholds.iter().map(|b| (b * 1e4).round() / 1e4).collect::<Vec<_>>(),
+                        r.acceptance.iter().map(|a| (a * 100.0).round() / 100.0).collect::<Vec<_>>()
+                    ),
+                    unnormalised: None,
+                    ess: e.equivalent_rollouts,
+                    effective_failures: e.effective_failures,
+                });
+                records.extend(r.records);
+            }
+        }
+    }
+
+    let replays = if setup.replay {
+        let replay_journal = Journal::open(&journal_dir.join(format!("replay_{}", replay_kind.name())), key, resume)?;
+        let replaying = Counting {
+            journal: &replay_journal,
+            estimates: &replay_log,
+            done: AtomicU64::new(counting.done.load(Ordering::Relaxed)),
+            fresh: AtomicU64::new(0),
+            total,
+            observer,
+            stage: setup.stage,
+            status: format!("replaying in {}-sim", replay_kind.name()),
+        };
+        progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
+        let system = DroneSystem {
+            sim: &sim,
+            world: replay_world.as_ref(),
+            estimator: setup.estimator,
+            uncertainty: None,
+            estimate_log: Some(&replay_log),
+        };
+        let originals: Vec<RolloutRecord> = searched(&records).cloned().collect();
+        let replays = replay_all(&system, &originals, &replaying)?;
+        if resume {
+            observer.note(
+                setup.stage,
+                &format!("{} of {} replays were already flown", replay_journal.len(), originals.len()),
+            );
+        }
+        counting.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
+        Some(replays)
+    } else {
+        None
+    };
+
+    // Outputs.
+    let csv = |name: &str, rs: &[RolloutRecord]| -> Result<(), StudyError> {
+        let path = out.join(name);
+        nerfsv_validation::write_csv_file(&path, rs).map_err(|e| StudyError::io(&path, e))
+    };
+    csv(ROLLOUTS_CSV, &records)?;
+    if let Some(rs) = &replays {
+        csv(&replay_csv(replay_kind), rs)?;
+    }
+    let mut samplers = Vec::new();
+    let mut table = Vec::new();
+    for (&sampler, estimate) in setup.samplers.iter().zip(estimates) {
+        let rows: Vec<TableRow> = match sampler {
+            Sampler::Mc => vec![table_row(SAMPLER_MC, &records)],
+            Sampler::Cem => vec![table_row(SAMPLER_CEM, &records), table_row(SAMPLER_IS, &records)],
+            Sampler::Subset => vec![table_row(SAMPLER_SUBSET, &records)],
+        }
+        .into_iter()
+        .flatten()
+        .collect();
+        let headline = rows
+            .first()
+            .cloned()
+            .ok_or_else(|| StudyError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
+        // The replays follow the searched records one for one, in order.
+        let confusion = match &replays {
+            Some(rs) if sampler.searched(v) > 0 => {
+                let (ours, theirs): (Vec<RolloutRecord>, Vec<RolloutRecord>) = searched(&records)
+                    .zip(rs)
+                    .filter(|(r, _)| sampler.owns(r))
+                    .map(|(r, g)| (r.clone(), g.clone()))
+                    .unzip();
+                let (nerf, gt) = if setup.world == WorldKind::Nerf { (&ours, &theirs) } else { (&theirs, &ours) };
+                Some(ConfusionFigures::new(&compare(nerf, gt).map_err(StudyError::Internal)?))
+            }
+            _ => None,
+        };
+        let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)));
+        let most_likely_failure = match mlf {
+            Some(f) => {
+                let replayed = write_failure(setup, out, sampler, f, search_world.as_ref(), replay_world.as_ref())?;
+                Some(FailureFigures {
+                    sampler: f.sampler.clone(),
+                    population: f.population,
+                    index: f.index,
+                    seed: f.seed,
+                    log_likelihood: f.log_p,
+                    collision_step: f.collision_step.map(|s| s + 1),
+                    min_clearance_m: f.score,
+                    replay_collided: replayed.as_ref().map(|r| r.collided),
+                    replay_min_clearance_m: replayed
+                        .as_ref()
+                        .map(|r| r.min_clearance_m.map_or(f64::INFINITY, f64::from)),
+                })
+            }
+            None => None,
+        };
+        table.extend(rows.iter().cloned());
+        samplers.push(SamplerFigures {
+            sampler,
+            world: setup.world,
+            estimator: setup.estimator,
+            rollouts: records.iter().filter(|r| sampler.owns(r)).count(),
+            collision_rate: headline.collision_rate,
+            lost_rate: headline.lost_rate,
+            avg_collision_step: headline.avg_collision_step,
+            avg_log_likelihood: headline.avg_log_likelihood,
+            avg_uncertainty: headline.avg_uncertainty,
+            p_fail: estimate.p,
+            p_fail_se: estimate.se,
+            p_fail_interval: estimate.interval,
+            p_fail_estimator: estimate.estimator,
+            p_fail_unnormalised: estimate.unnormalised,
+            effective_sample_size: estimate.ess,
+            effective_failures: estimate.effective_failures,
+            most_likely_failure,
+            confusion,
+            table: rows,
+        });
+    }
+    write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
+    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> =
+        [(setup.world, search_log.sorted()), (replay_kind, replay_log.sorted())]
+            .into_iter()
+            .filter(|(_, e)| !e.is_empty())
+            .collect();
+    let estimate_errors: Vec<EstimateErrorFigures> =
+        logs.iter().filter_map(|(w, e)| EstimateErrorFigures::new(*w, e)).collect();
+    if !logs.is_empty() {
+        let path = out.join(ESTIMATE_ERRORS_PNG);
+        nerfsv_scene::io::atomic_write_bytes(&path, &estimate_error_png(&logs)?)
+            .map_err(|e| StudyError::io(&path, e))?;
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let flown = counting.fresh.load(Ordering::Relaxed);
+    let figures = StressFigures {
+        world: setup.world,
+        estimator: setup.estimator,
+        online: setup.online,
+        uncertainty_views: timed.as_ref().map_or(0, |t| t.views.load(Ordering::Relaxed) as usize),
+        uncertainty_seconds: timed.as_ref().map_or(0.0, |t| t.nanos.load(Ordering::Relaxed) as f64 * 1e-9),
+        replay_world: setup.replay.then_some(replay_kind),
+        samplers,
+        estimate_errors,
+        rollouts: records.len() + replays.as_ref().map_or(0, Vec::len),
+        seconds,
+        rollouts_per_second: flown as f64 / seconds.max(1e-9),
+    };
+    Ok((figures, records))
+}
+
+/// The most likely failure's disturbances, and its flight in the search's world (and, when
+/// replaying, in the other), as trajectory CSV and plot; the other world's flight's figures.
+fn write_failure(
+    setup: &StressSetup,
+    out: &Path,
+    sampler: Sampler,
+    f: &RolloutRecord,
+    search: &dyn World,
+    other: &dyn World,
+) -> Result<Option<FlightFigures>, StudyError> {
+    let ds = drone_disturbances(&f.disturbances);
+    let name = format!("most_likely_failure_{}", sampler.name());
+    let path = out.join(format!("{name}.csv"));
+    nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&ds).as_bytes())
+        .map_err(|e| StudyError::io(&path, e))?;
+    let mut replayed = None;
+    for w in std::iter::once(search).chain(setup.replay.then_some(other)) {
+        let stem = format!("{name}_{}", w.kind().name());
+        let (figures, _) = fly_and_write(
+            setup.drone.flight,
+            setup.drone.sim,
+            &setup.drone.inputs.nerf,
+            setup.drone.intrinsics,
+            w,
+            setup.estimator,
+            &ds,
+            f.seed,
+            &out.join(format!("{stem}.csv")),
+            &out.join(format!("{stem}.png")),
+        )?;
+        if w.kind() != setup.world {
+            replayed = Some(figures);
+        }
+    }
+    Ok(replayed)
+}
+
+/// The Tables 1–2 rows as CSV: `world,` [`TableRow::CSV_HEADER`] `,uncertainty,mode,reward`
+/// (empty where undefined; `uncertainty` the method measured, `reward` the method CEM ranked
+/// by).
+pub fn write_table(
+    path: &Path,
+    world: WorldKind,
+    online: Option<OnlineSettings>,
+    rows: &[TableRow],
+) -> Result<(), StudyError> {
+    let method = online.map_or("", |o| o.method.name());
+    let mode = online.map_or("", |o| o.mode.name());
+    let reward = online.filter(|o| o.reward).map_or("", |o| o.method.name());
+    let mut s = format!("world,{},uncertainty,mode,reward\n", TableRow::CSV_HEADER);
+    for r in rows {
+        s.push_str(&format!("{},{},{method},{mode},{reward}\n", world.name(), r.csv()));
+    }
+    nerfsv_scene::io::atomic_write_bytes(path, s.as_bytes()).map_err(|e| StudyError::io(path, e))
+}

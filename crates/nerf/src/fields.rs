@@ -237,6 +237,12 @@ pub const TRAIN_ROUND: usize = 16;
 /// are composited).
 pub const RENDER_ROUND: usize = 4;
 
+/// Rays per chunk of the fused training kernels (fixed: part of the determinism contract).
+pub const TRAIN_CHUNK: usize = 256;
+/// Rays per parallel task of rendering (small enough that a pose update's few hundred rays use
+/// every core).
+pub(crate) const RENDER_CHUNK: usize = 128;
+
 /// One ray of a chunk: world origin and unit direction, with its background.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct RayInput {

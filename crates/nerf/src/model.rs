@@ -7,15 +7,12 @@ use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
 
 use crate::config::NerfConfig;
-use crate::fields::{ChunkWorkspace, DensityWorkspace, NgpField, RayInput};
+use crate::fields::{ChunkWorkspace, DensityWorkspace, NgpField, RayInput, RENDER_CHUNK};
 use crate::model_components::occupancy_grid::OccupancyGrid;
 use crate::model_components::ray_samplers::march_ray;
 
 /// Points per parallel task of density queries.
 const DENSITY_CHUNK: usize = 4096;
-/// Rays per parallel task of rendering (small enough that a pose update's few hundred rays use
-/// every core).
-pub(crate) const RENDER_CHUNK: usize = 128;
 
 /// A NeRF: config, the flat parameter vector (see [`crate::fields`] for its blocks) and the
 /// occupancy grid.

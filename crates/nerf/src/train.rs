@@ -12,21 +12,20 @@ use std::time::Instant;
 
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
 use nerfsv_dataset::Split;
-use nerfsv_scene::validate::{finite, in_range, non_negative, InvalidValue};
 
+pub use crate::checkpoint::TrainStats;
 use crate::checkpoint::TrainingState;
-use crate::config::{check_training_memory, BackgroundMode, NerfConfig, TrainConfig};
+use crate::config::{BackgroundMode, NerfConfig, TrainConfig};
 use crate::fields::{ChunkWorkspace, RayInput};
+use crate::memory::check_training_memory;
 use crate::model::{mix, Nerf};
 use crate::model_components::losses::psnr_from_mse;
 use crate::optim::{Adam, AdamParams};
 use crate::NerfError;
 
-/// Rays per chunk of the fused kernels (fixed: part of the determinism contract).
-pub const TRAIN_CHUNK: usize = 256;
+pub use crate::fields::TRAIN_CHUNK;
 
 /// Statistics of one step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -36,48 +35,6 @@ pub struct StepStats {
     pub psnr: f64,
     pub rays: usize,
     pub samples: usize,
-}
-
-/// Figures of a training run, cumulative over every session of it, saved at every checkpoint
-/// and restored on resume, so a resumed run whose budget was already reached still reports its
-/// real figures. The checkpoint's metadata `train_stats` holds the deterministic ones (see
-/// [`TrainStats::without_timing`]); the wall-clock ones go beside it in
-/// [`train_stats_path`] (`train_stats.json`).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TrainStats {
-    /// Steps completed.
-    pub steps: u64,
-    /// Seconds spent in [`Trainer::step`], summed over all sessions.
-    pub seconds: f64,
-    /// PSNR (dB) of the last step's batch, on its random backgrounds (0 before any step).
-    pub train_batch_psnr: f64,
-    /// Rays per second of step time, over all sessions.
-    pub rays_per_second: f64,
-    /// Samples (density evaluations) per second of step time, over all sessions.
-    pub samples_per_second: f64,
-    /// Fraction of occupied occupancy-grid cells, `[0, 1]`.
-    pub occupancy: f64,
-}
-
-impl TrainStats {
-    /// The figures that identical runs share: the wall-clock ones (`seconds`, rays and samples
-    /// per second) zeroed. This is what a checkpoint holds, so that it is byte-identical.
-    pub fn without_timing(&self) -> Self {
-        Self { seconds: 0.0, rays_per_second: 0.0, samples_per_second: 0.0, ..self.clone() }
-    }
-
-    /// Checks figures read back from a checkpoint whose step is `step`.
-    pub(crate) fn validate(&self, step: u64) -> Result<(), InvalidValue> {
-        if self.steps != step {
-            return Err(InvalidValue::new("steps", format!("must equal the checkpoint's step {step}"), self.steps));
-        }
-        non_negative("seconds", self.seconds)?;
-        finite("train_batch_psnr", self.train_batch_psnr)?;
-        non_negative("rays_per_second", self.rays_per_second)?;
-        non_negative("samples_per_second", self.samples_per_second)?;
-        in_range("occupancy", self.occupancy, 0.0, 1.0)
-    }
 }
 
 /// Training pixels in one flat table.

@@ -68,6 +68,7 @@ use serde::Serialize;
 pub mod config;
 pub mod digest;
 pub mod flight;
+pub mod layout;
 pub mod online;
 pub mod report;
 mod sections;
@@ -77,6 +78,7 @@ pub mod stress;
 pub mod uq;
 
 pub use config::{load_toml, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate};
+pub use layout::{summary_path, SUMMARY};
 pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext};
 
 /// Everything that can stop a stage; each variant names the file, stage or key involved.
@@ -158,9 +160,6 @@ fn resolve(path: &Path) -> PathBuf {
     }
 }
 
-/// The file `run` writes with every stage's figures.
-pub const SUMMARY: &str = "summary.json";
-
 /// What `summary.json` holds: the run folder, then each stage's figures under its name, in
 /// the order the stages ran.
 #[derive(Clone, Debug, Serialize)]
@@ -238,11 +237,6 @@ pub fn config_toml(cfg: &RunConfig) -> Result<String, PipelineError> {
         text.parse().map_err(|e| PipelineError::Internal(format!("the run config's own TOML: {e}")))?;
     table.remove("out");
     toml::to_string(&table).map_err(|e| PipelineError::Internal(format!("the run config as TOML: {e}")))
-}
-
-/// `summary.json` of run folder `root`.
-pub fn summary_path(root: &Path) -> PathBuf {
-    root.join(SUMMARY)
 }
 
 #[cfg(test)]

@@ -29,8 +29,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::stage::{RECORD, REPORT_SECTION};
-use crate::{summary_path, PipelineError};
+use crate::layout::{summary_path, RECORD, REPORT_SECTION};
+use crate::PipelineError;
 
 /// The report's folder under the run folder, and its page.
 pub const REPORT: &str = "report";

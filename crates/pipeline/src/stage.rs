@@ -17,10 +17,7 @@ use serde::{Deserialize, Serialize};
 use crate::report::{Section, StageReport};
 use crate::PipelineError;
 
-/// The record a completed stage leaves in its folder.
-pub const RECORD: &str = "stage.json";
-/// The stage's part of the report ([`StageReport`]), rebuilt by every run of the stage.
-pub const REPORT_SECTION: &str = "report.json";
+pub use crate::layout::{RECORD, REPORT_SECTION};
 /// The marker a resumable stage leaves in its folder: whatever is there (partial or complete)
 /// was computed for this key, so a run that finds no record may continue from it.
 const STARTED: &str = "started.json";

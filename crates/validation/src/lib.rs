@@ -61,11 +61,9 @@ pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
     replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate,
-    MonteCarloResult, Reward, Sampler, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    MonteCarloResult, Reward, Sampler, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 pub use seed::rollout_seed;
-pub use subset::{
-    correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult, SAMPLER_SUBSET,
-};
+pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult};
 pub use system::{Outcome, System};
 pub use table::{table_row, TableRow};

@@ -82,7 +82,7 @@ impl RolloutRecord {
     /// Mean uncertainty over the steps with a finite value (steps not flown, or whose view could
     /// not be measured, are NaN); `None` when there is none.
     pub fn mean_uncertainty(&self) -> Option<f64> {
-        crate::table::mean(self.step_uncertainty.iter().copied().filter(|u| u.is_finite()))
+        mean(self.step_uncertainty.iter().copied().filter(|u| u.is_finite()))
     }
 
     /// Whether the system was lost (see [`RolloutRecord::lost_step`]) and did not fail: a
@@ -95,6 +95,12 @@ impl RolloutRecord {
     pub fn key(&self) -> (&str, usize, usize) {
         (&self.sampler, self.population, self.index)
     }
+}
+
+/// The mean of `values`; `None` when there are none.
+pub(crate) fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
 }
 
 /// The columns after the disturbances.

@@ -16,7 +16,6 @@ use crate::gaussian::{Gaussian, Prior, Proposal};
 use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
 use crate::seed::rollout_seed;
-use crate::subset::SAMPLER_SUBSET;
 use crate::system::System;
 
 /// Sampler label of Monte Carlo rollouts.
@@ -25,6 +24,8 @@ pub const SAMPLER_MC: &str = "mc";
 pub const SAMPLER_CEM: &str = "cem";
 /// Sampler label of the importance-sampling batch drawn from CEM's final proposal.
 pub const SAMPLER_IS: &str = "cem-is";
+/// Sampler label of subset simulation's rollouts.
+pub const SAMPLER_SUBSET: &str = "subset";
 
 /// A search over the disturbances.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -31,12 +31,9 @@ use crate::error::ValidationError;
 use crate::gaussian::Prior;
 use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
-use crate::sampler::{check_shapes, most_likely_failure, run_record, wilson};
+use crate::sampler::{check_shapes, most_likely_failure, run_record, wilson, ImportanceEstimate, SAMPLER_SUBSET};
 use crate::seed::rollout_seed;
 use crate::system::System;
-
-/// Sampler label of subset simulation's rollouts.
-pub const SAMPLER_SUBSET: &str = "subset";
 
 /// z of a two-sided 95 % interval.
 const Z95: f64 = 1.959_963_984_540_054;
@@ -60,7 +57,7 @@ pub struct SubsetEstimate {
     /// 95 % interval: p̂ ± 1.96 SE within [0, 1], its upper bound at least the
     /// higher levels' product times Wilson's bound for the last level's failures in its
     /// effective size `n / (1 + γ)` when they are fewer than
-    /// [`crate::ImportanceEstimate::FEW_EVENTS`] (without any failure: Wilson's bound for none).
+    /// [`ImportanceEstimate::FEW_EVENTS`] (without any failure: Wilson's bound for none).
     pub interval: (f64, f64),
     /// Levels flown (1: plain Monte Carlo, enough failures among the prior's draws).
     pub levels: usize,
@@ -274,7 +271,7 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
         if last {
             let probability = (scale * p).clamp(0.0, 1.0);
             let (cov, standard_error) = if count == 0 { (f64::INFINITY, 0.0) } else { (cov, probability * cov) };
-            let few = crate::ImportanceEstimate::FEW_EVENTS;
+            let few = ImportanceEstimate::FEW_EVENTS;
             let wide = wilson(p, n as f64 / (1.0 + gamma));
             let mut lo = (probability - Z95 * standard_error).max(0.0);
             let mut hi = (probability + Z95 * standard_error).min(1.0);

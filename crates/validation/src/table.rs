@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::record::RolloutRecord;
+use crate::record::{mean, RolloutRecord};
 
 /// One row of the paper's Tables 1–2 over a set of rollouts.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -69,12 +69,6 @@ pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
         avg_uncertainty: mean(rows.iter().filter_map(|r| r.mean_uncertainty())),
         avg_reward: mean(rows.iter().filter_map(|r| r.reward).filter(|r| r.is_finite())),
     })
-}
-
-/// The mean of `values`; `None` when there are none.
-pub(crate) fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
-    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    (n > 0).then(|| sum / n as f64)
 }
 
 #[cfg(test)]

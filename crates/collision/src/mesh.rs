@@ -28,7 +28,7 @@ impl Mesh {
         t.map(|i| self.vertices[i as usize].coords.cast::<f64>())
     }
 
-    /// Total surface area, m². The same bits at any thread count (see [`Mesh::sum_over`]).
+    /// Total surface area, m². The same bits at any thread count (see `Mesh::sum_over`).
     pub fn area(&self) -> f64 {
         self.sum_over(|[a, b, c]| 0.5 * (b - a).cross(&(c - a)).norm())
     }

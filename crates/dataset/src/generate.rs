@@ -10,9 +10,9 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::error::DatasetError;
-use crate::image::{DepthImage, Image};
 use crate::writer::{write_split, FrameToWrite};
 use crate::SPLITS;
+use nerfsv_scene::image::{DepthImage, Image};
 
 /// Bytes per held pixel: RGBA (4 × f32) and depth (f32).
 const BYTES_PER_PIXEL: u64 = 16 + 4;

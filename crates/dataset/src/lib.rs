@@ -17,13 +17,12 @@
 
 pub mod error;
 pub mod generate;
-pub mod image;
 pub mod transforms;
 pub mod writer;
 
 pub use error::DatasetError;
 pub use generate::{generate, sample_cameras, GenerateOptions};
-pub use image::{DepthImage, Image};
+pub use nerfsv_scene::image::{DepthImage, Image};
 pub use transforms::{load_split, Frame, LoadOptions, Split};
 pub use writer::{write_split, FrameToWrite};
 

@@ -11,7 +11,8 @@ use rayon::prelude::*;
 use serde_json::{Map, Value};
 
 use crate::error::DatasetError;
-use crate::image::{DepthImage, Image};
+use nerfsv_scene::image::{DepthImage, Image};
+use nerfsv_scene::views::{PosedImages, View};
 
 /// One posed image of a split.
 #[derive(Clone, Debug)]
@@ -56,6 +57,32 @@ impl Split {
     /// Total pixel count over all frames.
     pub fn pixels(&self) -> usize {
         self.frames.iter().map(|f| f.camera.intrinsics.pixels()).sum()
+    }
+}
+
+impl Frame {
+    /// The frame as a posed image.
+    pub fn view(&self) -> View<'_> {
+        View { name: &self.file_path, camera: &self.camera, image: &self.image, depth: self.depth.as_ref() }
+    }
+}
+
+/// The frames in order; the source is the transforms file.
+impl PosedImages for Split {
+    fn source(&self) -> &Path {
+        &self.path
+    }
+
+    fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn view(&self, i: usize) -> View<'_> {
+        self.frames[i].view()
+    }
+
+    fn pixels(&self) -> usize {
+        Split::pixels(self)
     }
 }
 

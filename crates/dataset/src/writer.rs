@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use crate::error::DatasetError;
-use crate::image::{DepthImage, Image};
+use nerfsv_scene::image::{DepthImage, Image};
 
 /// One frame to write: its camera, its image and, optionally, its ground-truth depth.
 pub struct FrameToWrite {

@@ -40,8 +40,6 @@ pub enum NerfError {
     /// Loss or gradients became NaN/infinite; the last checkpoint written is kept.
     #[error("training diverged at step {step}: {what} is not finite")]
     NonFinite { step: u64, what: String },
-    #[error(transparent)]
-    Dataset(#[from] nerfsv_dataset::DatasetError),
 }
 
 impl NerfError {

@@ -16,6 +16,26 @@
 //! uncertainty stage), [`density_gradient`] (the density at points and its derivatives with
 //! respect to the `sigma_net` weights, for the uncertainty field), [`metrics`].
 //!
+//! # Views, rays and the backward passes
+//! The model learns from and is evaluated against posed images through
+//! [`nerfsv_scene::PosedImages`] (a dataset's split is one), so this crate does not depend on
+//! where they came from. Everything it computes is per ray, and every ray is one type,
+//! [`RayInput`] (world origin, direction, background, marching jitter): training's random
+//! pixels, [`RayInput::through_pixel`] for renders, the vision estimator's pixel rays and the
+//! uncertainty stage's rays. One forward ([`fields::ChunkWorkspace::forward`]: march, encode,
+//! both nets, composite) serves four partial backward passes, each the derivative of the
+//! composited ray with respect to one thing, each checked against finite differences:
+//!
+//! | module | derivative of | with respect to | for |
+//! |---|---|---|---|
+//! | [`fields`] (`ChunkWorkspace::backward`) | the photometric loss | every parameter | training |
+//! | [`jacobian`] | the ray's colour | its origin and direction | pose refinement (the estimator) |
+//! | [`param_jacobian`] | the ray's colour and distance | the `sigma_net` weights | GA/BLA per ray |
+//! | [`density_gradient`] | the density at a point | the `sigma_net` weights | the uncertainty field |
+//!
+//! The modules form a line: [`config`] → [`fields`] → [`memory`] → [`model`] → the passes,
+//! [`render`], [`metrics`] → [`checkpoint`] → [`train`](mod@train).
+//!
 //! # Parameters and checkpoints
 //! All parameters are one flat vector, the concatenation of torch-ngp's tensors
 //! `encoder.embeddings` `[n_entries, 2]`, `sigma_net.0.weight` `[64, 32]`, `sigma_net.1.weight`

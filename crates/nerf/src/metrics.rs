@@ -4,8 +4,8 @@
 //! (white by default, as in NeRF-synthetic evaluation). Depth error is the median absolute
 //! z-depth error in metres over pixels where ground-truth depth > 0 and predicted opacity > 0.5.
 
-use nerfsv_dataset::Split;
 use nerfsv_scene::validate::InvalidValue;
+use nerfsv_scene::views::PosedImages;
 use serde::{Deserialize, Serialize};
 
 use crate::model::Nerf;
@@ -113,29 +113,29 @@ impl Default for EvalOptions {
 /// Renders every frame of `split` (or the first `max_images`) and compares it with the ground
 /// truth. An empty split ([`NerfError::EmptySplit`]), `max_images = Some(0)` or an image smaller
 /// than SSIM's 11×11 window ([`NerfError::Invalid`]) is refused rather than reported as NaN.
-pub fn evaluate(nerf: &Nerf, split: &Split, opts: EvalOptions) -> Result<EvalReport, NerfError> {
+pub fn evaluate(nerf: &Nerf, split: &impl PosedImages, opts: EvalOptions) -> Result<EvalReport, NerfError> {
     evaluate_with_progress(nerf, split, opts, &|_, _| {})
 }
 
 /// [`evaluate`], calling `progress(done, total)` after each image.
 pub fn evaluate_with_progress(
     nerf: &Nerf,
-    split: &Split,
+    split: &impl PosedImages,
     opts: EvalOptions,
     progress: &dyn Fn(usize, usize),
 ) -> Result<EvalReport, NerfError> {
     if opts.max_images == Some(0) {
         return Err(InvalidValue::new("max_images", "must be at least 1", 0).into());
     }
-    if split.frames.is_empty() {
-        return Err(NerfError::EmptySplit { path: split.path.clone() });
+    if split.is_empty() {
+        return Err(NerfError::EmptySplit { path: split.source().to_path_buf() });
     }
-    let n = opts.max_images.unwrap_or(usize::MAX).min(split.frames.len());
-    for (i, f) in split.frames.iter().take(n).enumerate() {
+    let n = opts.max_images.unwrap_or(usize::MAX).min(split.len());
+    for (i, f) in (0..n).map(|i| (i, split.view(i))) {
         let (w, h) = (f.camera.intrinsics.width, f.camera.intrinsics.height);
         if w <= 2 * SSIM_RADIUS as u32 || h <= 2 * SSIM_RADIUS as u32 {
             return Err(InvalidValue::new(
-                format!("{}: frame {i} ({})", split.path.display(), f.file_path),
+                format!("{}: frame {i} ({})", split.source().display(), f.name),
                 "must be at least 11×11 pixels (SSIM's window)",
                 format!("{w}×{h}"),
             )
@@ -144,11 +144,11 @@ pub fn evaluate_with_progress(
     }
     let bg = opts.background;
     let mut per_image = Vec::with_capacity(n);
-    for (i, f) in split.frames.iter().take(n).enumerate() {
-        let v = nerf.render_camera(&f.camera, bg);
+    for (i, f) in (0..n).map(|i| (i, split.view(i))) {
+        let v = nerf.render_camera(f.camera, bg);
         let gt: Vec<f32> =
             f.image.rgba.chunks_exact(4).flat_map(|p| [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))).collect();
-        let depth_err = f.depth.as_ref().and_then(|d| {
+        let depth_err = f.depth.and_then(|d| {
             let mut errs: Vec<f32> = d
                 .metres
                 .iter()
@@ -166,7 +166,7 @@ pub fn evaluate_with_progress(
         });
         per_image.push(ImageMetrics {
             index: i,
-            file_path: f.file_path.clone(),
+            file_path: f.name.to_owned(),
             psnr: psnr(&v.rgb, &gt),
             ssim: ssim(&v.rgb, &gt, v.width as usize, v.height as usize),
             depth_median_abs_err_m: depth_err,

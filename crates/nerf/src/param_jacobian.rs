@@ -3,7 +3,7 @@
 //! For every ray, the composited samples (colour `c_i` after the sigmoid, compositing weight
 //! `w_i = T_i·α_i`, see [`crate::model_components::renderer`]) and the Jacobian of the ray's
 //! colour `C` (3 channels) and expected distance `D̄ = Σ w_i t_i / Σ w_i` with respect to
-//! `θ = [sigma_net.0.weight, sigma_net.1.weight]` (flat, [`NgpField::sigma_net_range`] order,
+//! `θ = [sigma_net.0.weight, sigma_net.1.weight]` (flat, [`crate::fields::NgpField::sigma_net_range`] order,
 //! `P = sh·e + (1 + geo)·sh` values). Sample positions are held fixed (the marching lattice,
 //! occupancy-grid skipping and early termination are piecewise-constant choices), as in
 //! [`crate::jacobian`].

@@ -2,8 +2,9 @@
 
 use std::path::Path;
 
-use nerfsv_dataset::{DepthImage, Frame, Image, Split};
+use nerfsv_scene::image::{DepthImage, Image};
 use nerfsv_scene::validate::{bytes_for, InvalidValue, MemoryBudget};
+use nerfsv_scene::views::{PosedImages, View};
 use nerfsv_scene::Camera;
 
 use crate::fields::RayInput;
@@ -80,10 +81,15 @@ impl Nerf {
 
 /// Renders every frame of `split` into `out_dir/r_{i}.png` (opaque RGB on `background`) and
 /// `out_dir/r_{i}_depth.png` (16-bit z-depth in mm, 0 where opacity ≤ 0.5), atomically.
-pub fn render_split(nerf: &Nerf, split: &Split, out_dir: &Path, background: [f32; 3]) -> Result<(), NerfError> {
+pub fn render_split(
+    nerf: &Nerf,
+    split: &impl PosedImages,
+    out_dir: &Path,
+    background: [f32; 3],
+) -> Result<(), NerfError> {
     std::fs::create_dir_all(out_dir).map_err(|e| NerfError::io(out_dir, e))?;
-    for (i, f) in split.frames.iter().enumerate() {
-        let v = nerf.render_camera(&f.camera, background);
+    for i in 0..split.len() {
+        let v = nerf.render_camera(split.view(i).camera, background);
         let p = out_dir.join(format!("r_{i}.png"));
         nerfsv_scene::io::atomic_write(&p, |w| v.to_image().write_png(w)).map_err(|e| NerfError::io(&p, e))?;
         let p = out_dir.join(format!("r_{i}_depth.png"));
@@ -96,14 +102,14 @@ pub fn render_split(nerf: &Nerf, split: &Split, out_dir: &Path, background: [f32
 /// `scale`× (nearest neighbour; 0 counts as 1). The frames must share one size, which must be
 /// their cameras' size; the output (`2·w·scale` × `h·scale·frames`, RGBA f32) must fit the
 /// memory budget.
-pub fn comparison_image(nerf: &Nerf, frames: &[Frame], scale: u32) -> Result<Image, NerfError> {
+pub fn comparison_image(nerf: &Nerf, frames: &[View<'_>], scale: u32) -> Result<Image, NerfError> {
     let first = frames.first().ok_or_else(|| InvalidValue::new("frames", "must hold at least one frame", "none"))?;
     let (w, h) = (first.image.width, first.image.height);
     for (i, f) in frames.iter().enumerate() {
         let k = f.camera.intrinsics;
         if (f.image.width, f.image.height) != (w, h) || (k.width, k.height) != (w, h) {
             return Err(InvalidValue::new(
-                format!("frames[{i}] ({})", f.file_path),
+                format!("frames[{i}] ({})", f.name),
                 format!("must be {w}×{h} pixels like frames[0], image and camera alike"),
                 format!("an image of {}×{} and a camera of {}×{}", f.image.width, f.image.height, k.width, k.height),
             )
@@ -119,8 +125,8 @@ pub fn comparison_image(nerf: &Nerf, frames: &[Frame], scale: u32) -> Result<Ima
     let s = s as u32;
     let mut out = Image::new(out_w, out_h);
     for (row, frame) in frames.iter().enumerate() {
-        let view = nerf.render_camera(&frame.camera, [1.0, 1.0, 1.0]).to_image();
-        for (col, img) in [&frame.image, &view].into_iter().enumerate() {
+        let view = nerf.render_camera(frame.camera, [1.0, 1.0, 1.0]).to_image();
+        for (col, img) in [frame.image, &view].into_iter().enumerate() {
             for y in 0..h * s {
                 for x in 0..w * s {
                     let p = img.pixel(x / s, y / s);

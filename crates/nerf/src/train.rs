@@ -13,7 +13,7 @@ use std::time::Instant;
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
 
-use nerfsv_dataset::Split;
+use nerfsv_scene::views::PosedImages;
 
 pub use crate::checkpoint::TrainStats;
 use crate::checkpoint::TrainingState;
@@ -77,7 +77,7 @@ impl Trainer {
     /// A fresh model from `seed`, checked against the dataset's cameras (see [`check_bounds`]).
     /// Both configs are validated, and a step's memory checked against the budget, before
     /// anything is allocated; errors name the key with its table (`train.batch_rays`).
-    pub fn new(nerf_config: NerfConfig, config: TrainConfig, data: &Split) -> Result<Self, NerfError> {
+    pub fn new(nerf_config: NerfConfig, config: TrainConfig, data: &impl PosedImages) -> Result<Self, NerfError> {
         nerf_config.validate().map_err(|e| e.within("nerf"))?;
         config.validate().map_err(|e| e.within("train"))?;
         check_training_memory(&nerf_config, &config)?;
@@ -89,7 +89,7 @@ impl Trainer {
     }
 
     /// Continues the run saved by [`save_checkpoint`](Self::save_checkpoint).
-    pub fn resume(path: &Path, data: &Split) -> Result<Self, NerfError> {
+    pub fn resume(path: &Path, data: &impl PosedImages) -> Result<Self, NerfError> {
         let ck = crate::checkpoint::read(path, true)?;
         check_bounds(&ck.nerf.config, data)?;
         let tc = ck.train_config.ok_or_else(|| NerfError::Metadata {
@@ -116,14 +116,21 @@ impl Trainer {
         Ok(Self::assemble(ck.nerf, tc, adam, ck.n_rays, stats, data))
     }
 
-    fn assemble(nerf: Nerf, config: TrainConfig, adam: Adam, n_rays: usize, stats: TrainStats, data: &Split) -> Self {
+    fn assemble(
+        nerf: Nerf,
+        config: TrainConfig,
+        adam: Adam,
+        n_rays: usize,
+        stats: TrainStats,
+        data: &impl PosedImages,
+    ) -> Self {
         let mut start = vec![0];
         let mut rgba = Vec::with_capacity(data.pixels() * 4);
-        for f in &data.frames {
+        for f in (0..data.len()).map(|i| data.view(i)) {
             start.push(start.last().unwrap() + f.image.width as usize * f.image.height as usize);
             rgba.extend_from_slice(&f.image.rgba);
         }
-        let pixels = Pixels { cameras: data.frames.iter().map(|f| f.camera).collect(), start, rgba };
+        let pixels = Pixels { cameras: (0..data.len()).map(|i| *data.view(i).camera).collect(), start, rgba };
         let n = nerf.field.n_params;
         Self {
             nerf,
@@ -351,12 +358,12 @@ impl Trainer {
 
 /// Checks that the dataset's cameras look at the model's box: the principal ray of at least
 /// half of the frames must cross the box. Errors name the first frame that misses.
-pub fn check_bounds(cfg: &NerfConfig, data: &Split) -> Result<(), NerfError> {
-    if data.frames.is_empty() {
-        return Err(NerfError::EmptySplit { path: data.path.clone() });
+pub fn check_bounds(cfg: &NerfConfig, data: &impl PosedImages) -> Result<(), NerfError> {
+    if data.is_empty() {
+        return Err(NerfError::EmptySplit { path: data.source().to_path_buf() });
     }
     let mut misses = Vec::new();
-    for (i, f) in data.frames.iter().enumerate() {
+    for (i, f) in (0..data.len()).map(|i| (i, data.view(i))) {
         let k = f.camera.intrinsics;
         let r = f.camera.ray(k.cx, k.cy);
         let o = [r.origin.x, r.origin.y, r.origin.z];
@@ -365,17 +372,17 @@ pub fn check_bounds(cfg: &NerfConfig, data: &Split) -> Result<(), NerfError> {
             misses.push(i);
         }
     }
-    if misses.len() * 2 > data.frames.len() {
+    if misses.len() * 2 > data.len() {
         let i = misses[0];
-        let p = data.frames[i].camera.position();
+        let p = data.view(i).camera.position();
         return Err(NerfError::Bounds {
-            path: data.path.clone(),
+            path: data.source().to_path_buf(),
             frame: i,
             message: format!(
                 "{} of {} cameras do not look at the scene box {:?}..{:?} (this one at ({:.2}, {:.2}, {:.2})); \
                  the dataset does not match the model's bound",
                 misses.len(),
-                data.frames.len(),
+                data.len(),
                 cfg.aabb_min,
                 cfg.aabb_max,
                 p.x,
@@ -434,7 +441,7 @@ pub fn checkpoint_path(out_dir: &Path) -> PathBuf {
 /// Returns the model and the run's [`TrainStats`] (cumulative over every session, restored from
 /// the checkpoint, so they are real figures even when the budget was already reached).
 pub fn train(
-    data: &Split,
+    data: &impl PosedImages,
     out_dir: &Path,
     budget: Budget,
     resume: bool,

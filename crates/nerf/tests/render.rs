@@ -9,7 +9,8 @@ use nerfsv_nerf::{comparison_image, evaluate, EvalOptions, EvalReport, Nerf, Ner
 fn comparison_image_puts_ground_truth_on_white_left_of_the_render_enlarged_by_scale() {
     let data = tiny_split(2, 12, 0.0);
     let nerf = Nerf::new(tiny_config(), 1).unwrap();
-    let img = comparison_image(&nerf, &data.frames, 2).unwrap();
+    let views: Vec<_> = data.frames.iter().map(|f| f.view()).collect();
+    let img = comparison_image(&nerf, &views, 2).unwrap();
     assert_eq!((img.width, img.height), (2 * 12 * 2, 12 * 2 * 2));
     // Right half of row 0 = the NeRF's render of frame 0, each pixel 2×2.
     let view = nerf.render_camera(&data.frames[0].camera, [1.0; 3]).to_image();
@@ -45,7 +46,8 @@ fn comparison_image_refuses_no_frames_and_frames_of_different_sizes() {
     }
     let mut frames = tiny_split(2, 12, 0.0).frames;
     frames[1] = tiny_split(1, 10, 0.0).frames.remove(0);
-    let e = comparison_image(&nerf, &frames, 1).expect_err("sizes differ").to_string();
+    let views: Vec<_> = frames.iter().map(|f| f.view()).collect();
+    let e = comparison_image(&nerf, &views, 1).expect_err("sizes differ").to_string();
     assert!(e.contains("frames[1]") && e.contains("12×12") && e.contains("10×10"), "{e}");
 }
 

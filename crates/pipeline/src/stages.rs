@@ -285,8 +285,8 @@ impl Stage for Eval {
             cx.progress(done as u64, total as u64, "test views evaluated")
         })?;
         write_json(&cx.dir.join(Self::METRICS), &report)?;
-        let shown = &test.frames[..test.frames.len().min(Self::SHOWN)];
-        let image = nerfsv_nerf::comparison_image(&nerf, shown, Self::SCALE)?;
+        let shown: Vec<_> = test.frames.iter().take(Self::SHOWN).map(|f| f.view()).collect();
+        let image = nerfsv_nerf::comparison_image(&nerf, &shown, Self::SCALE)?;
         let path = cx.dir.join(Self::COMPARE);
         nerfsv_scene::io::atomic_write(&path, |w| image.write_png(w)).map_err(|e| PipelineError::io(&path, e))?;
         Ok(EvalFigures::from(&report))

@@ -1,6 +1,6 @@
 //! Ground-truth worlds for nerfsv: analytic signed distance functions in metres (z up), a
-//! sphere-tracing renderer with procedural textures and exact depth, and the camera and
-//! geometry types every later stage shares.
+//! sphere-tracing renderer with procedural textures and exact depth, and the camera, geometry
+//! and image types every later stage shares (with [`PosedImages`], the views a model learns from).
 //!
 //! ```
 //! use nalgebra::{Point3, Vector3};
@@ -15,6 +15,7 @@
 
 pub mod camera;
 pub mod geometry;
+pub mod image;
 pub mod io;
 pub mod render;
 pub mod scenes;
@@ -22,10 +23,13 @@ pub mod sdf;
 pub mod seed;
 pub mod texture;
 pub mod validate;
+pub mod views;
 
 pub use camera::{Camera, Intrinsics};
 pub use geometry::{Aabb, Ray};
+pub use image::{DepthImage, Image};
 pub use render::{Hit, RenderSettings, RenderedImage};
 pub use scenes::{Scene, SceneError, BUILTIN_SCENES};
 pub use sdf::{Material, Shape};
 pub use validate::{InvalidValue, MemoryBudget};
+pub use views::{PosedImages, View};

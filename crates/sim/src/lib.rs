@@ -4,7 +4,7 @@
 //! - [`dynamics`]: the 18-D state of NeRF-Navigation (position, velocity, rotation, body rates),
 //!   explicit Euler with the exponential-map rotation update, and the 12-D disturbance;
 //! - [`planner`]: A* on the NeRF's signed field, then shortcut smoothing;
-//!   [`reference`]: the path timed with a minimum-jerk profile;
+//!   [`reference`](mod@reference): the path timed with a minimum-jerk profile;
 //! - [`controller`]: the geometric SE(3) tracking controller;
 //! - [`estimator`]: `truth`, or `vision`: a [`filter`] on the full state whose measurement is
 //!   the photometric alignment of the camera image to the NeRF;

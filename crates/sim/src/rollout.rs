@@ -117,7 +117,7 @@ pub struct ImageUpdate {
     /// [`VisionConfig::recover_variance_factor`]): see [`crate::filter::PoseUpdate::recovered`]
     /// (`accepted` is then true).
     pub recovered: bool,
-    /// The fit's a-posteriori variance factor ([`crate::PoseFit::variance_factor`]).
+    /// The fit's a-posteriori variance factor ([`crate::estimator::PoseFit::variance_factor`]).
     pub variance_factor: f64,
     /// The filter's expected position and attitude errors after the update, m and degrees.
     pub position_spread_m: f64,

@@ -312,7 +312,7 @@ pub fn monte_carlo<S: System + ?Sized>(
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImportanceEstimate {
     /// The regression (control-variate) estimate: the plain estimate corrected by how far the
-    /// batch's mean weight is from its known expectation E_q[w] = 1,
+    /// batch's mean weight is from its known expectation `E_q[w] = 1`,
     /// p̂ = mean(w·𝟙) − β̂ (mean(w) − 1) with β̂ the least-squares slope of w·𝟙 on w (Owen &
     /// Zhou 2000), clamped to [0, 1]. Where failures are common the plain estimate reads above 1
     /// whenever the batch over-draws them; this one does not.

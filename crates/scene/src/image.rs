@@ -3,7 +3,7 @@
 use std::io::{BufReader, Write};
 use std::path::Path;
 
-use nerfsv_scene::validate::{bytes_for, MemoryBudget};
+use crate::validate::{bytes_for, MemoryBudget};
 
 /// A straight (not premultiplied) RGBA image, `rgba: [height, width, 4]` in `[0, 1]`,
 /// row-major from the top row.

@@ -7,6 +7,7 @@ use nerfsv_dataset::GenerateOptions;
 use nerfsv_nerf::{NerfConfig, TrainConfig};
 use nerfsv_scene::validate::{in_range, positive};
 use nerfsv_scene::InvalidValue;
+use nerfsv_sim::Disturbance;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
@@ -260,10 +261,14 @@ impl Validate for RunConfig {
         self.sim.validate().map_err(|e| e.within("sim"))?;
         self.validation.validate().map_err(|e| e.within("validation"))?;
         let d = self.validation.disturbance.mean.len();
-        if d != 12 {
+        if d != Disturbance::DIM {
             return Err(InvalidValue::new(
                 "validation.disturbance.mean",
-                "must have 12 entries (position, velocity, rotation vector, angular velocity)",
+                format!(
+                    "must have {} entries, the drone's disturbance (position, velocity, rotation vector, angular \
+                     velocity)",
+                    Disturbance::DIM
+                ),
                 d,
             ));
         }

@@ -226,15 +226,21 @@ pub fn rotation_error(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
 /// Δvelocity (m/s), Δrotation as a **world-frame** rotation vector (rad), Δangular velocity
 /// (rad/s, body frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Disturbance(pub [f64; 12]);
+pub struct Disturbance(pub [f64; DISTURBANCE_DIM]);
+
+/// Components of a [`Disturbance`] (the adversary's dimension per step).
+pub const DISTURBANCE_DIM: usize = 12;
 
 impl Disturbance {
+    /// Components: position, velocity, rotation vector, angular velocity, 3 each.
+    pub const DIM: usize = DISTURBANCE_DIM;
+
     /// No disturbance.
-    pub const ZERO: Self = Self([0.0; 12]);
+    pub const ZERO: Self = Self([0.0; Self::DIM]);
 
     /// The paper's per-step standard deviations: 0.02 on position and rotation, 0.01 on velocity
     /// and angular rate.
-    pub const PAPER_STD: [f64; 12] = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
+    pub const PAPER_STD: [f64; Self::DIM] = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
 
     pub fn position(&self) -> Vector3<f64> {
         Vector3::new(self.0[0], self.0[1], self.0[2])

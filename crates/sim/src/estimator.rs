@@ -29,7 +29,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::drone_camera;
-use crate::dynamics::{so3_exp, so3_log};
+use crate::dynamics::{so3_exp, so3_log, Disturbance};
 use crate::world::pixel_rays;
 
 /// Which estimator feeds the controller.
@@ -82,10 +82,10 @@ pub struct VisionConfig {
     /// added at each step's start), in the disturbance's order: position (m), velocity (m/s),
     /// attitude (rad, world axes), body rates (rad/s). Default: the paper's disturbance prior,
     /// which the stress tests sample from (`[validation] prior`).
-    pub disturbance_std: [f64; 12],
+    pub disturbance_std: [f64; Disturbance::DIM],
     /// Standard deviations of the initial estimate's error (same order): the drone starts at rest
     /// at a known start.
-    pub initial_std: [f64; 12],
+    pub initial_std: [f64; Disturbance::DIM],
     /// Camera images per step, spread evenly over its substeps; the first right after the
     /// step's disturbance (the paper's order: disturb, observe, estimate, act). Default 8, an
     /// image every substep of 0.1 s: with one image per step the body-rate kick of a step is not
@@ -173,7 +173,7 @@ impl VisionConfig {
         in_range("levels[1]", self.levels[1], 0, self.levels[0])?;
         in_range("photometric_sigma", self.photometric_sigma, 1e-4, 10.0)?;
         in_range("huber", self.huber, 0.1, 1e6)?;
-        for i in 0..12 {
+        for i in 0..Disturbance::DIM {
             in_range(&format!("disturbance_std[{i}]"), self.disturbance_std[i], 0.0, 10.0)?;
             in_range(&format!("initial_std[{i}]"), self.initial_std[i], 1e-9, 10.0)?;
         }

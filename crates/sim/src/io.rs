@@ -19,7 +19,7 @@ use crate::dynamics::{Disturbance, State};
 use crate::rollout::Rollout;
 
 /// Header of a disturbance file.
-pub const DISTURBANCE_COLUMNS: [&str; 12] =
+pub const DISTURBANCE_COLUMNS: [&str; Disturbance::DIM] =
     ["dp_x", "dp_y", "dp_z", "dv_x", "dv_y", "dv_z", "dr_x", "dr_y", "dr_z", "dw_x", "dw_y", "dw_z"];
 
 /// A disturbance file that cannot be used; names the file, the row (1-based line) and column.
@@ -76,7 +76,7 @@ pub fn parse_disturbances(
         if out.is_empty() && fields.iter().zip(DISTURBANCE_COLUMNS).all(|(f, c)| *f == c) {
             continue;
         }
-        let mut d = [0.0; 12];
+        let mut d = [0.0; Disturbance::DIM];
         for (c, f) in fields.iter().enumerate() {
             d[c] = match f.parse::<f64>() {
                 Ok(v) if v.is_finite() && (widest == 0.0 || v.abs() <= limit(c)) => v,

@@ -91,7 +91,7 @@ impl System for DroneSystem<'_> {
     }
 
     fn dim(&self) -> usize {
-        12
+        Disturbance::DIM
     }
 
     /// The score is the minimum clearance of the body box over every checked substep (≤ 0 is

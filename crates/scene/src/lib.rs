@@ -17,6 +17,7 @@ pub mod camera;
 pub mod geometry;
 pub mod image;
 pub mod io;
+pub mod mesh;
 pub mod render;
 pub mod scenes;
 pub mod sdf;

@@ -62,6 +62,10 @@ impl Scene {
     /// scene bounds. Termination tolerance grows slowly with distance.
     pub fn trace(&self, ray: &Ray, max_steps: u32) -> Option<Hit> {
         let (t0, t1) = self.bounds().expanded(1e-3).intersect(ray)?;
+        if let Some(m) = self.mesh_world() {
+            let h = m.bvh.cast(&m.mesh, ray, t0, t1)?;
+            return Some(Hit { t: h.t, point: ray.at(h.t), primitive: h.triangle });
+        }
         let mut buf = [0u16; 64];
         let all: Vec<u16>;
         let candidates = match self.ray_candidates(ray, t0, t1, 1e-3, &mut buf) {
@@ -96,6 +100,9 @@ impl Scene {
             Some((_, t1)) => t1,
             None => return 1.0,
         };
+        if let Some(m) = self.mesh_world() {
+            return if m.bvh.occluded(&m.mesh, &ray, 0.0, t1) { 0.0 } else { 1.0 };
+        }
         let mut buf = [0u16; 64];
         let all: Vec<u16>;
         let candidates = match self.ray_candidates(&ray, 0.0, t1, 0.05, &mut buf) {
@@ -123,14 +130,24 @@ impl Scene {
 
     /// Shaded linear RGB of a hit.
     pub fn shade(&self, ray: &Ray, hit: &Hit, s: &RenderSettings) -> [f32; 3] {
-        let mut n = self.normal(&hit.point);
+        let mesh = self.mesh_world().map(|m| &m.mesh);
+        let mut n = match mesh {
+            Some(m) => m.face_normal(hit.primitive),
+            None => self.normal(&hit.point),
+        };
         if n.dot(&ray.direction) > 0.0 {
             n = -n;
         }
         let lambert = n.dot(&s.sun).max(0.0);
         let direct = if lambert > 0.0 { lambert * self.sun_visibility(&hit.point, &n, s) } else { 0.0 };
         let light = s.ambient + (1.0 - s.ambient) * direct;
-        let a = albedo(self.material(hit.primitive), &hit.point);
+        let a = match mesh {
+            Some(m) => {
+                let (u, v) = barycentric(&m.corners(hit.primitive), &hit.point);
+                m.colour_at(hit.primitive, u, v)
+            }
+            None => albedo(self.material(hit.primitive), &hit.point),
+        };
         [a[0] * light, a[1] * light, a[2] * light]
     }
 
@@ -187,6 +204,17 @@ impl Scene {
         );
         RenderedImage { width: w, height: h, rgba, depth }
     }
+}
+
+/// Barycentric coordinates `(u, v)` of `p` (on the plane of `[a, b, c]`): `p = (1 − u − v)·a + u·b + v·c`.
+fn barycentric([a, b, c]: &[Point3<f32>; 3], p: &Point3<f32>) -> (f32, f32) {
+    let (e1, e2, d) = (b - a, c - a, p - a);
+    let (d00, d01, d11, d20, d21) = (e1.dot(&e1), e1.dot(&e2), e2.dot(&e2), d.dot(&e1), d.dot(&e2));
+    let den = d00 * d11 - d01 * d01;
+    if den.abs() < 1e-20 {
+        return (0.0, 0.0);
+    }
+    ((d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den)
 }
 
 #[cfg(test)]

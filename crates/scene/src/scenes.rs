@@ -4,6 +4,9 @@ use std::f32::consts::{PI, TAU};
 
 use nalgebra::{Point3, Rotation3, Vector3};
 
+use std::sync::Arc;
+
+use crate::mesh::{Bvh, MeshError, TriangleMesh};
 use crate::sdf::{Material, Shape};
 use crate::Aabb;
 
@@ -21,7 +24,9 @@ pub enum SceneError {
     Unknown(String),
 }
 
-/// A ground-truth world: an analytic SDF (union of exact primitives) with materials.
+/// A ground-truth world: an analytic SDF (union of exact primitives) with materials, or a
+/// triangle mesh ([`Scene::from_mesh`]) whose signed distance is the distance to its closest
+/// triangle, negative where its generalised winding number exceeds ½ in magnitude.
 #[derive(Clone, Debug)]
 pub struct Scene {
     pub name: String,
@@ -30,6 +35,15 @@ pub struct Scene {
     /// Bounding spheres `[x, y, z, r]`, for culling in [`Scene::distance`].
     spheres: Vec<[f32; 4]>,
     bounds: Aabb,
+    /// The mesh and its hierarchy, for a mesh scene (then `shapes` is empty).
+    mesh: Option<Arc<MeshWorld>>,
+}
+
+/// A mesh scene's geometry.
+#[derive(Debug)]
+pub(crate) struct MeshWorld {
+    pub(crate) mesh: TriangleMesh,
+    pub(crate) bvh: Bvh,
 }
 
 /// Deterministic pseudo-random numbers in [0, 1) for scene layout (not the run seed: a scene
@@ -66,7 +80,32 @@ impl Scene {
                 [c.x, c.y, c.z, r]
             })
             .collect();
-        Self { name: name.to_string(), shapes, materials, spheres, bounds: Aabb::new(min, max) }
+        Self { name: name.to_string(), shapes, materials, spheres, bounds: Aabb::new(min, max), mesh: None }
+    }
+
+    /// A scene of a triangle mesh (checked with [`TriangleMesh::validate`]); its bounds are the
+    /// mesh's. The renderer ray-casts it (hard shadows), colours it by its vertex colours,
+    /// texture or material ([`TriangleMesh::colour_at`]) and shades it by its face normals.
+    pub fn from_mesh(name: &str, mesh: TriangleMesh) -> Result<Self, MeshError> {
+        mesh.validate()?;
+        let bvh = Bvh::build(&mesh);
+        Ok(Self {
+            name: name.to_string(),
+            shapes: Vec::new(),
+            materials: Vec::new(),
+            spheres: Vec::new(),
+            bounds: mesh.bounds(),
+            mesh: Some(Arc::new(MeshWorld { mesh, bvh })),
+        })
+    }
+
+    /// The mesh of a mesh scene.
+    pub fn mesh(&self) -> Option<&TriangleMesh> {
+        self.mesh.as_deref().map(|m| &m.mesh)
+    }
+
+    pub(crate) fn mesh_world(&self) -> Option<&MeshWorld> {
+        self.mesh.as_deref()
     }
 
     /// One of [`BUILTIN_SCENES`].
@@ -157,13 +196,13 @@ impl Scene {
         self.bounds
     }
 
-    /// Number of primitives.
+    /// Number of primitives (triangles of a mesh scene).
     pub fn len(&self) -> usize {
-        self.shapes.len()
+        self.mesh.as_ref().map_or(self.shapes.len(), |m| m.mesh.triangles.len())
     }
 
     pub fn is_empty(&self) -> bool {
-        self.shapes.is_empty()
+        self.len() == 0
     }
 
     /// Signed distance in metres from `p` to the scene (negative inside geometry).
@@ -175,6 +214,12 @@ impl Scene {
     /// Signed distance and the index of the closest primitive.
     #[inline]
     pub fn closest(&self, p: &Point3<f32>) -> (f32, usize) {
+        if let Some(m) = &self.mesh {
+            let (d, t) = m.bvh.closest(&m.mesh, p);
+            // |w|: a mesh whose triangles all face inward (a common export slip) has w = −1 inside.
+            let inside = m.bvh.winding_number(&m.mesh, p).abs() > 0.5;
+            return (if inside { -d } else { d }, t);
+        }
         self.closest_in(p, 0..self.shapes.len())
     }
 
@@ -236,9 +281,10 @@ impl Scene {
         Some(n)
     }
 
-    /// The material of primitive `i`.
+    /// The material of primitive `i` (of an SDF scene; a mesh scene's triangles carry colours,
+    /// [`TriangleMesh::colour_at`], and report [`Material::Stone`]).
     pub fn material(&self, i: usize) -> Material {
-        self.materials[i]
+        self.materials.get(i).copied().unwrap_or(Material::Stone)
     }
 
     /// Outward unit normal at (or near) the surface, by central differences of the SDF.

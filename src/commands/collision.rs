@@ -1,18 +1,31 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use nerfsv_collision::{check_cells_per_metre, check_grid_memory, field_bounds, scene_field, GridGeometry};
+use nerfsv_collision::{check_cells_per_metre, check_grid_memory, field_bounds, scene_field, GridGeometry, SdfGrid};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::refuse_output_inside;
 use nerfsv_pipeline::stages::{build_ground_truth, build_nerf_field};
 use nerfsv_scene::{Aabb, Scene};
 
+use crate::commands::world::{load_mesh_scene, MeshArgs};
+
 #[derive(Args)]
 pub struct CollisionArgs {
     /// Built-in ground-truth scene: its signed field is built, or, with --model, compared
     /// against the NeRF's (default stonehenge when no --model is given).
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["gt_mesh", "gt"])]
     pub scene: Option<String>,
+    /// A triangle mesh as the ground truth instead of a built-in scene (OBJ, PLY, glTF/GLB;
+    /// metres, z up unless --mesh-scale / --mesh-up say otherwise): its signed field is built,
+    /// or, with --model, compared against the NeRF's.
+    #[arg(long, conflicts_with = "gt")]
+    pub gt_mesh: Option<PathBuf>,
+    #[command(flatten)]
+    pub mesh_options: MeshArgs,
+    /// With --model: a ground-truth signed field (`collision --out` of a scene or mesh, or
+    /// RUN/collision/gt_sdf.safetensors) to score the NeRF's field against, on its grid.
+    #[arg(long, requires = "model")]
+    pub gt: Option<PathBuf>,
     /// NeRF checkpoint: build the field from its density instead of from a scene's SDF.
     #[arg(long)]
     pub model: Option<PathBuf>,
@@ -37,9 +50,22 @@ pub struct CollisionArgs {
 pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
     check_cells_per_metre("--cells-per-metre", args.cells_per_metre)?;
     let mesh = args.mesh.as_deref();
+    let ground_truth = match (&args.scene, &args.gt_mesh) {
+        (Some(name), _) => Some(Scene::builtin(name)?),
+        (None, Some(path)) => {
+            for out in std::iter::once(args.out.as_path()).chain(mesh) {
+                refuse_output_inside(out, &[("--gt-mesh", path)])?;
+            }
+            Some(load_mesh_scene(path, &args.mesh_options)?)
+        }
+        (None, None) => None,
+    };
     let figures = match &args.model {
         None => {
-            let scene = Scene::builtin(args.scene.as_deref().unwrap_or("stonehenge"))?;
+            let scene = match ground_truth {
+                Some(scene) => scene,
+                None => Scene::builtin("stonehenge")?,
+            };
             let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), args.cells_per_metre)?;
             check_grid_memory("--cells-per-metre", &geometry)?;
             serde_json::to_value(build_ground_truth(&scene, args.cells_per_metre, &args.out, mesh)?)?
@@ -48,19 +74,28 @@ pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
             if let Some(t) = args.density_threshold {
                 nerfsv_scene::validate::positive("--density-threshold", f64::from(t))?;
             }
-            for out in std::iter::once(args.out.as_path()).chain(mesh) {
-                refuse_output_inside(out, &[("--model", model)])?;
+            let mut inputs = vec![("--model", model.as_path())];
+            if let Some(gt) = &args.gt {
+                inputs.push(("--gt", gt.as_path()));
             }
+            for out in std::iter::once(args.out.as_path()).chain(mesh) {
+                refuse_output_inside(out, &inputs)?;
+            }
+            let given = args.gt.as_deref().map(SdfGrid::load).transpose()?;
             let nerf = Nerf::load(model)?;
-            // With a scene: on the ground truth's grid, compared with it; else over the model's box.
-            let scene = args.scene.as_deref().map(Scene::builtin).transpose()?;
-            let bounds = match &scene {
-                Some(scene) => field_bounds(&scene.bounds()),
-                None => Aabb::new(nerf.config.aabb_min.into(), nerf.config.aabb_max.into()),
+            // With a ground truth: on its grid, compared with it; else over the model's box.
+            let (geometry, reference) = match (given, ground_truth) {
+                (Some(gt), _) => (gt.geometry, Some(gt)),
+                (None, scene) => {
+                    let bounds = match &scene {
+                        Some(scene) => field_bounds(&scene.bounds()),
+                        None => Aabb::new(nerf.config.aabb_min.into(), nerf.config.aabb_max.into()),
+                    };
+                    let geometry = GridGeometry::covering(&bounds, args.cells_per_metre)?;
+                    check_grid_memory("--cells-per-metre", &geometry)?;
+                    (geometry, scene.map(|scene| scene_field(&scene, geometry).1))
+                }
             };
-            let geometry = GridGeometry::covering(&bounds, args.cells_per_metre)?;
-            check_grid_memory("--cells-per-metre", &geometry)?;
-            let reference = scene.map(|scene| scene_field(&scene, geometry).1);
             let figures =
                 build_nerf_field(&nerf, geometry, args.density_threshold, reference.as_ref(), &args.out, mesh)?;
             serde_json::to_value(figures)?

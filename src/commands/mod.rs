@@ -8,6 +8,7 @@ pub mod scene;
 pub mod stress;
 pub mod uq;
 pub mod uq_field;
+pub mod world;
 
 use serde::Serialize;
 

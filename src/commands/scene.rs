@@ -4,15 +4,15 @@ use clap::Args;
 use nerfsv_dataset::GenerateOptions;
 use nerfsv_pipeline::stages::render_dataset;
 use nerfsv_pipeline::Observer;
-use nerfsv_scene::Scene;
 
+use crate::commands::world::WorldArgs;
 use crate::progress::Reporter;
 
 #[derive(Args)]
 pub struct SceneArgs {
-    /// Built-in scene: stonehenge, monolith or pillars.
-    #[arg(long, default_value = "stonehenge")]
-    pub scene: String,
+    /// The world to render: a built-in scene or a mesh file.
+    #[command(flatten)]
+    pub world: WorldArgs,
     /// Dataset folder to write (replaced if it already holds a dataset).
     #[arg(long)]
     pub out: PathBuf,
@@ -66,7 +66,13 @@ impl SceneArgs {
 }
 
 pub fn run(args: SceneArgs) -> anyhow::Result<()> {
-    let scene = Scene::builtin(&args.scene)?;
+    if let Some(mesh) = &args.world.mesh {
+        // The mesh's textures sit beside it: its folder is an input too.
+        let folder = mesh.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+        nerfsv_pipeline::refuse_output_inside(&args.out, &[("--mesh", mesh)])?;
+        nerfsv_pipeline::refuse_output_holding(&args.out, &[("--mesh", mesh), ("--mesh's folder", folder)])?;
+    }
+    let scene = args.world.load()?;
     let reporter = Reporter::new(args.json);
     let figures = render_dataset(&scene, &args.out, &args.options(), &|done, total| {
         reporter.progress("scene", done as u64, total as u64, "views rendered")

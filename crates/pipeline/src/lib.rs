@@ -114,6 +114,8 @@ pub enum PipelineError {
     MissingInput { stage: &'static str, input: &'static str },
     #[error("{}: is inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
     OutputInsideInput { output: PathBuf, option: String, input: PathBuf },
+    #[error("{}: holds {option} {}, and the command replaces it whole; refusing to delete an input", .output.display(), .input.display())]
+    OutputHoldsInput { output: PathBuf, option: String, input: PathBuf },
     #[error("{0}")]
     Internal(String),
 }
@@ -135,6 +137,24 @@ pub fn refuse_output_inside(output: &Path, inputs: &[(&str, &Path)]) -> Result<(
                 output: output.to_path_buf(),
                 option: option.to_string(),
                 input: input.clone(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Refuses an output folder that a command replaces whole when it holds one of the command's
+/// inputs (a mesh and its textures inside the dataset folder it renders into): `inputs` are
+/// (option name, path) pairs.
+pub fn refuse_output_holding(output: &Path, inputs: &[(&str, &Path)]) -> Result<(), PipelineError> {
+    let out = resolve(output);
+    for (option, input) in inputs {
+        let resolved = resolve(input);
+        if resolved.starts_with(&out) {
+            return Err(PipelineError::OutputHoldsInput {
+                output: output.to_path_buf(),
+                option: option.to_string(),
+                input: resolved,
             });
         }
     }

@@ -99,6 +99,29 @@ impl Scene {
         })
     }
 
+    /// The mesh scene of the file `path` ([`crate::mesh::load_mesh`]), named after the file,
+    /// with the reader's warnings and, when some of its edges border one triangle only, a warning
+    /// saying how much of it is open (its inside is then the generalised winding number's guess).
+    pub fn load_mesh(
+        path: &std::path::Path,
+        options: crate::mesh::MeshOptions,
+    ) -> Result<(Self, Vec<String>), crate::mesh::LoadError> {
+        let crate::mesh::LoadedMesh { mesh, mut warnings } = crate::mesh::load_mesh(path, options)?;
+        let open = mesh.open_edge_fraction();
+        if open > 0.0 {
+            warnings.push(format!(
+                "{}: {:.1} % of the mesh's edges border one triangle only: it is not closed, and its inside is \
+                 decided by the generalised winding number (> ½)",
+                path.display(),
+                100.0 * open
+            ));
+        }
+        let name = path.file_stem().map_or_else(|| "mesh".to_string(), |s| s.to_string_lossy().into_owned());
+        let scene = Self::from_mesh(&name, mesh)
+            .map_err(|error| crate::mesh::LoadError::Invalid { path: path.to_path_buf(), error })?;
+        Ok((scene, warnings))
+    }
+
     /// The mesh of a mesh scene.
     pub fn mesh(&self) -> Option<&TriangleMesh> {
         self.mesh.as_deref().map(|m| &m.mesh)

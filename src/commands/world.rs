@@ -1,0 +1,70 @@
+use std::path::{Path, PathBuf};
+
+use clap::{Args, ValueEnum};
+use nerfsv_scene::mesh::{MeshOptions, UpAxis};
+use nerfsv_scene::Scene;
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum UpArg {
+    /// The file is z-up (nerfsv's frame).
+    Z,
+    /// The file is y-up (glTF, Blender's exports): turned to z-up.
+    Y,
+}
+
+/// How a mesh file becomes metres, z up.
+#[derive(Args, Clone)]
+pub struct MeshArgs {
+    /// Metres per unit of the mesh file.
+    #[arg(long, default_value_t = 1.0)]
+    pub mesh_scale: f32,
+    /// Which axis of the mesh file points up.
+    #[arg(long, value_enum, default_value = "z")]
+    pub mesh_up: UpArg,
+}
+
+impl MeshArgs {
+    pub fn options(&self) -> MeshOptions {
+        MeshOptions {
+            scale: self.mesh_scale,
+            up: match self.mesh_up {
+                UpArg::Z => UpAxis::Z,
+                UpArg::Y => UpAxis::Y,
+            },
+        }
+    }
+}
+
+/// The mesh scene of `path`, its warnings printed on stderr.
+pub fn load_mesh_scene(path: &Path, args: &MeshArgs) -> anyhow::Result<Scene> {
+    let (scene, warnings) = Scene::load_mesh(path, args.options())?;
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(scene)
+}
+
+/// A built-in scene or a mesh file: the ground truth a command renders or builds a field of.
+#[derive(Args)]
+pub struct WorldArgs {
+    /// Built-in scene: stonehenge, monolith or pillars.
+    #[arg(long, default_value = "stonehenge", conflicts_with = "mesh")]
+    pub scene: String,
+    /// A triangle mesh as the world instead (OBJ with MTL colours and PNG textures, PLY with
+    /// vertex colours, glTF 2.0 / GLB), in metres with z up unless --mesh-scale / --mesh-up say
+    /// otherwise; centred on the origin like the built-in scenes, whose camera placement it
+    /// shares.
+    #[arg(long)]
+    pub mesh: Option<PathBuf>,
+    #[command(flatten)]
+    pub mesh_options: MeshArgs,
+}
+
+impl WorldArgs {
+    pub fn load(&self) -> anyhow::Result<Scene> {
+        match &self.mesh {
+            Some(path) => load_mesh_scene(path, &self.mesh_options),
+            None => Ok(Scene::builtin(&self.scene)?),
+        }
+    }
+}

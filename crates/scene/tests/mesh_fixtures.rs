@@ -23,8 +23,8 @@ fn trimesh_files_load_render_and_have_the_right_inside_in_every_format() {
         assert!(loaded.warnings.is_empty(), "{file}: {:?}", loaded.warnings);
         assert_eq!(loaded.mesh.triangles.len(), triangles, "{file}");
         let b = loaded.mesh.bounds();
-        for d in 0..3 {
-            assert!((b.min[d] - bounds[0][d]).abs() < 1e-5 && (b.max[d] - bounds[1][d]).abs() < 1e-5, "{file}: {b:?}");
+        for (d, (lo, hi)) in bounds[0].iter().zip(&bounds[1]).enumerate() {
+            assert!((b.min[d] - lo).abs() < 1e-5 && (b.max[d] - hi).abs() < 1e-5, "{file}: {b:?}");
         }
         let scene = Scene::from_mesh(file, loaded.mesh).unwrap();
         for probe in truth["probes"].as_array().unwrap() {

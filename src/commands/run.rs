@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use nerfsv_pipeline::RunConfig;
+use nerfsv_pipeline::{Observer, RunConfig};
 
 use crate::progress::Reporter;
 
@@ -20,19 +20,24 @@ pub struct RunArgs {
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let mut cfg = match &args.config {
-        Some(p) => {
-            let cfg = RunConfig::load(p)?;
-            // Before any stage: a start or goal inside the scene, named with its file.
-            cfg.check_endpoints()
-                .map_err(|error| nerfsv_pipeline::PipelineError::InvalidConfig { path: p.clone(), error })?;
-            cfg
-        }
+        Some(p) => RunConfig::load(p)?,
         None => RunConfig::default(),
     };
     if let Some(out) = args.out {
         cfg.out = out;
     }
-    let summary = nerfsv_pipeline::run(&cfg, &Reporter::new(args.json))?;
+    let reporter = Reporter::new(args.json);
+    let (scene, warnings) = cfg.scene()?;
+    for w in &warnings {
+        reporter.note("world", &format!("warning: {w}"));
+    }
+    cfg.check_world_fits(&scene)?;
+    if let Some(p) = &args.config {
+        // Before any stage: a start or goal inside the scene, named with its file.
+        cfg.check_endpoints(&scene)
+            .map_err(|error| nerfsv_pipeline::PipelineError::InvalidConfig { path: p.clone(), error })?;
+    }
+    let summary = nerfsv_pipeline::run_in(&cfg, &scene, &reporter)?;
     let index = cfg.out.join(nerfsv_pipeline::report::REPORT).join(nerfsv_pipeline::report::INDEX);
     crate::commands::report(args.json, &summary, || {
         format!(

@@ -95,6 +95,40 @@ pub struct RunConfig {
     /// The online uncertainty stage (`RUN/online/`): which methods' reward studies run and
     /// their sizes (the `[online]` table).
     pub online: OnlineConfig,
+    /// A user's own world instead of the built-in `scene`: a mesh as the ground truth and a
+    /// dataset folder used as is (the `[world]` table).
+    pub world: WorldConfig,
+}
+
+/// A user's own world, the `[world]` table. Relative paths are read from the config file's
+/// folder. The mesh must lie inside the NeRF's box (`nerf.aabb_min`..`aabb_max`) and, when a
+/// dataset is given too, its cameras must look at it; `sim.start` and `sim.goal` are checked
+/// against it as against a built-in scene.
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct WorldConfig {
+    /// A triangle mesh (OBJ with MTL colours and PNG textures, PLY with vertex colours, glTF
+    /// 2.0 / GLB) as the ground truth, in place of the built-in `scene`: what GT-sim flies in
+    /// and renders, and what the ground-truth signed field is built from. Without a `dataset`,
+    /// the dataset is rendered from it as from a built-in scene.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<PathBuf>,
+    /// Metres per unit of the mesh file.
+    pub mesh_scale: f32,
+    /// Which axis of the mesh file points up: "z", or "y" (glTF, Blender's exports).
+    pub mesh_up: nerfsv_scene::mesh::UpAxis,
+    /// A dataset folder used as is instead of rendering one: Blender format
+    /// (`transforms_{train,val,test}.json`) or nerfstudio / instant-ngp (`transforms.json`,
+    /// every 8th frame held out). The NeRF trains on it; the drone's camera is still the
+    /// `[dataset]` table's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dataset: Option<PathBuf>,
+}
+
+impl Default for WorldConfig {
+    fn default() -> Self {
+        Self { mesh: None, mesh_scale: 1.0, mesh_up: nerfsv_scene::mesh::UpAxis::Z, dataset: None }
+    }
 }
 
 /// The online uncertainty stage of `nerfsv run`, the `[online]` table: for each method, MC
@@ -180,14 +214,58 @@ impl Default for RunConfig {
             uq: nerfsv_uq::UqConfig::default(),
             uq_offline: UqOfflineConfig::default(),
             online: OnlineConfig::default(),
+            world: WorldConfig::default(),
         }
     }
 }
 
 impl RunConfig {
-    /// Reads a TOML config (see [`load_toml`]).
+    /// Reads a TOML config (see [`load_toml`]); the `[world]` table's relative paths are read
+    /// from the file's folder.
     pub fn load(path: &Path) -> Result<Self, PipelineError> {
-        load_toml(path)
+        let mut cfg: Self = load_toml(path)?;
+        let folder = path.parent().unwrap_or(Path::new(""));
+        for p in [&mut cfg.world.mesh, &mut cfg.world.dataset].into_iter().flatten() {
+            if p.is_relative() {
+                *p = folder.join(&*p);
+            }
+        }
+        Ok(cfg)
+    }
+
+    /// The ground truth: the `[world]` table's mesh (with what its reader noticed), else the
+    /// built-in `scene`.
+    pub fn scene(&self) -> Result<(nerfsv_scene::Scene, Vec<String>), PipelineError> {
+        match &self.world.mesh {
+            Some(path) => {
+                let options = nerfsv_scene::mesh::MeshOptions { scale: self.world.mesh_scale, up: self.world.mesh_up };
+                nerfsv_scene::Scene::load_mesh(path, options)
+                    .map_err(|e| PipelineError::World { key: "world.mesh", message: e.to_string() })
+            }
+            None => Ok((nerfsv_scene::Scene::builtin(&self.scene)?, Vec::new())),
+        }
+    }
+
+    /// A mesh world must lie inside the NeRF's box (the model cannot learn what is outside it).
+    pub fn check_world_fits(&self, scene: &nerfsv_scene::Scene) -> Result<(), PipelineError> {
+        let (Some(path), Some(mesh)) = (&self.world.mesh, scene.mesh()) else { return Ok(()) };
+        let b = mesh.bounds();
+        let inside = (0..3).all(|d| b.min[d] >= self.nerf.aabb_min[d] && b.max[d] <= self.nerf.aabb_max[d]);
+        if inside {
+            return Ok(());
+        }
+        Err(PipelineError::World {
+            key: "world.mesh",
+            message: format!(
+                "{}: the mesh spans {:?}..{:?} m, outside the NeRF's box nerf.aabb_min {:?} .. nerf.aabb_max {:?}: \
+                 scale it (world.mesh_scale), turn it (world.mesh_up) or grow the box",
+                path.display(),
+                [b.min.x, b.min.y, b.min.z],
+                [b.max.x, b.max.y, b.max.z],
+                self.nerf.aabb_min,
+                self.nerf.aabb_max
+            ),
+        })
     }
 
     /// The drone camera's default intrinsics: the dataset's.
@@ -214,9 +292,7 @@ impl RunConfig {
     /// anything is built: each must keep the planner's clearance (the body's half-diagonal and its
     /// margin) from the ground truth, or no stage after hours of training could fly it. Not part of
     /// [`Validate::validate`]: `nerfsv fly` and `stress` fly their `--scene`, not this config's.
-    pub fn check_endpoints(&self) -> Result<(), InvalidValue> {
-        let scene = nerfsv_scene::Scene::builtin(&self.scene)
-            .map_err(|e| InvalidValue::new("scene", e.to_string(), &self.scene))?;
+    pub fn check_endpoints(&self, scene: &nerfsv_scene::Scene) -> Result<(), InvalidValue> {
         let required =
             nerfsv_sim::planner::required_clearance(nerfsv_collision::drone_half_extents(), self.sim.planner.margin);
         for (key, p) in [("sim.start", self.sim.start), ("sim.goal", self.sim.goal)] {
@@ -229,7 +305,7 @@ impl RunConfig {
                     format!(
                         "must keep {required:.3} m from the {} scene's geometry (the drone's body and \
                          sim.planner.margin), but it is {place} it ({distance:.3} m)",
-                        self.scene
+                        scene.name
                     ),
                     format!("[{}, {}, {}]", p[0], p[1], p[2]),
                 ));
@@ -241,7 +317,7 @@ impl RunConfig {
 
 impl Validate for RunConfig {
     fn validate(&self) -> Result<(), InvalidValue> {
-        if !nerfsv_scene::BUILTIN_SCENES.contains(&self.scene.as_str()) {
+        if self.world.mesh.is_none() && !nerfsv_scene::BUILTIN_SCENES.contains(&self.scene.as_str()) {
             return Err(InvalidValue::new(
                 "scene",
                 format!("must be one of {}", nerfsv_scene::BUILTIN_SCENES.join(", ")),
@@ -252,6 +328,10 @@ impl Validate for RunConfig {
         nerfsv_collision::check_cells_per_metre("cells_per_metre", self.cells_per_metre)?;
         self.nerf_settings().validate()?;
         in_range("train_steps", self.train_steps, 1, MAX_TRAIN_STEPS)?;
+        let scale = self.world.mesh_scale;
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(InvalidValue::new("world.mesh_scale", "must be a positive number", scale));
+        }
         self.uq.validate().map_err(|e| e.within("uq"))?;
         self.uq_offline.validate().map_err(|e| e.within("uq_offline"))?;
         self.online.validate().map_err(|e| e.within("online"))?;

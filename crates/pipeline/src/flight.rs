@@ -75,7 +75,7 @@ impl Stage for FlightStage<'_> {
     type Figures = FlightStageFigures;
 
     fn config(&self) -> impl Serialize {
-        (&self.scene.name, self.sim, self.intrinsics, self.render.supersample, self.seed)
+        (self.scene.key(), self.sim, self.intrinsics, self.render.supersample, self.seed)
     }
 
     fn run(&self, cx: &StageContext) -> Result<FlightStageFigures, PipelineError> {

@@ -56,7 +56,7 @@
 //! # let options = nerfsv_dataset::GenerateOptions { width: 4, height: 4, train: 1, val: 1, test: 2,
 //! #     supersample: 1, ..Default::default() };
 //! let mut runner = Runner::new(root.path(), &Silent)?;
-//! runner.run(&nerfsv_pipeline::stages::Dataset { scene: &scene, options: &options })?;
+//! runner.run(&nerfsv_pipeline::stages::Dataset { source: nerfsv_pipeline::stages::DatasetSource::Render { scene: &scene, options: &options } })?;
 //! assert_eq!(runner.run(&CountTestViews)?, 2); // the new item
 //! # Ok::<(), PipelineError>(())
 //! ```
@@ -116,6 +116,8 @@ pub enum PipelineError {
     OutputInsideInput { output: PathBuf, option: String, input: PathBuf },
     #[error("{}: holds {option} {}, and the command replaces it whole; refusing to delete an input", .output.display(), .input.display())]
     OutputHoldsInput { output: PathBuf, option: String, input: PathBuf },
+    #[error("{key}: {message}")]
+    World { key: &'static str, message: String },
     #[error("{0}")]
     Internal(String),
 }
@@ -202,18 +204,63 @@ impl Serialize for StageFigures {
 /// Runs the whole pipeline of `cfg` into `cfg.out` and writes `summary.json`.
 pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, PipelineError> {
     cfg.validate()?;
-    cfg.check_endpoints()?;
-    let scene = nerfsv_scene::Scene::builtin(&cfg.scene)?;
+    let (scene, warnings) = cfg.scene()?;
+    for w in &warnings {
+        observer.note("world", &format!("warning: {w}"));
+    }
+    run_in(cfg, &scene, observer)
+}
+
+/// A user's dataset must show the user's mesh: the principal ray of at least half of its
+/// training views crosses the mesh's box (grown by a tenth of its size).
+fn check_cameras_see(folder: &Path, bounds: &nerfsv_scene::Aabb) -> Result<(), PipelineError> {
+    let split = stages::load_dataset_split(folder, "train", 1)?;
+    let grown = bounds.expanded(0.1 * bounds.extent().norm());
+    let seeing = split
+        .frames
+        .iter()
+        .filter(|f| {
+            let k = f.camera.intrinsics;
+            grown.intersect(&f.camera.ray(k.cx, k.cy)).is_some()
+        })
+        .count();
+    if seeing * 2 >= split.frames.len().max(1) {
+        return Ok(());
+    }
+    Err(PipelineError::World {
+        key: "world.dataset",
+        message: format!(
+            "{}: {} of its {} training views look at the mesh (world.mesh): the dataset and the mesh are not of \
+             one world (a different scale or up axis?)",
+            folder.display(),
+            seeing,
+            split.frames.len()
+        ),
+    })
+}
+
+/// [`run`] in the world `scene` (what [`RunConfig::scene`] gives for `cfg`).
+pub fn run_in(cfg: &RunConfig, scene: &nerfsv_scene::Scene, observer: &dyn Observer) -> Result<Summary, PipelineError> {
+    cfg.validate()?;
+    cfg.check_world_fits(scene)?;
+    cfg.check_endpoints(scene)?;
+    if let (Some(folder), Some(mesh)) = (&cfg.world.dataset, scene.mesh()) {
+        check_cameras_see(folder, &mesh.bounds())?;
+    }
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(&cfg.out, observer)?;
-    r.run(&stages::Dataset { scene: &scene, options: &cfg.dataset })?;
-    r.run(&stages::GroundTruthField { scene: &scene, cells_per_metre: cfg.cells_per_metre })?;
+    let source = match &cfg.world.dataset {
+        Some(folder) => stages::DatasetSource::Folder(folder),
+        None => stages::DatasetSource::Render { scene, options: &cfg.dataset },
+    };
+    r.run(&stages::Dataset { source })?;
+    r.run(&stages::GroundTruthField { scene, cells_per_metre: cfg.cells_per_metre })?;
     r.run(&stages::Train { settings: &settings, steps: cfg.train_steps })?;
     r.run(&stages::Eval)?;
     r.run(&uq::Uncertainty { uq: &cfg.uq, offline: &cfg.uq_offline })?;
     r.run(&stages::NerfField { density_threshold: cfg.nerf_density_threshold })?;
     r.run(&flight::FlightStage {
-        scene: &scene,
+        scene,
         sim: &cfg.sim,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
@@ -221,7 +268,7 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     })?;
     let prior = cfg.disturbance_prior()?;
     let search = stress::StressStage {
-        scene: &scene,
+        scene,
         sim: &cfg.sim,
         validation: &cfg.validation,
         prior: &prior,

@@ -151,7 +151,7 @@ impl Stage for OnlineStage<'_> {
 
     fn config(&self) -> impl Serialize {
         let s = self.search;
-        (&s.scene.name, s.sim, self.validation(), s.intrinsics, s.render.supersample, self.uq, self.online)
+        (s.scene.key(), s.sim, self.validation(), s.intrinsics, s.render.supersample, self.uq, self.online)
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {

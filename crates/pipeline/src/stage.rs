@@ -38,6 +38,10 @@ pub trait Stage {
     const CODE: &'static [&'static str];
     /// Files (relative to the stage folder) that must exist for a recorded result to count.
     const OUTPUTS: &'static [&'static str];
+    /// [`Stage::OUTPUTS`] of this instance, for a stage whose files depend on its settings.
+    fn outputs(&self) -> &'static [&'static str] {
+        Self::OUTPUTS
+    }
     /// Whether an interrupted run continues from what it left in its folder (a training's
     /// checkpoint) instead of starting from an empty folder.
     const RESUMABLE: bool = false;
@@ -199,7 +203,7 @@ impl<'a> Runner<'a> {
         let dir = self.root.join(S::NAME);
         // What a killed writer left half-written is never an output, cached or not.
         nerfsv_scene::io::remove_stale_temporaries_in(&dir);
-        let (figures, outcome) = match cached::<S::Figures>(&dir, &key, S::OUTPUTS) {
+        let (figures, outcome) = match cached::<S::Figures>(&dir, &key, stage.outputs()) {
             Some(figures) => {
                 self.observer.note(S::NAME, "up to date");
                 (figures, Outcome::UpToDate)

@@ -45,10 +45,24 @@ pub fn write_field(field: &BuiltField, sdf_path: &Path, mesh_path: Option<&Path>
 // ---------------------------------------------------------------------------------------------
 // 1. The dataset.
 
-/// Renders the scene's Blender-format dataset into `RUN/dataset/`.
+/// The dataset the NeRF learns from: the scene's Blender-format dataset rendered into
+/// `RUN/dataset/`, or a user's folder used as is (`RUN/dataset/source.json` names it).
 pub struct Dataset<'a> {
-    pub scene: &'a Scene,
-    pub options: &'a GenerateOptions,
+    pub source: DatasetSource<'a>,
+}
+
+/// Where the dataset comes from.
+pub enum DatasetSource<'a> {
+    /// Rendered from a scene.
+    Render { scene: &'a Scene, options: &'a GenerateOptions },
+    /// A dataset folder (Blender or nerfstudio format), read where it is.
+    Folder(&'a Path),
+}
+
+/// `RUN/dataset/source.json`: the folder a run's dataset is read from.
+#[derive(Serialize, Deserialize)]
+struct DatasetFolder {
+    folder: PathBuf,
 }
 
 /// What the dataset stage reports.
@@ -85,21 +99,104 @@ pub fn render_dataset(
     })
 }
 
+impl Dataset<'_> {
+    /// The file naming a user's dataset folder.
+    pub const SOURCE: &'static str = "source.json";
+
+    /// The folder run `root`'s dataset is read from: the user's, or `RUN/dataset/`.
+    pub fn folder(root: &Path) -> Result<PathBuf, PipelineError> {
+        let dir = root.join(Dataset::NAME);
+        let source = dir.join(Self::SOURCE);
+        if !source.exists() {
+            return Ok(dir);
+        }
+        let text = std::fs::read_to_string(&source).map_err(|e| PipelineError::io(&source, e))?;
+        let f: DatasetFolder =
+            serde_json::from_str(&text).map_err(|e| PipelineError::Internal(format!("{}: {e}", source.display())))?;
+        Ok(f.folder)
+    }
+}
+
+/// FNV-1a over a folder's files (relative names and bytes, in sorted order), for the dataset's
+/// key; 0 for a folder that cannot be read (the stage then fails by name).
+fn folder_digest(folder: &Path) -> u64 {
+    let mut files = Vec::new();
+    let mut stack = vec![folder.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else { return 0 };
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                files.push(p);
+            }
+        }
+    }
+    files.sort();
+    let mut bytes = Vec::new();
+    for f in files {
+        bytes.extend(f.strip_prefix(folder).unwrap_or(&f).to_string_lossy().as_bytes());
+        bytes.push(0);
+        bytes.extend(nerfsv_scene::seed::fnv1a(&std::fs::read(&f).unwrap_or_default()).to_le_bytes());
+    }
+    nerfsv_scene::seed::fnv1a(&bytes)
+}
+
 impl Stage for Dataset<'_> {
     const NAME: &'static str = "dataset";
     const CODE: &'static [&'static str] = &["nerfsv-dataset", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &["transforms_train.json", "transforms_val.json", "transforms_test.json"];
+
+    fn outputs(&self) -> &'static [&'static str] {
+        match self.source {
+            DatasetSource::Render { .. } => Self::OUTPUTS,
+            DatasetSource::Folder(_) => &[Self::SOURCE],
+        }
+    }
     type Figures = DatasetFigures;
 
     fn config(&self) -> impl Serialize {
-        (&self.scene.name, self.options)
+        match &self.source {
+            DatasetSource::Render { scene, options } => serde_json::json!([scene.key(), options]),
+            // The folder's files: a changed image is another dataset.
+            DatasetSource::Folder(folder) => {
+                serde_json::json!({"folder": folder, "digest": format!("{:016x}", folder_digest(folder))})
+            }
+        }
     }
 
     fn run(&self, cx: &StageContext) -> Result<DatasetFigures, PipelineError> {
-        // The generator builds the dataset beside the (empty) stage folder and renames it over.
-        render_dataset(self.scene, &cx.dir, self.options, &|done, total| {
-            cx.progress(done as u64, total as u64, "views rendered")
-        })
+        match &self.source {
+            // The generator builds the dataset beside the (empty) stage folder and renames it over.
+            DatasetSource::Render { scene, options } => render_dataset(scene, &cx.dir, options, &|done, total| {
+                cx.progress(done as u64, total as u64, "views rendered")
+            }),
+            DatasetSource::Folder(folder) => {
+                // Every split is read now, so a broken dataset stops the run before training.
+                let start = Instant::now();
+                let mut views = 0;
+                let mut size = (0, 0);
+                for (i, split) in ["train", "val", "test"].into_iter().enumerate() {
+                    let s = load_dataset_split(folder, split, 1)?;
+                    views += s.frames.len();
+                    if let Some(f) = s.frames.first() {
+                        size = (f.image.width, f.image.height);
+                    }
+                    cx.progress(i as u64 + 1, 3, "splits read");
+                }
+                let absolute = std::path::absolute(folder).map_err(|e| PipelineError::io(*folder, e))?;
+                write_json(&cx.dir.join(Self::SOURCE), &DatasetFolder { folder: absolute })?;
+                Ok(DatasetFigures {
+                    scene: folder.display().to_string(),
+                    views,
+                    width: size.0,
+                    height: size.1,
+                    seconds: start.elapsed().as_secs_f64(),
+                    primary_rays_per_second: 0.0,
+                })
+            }
+        }
     }
 
     fn describe(f: &DatasetFigures) -> String {
@@ -161,7 +258,7 @@ impl Stage for GroundTruthField<'_> {
     type Figures = GroundTruthFigures;
 
     fn config(&self) -> impl Serialize {
-        (&self.scene.name, self.cells_per_metre)
+        (self.scene.key(), self.cells_per_metre)
     }
 
     fn run(&self, cx: &StageContext) -> Result<GroundTruthFigures, PipelineError> {
@@ -219,7 +316,7 @@ impl Stage for Train<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<TrainStats, PipelineError> {
-        let data = load_dataset_split(&cx.input_dir(Dataset::NAME), "train", 1)?;
+        let data = load_dataset_split(&Dataset::folder(cx.root)?, "train", 1)?;
         let steps = self.steps;
         let mut report = |p: &nerfsv_nerf::Progress| cx.progress(p.step, steps, &train_status(p));
         let (nerf, train) = (self.settings.nerf.clone(), self.settings.train.clone());
@@ -280,7 +377,7 @@ impl Stage for Eval {
 
     fn run(&self, cx: &StageContext) -> Result<EvalFigures, PipelineError> {
         let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
-        let test = load_dataset_split(&cx.input_dir(Dataset::NAME), "test", 1)?;
+        let test = load_dataset_split(&Dataset::folder(cx.root)?, "test", 1)?;
         let report = nerfsv_nerf::evaluate_with_progress(&nerf, &test, EvalOptions::default(), &|done, total| {
             cx.progress(done as u64, total as u64, "test views evaluated")
         })?;

@@ -51,7 +51,7 @@ impl Stage for StressStage<'_> {
     type Figures = StressFigures;
 
     fn config(&self) -> impl Serialize {
-        (&self.scene.name, self.sim, self.validation, self.intrinsics, self.render.supersample, self.samplers())
+        (self.scene.key(), self.sim, self.validation, self.intrinsics, self.render.supersample, self.samplers())
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {

@@ -91,7 +91,7 @@ impl Stage for Uncertainty<'_> {
     fn run(&self, cx: &StageContext) -> Result<UqFigures, PipelineError> {
         let start = Instant::now();
         let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
-        let data = cx.input_dir(Dataset::NAME);
+        let data = Dataset::folder(cx.root)?;
         let (ga_n, bla_n) = (self.offline.ga_images_per_split, self.offline.bla_images_per_split);
         let splits = SPLITS.map(|name| load_dataset_split(&data, name, 1));
         let mut chosen = Vec::new();

@@ -39,6 +39,31 @@ pub struct Scene {
     mesh: Option<Arc<MeshWorld>>,
 }
 
+/// FNV-1a of everything a mesh scene shows: positions, triangles, colours, texture coordinates
+/// and textures.
+fn mesh_digest(m: &TriangleMesh) -> u64 {
+    let mut bytes = Vec::new();
+    for p in &m.positions {
+        bytes.extend(p.iter().flat_map(|v| v.to_le_bytes()));
+    }
+    for t in &m.triangles {
+        bytes.extend(t.iter().flat_map(|v| v.to_le_bytes()));
+    }
+    for c in m.vertex_colours.iter().flatten().chain(&m.face_colours) {
+        bytes.extend(c.iter().flat_map(|v| v.to_le_bytes()));
+    }
+    for uv in m.uvs.iter().flatten() {
+        bytes.extend(uv.iter().flat_map(|v| v.to_le_bytes()));
+    }
+    for t in &m.face_textures {
+        bytes.extend(t.map_or(u32::MAX, |i| i).to_le_bytes());
+    }
+    for img in &m.textures {
+        bytes.extend(img.rgba.iter().flat_map(|v| v.to_le_bytes()));
+    }
+    crate::seed::fnv1a(&bytes)
+}
+
 /// A mesh scene's geometry.
 #[derive(Debug)]
 pub(crate) struct MeshWorld {
@@ -120,6 +145,15 @@ impl Scene {
         let scene = Self::from_mesh(&name, mesh)
             .map_err(|error| crate::mesh::LoadError::Invalid { path: path.to_path_buf(), error })?;
         Ok((scene, warnings))
+    }
+
+    /// What identifies the world in a cache key: a built-in scene's name, or a mesh scene's
+    /// name with the digest of its mesh (a changed file is another world).
+    pub fn key(&self) -> String {
+        match &self.mesh {
+            Some(m) => format!("{}-{:016x}", self.name, mesh_digest(&m.mesh)),
+            None => self.name.clone(),
+        }
     }
 
     /// The mesh of a mesh scene.

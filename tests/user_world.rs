@@ -1,0 +1,134 @@
+//! A user's own world: a mesh (written by trimesh, `tests/fixtures/meshes/`) as the ground
+//! truth, with the dataset rendered from it or a dataset folder used as is; `nerfsv run` trains,
+//! flies, stress-tests and reports on it. Bad worlds are refused by name before anything is
+//! written.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::nerfsv;
+
+const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/meshes");
+
+/// A tiny study of the fixture world in `dir` (the mesh copied beside the config), with
+/// `world` appended to the `[world]` table; returns the config's path.
+fn config(dir: &Path, world: &str) -> PathBuf {
+    std::fs::copy(Path::new(FIXTURES).join("world.ply"), dir.join("world.ply")).unwrap();
+    let cfg = dir.join("run.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "cells_per_metre = 10.0\ntrain_steps = 30\n[dataset]\nwidth = 16\nheight = 16\n\
+             train = 6\nval = 1\ntest = 2\nsupersample = 1\n[train]\nbatch_rays = 256\n\
+             [sim]\nstart = [0.8, -0.7, 0.25]\ngoal = [-0.8, 0.8, 0.25]\n\
+             [sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
+             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
+             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
+             [uq_offline]\nbla_images_per_split = 1\n[world]\nmesh = \"world.ply\"\n{world}"
+        ),
+    )
+    .unwrap();
+    cfg
+}
+
+fn summary(run: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn a_mesh_world_runs_end_to_end_with_its_dataset_rendered_or_given() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), "");
+    let run = dir.path().join("run");
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let s = summary(&run);
+    assert_eq!(s["dataset"]["scene"], "world", "the dataset is rendered from the mesh");
+    assert_eq!(s["collision"]["scene"], "world", "the ground-truth field is the mesh's");
+    assert_eq!(s["flight"]["flights"].as_array().unwrap().len(), 4, "both worlds, both estimators");
+    assert!(run.join("stress/replay_gt.csv").exists(), "the searches are replayed in the mesh's GT-sim");
+    assert!(run.join("report/index.html").exists());
+
+    // The same world with a dataset folder used as is (rendered here by `nerfsv scene --mesh`).
+    let data = dir.path().join("data");
+    let (ok, _, err) = nerfsv(&[
+        "scene",
+        "--mesh",
+        dir.path().join("world.ply").to_str().unwrap(),
+        "--out",
+        data.to_str().unwrap(),
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--train",
+        "6",
+        "--val",
+        "1",
+        "--test",
+        "2",
+        "--supersample",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    let cfg = config(dir.path(), "dataset = \"data\"\n");
+    let given = dir.path().join("given");
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", given.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let s = summary(&given);
+    assert_eq!(s["dataset"]["views"], 9);
+    assert!(given.join("dataset/source.json").exists(), "the folder is read where it is");
+    assert!(!given.join("dataset/transforms_train.json").exists(), "nothing is rendered");
+    assert_eq!(s["flight"]["flights"].as_array().unwrap().len(), 4);
+}
+
+#[test]
+fn a_world_that_does_not_fit_is_refused_by_name_before_anything_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    for (extra, needle) in
+        [("mesh_scale = 3.0\n", "outside the NeRF's box"), ("mesh_scale = -1.0\n", "world.mesh_scale")]
+    {
+        let cfg = config(dir.path(), extra);
+        let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+        assert!(!ok, "{extra}");
+        assert!(err.contains(needle), "{extra}: {err}");
+        assert!(!run.exists(), "{extra}: the run folder was made");
+    }
+    let cfg = config(dir.path(), "");
+    std::fs::remove_file(dir.path().join("world.ply")).unwrap();
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("world.mesh") && err.contains("world.ply"), "{err}");
+    assert!(!run.exists());
+    // A dataset of another world: its cameras look elsewhere.
+    std::fs::copy(Path::new(FIXTURES).join("world.ply"), dir.path().join("world.ply")).unwrap();
+    let data = dir.path().join("far");
+    let (ok, _, err) = nerfsv(&[
+        "scene",
+        "--scene",
+        "monolith",
+        "--out",
+        data.to_str().unwrap(),
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--train",
+        "6",
+        "--val",
+        "1",
+        "--test",
+        "1",
+        "--supersample",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    let cfg = config(dir.path(), "dataset = \"far\"\nmesh_scale = 0.05\n");
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("world.dataset") && err.contains("look at the mesh"), "{err}");
+    assert!(!run.exists());
+}

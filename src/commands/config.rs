@@ -38,6 +38,7 @@ const TABLES: &[(&str, &str, FieldDocs)] = &[
     ("uq", "UqConfig", nerfsv_uq::UqConfig::FIELD_DOCS),
     ("uq_offline", "UqOfflineConfig", nerfsv_pipeline::UqOfflineConfig::FIELD_DOCS),
     ("online", "OnlineConfig", nerfsv_pipeline::OnlineConfig::FIELD_DOCS),
+    ("world", "WorldConfig", nerfsv_pipeline::WorldConfig::FIELD_DOCS),
 ];
 
 /// Comment lines are wrapped at this width.

@@ -232,6 +232,7 @@ impl Ctx<'_> {
             .as_str()
             .ok_or_else(|| self.field(Some(i), "file_path", "expected a string"))?
             .to_string();
+        check_inside(&file_path).map_err(|m| self.field(Some(i), "file_path", m))?;
         let c2w = self.matrix(i, obj)?;
         let image_path = resolve_image(self.base, &file_path);
         let image_err = |field: &'static str, file: &Path, message: String| DatasetError::Image {
@@ -253,6 +254,7 @@ impl Ctx<'_> {
         }
         let depth = match obj.get("depth_file_path").and_then(Value::as_str) {
             Some(d) if opts.load_depth => {
+                check_inside(d).map_err(|m| self.field(Some(i), "depth_file_path", m))?;
                 let dpath = self.base.join(d);
                 let depth =
                     DepthImage::read_png(&dpath, depth_scale).map_err(|m| image_err("depth_file_path", &dpath, m))?;
@@ -392,6 +394,31 @@ fn png_size(path: &Path) -> Option<(u32, u32)> {
     let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().ok()?;
     let info = reader.info();
     Some((info.width, info.height))
+}
+
+/// The rule for the files a transforms file names: relative paths that stay inside the dataset
+/// folder (`./train/r_0`, `a/../train/r_0`). An absolute path or one that climbs out of the
+/// folder (`../other/r_0`) is refused: a dataset is one folder, and no command that writes into
+/// another folder can then overwrite an image a dataset reads.
+fn check_inside(file_path: &str) -> Result<(), String> {
+    use std::path::Component;
+    let mut depth = 0i64;
+    for c in Path::new(file_path).components() {
+        match c {
+            Component::Prefix(_) | Component::RootDir => {
+                return Err(format!("{file_path:?} is an absolute path; files must lie inside the dataset folder"));
+            }
+            Component::ParentDir => {
+                depth -= 1;
+                if depth < 0 {
+                    return Err(format!("{file_path:?} leads out of the dataset folder; files must lie inside it"));
+                }
+            }
+            Component::Normal(_) => depth += 1,
+            Component::CurDir => {}
+        }
+    }
+    Ok(())
 }
 
 /// Blender writes `./train/r_0` without an extension; instant-ngp and nerfstudio write one.

@@ -320,3 +320,29 @@ fn a_zero_downscale_is_a_typed_error_naming_downscale() {
     let err = load_split(dir.path(), "train", LoadOptions { downscale: 0, load_depth: true }).unwrap_err();
     assert_eq!(err.to_string(), "downscale: must be at least 1, found 0");
 }
+
+/// The rule for the files a dataset names: inside its folder, however written, or refused.
+#[test]
+fn files_outside_the_dataset_folder_are_refused_and_inside_ones_load_however_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    write_png(&data.join("train/r_0.png"), &Image::new(8, 8));
+    write_png(&dir.path().join("elsewhere/r_1.png"), &Image::new(8, 8));
+    let doc = |paths: &[&str]| {
+        let frames: Vec<_> =
+            paths.iter().map(|p| serde_json::json!({ "file_path": p, "transform_matrix": LOOK_ALONG_Y })).collect();
+        serde_json::json!({ "camera_angle_x": 0.8, "frames": frames })
+    };
+    write_json(&data.join("transforms_train.json"), &doc(&["./train/r_0", "train/../train/r_0.png"]));
+    assert_eq!(load_split(&data, "train", LoadOptions::default()).unwrap().frames.len(), 2);
+    let absolute = dir.path().join("elsewhere/r_1.png");
+    for (bad, says) in [
+        ("../elsewhere/r_1", "leads out of"),
+        ("train/../../elsewhere/r_1", "leads out of"),
+        (absolute.to_str().unwrap(), "absolute"),
+    ] {
+        write_json(&data.join("transforms_train.json"), &doc(&["./train/r_0", bad]));
+        let e = load_split(&data, "train", LoadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("frame 1") && e.contains("file_path") && e.contains(says), "{bad}: {e}");
+    }
+}

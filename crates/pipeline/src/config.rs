@@ -54,7 +54,7 @@ impl Validate for NerfSettings {
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RunConfig {
-    /// Built-in scene: stonehenge, monolith or pillars.
+    /// Built-in scene: stonehenge, monolith or pillars (a `[world]` mesh replaces it).
     pub scene: String,
     /// Run folder; every artifact goes below it.
     pub out: PathBuf,

@@ -77,7 +77,7 @@ pub mod stages;
 pub mod stress;
 pub mod uq;
 
-pub use config::{load_toml, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate};
+pub use config::{load_toml, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate, WorldConfig};
 pub use layout::{summary_path, SUMMARY};
 pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext};
 

@@ -47,7 +47,8 @@ fn mesh(c: &mut Criterion) {
         Vector3::z(),
         Intrinsics::from_fov_x(100, 100, 0.8),
     );
-    let rays: Vec<Ray> = (0..100).flat_map(|j| (0..100).map(move |i| (i, j))).map(|(i, j)| camera.pixel_ray(i, j)).collect();
+    let rays: Vec<Ray> =
+        (0..100).flat_map(|j| (0..100).map(move |i| (i, j))).map(|(i, j)| camera.pixel_ray(i, j)).collect();
     for (label, n) in [("1e5", 160u32), ("1e6", 500)] {
         let m = sphere(n);
         let mut g = c.benchmark_group(format!("mesh_{label}"));

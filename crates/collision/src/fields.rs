@@ -20,6 +20,7 @@
 
 use std::time::Instant;
 
+use nalgebra::Point3;
 use nerfsv_scene::validate::{bytes_for, in_range, InvalidValue, MemoryBudget};
 use nerfsv_scene::{Aabb, Scene};
 use rayon::prelude::*;
@@ -34,7 +35,7 @@ use crate::CollisionError;
 pub const FLIGHT_BAND: (f32, f32) = (0.1, 0.6);
 
 /// Nodes within this distance (metres) of a surface enter [`ErrorStats`].
-const ERROR_BAND: f32 = 0.25;
+pub const ERROR_BAND: f32 = 0.25;
 
 /// Peak bytes per node of [`ground_truth_field`] / [`density_field`], an upper bound: the sampled
 /// field (4) and the classification (1 + 1 for the flood fill); the signed EDT's working set
@@ -91,9 +92,106 @@ pub struct BuiltField {
 /// The scene's exact SDF sampled at the nodes of `geometry`, and the signed field built from it
 /// (contact planes repaired, see [`repair_contact_planes`]).
 pub fn scene_field(scene: &Scene, geometry: GridGeometry) -> (ScalarGrid, SdfGrid) {
-    let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
+    let field = sample_scene(scene, geometry);
     let sdf = SdfGrid::from_field(&repair_contact_planes(&field), 0.0, true);
     (field, sdf)
+}
+
+/// The scene's signed distance at every node of `geometry`: [`Scene::distance`] for an
+/// analytic scene; for a mesh scene, [`sample_mesh`].
+pub fn sample_scene(scene: &Scene, geometry: GridGeometry) -> ScalarGrid {
+    match scene.mesh_and_bvh() {
+        Some(_) => sample_mesh(scene, geometry),
+        None => ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p)),
+    }
+}
+
+/// A mesh scene's signed distance on a grid, as the field pipeline needs it: exact
+/// ([`Scene::distance`]) at the nodes within [`ERROR_BAND`] of the surface, `±ERROR_BAND` (the
+/// sign alone) beyond, where neither marching cubes nor the error statistics look. The sign is
+/// the generalised winding number's (`|w| > ½` inside), taken per node within two cells of the
+/// surface; the nodes beyond form 6-connected regions that the surface separates, and each
+/// region takes the sign its nodes' winding numbers agree on at up to eight of them spread
+/// over it, or, where they disagree (a hole in the mesh joins an inside to the outside), each
+/// node its own. The same signs as per-node winding numbers wherever a region is all inside
+/// or all outside, at a fraction of the cost.
+pub fn sample_mesh(scene: &Scene, geometry: GridGeometry) -> ScalarGrid {
+    let Some((mesh, bvh)) = scene.mesh_and_bvh() else {
+        return ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
+    };
+    let inside = |p: &Point3<f32>| bvh.winding_number(mesh, p).abs() > 0.5;
+    let near = 2.0 * geometry.cell;
+    // Unsigned distance, INFINITY beyond the band.
+    let mut dist = vec![0f32; geometry.len()];
+    geometry.fill_par(&mut dist, |i, j, k| {
+        bvh.closest_within(mesh, &geometry.position_of(i, j, k), ERROR_BAND).map_or(f32::INFINITY, |(d, _)| d)
+    });
+    // Signs near the surface, per node.
+    let mut sign = vec![0i8; geometry.len()];
+    sign.par_iter_mut().zip(&dist).enumerate().for_each(|(n, (s, &d))| {
+        if d < near {
+            *s = if inside(&geometry.position_of_index(n)) { -1 } else { 1 };
+        }
+    });
+    // Regions beyond, by breadth-first search in storage order (deterministic).
+    let [nx, ny, nz] = geometry.dims;
+    let mut region = vec![u32::MAX; geometry.len()];
+    let mut regions: Vec<Vec<usize>> = Vec::new();
+    for start in 0..geometry.len() {
+        if dist[start] < near || region[start] != u32::MAX {
+            continue;
+        }
+        let id = regions.len() as u32;
+        let mut members = vec![start];
+        region[start] = id;
+        let mut head = 0;
+        while head < members.len() {
+            let n = members[head];
+            head += 1;
+            let (i, j, k) = (n % nx, (n / nx) % ny, n / (nx * ny));
+            let mut visit = |m: usize| {
+                if dist[m] >= near && region[m] == u32::MAX {
+                    region[m] = id;
+                    members.push(m);
+                }
+            };
+            if i > 0 {
+                visit(n - 1);
+            }
+            if i + 1 < nx {
+                visit(n + 1);
+            }
+            if j > 0 {
+                visit(n - nx);
+            }
+            if j + 1 < ny {
+                visit(n + nx);
+            }
+            if k > 0 {
+                visit(n - nx * ny);
+            }
+            if k + 1 < nz {
+                visit(n + nx * ny);
+            }
+        }
+        regions.push(members);
+    }
+    for members in &regions {
+        let probes: Vec<bool> = (0..8.min(members.len()))
+            .map(|q| members[q * members.len() / 8.min(members.len())])
+            .map(|n| inside(&geometry.position_of_index(n)))
+            .collect();
+        if probes.iter().all(|&b| b == probes[0]) {
+            let s = if probes[0] { -1 } else { 1 };
+            members.iter().for_each(|&n| sign[n] = s);
+        } else {
+            let signs: Vec<i8> =
+                members.par_iter().map(|&n| if inside(&geometry.position_of_index(n)) { -1 } else { 1 }).collect();
+            members.iter().zip(signs).for_each(|(&n, s)| sign[n] = s);
+        }
+    }
+    let data = dist.iter().zip(&sign).map(|(&d, &s)| s as f32 * d.min(ERROR_BAND)).collect();
+    ScalarGrid { geometry, data }
 }
 
 /// The sampled distance of a union of solids with its contact-plane zeros replaced.
@@ -142,7 +240,7 @@ pub fn ground_truth_field(scene: &Scene, cells_per_metre: f32) -> Result<(BuiltF
     let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), cells_per_metre)?;
     check_grid_memory("cells_per_metre", &geometry)?;
     let start = Instant::now();
-    let field = ScalarGrid::sample_geometry(geometry, |p| scene.distance(&p));
+    let field = sample_scene(scene, geometry);
     let (sdf, mesh) = build(&repair_contact_planes(&field), 0.0, true);
     let build_seconds = start.elapsed().as_secs_f64();
     let errors = error_stats(&field, &sdf);

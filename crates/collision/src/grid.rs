@@ -125,6 +125,12 @@ impl GridGeometry {
         self.origin + Vector3::new(i as f32, j as f32, k as f32) * self.cell
     }
 
+    /// [`GridGeometry::position_of`] the node of flat index `n` (x fastest).
+    pub fn position_of_index(&self, n: usize) -> Point3<f32> {
+        let [nx, ny, _] = self.dims;
+        self.position_of(n % nx, (n / nx) % ny, n / (nx * ny))
+    }
+
     /// The closed box spanned by the nodes, `[origin, origin + cell·(dims − 1)]`.
     pub fn bounds(&self) -> Aabb {
         let last = self.position_of(self.dims[0] - 1, self.dims[1] - 1, self.dims[2] - 1);

@@ -87,3 +87,47 @@ fn a_marching_cubes_export_of_a_builtin_scene_loads_back_as_the_same_world() {
     let hits = b.depth.iter().filter(|&&d| d > 0.0).count();
     assert!(hits > 64 * 64 / 10, "the mesh render hit {hits} pixels");
 }
+
+/// The banded sampling of a mesh scene (exact distance near the surface, signs per region
+/// beyond) against the per-node distance and winding number, on a closed world written by
+/// trimesh and on a box without its top (whose inside and outside meet through the hole).
+#[test]
+fn the_fast_mesh_sampling_equals_the_per_node_signed_distance() {
+    use nerfsv_collision::{field_bounds, sample_mesh, GridGeometry, ERROR_BAND};
+    let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/meshes/world.ply");
+    let (world, _) = Scene::load_mesh(std::path::Path::new(fixture), MeshOptions::default()).unwrap();
+    let mut positions = Vec::new();
+    for k in 0..2 {
+        for j in 0..2 {
+            for i in 0..2 {
+                positions.push(Point3::new(i as f32 * 0.8 - 0.4, j as f32 * 0.8 - 0.4, k as f32 * 0.6));
+            }
+        }
+    }
+    let v = |x: u32, y: u32, z: u32| x + 2 * y + 4 * z;
+    let quads = [
+        [v(0, 0, 0), v(0, 1, 0), v(1, 1, 0), v(1, 0, 0)],
+        [v(0, 0, 0), v(1, 0, 0), v(1, 0, 1), v(0, 0, 1)],
+        [v(0, 1, 0), v(0, 1, 1), v(1, 1, 1), v(1, 1, 0)],
+        [v(0, 0, 0), v(0, 0, 1), v(0, 1, 1), v(0, 1, 0)],
+        [v(1, 0, 0), v(1, 1, 0), v(1, 1, 1), v(1, 0, 1)],
+    ];
+    let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
+    let open_box = Scene::from_mesh("open box", TriangleMesh::new(positions, triangles)).unwrap();
+    for scene in [world, open_box] {
+        let geometry = GridGeometry::covering(&field_bounds(&scene.bounds()), 20.0).unwrap();
+        let fast = sample_mesh(&scene, geometry);
+        let (mut exact_nodes, mut inside) = (0, 0);
+        for (n, &f) in fast.data.iter().enumerate() {
+            let d = scene.distance(&geometry.position_of_index(n));
+            if d.abs() < ERROR_BAND {
+                assert_eq!(f, d, "{}: node {n}", scene.name);
+                exact_nodes += 1;
+            } else {
+                assert_eq!(f, ERROR_BAND.copysign(d), "{}: node {n} at {d}", scene.name);
+            }
+            inside += (d < 0.0) as usize;
+        }
+        assert!(exact_nodes > 1000 && inside > 100, "{}: {exact_nodes} exact, {inside} inside", scene.name);
+    }
+}

@@ -161,6 +161,11 @@ impl Scene {
         self.mesh.as_deref().map(|m| &m.mesh)
     }
 
+    /// The mesh of a mesh scene with its hierarchy.
+    pub fn mesh_and_bvh(&self) -> Option<(&TriangleMesh, &Bvh)> {
+        self.mesh.as_deref().map(|m| (&m.mesh, &m.bvh))
+    }
+
     pub(crate) fn mesh_world(&self) -> Option<&MeshWorld> {
         self.mesh.as_deref()
     }

@@ -246,7 +246,13 @@ impl Bvh {
 
     /// The distance from `p` to the mesh and the closest triangle.
     pub fn closest(&self, mesh: &TriangleMesh, p: &Point3<f32>) -> (f32, usize) {
-        let mut best = (f32::INFINITY, 0usize);
+        self.closest_within(mesh, p, f32::INFINITY).unwrap_or((f32::INFINITY, 0))
+    }
+
+    /// [`Bvh::closest`] when it is nearer than `radius`, else `None` (the search skips every
+    /// node farther than that: cheap far from the surface).
+    pub fn closest_within(&self, mesh: &TriangleMesh, p: &Point3<f32>, radius: f32) -> Option<(f32, usize)> {
+        let mut best = (radius * radius, usize::MAX);
         let mut stack = [0u32; STACK];
         let mut top = 1;
         while top > 0 {
@@ -280,7 +286,7 @@ impl Bvh {
                 top += 2;
             }
         }
-        (best.0.sqrt(), best.1)
+        (best.1 != usize::MAX).then(|| (best.0.sqrt(), best.1))
     }
 
     /// The generalised winding number of the mesh at `q` (≈ 1 inside, 0 outside).

@@ -89,7 +89,7 @@ fn main() -> anyhow::Result<()> {
     let inputs = FlightInputs::load(
         &Train::checkpoint(&out),
         &out.join(NerfField::NAME).join(NerfField::SDF),
-        &GroundTruthField::sdf_path(&out),
+        Some(&GroundTruthField::sdf_path(&out)),
     )?;
     let flight = inputs.plan(&cfg.sim)?;
     let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
@@ -99,7 +99,7 @@ fn main() -> anyhow::Result<()> {
         _ => vec![WorldKind::Nerf, WorldKind::Gt],
     };
     for kind in worlds {
-        let w = world(kind, &inputs, &scene, cfg.dataset.render_settings());
+        let w = world(kind, &inputs, Some(&scene), cfg.dataset.render_settings()).expect("ground truth");
         match mode.as_str() {
             "mc" => {
                 for estimator in [EstimatorKind::Vision, EstimatorKind::Truth] {

@@ -16,7 +16,7 @@ use nerfsv_validation::{parse_csv, write_csv};
 fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
     let dir = tempfile::tempdir().unwrap();
     let (model, field) = common::tiny_model_and_field(dir.path());
-    let inputs = FlightInputs::load(&model, &field, &field).unwrap();
+    let inputs = FlightInputs::load(&model, &field, Some(&field)).unwrap();
     let text = "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[validation]\nseed = 3\n[validation.disturbance]\n\
                 std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]\n\
                 [validation.monte_carlo]\nrollouts = 6\n[uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n\
@@ -29,7 +29,7 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
         let drone = Drone {
             inputs: &inputs,
             flight: &flight,
-            scene: &scene,
+            scene: Some(&scene),
             sim: &cfg.sim,
             intrinsics: cfg.camera_intrinsics(),
             render: cfg.dataset.render_settings(),

@@ -11,8 +11,8 @@ use common::nerfsv;
 
 const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/meshes");
 
-/// A tiny study of the fixture world in `dir` (the mesh copied beside the config), with
-/// `world` appended to the `[world]` table; returns the config's path.
+/// A tiny study of the fixture world in `dir` (the mesh copied beside the config), its
+/// `[world]` table `mesh = "world.ply"` and `world`; returns the config's path.
 fn config(dir: &Path, world: &str) -> PathBuf {
     std::fs::copy(Path::new(FIXTURES).join("world.ply"), dir.join("world.ply")).unwrap();
     let cfg = dir.join("run.toml");
@@ -26,7 +26,7 @@ fn config(dir: &Path, world: &str) -> PathBuf {
              [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
              [validation.subset]\nsamples = 10\nmax_levels = 2\n\
              [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
-             [uq_offline]\nbla_images_per_split = 1\n[world]\nmesh = \"world.ply\"\n{world}"
+             [uq_offline]\nbla_images_per_split = 1\n[world]\n{world}"
         ),
     )
     .unwrap();
@@ -40,7 +40,7 @@ fn summary(run: &Path) -> serde_json::Value {
 #[test]
 fn a_mesh_world_runs_end_to_end_with_its_dataset_rendered_or_given() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = config(dir.path(), "");
+    let cfg = config(dir.path(), MESH);
     let run = dir.path().join("run");
     let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
     assert!(ok, "{err}");
@@ -73,7 +73,7 @@ fn a_mesh_world_runs_end_to_end_with_its_dataset_rendered_or_given() {
         "1",
     ]);
     assert!(ok, "{err}");
-    let cfg = config(dir.path(), "dataset = \"data\"\n");
+    let cfg = config(dir.path(), "mesh = \"world.ply\"\ndataset = \"data\"\n");
     let given = dir.path().join("given");
     let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", given.to_str().unwrap()]);
     assert!(ok, "{err}");
@@ -82,7 +82,27 @@ fn a_mesh_world_runs_end_to_end_with_its_dataset_rendered_or_given() {
     assert!(given.join("dataset/source.json").exists(), "the folder is read where it is");
     assert!(!given.join("dataset/transforms_train.json").exists(), "nothing is rendered");
     assert_eq!(s["flight"]["flights"].as_array().unwrap().len(), 4);
+
+    // The dataset alone: whatever needs the ground truth is skipped, and the report says so.
+    let cfg = config(dir.path(), "dataset = \"data\"\n");
+    let alone = dir.path().join("alone");
+    let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", alone.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let s = summary(&alone);
+    for stage in ["collision", "online"] {
+        assert!(s[stage]["skipped"].as_str().unwrap().contains("no ground truth"), "{stage}: {}", s[stage]);
+    }
+    assert!(s["nerf_collision"]["agreement_with_ground_truth"].is_null());
+    let flights = s["flight"]["flights"].as_array().unwrap();
+    assert_eq!(flights.len(), 2);
+    assert!(flights.iter().all(|f| f["world"] == "nerf"), "{flights:?}");
+    assert!(s["stress"]["replay_world"].is_null());
+    assert!(!alone.join("stress/replay_gt.csv").exists());
+    let page = std::fs::read_to_string(alone.join("report/index.html")).unwrap();
+    assert!(page.contains("Skipped: the world has no ground truth"), "the report does not say what was skipped");
 }
+
+const MESH: &str = "mesh = \"world.ply\"\n";
 
 #[test]
 fn a_world_that_does_not_fit_is_refused_by_name_before_anything_is_written() {
@@ -91,13 +111,13 @@ fn a_world_that_does_not_fit_is_refused_by_name_before_anything_is_written() {
     for (extra, needle) in
         [("mesh_scale = 3.0\n", "outside the NeRF's box"), ("mesh_scale = -1.0\n", "world.mesh_scale")]
     {
-        let cfg = config(dir.path(), extra);
+        let cfg = config(dir.path(), &format!("{MESH}{extra}"));
         let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
         assert!(!ok, "{extra}");
         assert!(err.contains(needle), "{extra}: {err}");
         assert!(!run.exists(), "{extra}: the run folder was made");
     }
-    let cfg = config(dir.path(), "");
+    let cfg = config(dir.path(), MESH);
     std::fs::remove_file(dir.path().join("world.ply")).unwrap();
     let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
     assert!(!ok);
@@ -126,7 +146,7 @@ fn a_world_that_does_not_fit_is_refused_by_name_before_anything_is_written() {
         "1",
     ]);
     assert!(ok, "{err}");
-    let cfg = config(dir.path(), "dataset = \"far\"\nmesh_scale = 0.05\n");
+    let cfg = config(dir.path(), "mesh = \"world.ply\"\ndataset = \"far\"\nmesh_scale = 0.05\n");
     let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
     assert!(!ok);
     assert!(err.contains("world.dataset") && err.contains("look at the mesh"), "{err}");

@@ -19,7 +19,7 @@ impl BenchRun {
     /// The run, or `None` (with a line saying `bench` is skipped) when there is none.
     pub fn load(bench: &str) -> Option<Self> {
         let run = std::env::var_os("NERFSV_BENCH_RUN").map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
-        let Ok(inputs) = nerfsv_pipeline::flight::flight_inputs(&run) else {
+        let Ok(inputs) = nerfsv_pipeline::flight::flight_inputs(&run, true) else {
             eprintln!("{bench}: no trained run at {} (set NERFSV_BENCH_RUN); skipped", run.display());
             return None;
         };
@@ -35,6 +35,6 @@ impl BenchRun {
     }
 
     pub fn world(&self, kind: WorldKind) -> Box<dyn World + '_> {
-        world(kind, &self.inputs, &self.scene, RenderSettings::default())
+        world(kind, &self.inputs, Some(&self.scene), RenderSettings::default()).expect("the run has a ground truth")
     }
 }

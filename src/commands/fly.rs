@@ -69,7 +69,7 @@ impl DroneArgs {
             Some(path) => SdfGrid::load(path)?,
             None => nerf_density_field(&nerf, gt.sdf.geometry, None)?.1.sdf,
         };
-        Ok((scene, FlightInputs { nerf, nerf_field, gt_field: gt.sdf }))
+        Ok((scene, FlightInputs { nerf, nerf_field, gt_field: Some(gt.sdf) }))
     }
 }
 
@@ -149,7 +149,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let (scene, inputs) = args.drone.load()?;
     let flight = inputs.plan(&cfg.sim).context("planning the flight")?;
     let estimator = args.drone.estimator.into();
-    let w = world(args.drone.world.into(), &inputs, &scene, cfg.dataset.render_settings());
+    let w = world(args.drone.world.into(), &inputs, Some(&scene), cfg.dataset.render_settings())?;
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let seed = args.seed.or(args.random_seed).unwrap_or(0);

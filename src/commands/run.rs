@@ -27,17 +27,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         cfg.out = out;
     }
     let reporter = Reporter::new(args.json);
-    let (scene, warnings) = cfg.scene()?;
+    let (scene, warnings) = cfg.ground_truth()?;
     for w in &warnings {
         reporter.note("world", &format!("warning: {w}"));
     }
-    cfg.check_world_fits(&scene)?;
-    if let Some(p) = &args.config {
-        // Before any stage: a start or goal inside the scene, named with its file.
-        cfg.check_endpoints(&scene)
-            .map_err(|error| nerfsv_pipeline::PipelineError::InvalidConfig { path: p.clone(), error })?;
+    if let Some(scene) = &scene {
+        cfg.check_world_fits(scene)?;
+        if let Some(p) = &args.config {
+            // Before any stage: a start or goal inside the scene, named with its file.
+            cfg.check_endpoints(scene)
+                .map_err(|error| nerfsv_pipeline::PipelineError::InvalidConfig { path: p.clone(), error })?;
+        }
     }
-    let summary = nerfsv_pipeline::run_in(&cfg, &scene, &reporter)?;
+    let summary = nerfsv_pipeline::run_in(&cfg, scene.as_ref(), &reporter)?;
     let index = cfg.out.join(nerfsv_pipeline::report::REPORT).join(nerfsv_pipeline::report::INDEX);
     crate::commands::report(args.json, &summary, || {
         format!(

@@ -164,7 +164,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let drone = Drone {
         inputs: &worlds,
         flight: &flight,
-        scene: &scene,
+        scene: Some(&scene),
         sim: &cfg.sim,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),

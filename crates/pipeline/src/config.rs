@@ -234,15 +234,18 @@ impl RunConfig {
     }
 
     /// The ground truth: the `[world]` table's mesh (with what its reader noticed), else the
-    /// built-in `scene`.
-    pub fn scene(&self) -> Result<(nerfsv_scene::Scene, Vec<String>), PipelineError> {
-        match &self.world.mesh {
-            Some(path) => {
+    /// built-in `scene`; none for a `[world]` dataset without a mesh (a world known only by its
+    /// images).
+    pub fn ground_truth(&self) -> Result<(Option<nerfsv_scene::Scene>, Vec<String>), PipelineError> {
+        match (&self.world.mesh, &self.world.dataset) {
+            (Some(path), _) => {
                 let options = nerfsv_scene::mesh::MeshOptions { scale: self.world.mesh_scale, up: self.world.mesh_up };
                 nerfsv_scene::Scene::load_mesh(path, options)
+                    .map(|(scene, warnings)| (Some(scene), warnings))
                     .map_err(|e| PipelineError::World { key: "world.mesh", message: e.to_string() })
             }
-            None => Ok((nerfsv_scene::Scene::builtin(&self.scene)?, Vec::new())),
+            (None, Some(_)) => Ok((None, Vec::new())),
+            (None, None) => Ok((Some(nerfsv_scene::Scene::builtin(&self.scene)?), Vec::new())),
         }
     }
 

@@ -13,18 +13,21 @@ use crate::stage::{Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
-/// The run's model, NeRF field and ground-truth field, from the stages that made them.
-pub fn flight_inputs(root: &Path) -> Result<FlightInputs, PipelineError> {
+/// The run's model, NeRF field and (with `ground_truth`) ground-truth field, from the stages
+/// that made them.
+pub fn flight_inputs(root: &Path, ground_truth: bool) -> Result<FlightInputs, PipelineError> {
     Ok(FlightInputs::load(
         &Train::checkpoint(root),
         &root.join(NerfField::NAME).join(NerfField::SDF),
-        &GroundTruthField::sdf_path(root),
+        ground_truth.then(|| GroundTruthField::sdf_path(root)).as_deref(),
     )?)
 }
 
 /// The flight stage.
 pub struct FlightStage<'a> {
-    pub scene: &'a Scene,
+    /// The ground truth GT-sim flies in; none for a world known only by a dataset (then only the
+    /// NeRF-sim flights fly).
+    pub scene: Option<&'a Scene>,
     pub sim: &'a SimConfig,
     /// The dataset's camera (the drone camera's default).
     pub intrinsics: Intrinsics,
@@ -65,6 +68,19 @@ impl FlightStage<'_> {
         "trajectory_gt_truth.csv",
         "trajectory_gt_truth.png",
     ];
+    /// The NeRF-sim flights' files alone, in the same order (a world without ground truth).
+    const NERF_OUTPUT_FILES: &'static [&'static str] = &[
+        "trajectory_nerf_vision.csv",
+        "trajectory_nerf_vision.png",
+        "trajectory_nerf_truth.csv",
+        "trajectory_nerf_truth.png",
+    ];
+
+    /// The flights this stage flies: all of [`Self::FLIGHTS`], or the NeRF-sim ones without a
+    /// ground truth.
+    fn flights(&self) -> Vec<(WorldKind, EstimatorKind)> {
+        Self::FLIGHTS.into_iter().filter(|(w, _)| self.scene.is_some() || *w == WorldKind::Nerf).collect()
+    }
 }
 
 impl Stage for FlightStage<'_> {
@@ -74,22 +90,38 @@ impl Stage for FlightStage<'_> {
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
     type Figures = FlightStageFigures;
 
+    fn outputs(&self) -> &'static [&'static str] {
+        if self.scene.is_some() {
+            Self::OUTPUT_FILES
+        } else {
+            Self::NERF_OUTPUT_FILES
+        }
+    }
+
+    fn inputs(&self) -> &'static [&'static str] {
+        if self.scene.is_some() {
+            Self::INPUTS
+        } else {
+            &[Dataset::NAME, Train::NAME, NerfField::NAME]
+        }
+    }
+
     fn config(&self) -> impl Serialize {
-        (self.scene.key(), self.sim, self.intrinsics, self.render.supersample, self.seed)
+        (self.scene.map(Scene::key), self.sim, self.intrinsics, self.render.supersample, self.seed)
     }
 
     fn run(&self, cx: &StageContext) -> Result<FlightStageFigures, PipelineError> {
-        let inputs = flight_inputs(cx.root)?;
+        let inputs = flight_inputs(cx.root, self.scene.is_some())?;
         let flight = inputs.plan(self.sim)?;
         let mut flights = Vec::new();
-        let runs = Self::FLIGHTS;
-        for (i, (kind, estimator)) in runs.into_iter().enumerate() {
+        let runs = self.flights();
+        for (i, &(kind, estimator)) in runs.iter().enumerate() {
             cx.progress(
                 i as u64,
                 runs.len() as u64,
                 &format!("flying {}-sim with the {} estimator", kind.name(), estimator.name()),
             );
-            let w = world(kind, &inputs, self.scene, self.render);
+            let w = world(kind, &inputs, self.scene, self.render)?;
             let (f, _) = fly_and_write(
                 &flight,
                 self.sim,
@@ -133,5 +165,11 @@ mod tests {
             .flat_map(|&(w, e)| ["csv", "png"].map(|ext| FlightStage::output(w, e, ext)))
             .collect();
         assert_eq!(written, FlightStage::OUTPUT_FILES);
+        let nerf: Vec<String> = FlightStage::FLIGHTS
+            .iter()
+            .filter(|(w, _)| *w == WorldKind::Nerf)
+            .flat_map(|&(w, e)| ["csv", "png"].map(|ext| FlightStage::output(w, e, ext)))
+            .collect();
+        assert_eq!(nerf, FlightStage::NERF_OUTPUT_FILES);
     }
 }

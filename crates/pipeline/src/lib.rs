@@ -204,11 +204,11 @@ impl Serialize for StageFigures {
 /// Runs the whole pipeline of `cfg` into `cfg.out` and writes `summary.json`.
 pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, PipelineError> {
     cfg.validate()?;
-    let (scene, warnings) = cfg.scene()?;
+    let (scene, warnings) = cfg.ground_truth()?;
     for w in &warnings {
         observer.note("world", &format!("warning: {w}"));
     }
-    run_in(cfg, &scene, observer)
+    run_in(cfg, scene.as_ref(), observer)
 }
 
 /// A user's dataset must show the user's mesh: the principal ray of at least half of its
@@ -239,26 +239,47 @@ fn check_cameras_see(folder: &Path, bounds: &nerfsv_scene::Aabb) -> Result<(), P
     })
 }
 
-/// [`run`] in the world `scene` (what [`RunConfig::scene`] gives for `cfg`).
-pub fn run_in(cfg: &RunConfig, scene: &nerfsv_scene::Scene, observer: &dyn Observer) -> Result<Summary, PipelineError> {
+/// Why a world without a ground truth skips a stage.
+pub const NO_GROUND_TRUTH: &str =
+    "the world has no ground truth (a `[world]` dataset without a mesh): there is nothing to compare the NeRF with";
+
+/// [`run`] in the ground truth `scene` (what [`RunConfig::ground_truth`] gives for `cfg`). Without
+/// one, the stages that need it are skipped and say so: the ground-truth field, GT-sim's flights,
+/// the replays and the online uncertainty (measured against the ground truth's renders).
+pub fn run_in(
+    cfg: &RunConfig,
+    scene: Option<&nerfsv_scene::Scene>,
+    observer: &dyn Observer,
+) -> Result<Summary, PipelineError> {
     cfg.validate()?;
-    cfg.check_world_fits(scene)?;
-    cfg.check_endpoints(scene)?;
-    if let (Some(folder), Some(mesh)) = (&cfg.world.dataset, scene.mesh()) {
-        check_cameras_see(folder, &mesh.bounds())?;
+    if let Some(scene) = scene {
+        cfg.check_world_fits(scene)?;
+        cfg.check_endpoints(scene)?;
+        if let (Some(folder), Some(mesh)) = (&cfg.world.dataset, scene.mesh()) {
+            check_cameras_see(folder, &mesh.bounds())?;
+        }
     }
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(&cfg.out, observer)?;
-    let source = match &cfg.world.dataset {
-        Some(folder) => stages::DatasetSource::Folder(folder),
-        None => stages::DatasetSource::Render { scene, options: &cfg.dataset },
+    let source = match (&cfg.world.dataset, scene) {
+        (Some(folder), _) => stages::DatasetSource::Folder(folder),
+        (None, Some(scene)) => stages::DatasetSource::Render { scene, options: &cfg.dataset },
+        (None, None) => return Err(PipelineError::Internal("a world needs a dataset or a scene".into())),
     };
     r.run(&stages::Dataset { source })?;
-    r.run(&stages::GroundTruthField { scene, cells_per_metre: cfg.cells_per_metre })?;
+    match scene {
+        Some(scene) => {
+            r.run(&stages::GroundTruthField { scene, cells_per_metre: cfg.cells_per_metre })?;
+        }
+        None => r.skip::<stages::GroundTruthField>(NO_GROUND_TRUTH)?,
+    }
     r.run(&stages::Train { settings: &settings, steps: cfg.train_steps })?;
     r.run(&stages::Eval)?;
     r.run(&uq::Uncertainty { uq: &cfg.uq, offline: &cfg.uq_offline })?;
-    r.run(&stages::NerfField { density_threshold: cfg.nerf_density_threshold })?;
+    r.run(&stages::NerfField {
+        density_threshold: cfg.nerf_density_threshold,
+        own_grid: scene.is_none().then_some(cfg.cells_per_metre),
+    })?;
     r.run(&flight::FlightStage {
         scene,
         sim: &cfg.sim,
@@ -277,7 +298,11 @@ pub fn run_in(cfg: &RunConfig, scene: &nerfsv_scene::Scene, observer: &dyn Obser
         subset: cfg.stress_subset,
     };
     r.run(&search)?;
-    r.run(&online::OnlineStage { search: &search, uq: &cfg.uq, online: &cfg.online })?;
+    if scene.is_some() {
+        r.run(&online::OnlineStage { search: &search, uq: &cfg.uq, online: &cfg.online })?;
+    } else {
+        r.skip::<online::OnlineStage>(NO_GROUND_TRUTH)?;
+    }
     r.finish(Some(&config_toml(cfg)?))
 }
 

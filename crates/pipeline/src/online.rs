@@ -151,11 +151,19 @@ impl Stage for OnlineStage<'_> {
 
     fn config(&self) -> impl Serialize {
         let s = self.search;
-        (s.scene.key(), s.sim, self.validation(), s.intrinsics, s.render.supersample, self.uq, self.online)
+        (
+            s.scene.map(nerfsv_scene::Scene::key),
+            s.sim,
+            self.validation(),
+            s.intrinsics,
+            s.render.supersample,
+            self.uq,
+            self.online,
+        )
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
-        let inputs = flight_inputs(cx.root)?;
+        let inputs = flight_inputs(cx.root, true)?;
         let s = self.search;
         let flight = inputs.plan(s.sim)?;
         let validation = self.validation();

@@ -42,6 +42,11 @@ pub trait Stage {
     fn outputs(&self) -> &'static [&'static str] {
         Self::OUTPUTS
     }
+    /// [`Stage::INPUTS`] of this instance, for a stage whose inputs depend on its settings (a
+    /// world without a ground truth reads no ground-truth field).
+    fn inputs(&self) -> &'static [&'static str] {
+        Self::INPUTS
+    }
     /// Whether an interrupted run continues from what it left in its folder (a training's
     /// checkpoint) instead of starting from an empty folder.
     const RESUMABLE: bool = false;
@@ -171,6 +176,8 @@ pub enum Outcome {
     Computed,
     /// It continued an interrupted run of the same key.
     Resumed,
+    /// It was not run ([`Runner::skip`]).
+    Skipped,
 }
 
 /// Runs stages in order into one run folder, and collects their figures for `summary.json`.
@@ -193,7 +200,8 @@ impl<'a> Runner<'a> {
     /// Brings `stage` up to date and returns its figures: the recorded ones if its key and
     /// outputs are unchanged, else those of a fresh (or resumed) run.
     pub fn run<S: Report>(&mut self, stage: &S) -> Result<S::Figures, PipelineError> {
-        let inputs = S::INPUTS
+        let inputs = stage
+            .inputs()
             .iter()
             .map(|&input| {
                 self.keys.get(input).map(String::as_str).ok_or(PipelineError::MissingInput { stage: S::NAME, input })
@@ -240,6 +248,31 @@ impl<'a> Runner<'a> {
         self.figures.push((S::NAME, value));
         self.outcomes.push((S::NAME, outcome));
         Ok(figures)
+    }
+
+    /// Records stage `S` as skipped for `reason` (its folder holds only that): the summary lists
+    /// it with `{"skipped": reason}` and the report's section says why. A later stage that reads
+    /// it fails as for a stage that has not run.
+    pub fn skip<S: Report>(&mut self, reason: &str) -> Result<(), PipelineError> {
+        let dir = self.root.join(S::NAME);
+        if dir.exists() {
+            std::fs::remove_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
+        }
+        std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
+        let figures = serde_json::json!({ "skipped": reason });
+        write_json(&dir.join(RECORD), &Record { key: "skipped".to_owned(), seconds: 0.0, figures: figures.clone() })?;
+        let section = Section {
+            id: S::NAME.to_owned(),
+            title: format!("{} (skipped)", S::NAME),
+            contents: format!("{} (skipped)", S::NAME),
+            body: vec![crate::report::Block::Html(format!("<p>Skipped: {}.</p>", crate::report::esc(reason)))],
+            ..Section::default()
+        };
+        write_json(&dir.join(REPORT_SECTION), &StageReport { about: S::ABOUT.to_owned(), section: Some(section) })?;
+        self.observer.note(S::NAME, &format!("skipped: {reason}"));
+        self.figures.push((S::NAME, figures));
+        self.outcomes.push((S::NAME, Outcome::Skipped));
+        Ok(())
     }
 
     /// The run folder.

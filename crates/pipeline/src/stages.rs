@@ -407,6 +407,9 @@ impl Stage for Eval {
 pub struct NerfField {
     /// Density (1/m) above which the NeRF is solid; `None`: ln 2 / cell.
     pub density_threshold: Option<f32>,
+    /// `None`: on the ground truth's grid, compared with it. `Some(cells per metre)`: over the
+    /// model's box at that resolution, for a world without a ground truth.
+    pub own_grid: Option<f32>,
 }
 
 /// What a NeRF collision field reports.
@@ -466,19 +469,37 @@ impl Stage for NerfField {
     const INPUTS: &'static [&'static str] = &[Train::NAME, GroundTruthField::NAME];
     type Figures = NerfFieldFigures;
 
+    fn inputs(&self) -> &'static [&'static str] {
+        match self.own_grid {
+            None => Self::INPUTS,
+            Some(_) => &[Train::NAME],
+        }
+    }
+
     fn config(&self) -> impl Serialize {
-        self.density_threshold
+        (self.density_threshold, self.own_grid)
     }
 
     fn run(&self, cx: &StageContext) -> Result<NerfFieldFigures, PipelineError> {
         let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
-        // Compared on the ground-truth field's own grid, read back from its stage.
-        let reference = SdfGrid::load(GroundTruthField::sdf_path(cx.root))?;
+        let (geometry, reference) = match self.own_grid {
+            // Compared on the ground-truth field's own grid, read back from its stage.
+            None => {
+                let reference = SdfGrid::load(GroundTruthField::sdf_path(cx.root))?;
+                (reference.geometry, Some(reference))
+            }
+            Some(cells_per_metre) => {
+                let bounds = nerfsv_scene::Aabb::new(nerf.config.aabb_min.into(), nerf.config.aabb_max.into());
+                let geometry = nerfsv_collision::GridGeometry::covering(&bounds, cells_per_metre)?;
+                nerfsv_collision::check_grid_memory("cells_per_metre", &geometry)?;
+                (geometry, None)
+            }
+        };
         build_nerf_field(
             &nerf,
-            reference.geometry,
+            geometry,
             self.density_threshold,
-            Some(&reference),
+            reference.as_ref(),
             &cx.dir.join(Self::SDF),
             Some(&cx.dir.join(Self::MESH)),
         )

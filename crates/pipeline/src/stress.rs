@@ -17,8 +17,9 @@ use crate::PipelineError;
 /// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
 /// rollout of their searches replayed in GT-sim; then, with `subset`, subset simulation's
 /// estimate of the failure probability (its first level from the MC rollouts; not replayed).
+/// Without a ground truth (a world known only by a dataset), nothing is replayed.
 pub struct StressStage<'a> {
-    pub scene: &'a Scene,
+    pub scene: Option<&'a Scene>,
     pub sim: &'a SimConfig,
     pub validation: &'a ValidationConfig,
     pub prior: &'a Prior,
@@ -50,15 +51,41 @@ impl Stage for StressStage<'_> {
     const RESUMABLE: bool = true;
     type Figures = StressFigures;
 
+    fn outputs(&self) -> &'static [&'static str] {
+        if self.scene.is_some() {
+            Self::OUTPUTS
+        } else {
+            &[ROLLOUTS_CSV, TABLE_CSV]
+        }
+    }
+
+    fn inputs(&self) -> &'static [&'static str] {
+        if self.scene.is_some() {
+            Self::INPUTS
+        } else {
+            &[Dataset::NAME, Train::NAME, NerfField::NAME]
+        }
+    }
+
     fn config(&self) -> impl Serialize {
-        (self.scene.key(), self.sim, self.validation, self.intrinsics, self.render.supersample, self.samplers())
+        (
+            self.scene.map(Scene::key),
+            self.sim,
+            self.validation,
+            self.intrinsics,
+            self.render.supersample,
+            self.samplers(),
+        )
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
-        let inputs = flight_inputs(cx.root)?;
+        let inputs = flight_inputs(cx.root, self.scene.is_some())?;
         let flight = inputs.plan(self.sim)?;
         let uq = UqConfig::default();
-        let setup = StressSetup::new(self.drone(&inputs, &flight), self.validation, self.prior, self.samplers(), &uq);
+        let setup = StressSetup {
+            replay: self.scene.is_some(),
+            ..StressSetup::new(self.drone(&inputs, &flight), self.validation, self.prior, self.samplers(), &uq)
+        };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
         Ok(stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)?.0)

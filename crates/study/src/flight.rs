@@ -219,15 +219,16 @@ pub fn fly_and_write(
 pub struct FlightInputs {
     pub nerf: Nerf,
     pub nerf_field: SdfGrid,
-    pub gt_field: SdfGrid,
+    /// The ground truth's signed field: GT-sim's; none for a world known only by a dataset.
+    pub gt_field: Option<SdfGrid>,
 }
 
 impl FlightInputs {
-    pub fn load(checkpoint: &Path, nerf_field: &Path, gt_field: &Path) -> Result<Self, StudyError> {
+    pub fn load(checkpoint: &Path, nerf_field: &Path, gt_field: Option<&Path>) -> Result<Self, StudyError> {
         Ok(Self {
             nerf: Nerf::load(checkpoint)?,
             nerf_field: SdfGrid::load(nerf_field)?,
-            gt_field: SdfGrid::load(gt_field)?,
+            gt_field: gt_field.map(SdfGrid::load).transpose()?,
         })
     }
 
@@ -236,15 +237,19 @@ impl FlightInputs {
     }
 }
 
-/// The world of `kind` over `inputs` and `scene`.
+/// The world of `kind` over `inputs` and the ground truth `scene`. GT-sim needs the scene and
+/// its field ([`StudyError::NoGroundTruth`] without).
 pub fn world<'a>(
     kind: WorldKind,
     inputs: &'a FlightInputs,
-    scene: &'a Scene,
+    scene: Option<&'a Scene>,
     render: RenderSettings,
-) -> Box<dyn World + 'a> {
-    match kind {
+) -> Result<Box<dyn World + 'a>, StudyError> {
+    Ok(match kind {
         WorldKind::Nerf => Box::new(NerfWorld { nerf: &inputs.nerf, field: &inputs.nerf_field }),
-        WorldKind::Gt => Box::new(GroundTruthWorld { scene, field: &inputs.gt_field, render }),
-    }
+        WorldKind::Gt => match (scene, &inputs.gt_field) {
+            (Some(scene), Some(field)) => Box::new(GroundTruthWorld { scene, field, render }),
+            _ => return Err(StudyError::NoGroundTruth),
+        },
+    })
 }

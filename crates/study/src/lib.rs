@@ -58,6 +58,8 @@ pub enum StudyError {
     Validation(#[from] nerfsv_validation::ValidationError),
     #[error(transparent)]
     Uq(#[from] nerfsv_uq::UqError),
+    #[error("GT-sim needs a ground truth (a scene or mesh and its signed field), and this world has none")]
+    NoGroundTruth,
     #[error("{0}")]
     Internal(String),
 }

@@ -345,7 +345,8 @@ impl StressFigures {
 pub struct Drone<'a> {
     pub inputs: &'a FlightInputs,
     pub flight: &'a Flight,
-    pub scene: &'a Scene,
+    /// The ground truth GT-sim renders; none for a world known only by a dataset.
+    pub scene: Option<&'a Scene>,
     pub sim: &'a SimConfig,
     pub intrinsics: Intrinsics,
     pub render: RenderSettings,
@@ -445,7 +446,7 @@ impl ViewUncertainty for Timed<'_> {
 /// the NeRF with `gt_world`'s render of the view, field mode looks it up in `setup.field`.
 fn view_meter<'a>(
     setup: &'a StressSetup,
-    gt_world: &'a dyn World,
+    gt_world: Option<&'a dyn World>,
     background: [f32; 3],
 ) -> Result<Option<Box<dyn ViewUncertainty + 'a>>, StudyError> {
     let pixels = online_pixels(&setup.drone.intrinsics, setup.uq);
@@ -455,7 +456,7 @@ fn view_meter<'a>(
             UqMode::Exact => Box::new(ExactUncertainty {
                 method: o.method,
                 nerf: &setup.drone.inputs.nerf,
-                reference: gt_world,
+                reference: gt_world.ok_or(StudyError::NoGroundTruth)?,
                 pixels,
                 background,
                 cfg: setup.uq,
@@ -483,8 +484,11 @@ pub fn measure_recorded(
     observer: &dyn Observer,
 ) -> Result<(Vec<RolloutRecord>, usize, f64), StudyError> {
     let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
-    let gt_world = world(WorldKind::Gt, setup.drone.inputs, setup.drone.scene, setup.drone.render);
-    let meter = view_meter(setup, gt_world.as_ref(), sim.background)?
+    let gt_world = match setup.online.map(|o| o.mode) {
+        Some(UqMode::Exact) => Some(world(WorldKind::Gt, setup.drone.inputs, setup.drone.scene, setup.drone.render)?),
+        _ => None,
+    };
+    let meter = view_meter(setup, gt_world.as_deref(), sim.background)?
         .ok_or_else(|| StudyError::Internal("measure_recorded: no uncertainty to measure".into()))?;
     let timed = Timed { inner: meter.as_ref(), views: AtomicU64::new(0), nanos: AtomicU64::new(0) };
     if let Some(r) = records
@@ -598,9 +602,15 @@ pub fn stress(
     let progress = |done: u64, total: u64, status: &str| observer.progress(setup.stage, done, total, status);
     let start = Instant::now();
     let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
-    let search_world = world(setup.world, setup.drone.inputs, setup.drone.scene, setup.drone.render);
+    let search_world = world(setup.world, setup.drone.inputs, setup.drone.scene, setup.drone.render)?;
     let replay_kind = other_world(setup.world);
-    let replay_world = world(replay_kind, setup.drone.inputs, setup.drone.scene, setup.drone.render);
+    // The other world: for the replays, and (as GT-sim) for exact online uncertainty.
+    let exact = setup.online.is_some_and(|o| o.mode == UqMode::Exact);
+    let replay_world = if setup.replay || (exact && replay_kind == WorldKind::Gt) {
+        Some(world(replay_kind, setup.drone.inputs, setup.drone.scene, setup.drone.render)?)
+    } else {
+        None
+    };
     let journal_dir = out.join(JOURNAL);
     let mut planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
     // Subset simulation starts from the Monte Carlo rollouts when they fly before it.
@@ -624,7 +634,7 @@ pub fn stress(
         status: String::new(),
     };
     // Online uncertainty: exact mode compares the NeRF with the ground truth's render of the view.
-    let gt_world = if setup.world == WorldKind::Gt { search_world.as_ref() } else { replay_world.as_ref() };
+    let gt_world = if setup.world == WorldKind::Gt { Some(search_world.as_ref()) } else { replay_world.as_deref() };
     let meter = view_meter(setup, gt_world, sim.background)?;
     let timed = meter.as_deref().map(|inner| Timed { inner, views: AtomicU64::new(0), nanos: AtomicU64::new(0) });
     let scorer = setup.online.filter(|o| o.reward).map(|o| {
@@ -745,7 +755,7 @@ pub fn stress(
         }
     }
 
-    let replays = if setup.replay {
+    let replays = if let (true, Some(replay_world)) = (setup.replay, replay_world.as_deref()) {
         let replay_journal = Journal::open(&journal_dir.join(format!("replay_{}", replay_kind.name())), key, resume)?;
         let replaying = Counting {
             journal: &replay_journal,
@@ -760,7 +770,7 @@ pub fn stress(
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
         let system = DroneSystem {
             sim: &sim,
-            world: replay_world.as_ref(),
+            world: replay_world,
             estimator: setup.estimator,
             uncertainty: None,
             estimate_log: Some(&replay_log),
@@ -819,7 +829,7 @@ pub fn stress(
         let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)));
         let most_likely_failure = match mlf {
             Some(f) => {
-                let replayed = write_failure(setup, out, sampler, f, search_world.as_ref(), replay_world.as_ref())?;
+                let replayed = write_failure(setup, out, sampler, f, search_world.as_ref(), replay_world.as_deref())?;
                 Some(FailureFigures {
                     sampler: f.sampler.clone(),
                     population: f.population,
@@ -898,7 +908,7 @@ fn write_failure(
     sampler: Sampler,
     f: &RolloutRecord,
     search: &dyn World,
-    other: &dyn World,
+    other: Option<&dyn World>,
 ) -> Result<Option<FlightFigures>, StudyError> {
     let ds = drone_disturbances(&f.disturbances);
     let name = format!("most_likely_failure_{}", sampler.name());
@@ -906,7 +916,7 @@ fn write_failure(
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&ds).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;
     let mut replayed = None;
-    for w in std::iter::once(search).chain(setup.replay.then_some(other)) {
+    for w in std::iter::once(search).chain(other.filter(|_| setup.replay)) {
         let stem = format!("{name}_{}", w.kind().name());
         let (figures, _) = fly_and_write(
             setup.drone.flight,

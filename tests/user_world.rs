@@ -33,6 +33,19 @@ fn config(dir: &Path, world: &str) -> PathBuf {
     cfg
 }
 
+/// `nerfsv scene WORLD --out out` at the tiny study's size (16×16, 6 + 1 + 2 views).
+fn tiny_dataset(world: &[&str], out: &Path) {
+    let size = ["--width", "16", "--height", "16", "--train", "6", "--val", "1", "--test", "2", "--supersample", "1"];
+    let args: Vec<&str> = ["scene"]
+        .into_iter()
+        .chain(world.iter().copied())
+        .chain(["--out", out.to_str().unwrap()])
+        .chain(size)
+        .collect();
+    let (ok, _, err) = nerfsv(&args);
+    assert!(ok, "{err}");
+}
+
 fn summary(run: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
 }
@@ -53,26 +66,7 @@ fn a_mesh_world_runs_end_to_end_with_its_dataset_rendered_or_given() {
 
     // The same world with a dataset folder used as is (rendered here by `nerfsv scene --mesh`).
     let data = dir.path().join("data");
-    let (ok, _, err) = nerfsv(&[
-        "scene",
-        "--mesh",
-        dir.path().join("world.ply").to_str().unwrap(),
-        "--out",
-        data.to_str().unwrap(),
-        "--width",
-        "16",
-        "--height",
-        "16",
-        "--train",
-        "6",
-        "--val",
-        "1",
-        "--test",
-        "2",
-        "--supersample",
-        "1",
-    ]);
-    assert!(ok, "{err}");
+    tiny_dataset(&["--mesh", dir.path().join("world.ply").to_str().unwrap()], &data);
     let cfg = config(dir.path(), "mesh = \"world.ply\"\ndataset = \"data\"\n");
     let given = dir.path().join("given");
     let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", given.to_str().unwrap()]);
@@ -126,26 +120,7 @@ fn a_world_that_does_not_fit_is_refused_by_name_before_anything_is_written() {
     // A dataset of another world: its cameras look elsewhere.
     std::fs::copy(Path::new(FIXTURES).join("world.ply"), dir.path().join("world.ply")).unwrap();
     let data = dir.path().join("far");
-    let (ok, _, err) = nerfsv(&[
-        "scene",
-        "--scene",
-        "monolith",
-        "--out",
-        data.to_str().unwrap(),
-        "--width",
-        "16",
-        "--height",
-        "16",
-        "--train",
-        "6",
-        "--val",
-        "1",
-        "--test",
-        "1",
-        "--supersample",
-        "1",
-    ]);
-    assert!(ok, "{err}");
+    tiny_dataset(&["--scene", "monolith"], &data);
     let cfg = config(dir.path(), "mesh = \"world.ply\"\ndataset = \"far\"\nmesh_scale = 0.05\n");
     let (ok, _, err) = nerfsv(&["run", cfg.to_str().unwrap(), "--out", run.to_str().unwrap()]);
     assert!(!ok);

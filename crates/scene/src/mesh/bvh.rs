@@ -187,6 +187,16 @@ impl Bvh {
     /// The closest hit of `ray` with `t` in `[t_min, t_max]`, if any (Möller–Trumbore; both
     /// faces count).
     pub fn cast(&self, mesh: &TriangleMesh, ray: &Ray, t_min: f32, t_max: f32) -> Option<RayHit> {
+        self.first_hit(mesh, ray, t_min, t_max, false)
+    }
+
+    /// Whether anything lies on `ray` with `t` in `[t_min, t_max]` (shadow rays).
+    pub fn occluded(&self, mesh: &TriangleMesh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        self.first_hit(mesh, ray, t_min, t_max, true).is_some()
+    }
+
+    /// The closest hit, or with `any` the first one found.
+    fn first_hit(&self, mesh: &TriangleMesh, ray: &Ray, t_min: f32, t_max: f32, any: bool) -> Option<RayHit> {
         let inv = ray.direction.map(|d| 1.0 / d);
         let mut best: Option<RayHit> = None;
         let mut far = t_max;
@@ -205,6 +215,9 @@ impl Bvh {
                         if th >= t_min && th <= far {
                             far = th;
                             best = Some(RayHit { t: th, triangle: t as usize, u, v });
+                            if any {
+                                return best;
+                            }
                         }
                     }
                 }
@@ -215,33 +228,6 @@ impl Bvh {
             }
         }
         best
-    }
-
-    /// Whether anything lies on `ray` with `t` in `[t_min, t_max]` (shadow rays).
-    pub fn occluded(&self, mesh: &TriangleMesh, ray: &Ray, t_min: f32, t_max: f32) -> bool {
-        let inv = ray.direction.map(|d| 1.0 / d);
-        let mut stack = [0u32; STACK];
-        let mut top = 1;
-        while top > 0 {
-            top -= 1;
-            let idx = stack[top];
-            let node = &self.nodes[idx as usize];
-            if !slab(&node.bounds, ray, &inv, t_min, t_max) {
-                continue;
-            }
-            if node.count > 0 {
-                for &t in &self.order[node.first as usize..(node.first + node.count) as usize] {
-                    if matches!(intersect(mesh, t as usize, ray), Some((th, _, _)) if th >= t_min && th <= t_max) {
-                        return true;
-                    }
-                }
-            } else {
-                stack[top] = node.first;
-                stack[top + 1] = idx + 1;
-                top += 2;
-            }
-        }
-        false
     }
 
     /// The distance from `p` to the mesh and the closest triangle.

@@ -2,14 +2,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use nerfsv_collision::SdfGrid;
-use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::stages::nerf_density_field;
 use nerfsv_pipeline::{refuse_output_inside, RunConfig};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
 use nerfsv_study::drone_disturbances;
-use nerfsv_study::flight::{fly_and_write, world, FlightInputs};
+use nerfsv_study::flight::{fly_into, FlightInputs};
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum WorldArg {
@@ -59,17 +56,12 @@ impl DroneArgs {
         inputs
     }
 
-    /// The scene, the model, the NeRF's signed field (loaded, or built from the model on the
-    /// ground-truth field's grid as `nerfsv run` builds it) and the ground-truth field.
+    /// The scene and the drone's worlds ([`FlightInputs::from_files`], the ground truth at
+    /// the paper's 40 cells/m).
     pub fn load(&self) -> anyhow::Result<(Scene, FlightInputs)> {
         let scene = Scene::builtin(&self.scene)?;
-        let nerf = Nerf::load(&self.model)?;
-        let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 40.0)?;
-        let nerf_field = match &self.nerf_field {
-            Some(path) => SdfGrid::load(path)?,
-            None => nerf_density_field(&nerf, gt.sdf.geometry, None)?.1.sdf,
-        };
-        Ok((scene, FlightInputs { nerf, nerf_field, gt_field: Some(gt.sdf) }))
+        let inputs = FlightInputs::from_files(&self.model, self.nerf_field.as_deref(), &scene, 40.0)?;
+        Ok((scene, inputs))
     }
 }
 
@@ -147,27 +139,20 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         (None, None) => vec![nerfsv_sim::Disturbance::ZERO; cfg.sim.steps],
     };
     let (scene, inputs) = args.drone.load()?;
-    let flight = inputs.plan(&cfg.sim).context("planning the flight")?;
-    let estimator = args.drone.estimator.into();
-    let w = world(args.drone.world.into(), &inputs, Some(&scene), cfg.dataset.render_settings())?;
-
+    // Planned before the folder is made: a flight that cannot be planned writes nothing.
+    inputs.plan(&cfg.sim).context("planning the flight")?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let seed = args.seed.or(args.random_seed).unwrap_or(0);
-    let (figures, _) = fly_and_write(
-        &flight,
+    let figures = fly_into(
+        &args.out,
+        &inputs,
+        Some(&scene),
         &cfg.sim,
-        &inputs.nerf,
         cfg.camera_intrinsics(),
-        w.as_ref(),
-        estimator,
+        cfg.dataset.render_settings(),
+        args.drone.world.into(),
+        args.drone.estimator.into(),
         &disturbances,
-        seed,
-        &args.out.join("trajectory.csv"),
-        &args.out.join("trajectory.png"),
+        args.seed.or(args.random_seed).unwrap_or(0),
     )?;
-    let path = args.out.join("disturbances.csv");
-    nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&disturbances).as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
-    nerfsv_pipeline::stage::write_json(&args.out.join("flight.json"), &figures)?;
     crate::commands::report(args.json, &figures, || figures.describe())
 }

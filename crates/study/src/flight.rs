@@ -215,6 +215,45 @@ pub fn fly_and_write(
     Ok((figures, rollout))
 }
 
+/// One flight into the folder `out` (which exists): `trajectory.csv`, `trajectory.png` (and the
+/// vision estimator's error plots), `disturbances.csv` (replayable) and `flight.json` (the
+/// figures, which it returns). What `nerfsv fly` does after reading its arguments.
+#[allow(clippy::too_many_arguments)]
+pub fn fly_into(
+    out: &Path,
+    inputs: &FlightInputs,
+    scene: Option<&Scene>,
+    sim: &SimConfig,
+    intrinsics: Intrinsics,
+    render: RenderSettings,
+    kind: WorldKind,
+    estimator: EstimatorKind,
+    disturbances: &[Disturbance],
+    seed: u64,
+) -> Result<FlightFigures, StudyError> {
+    let flight = inputs.plan(sim)?;
+    let w = world(kind, inputs, scene, render)?;
+    let (figures, _) = fly_and_write(
+        &flight,
+        sim,
+        &inputs.nerf,
+        intrinsics,
+        w.as_ref(),
+        estimator,
+        disturbances,
+        seed,
+        &out.join("trajectory.csv"),
+        &out.join("trajectory.png"),
+    )?;
+    let path = out.join("disturbances.csv");
+    nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(disturbances).as_bytes())
+        .map_err(|e| StudyError::io(&path, e))?;
+    let path = out.join("flight.json");
+    nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer_pretty(w, &figures).map_err(std::io::Error::other))
+        .map_err(|e| StudyError::io(&path, e))?;
+    Ok(figures)
+}
+
 /// Everything a flight needs from a run folder (or from files a user names).
 pub struct FlightInputs {
     pub nerf: Nerf,
@@ -230,6 +269,31 @@ impl FlightInputs {
             nerf_field: SdfGrid::load(nerf_field)?,
             gt_field: gt_field.map(SdfGrid::load).transpose()?,
         })
+    }
+
+    /// The drone's worlds from files, as `nerfsv run` builds them: the model; its signed field
+    /// from `nerf_field`, or built from the model's density on the ground truth's grid (ln 2 /
+    /// cell, about a second); the ground truth's field built from `scene` at `cells_per_metre`.
+    pub fn from_files(
+        model: &Path,
+        nerf_field: Option<&Path>,
+        scene: &Scene,
+        cells_per_metre: f32,
+    ) -> Result<Self, StudyError> {
+        let nerf = Nerf::load(model)?;
+        let (gt, _) = nerfsv_collision::ground_truth_field(scene, cells_per_metre)?;
+        let nerf_field = match nerf_field {
+            Some(path) => SdfGrid::load(path)?,
+            None => {
+                let geometry = gt.sdf.geometry;
+                let threshold = nerfsv_collision::default_density_threshold(1.0 / geometry.cell);
+                nerfsv_collision::density_field(geometry, threshold, |points, out| {
+                    out.copy_from_slice(&nerf.density(points))
+                })?
+                .sdf
+            }
+        };
+        Ok(Self { nerf, nerf_field, gt_field: Some(gt.sdf) })
     }
 
     pub fn plan(&self, cfg: &SimConfig) -> Result<Flight, StudyError> {

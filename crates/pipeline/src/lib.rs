@@ -241,7 +241,7 @@ fn check_cameras_see(folder: &Path, bounds: &nerfsv_scene::Aabb) -> Result<(), P
 
 /// Why a world without a ground truth skips a stage.
 pub const NO_GROUND_TRUTH: &str =
-    "the world has no ground truth (a `[world]` dataset without a mesh): there is nothing to compare the NeRF with";
+    "the world has no ground truth (a [world] dataset without a mesh): there is nothing to compare the NeRF with";
 
 /// [`run`] in the ground truth `scene` (what [`RunConfig::ground_truth`] gives for `cfg`). Without
 /// one, the stages that need it are skipped and say so: the ground-truth field, GT-sim's flights,

@@ -179,8 +179,11 @@ impl Report for NerfField {
     const ABOUT: &'static str = "the NeRF's collision field";
 
     fn report(f: &NerfFieldFigures, _: &ReportContext) -> Option<Section> {
-        let mut s =
-            Section::new("nerf_collision", "Collision fields: the NeRF's against the ground truth", "collision fields");
+        let title = match f.agreement_with_ground_truth {
+            Some(_) => "Collision fields: the NeRF's against the ground truth",
+            None => "The NeRF's collision field (no ground truth to compare it with)",
+        };
+        let mut s = Section::new("nerf_collision", title, "collision fields");
         let header = ["occupancy IoU", "IoU in the flight band", "|SDF diff| mean (m)", "|SDF diff| p95 (m)"];
         match &f.agreement_with_ground_truth {
             Some(a) => s.table(Table::new(&header).row(vec![
@@ -428,8 +431,11 @@ impl Report for StressStage<'_> {
     const ABOUT: &'static str = "Monte Carlo, CEM and subset simulation in NeRF-sim, replayed in GT-sim";
 
     fn report(f: &StressFigures, cx: &ReportContext) -> Option<Section> {
-        let mut s =
-            Section::new("stress", "Stress tests: failure probability and NeRF-sim against GT-sim", "stress tests");
+        let title = match f.replay_world {
+            Some(_) => "Stress tests: failure probability and NeRF-sim against GT-sim",
+            None => "Stress tests: failure probability (nothing replayed in another world)",
+        };
+        let mut s = Section::new("stress", title, "stress tests");
         stress_answer(&mut s, f);
         let name = |x: &SamplerFigures| x.sampler.name().to_uppercase();
         s.table(

@@ -63,6 +63,28 @@ fn a_mesh_world_runs_end_to_end_with_its_dataset_rendered_or_given() {
     assert_eq!(s["flight"]["flights"].as_array().unwrap().len(), 4, "both worlds, both estimators");
     assert!(run.join("stress/replay_gt.csv").exists(), "the searches are replayed in the mesh's GT-sim");
     assert!(run.join("report/index.html").exists());
+    // One flight in the mesh's GT-sim with the run's model, as `nerfsv fly` does it.
+    let fly = dir.path().join("fly");
+    let model = run.join("nerf/checkpoint.safetensors");
+    let mesh = dir.path().join("world.ply");
+    let (ok, out, err) = nerfsv(&[
+        "fly",
+        "--world",
+        "gt",
+        "--gt-mesh",
+        mesh.to_str().unwrap(),
+        "--model",
+        model.to_str().unwrap(),
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        fly.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let f: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(f["world"], "gt", "{f}");
+    assert!(fly.join("trajectory.png").exists());
 
     // The same world with a dataset folder used as is (rendered here by `nerfsv scene --mesh`).
     let data = dir.path().join("data");

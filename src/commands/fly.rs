@@ -8,6 +8,8 @@ use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
 use nerfsv_study::drone_disturbances;
 use nerfsv_study::flight::{fly_into, FlightInputs};
 
+use crate::commands::world::{load_mesh_scene, MeshArgs};
+
 #[derive(Clone, Copy, ValueEnum)]
 pub enum WorldArg {
     /// NeRF-sim: images rendered by the NeRF, collisions against the NeRF's signed field.
@@ -31,8 +33,14 @@ pub struct DroneArgs {
     #[arg(long, value_enum, default_value = "nerf")]
     pub world: WorldArg,
     /// Built-in ground-truth scene (GT-sim's world; its grid also carries the NeRF's field).
-    #[arg(long, default_value = "stonehenge")]
+    #[arg(long, default_value = "stonehenge", conflicts_with = "gt_mesh")]
     pub scene: String,
+    /// A triangle mesh as the ground truth instead (OBJ, PLY, glTF/GLB; metres, z up unless
+    /// --mesh-scale / --mesh-up say otherwise), as a run's `[world] mesh`.
+    #[arg(long)]
+    pub gt_mesh: Option<PathBuf>,
+    #[command(flatten)]
+    pub mesh_options: MeshArgs,
     /// NeRF checkpoint: the estimator's model, NeRF-sim's world, and the planner's map.
     #[arg(long)]
     pub model: PathBuf,
@@ -53,13 +61,19 @@ impl DroneArgs {
         if let Some(p) = &self.nerf_field {
             inputs.push(("--nerf-field", p));
         }
+        if let Some(p) = &self.gt_mesh {
+            inputs.push(("--gt-mesh", p));
+        }
         inputs
     }
 
     /// The scene and the drone's worlds ([`FlightInputs::from_files`], the ground truth at
     /// the paper's 40 cells/m).
     pub fn load(&self) -> anyhow::Result<(Scene, FlightInputs)> {
-        let scene = Scene::builtin(&self.scene)?;
+        let scene = match &self.gt_mesh {
+            Some(path) => load_mesh_scene(path, &self.mesh_options)?,
+            None => Scene::builtin(&self.scene)?,
+        };
         let inputs = FlightInputs::from_files(&self.model, self.nerf_field.as_deref(), &scene, 40.0)?;
         Ok((scene, inputs))
     }

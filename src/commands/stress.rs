@@ -188,7 +188,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
             &cfg.validation,
             setup.drone.intrinsics,
             setup.drone.render.supersample,
-            &d.scene,
+            scene.key(),
             setup.world,
             setup.estimator,
             sampler,

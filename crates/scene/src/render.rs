@@ -43,8 +43,11 @@ pub struct Hit {
     /// Distance along the (unit) ray in metres.
     pub t: f32,
     pub point: Point3<f32>,
-    /// Index of the primitive hit.
+    /// Index of the primitive hit (the triangle of a mesh scene).
     pub primitive: usize,
+    /// Barycentric coordinates `(u, v)` of the hit on a mesh scene's triangle (the point
+    /// `(1 − u − v)·a + u·b + v·c`); `(0, 0)` on an SDF scene.
+    pub barycentric: (f32, f32),
 }
 
 /// A rendered view: straight RGBA `[h, w, 4]` and z-depth `[h, w]` in metres (0 where the
@@ -62,9 +65,9 @@ impl Scene {
     /// scene bounds. Termination tolerance grows slowly with distance.
     pub fn trace(&self, ray: &Ray, max_steps: u32) -> Option<Hit> {
         let (t0, t1) = self.bounds().expanded(1e-3).intersect(ray)?;
-        if let Some(m) = self.mesh_world() {
-            let h = m.bvh.cast(&m.mesh, ray, t0, t1)?;
-            return Some(Hit { t: h.t, point: ray.at(h.t), primitive: h.triangle });
+        if let Some((mesh, bvh)) = self.mesh_and_bvh() {
+            let h = bvh.cast(mesh, ray, t0, t1)?;
+            return Some(Hit { t: h.t, point: ray.at(h.t), primitive: h.triangle, barycentric: (h.u, h.v) });
         }
         let mut buf = [0u16; 64];
         let all: Vec<u16>;
@@ -81,7 +84,7 @@ impl Scene {
             let p = ray.at(t);
             let (d, i) = self.closest_among(&p, candidates);
             if d < 1e-4 + 1e-4 * t {
-                return Some(Hit { t, point: p, primitive: i });
+                return Some(Hit { t, point: p, primitive: i, barycentric: (0.0, 0.0) });
             }
             t += d;
             if t > t1 {
@@ -100,8 +103,8 @@ impl Scene {
             Some((_, t1)) => t1,
             None => return 1.0,
         };
-        if let Some(m) = self.mesh_world() {
-            return if m.bvh.occluded(&m.mesh, &ray, 0.0, t1) { 0.0 } else { 1.0 };
+        if let Some((mesh, bvh)) = self.mesh_and_bvh() {
+            return if bvh.occluded(mesh, &ray, 0.0, t1) { 0.0 } else { 1.0 };
         }
         let mut buf = [0u16; 64];
         let all: Vec<u16>;
@@ -130,7 +133,7 @@ impl Scene {
 
     /// Shaded linear RGB of a hit.
     pub fn shade(&self, ray: &Ray, hit: &Hit, s: &RenderSettings) -> [f32; 3] {
-        let mesh = self.mesh_world().map(|m| &m.mesh);
+        let mesh = self.mesh();
         let mut n = match mesh {
             Some(m) => m.face_normal(hit.primitive),
             None => self.normal(&hit.point),
@@ -142,10 +145,7 @@ impl Scene {
         let direct = if lambert > 0.0 { lambert * self.sun_visibility(&hit.point, &n, s) } else { 0.0 };
         let light = s.ambient + (1.0 - s.ambient) * direct;
         let a = match mesh {
-            Some(m) => {
-                let (u, v) = barycentric(&m.corners(hit.primitive), &hit.point);
-                m.colour_at(hit.primitive, u, v)
-            }
+            Some(m) => m.colour_at(hit.primitive, hit.barycentric.0, hit.barycentric.1),
             None => albedo(self.material(hit.primitive), &hit.point),
         };
         [a[0] * light, a[1] * light, a[2] * light]
@@ -204,17 +204,6 @@ impl Scene {
         );
         RenderedImage { width: w, height: h, rgba, depth }
     }
-}
-
-/// Barycentric coordinates `(u, v)` of `p` (on the plane of `[a, b, c]`): `p = (1 − u − v)·a + u·b + v·c`.
-fn barycentric([a, b, c]: &[Point3<f32>; 3], p: &Point3<f32>) -> (f32, f32) {
-    let (e1, e2, d) = (b - a, c - a, p - a);
-    let (d00, d01, d11, d20, d21) = (e1.dot(&e1), e1.dot(&e2), e2.dot(&e2), d.dot(&e1), d.dot(&e2));
-    let den = d00 * d11 - d01 * d01;
-    if den.abs() < 1e-20 {
-        return (0.0, 0.0);
-    }
-    ((d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den)
 }
 
 #[cfg(test)]

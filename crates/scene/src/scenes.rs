@@ -66,9 +66,11 @@ fn mesh_digest(m: &TriangleMesh) -> u64 {
 
 /// A mesh scene's geometry.
 #[derive(Debug)]
-pub(crate) struct MeshWorld {
-    pub(crate) mesh: TriangleMesh,
-    pub(crate) bvh: Bvh,
+struct MeshWorld {
+    mesh: TriangleMesh,
+    bvh: Bvh,
+    /// [`mesh_digest`] of `mesh`, for [`Scene::key`].
+    digest: u64,
 }
 
 /// Deterministic pseudo-random numbers in [0, 1) for scene layout (not the run seed: a scene
@@ -114,13 +116,14 @@ impl Scene {
     pub fn from_mesh(name: &str, mesh: TriangleMesh) -> Result<Self, MeshError> {
         mesh.validate()?;
         let bvh = Bvh::build(&mesh);
+        let digest = mesh_digest(&mesh);
         Ok(Self {
             name: name.to_string(),
             shapes: Vec::new(),
             materials: Vec::new(),
             spheres: Vec::new(),
             bounds: mesh.bounds(),
-            mesh: Some(Arc::new(MeshWorld { mesh, bvh })),
+            mesh: Some(Arc::new(MeshWorld { mesh, bvh, digest })),
         })
     }
 
@@ -151,7 +154,7 @@ impl Scene {
     /// name with the digest of its mesh (a changed file is another world).
     pub fn key(&self) -> String {
         match &self.mesh {
-            Some(m) => format!("{}-{:016x}", self.name, mesh_digest(&m.mesh)),
+            Some(m) => format!("{}-{:016x}", self.name, m.digest),
             None => self.name.clone(),
         }
     }
@@ -164,10 +167,6 @@ impl Scene {
     /// The mesh of a mesh scene with its hierarchy.
     pub fn mesh_and_bvh(&self) -> Option<(&TriangleMesh, &Bvh)> {
         self.mesh.as_deref().map(|m| (&m.mesh, &m.bvh))
-    }
-
-    pub(crate) fn mesh_world(&self) -> Option<&MeshWorld> {
-        self.mesh.as_deref()
     }
 
     /// One of [`BUILTIN_SCENES`].

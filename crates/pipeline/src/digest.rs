@@ -45,18 +45,23 @@ pub fn file_digest(path: &Path) -> io::Result<u64> {
     Ok(fnv1a_from(BASIS, &std::fs::read(path)?))
 }
 
-/// The digest of a crate's own code: its `Cargo.toml` and every file under `src/` (names and
-/// bytes), without its dependencies.
-pub fn crate_digest(dir: &Path) -> io::Result<u64> {
-    let mut hash = fnv1a_from(BASIS, &std::fs::read(dir.join("Cargo.toml"))?);
-    let src = dir.join("src");
-    for rel in files(&src)? {
+/// The digest of every file under `dir` (relative names and bytes, in sorted path order).
+pub fn folder_digest(dir: &Path) -> io::Result<u64> {
+    let mut hash = BASIS;
+    for rel in files(dir)? {
         hash = fnv1a_from(hash, rel.as_bytes());
         hash = fnv1a_from(hash, &[0]);
-        hash = fnv1a_from(hash, &std::fs::read(src.join(&rel))?);
+        hash = fnv1a_from(hash, &std::fs::read(dir.join(&rel))?);
         hash = fnv1a_from(hash, &[0xff]);
     }
     Ok(hash)
+}
+
+/// The digest of a crate's own code: its `Cargo.toml` and every file under `src/` (names and
+/// bytes, [`folder_digest`]), without its dependencies.
+pub fn crate_digest(dir: &Path) -> io::Result<u64> {
+    let manifest = fnv1a_from(BASIS, &std::fs::read(dir.join("Cargo.toml"))?);
+    Ok(fnv1a_from(manifest, &folder_digest(&dir.join("src"))?.to_le_bytes()))
 }
 
 /// The workspace crates (`nerfsv-…`) a `Cargo.toml` lists under `[dependencies]` (not dev- or

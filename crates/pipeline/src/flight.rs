@@ -13,6 +13,16 @@ use crate::stage::{Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
+/// The stages the drone's stages read: the dataset, the ground truth's field (when there is a
+/// ground truth), the model and its field.
+pub(crate) const fn drone_inputs(ground_truth: bool) -> &'static [&'static str] {
+    if ground_truth {
+        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME]
+    } else {
+        &[Dataset::NAME, Train::NAME, NerfField::NAME]
+    }
+}
+
 /// The run's model, NeRF field and (with `ground_truth`) ground-truth field, from the stages
 /// that made them.
 pub fn flight_inputs(root: &Path, ground_truth: bool) -> Result<FlightInputs, PipelineError> {
@@ -87,7 +97,7 @@ impl Stage for FlightStage<'_> {
     const NAME: &'static str = "flight";
     const CODE: &'static [&'static str] = &["nerfsv-study", "flight.rs", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = Self::OUTPUT_FILES;
-    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
+    const INPUTS: &'static [&'static str] = drone_inputs(true);
     type Figures = FlightStageFigures;
 
     fn outputs(&self) -> &'static [&'static str] {
@@ -99,11 +109,7 @@ impl Stage for FlightStage<'_> {
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        if self.scene.is_some() {
-            Self::INPUTS
-        } else {
-            &[Dataset::NAME, Train::NAME, NerfField::NAME]
-        }
+        drone_inputs(self.scene.is_some())
     }
 
     fn config(&self) -> impl Serialize {

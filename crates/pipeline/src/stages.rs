@@ -117,32 +117,6 @@ impl Dataset<'_> {
     }
 }
 
-/// FNV-1a over a folder's files (relative names and bytes, in sorted order), for the dataset's
-/// key; 0 for a folder that cannot be read (the stage then fails by name).
-fn folder_digest(folder: &Path) -> u64 {
-    let mut files = Vec::new();
-    let mut stack = vec![folder.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        let Ok(entries) = std::fs::read_dir(&dir) else { return 0 };
-        for e in entries.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                files.push(p);
-            }
-        }
-    }
-    files.sort();
-    let mut bytes = Vec::new();
-    for f in files {
-        bytes.extend(f.strip_prefix(folder).unwrap_or(&f).to_string_lossy().as_bytes());
-        bytes.push(0);
-        bytes.extend(nerfsv_scene::seed::fnv1a(&std::fs::read(&f).unwrap_or_default()).to_le_bytes());
-    }
-    nerfsv_scene::seed::fnv1a(&bytes)
-}
-
 impl Stage for Dataset<'_> {
     const NAME: &'static str = "dataset";
     const CODE: &'static [&'static str] = &["nerfsv-dataset", "stages.rs"];
@@ -159,9 +133,11 @@ impl Stage for Dataset<'_> {
     fn config(&self) -> impl Serialize {
         match &self.source {
             DatasetSource::Render { scene, options } => serde_json::json!([scene.key(), options]),
-            // The folder's files: a changed image is another dataset.
+            // The folder's files: a changed image is another dataset. An unreadable folder keys
+            // as 0, and the stage then fails naming it.
             DatasetSource::Folder(folder) => {
-                serde_json::json!({"folder": folder, "digest": format!("{:016x}", folder_digest(folder))})
+                let digest = crate::digest::folder_digest(folder).unwrap_or(0);
+                serde_json::json!({"folder": folder, "digest": format!("{digest:016x}")})
             }
         }
     }

@@ -9,9 +9,8 @@ use nerfsv_uq::UqConfig;
 use nerfsv_validation::{Prior, ValidationConfig};
 use serde::Serialize;
 
-use crate::flight::flight_inputs;
+use crate::flight::{drone_inputs, flight_inputs};
 use crate::stage::{Stage, StageContext};
-use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
 /// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
@@ -47,7 +46,7 @@ impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
     const CODE: &'static [&'static str] = &["nerfsv-study", "stress.rs", "flight.rs", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
-    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME];
+    const INPUTS: &'static [&'static str] = drone_inputs(true);
     const RESUMABLE: bool = true;
     type Figures = StressFigures;
 
@@ -60,11 +59,7 @@ impl Stage for StressStage<'_> {
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        if self.scene.is_some() {
-            Self::INPUTS
-        } else {
-            &[Dataset::NAME, Train::NAME, NerfField::NAME]
-        }
+        drone_inputs(self.scene.is_some())
     }
 
     fn config(&self) -> impl Serialize {

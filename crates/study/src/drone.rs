@@ -8,7 +8,7 @@ use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::dynamics::so3_log;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
 
-use nerfsv_validation::{Outcome, System, ValidationError};
+use nerfsv_validation::{Outcome, System, Trajectory, ValidationError};
 
 use crate::uncertainty::ViewUncertainty;
 
@@ -80,9 +80,9 @@ impl EstimateLog {
 }
 
 /// A rollout's disturbances, one row per step, as the simulator takes them (components beyond
-/// a row's length are zero).
-pub fn drone_disturbances(rows: &[Vec<f64>]) -> Vec<Disturbance> {
-    rows.iter().map(|d| Disturbance(std::array::from_fn(|i| d.get(i).copied().unwrap_or(0.0)))).collect()
+/// the trajectory's dimension are zero).
+pub fn drone_disturbances(x: &Trajectory) -> Vec<Disturbance> {
+    x.rows().map(|d| Disturbance(std::array::from_fn(|i| d.get(i).copied().unwrap_or(0.0)))).collect()
 }
 
 impl System for DroneSystem<'_> {
@@ -99,7 +99,7 @@ impl System for DroneSystem<'_> {
     /// Substeps whose box left the field's grid have no clearance and do not count; a step with
     /// none scores +∞. Steps not flown (after a crash that ended the rollout) score NaN and
     /// have NaN positions (and, when measured, NaN uncertainty).
-    fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome {
+    fn run(&self, disturbances: &Trajectory, seed: u64) -> Outcome {
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
         if let Some(log) = self.estimate_log {
             log.insert(seed, r.updates.iter().map(|u| [u.position_error_m, u.rotation_error_deg]).collect());

@@ -5,7 +5,7 @@ use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{plan_flight, EstimatorKind, GroundTruthWorld, SimConfig};
 use nerfsv_study::{DroneSystem, ViewUncertainty};
-use nerfsv_validation::{monte_carlo, replay, MonteCarloConfig, Prior, System, DRONE_STD};
+use nerfsv_validation::{monte_carlo, replay, MonteCarloConfig, Prior, System, Trajectory, DRONE_STD};
 
 #[test]
 fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
@@ -26,7 +26,7 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
         estimate_log: None,
     };
     assert_eq!((system.steps(), system.dim()), (6, 12));
-    let undisturbed = system.run(&vec![vec![0.0; 12]; 6], 0);
+    let undisturbed = system.run(&Trajectory::from_flat(12, vec![0.0; 72]).unwrap(), 0);
     assert!(!undisturbed.failed() && undisturbed.score.is_finite(), "{undisturbed:?}");
     assert!((0.09..0.12).contains(&undisturbed.score), "{}", undisturbed.score);
 

@@ -144,7 +144,7 @@ mod tests {
             population: 0,
             index,
             seed: index as u64,
-            disturbances: vec![vec![0.0]; step_scores.len()],
+            disturbances: crate::Trajectory::from_flat(1, vec![0.0; step_scores.len()]).unwrap(),
             step_log_p: vec![0.0; step_scores.len()],
             step_log_q: vec![0.0; step_scores.len()],
             log_p: 0.0,

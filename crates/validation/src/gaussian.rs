@@ -8,6 +8,8 @@ use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
+use crate::Trajectory;
+
 /// ln(2π).
 const LN_2PI: f64 = 1.837_877_066_409_345_5;
 
@@ -202,12 +204,12 @@ impl Prior {
     }
 
     /// Per-step log-densities ln p(x_t), `[steps]`.
-    pub fn step_log_pdfs(&self, disturbances: &[Vec<f64>]) -> Vec<f64> {
-        disturbances.iter().map(|x| self.step.log_pdf(x)).collect()
+    pub fn step_log_pdfs(&self, disturbances: &Trajectory) -> Vec<f64> {
+        disturbances.rows().map(|x| self.step.log_pdf(x)).collect()
     }
 
     /// Trajectory log-likelihood, eq. 1: Σ_t ln p(x_t).
-    pub fn log_likelihood(&self, disturbances: &[Vec<f64>]) -> f64 {
+    pub fn log_likelihood(&self, disturbances: &Trajectory) -> f64 {
         self.step_log_pdfs(disturbances).iter().sum()
     }
 
@@ -246,6 +248,11 @@ impl Proposal {
         self
     }
 
+    /// Dimension of one step's disturbance (0 without steps).
+    pub fn dim(&self) -> usize {
+        self.steps.first().map_or(0, Gaussian::dim)
+    }
+
     /// The defensive mixture's prior weight α, if this is one.
     pub fn defensive_fraction(&self) -> Option<f64> {
         self.defensive.as_ref().map(|(_, a)| *a)
@@ -266,35 +273,35 @@ impl Proposal {
         self.steps.is_empty()
     }
 
-    /// One trajectory, `[steps][dim]`, steps drawn in order from `rng` (for a defensive
+    /// One trajectory, `[steps, dim]`, steps drawn in order from `rng` (for a defensive
     /// mixture, after one uniform draw that picks the prior with probability α).
-    pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Vec<Vec<f64>> {
-        if let Some((prior, alpha)) = &self.defensive {
-            let u: f64 = rng.random();
-            if u < *alpha {
-                return (0..prior.steps()).map(|_| prior.step().sample(rng)).collect();
+    pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Trajectory {
+        let rows: Vec<Vec<f64>> = match &self.defensive {
+            Some((prior, alpha)) if rng.random::<f64>() < *alpha => {
+                (0..prior.steps()).map(|_| prior.step().sample(rng)).collect()
             }
-        }
-        self.steps.iter().map(|g| g.sample(rng)).collect()
+            _ => self.steps.iter().map(|g| g.sample(rng)).collect(),
+        };
+        Trajectory::from_rows(self.dim(), rows).expect("every step's Gaussian has the proposal's dimension")
     }
 
     /// The trajectory a rollout with this seed flies: [`Proposal::sample`] from
     /// `ChaCha8Rng::seed_from_u64(seed)`. Replaying a recorded seed against the proposal it was
     /// drawn from gives the same disturbances bit for bit.
-    pub fn draw(&self, seed: u64) -> Vec<Vec<f64>> {
+    pub fn draw(&self, seed: u64) -> Trajectory {
         self.sample(&mut ChaCha8Rng::seed_from_u64(seed))
     }
 
     /// Per-step log-densities ln q_t(x_t) of the per-step Gaussians, `[steps]` (for a defensive
     /// mixture, of its non-prior component: the mixture does not factor over steps).
-    pub fn step_log_pdfs(&self, disturbances: &[Vec<f64>]) -> Vec<f64> {
-        assert_eq!(disturbances.len(), self.steps.len(), "trajectory length mismatch");
-        self.steps.iter().zip(disturbances).map(|(g, x)| g.log_pdf(x)).collect()
+    pub fn step_log_pdfs(&self, disturbances: &Trajectory) -> Vec<f64> {
+        assert_eq!(disturbances.steps(), self.steps.len(), "trajectory length mismatch");
+        self.steps.iter().zip(disturbances.rows()).map(|(g, x)| g.log_pdf(x)).collect()
     }
 
     /// ln q(x) of the whole trajectory: Σ_t ln q_t(x_t), or for a defensive mixture
     /// ln(α·p(x) + (1 − α)·Π_t q_t(x_t)), computed without overflow.
-    pub fn log_pdf(&self, disturbances: &[Vec<f64>]) -> f64 {
+    pub fn log_pdf(&self, disturbances: &Trajectory) -> f64 {
         let component: f64 = self.step_log_pdfs(disturbances).iter().sum();
         match &self.defensive {
             None => component,

@@ -21,15 +21,15 @@
 //! also measures its views' uncertainty and builds the paper's rewards from it.
 //!
 //! ```
-//! use nerfsv_validation::{monte_carlo, Gaussian, MonteCarloConfig, Outcome, Prior, System};
+//! use nerfsv_validation::{monte_carlo, Gaussian, MonteCarloConfig, Outcome, Prior, System, Trajectory};
 //!
 //! /// Fails when the first component of the last step's disturbance exceeds 2σ.
 //! struct Toy;
 //! impl System for Toy {
 //!     fn steps(&self) -> usize { 3 }
 //!     fn dim(&self) -> usize { 1 }
-//!     fn run(&self, x: &[Vec<f64>], _seed: u64) -> Outcome {
-//!         let s: Vec<f64> = x.iter().map(|v| 2.0 - v[0]).collect();
+//!     fn run(&self, x: &Trajectory, _seed: u64) -> Outcome {
+//!         let s: Vec<f64> = x.rows().map(|v| 2.0 - v[0]).collect();
 //!         Outcome::new(s[2], (s[2] <= 0.0).then_some(2), s)
 //!     }
 //! }
@@ -50,6 +50,7 @@ mod seed;
 mod subset;
 mod system;
 mod table;
+mod trajectory;
 
 pub use compare::{compare, Agreement, Confusion, Spread};
 pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, SubsetConfig, ValidationConfig};
@@ -67,3 +68,4 @@ pub use seed::rollout_seed;
 pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult};
 pub use system::{Outcome, System};
 pub use table::{table_row, TableRow};
+pub use trajectory::{RaggedRow, Trajectory};

@@ -9,6 +9,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::ValidationError;
+use crate::Trajectory;
 
 /// Everything about one rollout: where it came from, what it flew, how likely it was, what
 /// happened.
@@ -23,8 +24,8 @@ pub struct RolloutRecord {
     /// The seed the disturbances were drawn from ([`crate::rollout_seed`]) and that the system
     /// was run with.
     pub seed: u64,
-    /// Disturbances, `[steps][dim]`.
-    pub disturbances: Vec<Vec<f64>>,
+    /// Disturbances, `[steps, dim]`.
+    pub disturbances: Trajectory,
     /// ln p(x_t) under the prior, `[steps]`.
     pub step_log_p: Vec<f64>,
     /// ln q_t(x_t) under the proposal it was drawn from, `[steps]`.
@@ -151,23 +152,23 @@ pub fn csv_header(dim: usize) -> String {
 /// written with Rust's shortest round-trip formatting, so a value read back is the value written
 /// and the same records always give the same bytes. Refuses records of different dimensions.
 pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()> {
-    let dim = records.iter().flat_map(|r| r.disturbances.first()).map(Vec::len).next().unwrap_or(0);
+    let dim = records.iter().find(|r| !r.disturbances.is_empty()).map_or(0, |r| r.disturbances.dim());
     writeln!(w, "{}", csv_header(dim))?;
     let mut line = String::new();
     for r in records {
-        for (t, x) in r.disturbances.iter().enumerate() {
-            if x.len() != dim {
-                return Err(io::Error::new(
-                    io::ErrorKind::InvalidInput,
-                    format!(
-                        "rollout {}/{}/{}: step {t} has {} disturbance values, expected {dim}",
-                        r.sampler,
-                        r.population,
-                        r.index,
-                        x.len()
-                    ),
-                ));
-            }
+        if !r.disturbances.is_empty() && r.disturbances.dim() != dim {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "rollout {}/{}/{}: {} disturbance values per step, expected {dim}",
+                    r.sampler,
+                    r.population,
+                    r.index,
+                    r.disturbances.dim()
+                ),
+            ));
+        }
+        for (t, x) in r.disturbances.rows().enumerate() {
             line.clear();
             let _ = write!(line, "{},{},{},{},{t}", r.sampler, r.population, r.index, r.seed);
             for v in x {
@@ -268,7 +269,7 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
                 population,
                 index,
                 seed,
-                disturbances: Vec::new(),
+                disturbances: Trajectory::empty(dim),
                 step_log_p: Vec::new(),
                 step_log_q: Vec::new(),
                 log_p: 0.0,
@@ -287,8 +288,8 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
             return Err((n, format!("step {step} does not continue the rollout above it")));
         }
         let r = records.last_mut().expect("a record was pushed or continues");
-        if r.disturbances.len() != step {
-            return Err((n, format!("step {step} follows step {}", r.disturbances.len().wrapping_sub(1))));
+        if r.disturbances.steps() != step {
+            return Err((n, format!("step {step} follows step {}", r.disturbances.steps().wrapping_sub(1))));
         }
         if r.score.to_bits() != score.to_bits()
             || r.reward.map(f64::to_bits) != reward.map(f64::to_bits)
@@ -296,7 +297,7 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         {
             return Err((n, "score, reward and trajectory_log_q must repeat on every row of a rollout".to_owned()));
         }
-        r.disturbances.push(x);
+        r.disturbances.push(&x).map_err(|e| (n, e.to_string()))?;
         r.step_log_p.push(log_p);
         r.step_log_q.push(log_q);
         r.step_scores.push(clearance);

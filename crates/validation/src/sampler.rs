@@ -17,6 +17,7 @@ use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
 use crate::seed::rollout_seed;
 use crate::system::System;
+use crate::Trajectory;
 
 /// Sampler label of Monte Carlo rollouts.
 pub const SAMPLER_MC: &str = "mc";
@@ -127,7 +128,7 @@ pub(crate) fn run_record<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
     proposal: Option<&Proposal>,
-    disturbances: Vec<Vec<f64>>,
+    disturbances: Trajectory,
     sampler: &str,
     population: usize,
     index: usize,
@@ -514,13 +515,13 @@ pub fn refit(
             let mut mean = DVector::<f64>::zeros(d);
             for (r, &w) in records.iter().zip(weights) {
                 if w > 0.0 {
-                    mean += DVector::from_column_slice(&r.disturbances[t]) * w;
+                    mean += DVector::from_column_slice(r.disturbances.row(t)) * w;
                 }
             }
             let mut cov = DMatrix::<f64>::zeros(d, d);
             for (r, &w) in records.iter().zip(weights) {
                 if w > 0.0 {
-                    let e = DVector::from_column_slice(&r.disturbances[t]) - &mean;
+                    let e = DVector::from_column_slice(r.disturbances.row(t)) - &mean;
                     if full_covariance {
                         cov += &e * e.transpose() * w;
                     } else {

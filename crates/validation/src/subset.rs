@@ -34,6 +34,7 @@ use crate::record::RolloutRecord;
 use crate::sampler::{check_shapes, most_likely_failure, run_record, wilson, ImportanceEstimate, SAMPLER_SUBSET};
 use crate::seed::rollout_seed;
 use crate::system::System;
+use crate::Trajectory;
 
 /// z of a two-sided 95 % interval.
 const Z95: f64 = 1.959_963_984_540_054;
@@ -111,9 +112,10 @@ fn rank_score(r: &RolloutRecord) -> f64 {
     }
 }
 
-/// The trajectory `[steps][dim]` of whitened coordinates `z` (`steps·dim`, step-major).
-fn trajectory(prior: &Prior, z: &[f64]) -> Vec<Vec<f64>> {
-    z.chunks(prior.dim()).map(|zt| prior.step().from_standard(zt)).collect()
+/// The trajectory `[steps, dim]` of whitened coordinates `z` (`steps·dim`, step-major).
+fn trajectory(prior: &Prior, z: &[f64]) -> Trajectory {
+    let rows = z.chunks(prior.dim()).map(|zt| prior.step().from_standard(zt));
+    Trajectory::from_rows(prior.dim(), rows).expect("the prior's step maps a row to a row")
 }
 
 /// Flies (or recalls) the rollout (level, index) at whitened coordinates `z`.
@@ -194,11 +196,11 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
         .iter()
         .map(|r| {
             let name = || format!("reused rollout {}/{}/{}", r.sampler, r.population, r.index);
-            if r.disturbances.len() != prior.steps() || r.disturbances.iter().any(|x| x.len() != prior.dim()) {
+            if r.disturbances.steps() != prior.steps() || r.disturbances.dim() != prior.dim() {
                 return Err(InvalidValue::new(
                     name(),
                     format!("must have {} steps of {} components", prior.steps(), prior.dim()),
-                    format!("{} steps", r.disturbances.len()),
+                    format!("{} steps of {}", r.disturbances.steps(), r.disturbances.dim()),
                 ));
             }
             let from_prior = (r.log_q - r.log_p).abs() <= 1e-9 * r.log_p.abs().max(1.0);
@@ -209,7 +211,7 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
                     format!("log p {}, log q {}", r.log_p, r.log_q),
                 ));
             }
-            let z = r.disturbances.iter().flat_map(|x| prior.step().to_standard(x)).collect();
+            let z = r.disturbances.rows().flat_map(|x| prior.step().to_standard(x)).collect();
             Ok(State { z, score: rank_score(r) })
         })
         .collect::<Result<_, InvalidValue>>()?;

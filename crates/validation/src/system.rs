@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::Trajectory;
+
 /// The system under test: flies one trajectory of `steps()` steps, each step's disturbance a
 /// `dim()`-vector (12 for the drone: Δposition, Δvelocity, Δrotation vector, Δangular velocity).
 ///
@@ -12,10 +14,10 @@ pub trait System: Sync {
     fn steps(&self) -> usize;
     /// Dimension of one step's disturbance.
     fn dim(&self) -> usize;
-    /// Runs one trajectory with the given disturbances (`[steps][dim]`, a row per step) and a
+    /// Runs one trajectory with the given disturbances (`[steps, dim]`, a row per step) and a
     /// seed for the system's own randomness (the rollout's seed; derive a separate stream from
     /// it rather than reusing the disturbance stream).
-    fn run(&self, disturbances: &[Vec<f64>], seed: u64) -> Outcome;
+    fn run(&self, disturbances: &Trajectory, seed: u64) -> Outcome;
 }
 
 /// What one trajectory did.

@@ -81,7 +81,7 @@ mod tests {
             population: 0,
             index: 0,
             seed: 0,
-            disturbances: vec![],
+            disturbances: crate::Trajectory::default(),
             step_log_p: vec![],
             step_log_q: vec![],
             log_p,

@@ -67,5 +67,5 @@ fn cem_moves_the_proposal_mean_towards_the_design_point() {
     // S = Σ a·x at the final proposal's mean is near or beyond the threshold, from 0 at the prior.
     let s: f64 = last.steps().iter().zip(&toy.a).map(|(g, a)| a[0] * g.mean()[0] + a[1] * g.mean()[1]).sum();
     assert!(s > 0.8 * toy.threshold, "S at the final mean {s} vs threshold {}", toy.threshold);
-    assert!(star.len() == last.len());
+    assert!(star.steps() == last.len());
 }

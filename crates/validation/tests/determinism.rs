@@ -102,7 +102,7 @@ fn csv_file_is_written_atomically_matches_the_stream_and_reads_back_bit_for_bit(
     // Floats read back are the floats written.
     let row: Vec<String> =
         String::from_utf8(want).unwrap().lines().nth(1).unwrap().split(',').map(String::from).collect();
-    assert_eq!(row[5].parse::<f64>().unwrap(), mc.records[0].disturbances[0][0]);
+    assert_eq!(row[5].parse::<f64>().unwrap(), mc.records[0].disturbances.row(0)[0]);
     assert_eq!(nerfsv_validation::read_csv_file(&path).unwrap(), mc.records);
 }
 

@@ -1,7 +1,7 @@
 //! Elite selection: γ = max(0, m_elite-th smallest score) without a reward; failures first, then
 //! reward, with one.
 
-use nerfsv_validation::{select_elites, RolloutRecord};
+use nerfsv_validation::{select_elites, RolloutRecord, Trajectory};
 
 fn records(scores: &[f64]) -> Vec<RolloutRecord> {
     scores
@@ -12,7 +12,7 @@ fn records(scores: &[f64]) -> Vec<RolloutRecord> {
             population: 0,
             index: i,
             seed: i as u64,
-            disturbances: vec![vec![0.0]],
+            disturbances: Trajectory::from_flat(1, vec![0.0]).unwrap(),
             step_log_p: vec![0.0],
             step_log_q: vec![0.0],
             log_p: 0.0,

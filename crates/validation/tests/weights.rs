@@ -6,11 +6,12 @@ mod common;
 use common::{LinearToy, STD, Z_1E3};
 use nerfsv_validation::{
     cross_entropy, elite_weights, importance_sampling, wilson_interval, CemConfig, Gaussian, Proposal, RolloutRecord,
+    Trajectory,
 };
 
 /// The prior shifted to the design point: a good, fixed proposal for the toy.
 fn shifted_proposal(toy: &LinearToy) -> Proposal {
-    Proposal::new(toy.design_point().into_iter().map(|m| Gaussian::diagonal(m, &STD).unwrap()).collect())
+    Proposal::new(toy.design_point().rows().map(|m| Gaussian::diagonal(m.to_vec(), &STD).unwrap()).collect())
 }
 
 #[test]
@@ -21,7 +22,7 @@ fn trajectory_weight_is_the_product_of_step_ratios() {
     for r in &records {
         let product: f64 = r
             .disturbances
-            .iter()
+            .rows()
             .zip(q.steps())
             .map(|(x, qt)| (prior.step().log_pdf(x) - qt.log_pdf(x)).exp())
             .product();
@@ -42,7 +43,7 @@ fn cem_elite_weights_use_the_trajectory_ratio_not_the_mean_of_step_ratios() {
             population: 1,
             index: 0,
             seed: 0,
-            disturbances: vec![vec![0.0]; 3],
+            disturbances: Trajectory::from_flat(1, vec![0.0; 3]).unwrap(),
             log_p: steps.iter().sum(),
             log_q: 0.0,
             step_log_p: steps.to_vec(),
@@ -109,7 +110,7 @@ fn a_defensive_mixture_bounds_the_weights_and_rescues_a_drifted_proposal() {
     let narrow: Vec<f64> = STD.iter().map(|s| 0.4 * s).collect();
     let drifted = Proposal::new(
         toy.design_point()
-            .into_iter()
+            .rows()
             .map(|m| Gaussian::diagonal(m.iter().map(|v| 2.5 * v).collect(), &narrow).unwrap())
             .collect(),
     );

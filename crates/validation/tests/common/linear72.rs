@@ -1,7 +1,7 @@
 //! A linear toy of the drone's dimension, shared by `tests/subset.rs` and
 //! `examples/cem_calibration.rs` (which includes this file by path).
 
-use nerfsv_validation::{Gaussian, Outcome, Prior, System};
+use nerfsv_validation::{Gaussian, Outcome, Prior, System, Trajectory};
 
 /// 6 steps × 12 standard-normal disturbances, failing when a·x > z for a fixed unit direction a
 /// spread over all 72 components: P(fail) = Q(z) exactly. The score is z − a·x.
@@ -30,8 +30,8 @@ impl System for Linear72 {
     fn dim(&self) -> usize {
         12
     }
-    fn run(&self, x: &[Vec<f64>], _seed: u64) -> Outcome {
-        let s: f64 = x.iter().flatten().zip(&self.a).map(|(x, a)| x * a).sum();
+    fn run(&self, x: &Trajectory, _seed: u64) -> Outcome {
+        let s: f64 = x.as_slice().iter().zip(&self.a).map(|(x, a)| x * a).sum();
         let score = self.z - s;
         Outcome::new(score, (score <= 0.0).then_some(5), vec![score; 6])
     }

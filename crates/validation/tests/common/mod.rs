@@ -3,7 +3,7 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use nerfsv_validation::{Gaussian, Outcome, Prior, System};
+use nerfsv_validation::{Gaussian, Outcome, Prior, System, Trajectory};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -45,9 +45,10 @@ impl LinearToy {
     }
 
     /// The most likely failure x* = threshold·Σ a/σ_S² (the design point), per step.
-    pub fn design_point(&self) -> Vec<Vec<f64>> {
+    pub fn design_point(&self) -> Trajectory {
         let s2 = self.sigma_s().powi(2);
-        self.a.iter().map(|a| (0..2).map(|j| self.threshold * a[j] * STD[j] * STD[j] / s2).collect()).collect()
+        let rows = self.a.iter().map(|a| [0, 1].map(|j| self.threshold * a[j] * STD[j] * STD[j] / s2));
+        Trajectory::from_rows(2, rows).unwrap()
     }
 
     pub fn prior(&self) -> Prior {
@@ -62,11 +63,11 @@ impl System for LinearToy {
     fn dim(&self) -> usize {
         2
     }
-    fn run(&self, x: &[Vec<f64>], seed: u64) -> Outcome {
+    fn run(&self, x: &Trajectory, seed: u64) -> Outcome {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F5A_5A5A);
         let mut s = 0.0;
         let mut step_scores = Vec::with_capacity(STEPS);
-        for (a, xt) in self.a.iter().zip(x) {
+        for (a, xt) in self.a.iter().zip(x.rows()) {
             s += a[0] * xt[0] + a[1] * xt[1];
             let jitter: f64 = StandardNormal.sample(&mut rng);
             step_scores.push(self.threshold - s + 1e-9 * jitter);
@@ -121,7 +122,7 @@ impl System for Counting {
     fn dim(&self) -> usize {
         self.toy.dim()
     }
-    fn run(&self, x: &[Vec<f64>], seed: u64) -> Outcome {
+    fn run(&self, x: &Trajectory, seed: u64) -> Outcome {
         self.runs.fetch_add(1, Ordering::Relaxed);
         self.toy.run(x, seed)
     }

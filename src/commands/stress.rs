@@ -1,16 +1,12 @@
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::refuse_output_inside;
-use nerfsv_pipeline::stage::{stage_key, Stage};
-use nerfsv_pipeline::stress::StressStage;
-use nerfsv_scene::seed::fnv1a;
+use nerfsv_pipeline::stress::{run_stress, StressRequest};
 use nerfsv_sim::WorldKind;
-use nerfsv_study::stress::{stress, Drone, OnlineSettings, Sampler, StressSetup, JOURNAL, STRESS_JSON};
+use nerfsv_study::stress::{OnlineSettings, Sampler, JOURNAL};
 use nerfsv_study::UqMode;
-use nerfsv_uq::Method;
-use nerfsv_uq::{model_id, UncertaintyField};
+use nerfsv_uq::{Method, UncertaintyField};
 use nerfsv_validation::Journal;
 
 use crate::commands::fly::{load_config, DroneArgs};
@@ -102,12 +98,6 @@ pub struct StressArgs {
     pub json: bool,
 }
 
-/// FNV-1a of a file's bytes, for the run's key.
-fn file_hash(path: &Path) -> anyhow::Result<u64> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    Ok(fnv1a(&bytes))
-}
-
 pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let mut cfg = load_config(args.config.as_deref())?;
     if let Some(seed) = args.seed {
@@ -132,79 +122,34 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         (Some(UqMode::Exact), Some(_)) => anyhow::bail!("--field is read only with --uncertainty field"),
         _ => {}
     }
-    let journal = args.out.join(JOURNAL).join(WorldKind::from(d.world).name());
-    if args.resume && !Journal::exists(&journal) {
+    if args.resume && !Journal::exists(&args.out.join(JOURNAL).join(WorldKind::from(d.world).name())) {
         anyhow::bail!("{}: --resume needs the folder of an interrupted stress run", args.out.display());
     }
-    // Everything that can be refused is checked before anything is written.
-    let prior = cfg.disturbance_prior()?;
-    let sampler = match args.sampler {
-        SamplerArg::Mc => Sampler::Mc,
-        SamplerArg::Cem => Sampler::Cem,
-        SamplerArg::Subset => Sampler::Subset,
-    };
     let (scene, worlds) = d.load()?;
-    let field = match (&args.field, online) {
-        (Some(path), Some(o)) => {
-            let field = UncertaintyField::load(path)?;
-            field.check_checkpoint(path, &model_id(&worlds.nerf))?;
-            if field.method != o.method {
-                anyhow::bail!(
-                    "{}: a {} uncertainty field, but the run measures {}",
-                    path.display(),
-                    field.method.name(),
-                    o.method.name()
-                );
-            }
-            Some(field)
-        }
-        _ => None,
-    };
-    let flight = worlds.plan(&cfg.sim).context("planning the flight")?;
-    let drone = Drone {
-        inputs: &worlds,
-        flight: &flight,
-        scene: Some(&scene),
-        sim: &cfg.sim,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
-    };
-    let samplers = [sampler];
-    let setup = StressSetup {
-        world: d.world.into(),
-        estimator: d.estimator.into(),
-        replay: args.replay,
-        online,
-        field: field.as_ref(),
-        ..StressSetup::new(drone, &cfg.validation, &prior, &samplers, &cfg.uq)
-    };
-    // Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
-    // results (the code it runs included): a --resume into results of anything else is refused.
-    let key = stage_key(
-        nerfsv_study::stress::STAGE,
-        <StressStage as Stage>::CODE,
-        &(
-            &cfg.sim,
-            &cfg.validation,
-            setup.drone.intrinsics,
-            setup.drone.render.supersample,
-            scene.key(),
-            setup.world,
-            setup.estimator,
-            sampler,
-            file_hash(&d.model)?,
-            d.nerf_field.as_deref().map(file_hash).transpose()?,
-            online,
-            online.map(|_| &cfg.uq),
-            args.field.as_deref().map(file_hash).transpose()?,
-        ),
-        &[],
-    )?;
-
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let field = args.field.as_deref().map(|p| UncertaintyField::load(p).map(|f| (p, f))).transpose()?;
     let reporter = crate::progress::Reporter::new(args.json);
-    let (figures, _) = stress(&setup, &args.out, &key, args.resume, &reporter)?;
-    nerfsv_pipeline::stage::write_json(&args.out.join(STRESS_JSON), &figures)?;
+    let figures = run_stress(
+        &StressRequest {
+            config: &cfg,
+            scene: &scene,
+            inputs: &worlds,
+            model: &d.model,
+            nerf_field: d.nerf_field.as_deref(),
+            world: d.world.into(),
+            estimator: d.estimator.into(),
+            sampler: match args.sampler {
+                SamplerArg::Mc => Sampler::Mc,
+                SamplerArg::Cem => Sampler::Cem,
+                SamplerArg::Subset => Sampler::Subset,
+            },
+            replay: args.replay,
+            online,
+            field: field.as_ref().map(|(p, f)| (*p, f)),
+            out: &args.out,
+            resume: args.resume,
+        },
+        &reporter,
+    )?;
     let one = &figures.samplers[0];
     crate::commands::report(args.json, one, || figures.describe())
 }

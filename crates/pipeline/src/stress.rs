@@ -1,17 +1,24 @@
 //! The stress stage: the drone study's searches ([`nerfsv_study::stress`]) over this run's
 //! model and fields, cached and resumable.
 
+use std::path::{Path, PathBuf};
+
+use nerfsv_scene::seed::fnv1a;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{Flight, SimConfig};
+use nerfsv_sim::{EstimatorKind, Flight, SimConfig, WorldKind};
 use nerfsv_study::flight::FlightInputs;
-use nerfsv_study::stress::{stress, Drone, Sampler, StressFigures, StressSetup, ROLLOUTS_CSV, STAGE, TABLE_CSV};
-use nerfsv_uq::UqConfig;
-use nerfsv_validation::{Prior, ValidationConfig};
+use nerfsv_study::stress::{
+    stress, Drone, OnlineSettings, Sampler, StressFigures, StressSetup, JOURNAL, ROLLOUTS_CSV, STAGE, STRESS_JSON,
+    TABLE_CSV,
+};
+use nerfsv_study::UqMode;
+use nerfsv_uq::{model_id, UncertaintyField, UqConfig};
+use nerfsv_validation::{Journal, Prior, ValidationConfig};
 use serde::Serialize;
 
 use crate::flight::{drone_inputs, flight_inputs};
-use crate::stage::{Stage, StageContext};
-use crate::PipelineError;
+use crate::stage::{stage_key, write_json, Observer, Stage, StageContext};
+use crate::{PipelineError, RunConfig};
 
 /// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
 /// rollout of their searches replayed in GT-sim; then, with `subset`, subset simulation's
@@ -89,4 +96,136 @@ impl Stage for StressStage<'_> {
     fn describe(f: &StressFigures) -> String {
         f.describe()
     }
+}
+
+/// One search outside `nerfsv run`, as `nerfsv stress` (and any other front end) asks for it:
+/// one sampler over the drone of a checkpoint, its field and a ground truth, into a folder of
+/// its own, keyed as the stress stage keys its results.
+pub struct StressRequest<'a> {
+    /// The run config: `[sim]` (the drone), `[validation]` (prior, samplers, seed), `[dataset]`
+    /// (the camera), `[uq]` (the online measurement's settings).
+    pub config: &'a RunConfig,
+    /// The ground truth (GT-sim's world and the replays).
+    pub scene: &'a Scene,
+    /// The drone's worlds, read from `model` and `nerf_field`
+    /// ([`FlightInputs::from_files`](nerfsv_study::flight::FlightInputs::from_files)).
+    pub inputs: &'a FlightInputs,
+    /// The files the worlds were read from: their bytes enter the key.
+    pub model: &'a Path,
+    pub nerf_field: Option<&'a Path>,
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    pub sampler: Sampler,
+    /// Fly the search's rollouts again in the other world and compare.
+    pub replay: bool,
+    /// Measure each step's uncertainty (and rank CEM by its reward), or not.
+    pub online: Option<OnlineSettings>,
+    /// The uncertainty field `UqMode::Field` reads, with the file it came from (its bytes
+    /// enter the key). Refused unless its method is the online measurement's.
+    pub field: Option<(&'a Path, &'a UncertaintyField)>,
+    /// Output folder: rollouts.csv, replay_*.csv, table.csv, stress.json, the most likely
+    /// failure's files, the journal.
+    pub out: &'a Path,
+    /// Continue a killed search in `out` (its journal must be there and be this request's).
+    pub resume: bool,
+}
+
+impl StressRequest<'_> {
+    /// The journal folder of this request's search world in `out`.
+    pub fn journal(&self) -> PathBuf {
+        self.out.join(JOURNAL).join(self.world.name())
+    }
+
+    /// Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
+    /// results (the code it runs included): a resume into the results of anything else is
+    /// refused.
+    pub fn key(&self) -> Result<String, PipelineError> {
+        let cfg = self.config;
+        let render = cfg.dataset.render_settings();
+        stage_key(
+            STAGE,
+            <StressStage as Stage>::CODE,
+            &(
+                &cfg.sim,
+                &cfg.validation,
+                cfg.camera_intrinsics(),
+                render.supersample,
+                self.scene.key(),
+                self.world,
+                self.estimator,
+                self.sampler,
+                file_hash(self.model)?,
+                self.nerf_field.map(file_hash).transpose()?,
+                self.online,
+                self.online.map(|_| &cfg.uq),
+                self.field.map(|(p, _)| file_hash(p)).transpose()?,
+            ),
+            &[],
+        )
+    }
+}
+
+/// FNV-1a of a file's bytes, for a request's key.
+fn file_hash(path: &Path) -> Result<u64, PipelineError> {
+    std::fs::read(path).map(|b| fnv1a(&b)).map_err(|e| PipelineError::io(path, e))
+}
+
+/// Runs one [`StressRequest`]: checks everything that can be refused (the uncertainty settings
+/// against the field, a resume without a journal, the prior, the flight's plan) before it
+/// writes anything, then searches ([`stress`]) and writes `stress.json`. The figures are the
+/// ones `stress.json` holds.
+pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<StressFigures, PipelineError> {
+    let cfg = request.config;
+    let refuse = |message: String| PipelineError::World { key: "stress", message };
+    match (request.online, request.field) {
+        (Some(o), Some((path, field))) if o.mode == UqMode::Field && field.method != o.method => {
+            return Err(refuse(format!(
+                "{}: a {} uncertainty field, but the search measures {}",
+                path.display(),
+                field.method.name(),
+                o.method.name()
+            )))
+        }
+        (Some(o), None) if o.mode == UqMode::Field => {
+            return Err(refuse("field mode needs an uncertainty field (`nerfsv uq field`)".into()))
+        }
+        (Some(o), Some(_)) if o.mode == UqMode::Exact => {
+            return Err(refuse("an uncertainty field is read only in field mode".into()))
+        }
+        (None, Some(_)) => return Err(refuse("an uncertainty field is read only when the search measures one".into())),
+        _ => {}
+    }
+    if let Some((path, field)) = request.field {
+        field.check_checkpoint(path, &model_id(&request.inputs.nerf))?;
+    }
+    if request.resume && !Journal::exists(&request.journal()) {
+        return Err(refuse(format!(
+            "{}: resuming needs the folder of an interrupted stress run",
+            request.out.display()
+        )));
+    }
+    let prior = cfg.disturbance_prior()?;
+    let flight = request.inputs.plan(&cfg.sim)?;
+    let key = request.key()?;
+    let drone = Drone {
+        inputs: request.inputs,
+        flight: &flight,
+        scene: Some(request.scene),
+        sim: &cfg.sim,
+        intrinsics: cfg.camera_intrinsics(),
+        render: cfg.dataset.render_settings(),
+    };
+    let samplers = [request.sampler];
+    let setup = StressSetup {
+        world: request.world,
+        estimator: request.estimator,
+        replay: request.replay,
+        online: request.online,
+        field: request.field.map(|(_, f)| f),
+        ..StressSetup::new(drone, &cfg.validation, &prior, &samplers, &cfg.uq)
+    };
+    std::fs::create_dir_all(request.out).map_err(|e| PipelineError::io(request.out, e))?;
+    let (figures, _) = stress(&setup, request.out, &key, request.resume, observer)?;
+    write_json(&request.out.join(STRESS_JSON), &figures)?;
+    Ok(figures)
 }

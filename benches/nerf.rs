@@ -50,11 +50,11 @@ fn nerf(c: &mut Criterion) {
     g.throughput(Throughput::Elements(lattice.len() as u64));
     g.bench_function("rays_256", |b| b.iter(|| model.render_rays(&lattice)));
     g.bench_function("jacobian_256", |b| b.iter(|| model.render_rays_jacobian(&lattice)));
-    let points: Vec<[f32; 3]> = (0..1 << 18)
+    let points: Vec<nalgebra::Point3<f32>> = (0..1 << 18)
         .map(|i| {
             let f =
                 |k: u32| ((i as u32).wrapping_mul(2_654_435_761).wrapping_add(k * 40_503) % 1000) as f32 / 500.0 - 1.0;
-            [1.9 * f(1), 1.9 * f(2), 0.6 * f(3) + 0.4]
+            nalgebra::Point3::new(1.9 * f(1), 1.9 * f(2), 0.6 * f(3) + 0.4)
         })
         .collect();
     g.throughput(Throughput::Elements(points.len() as u64));

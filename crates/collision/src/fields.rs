@@ -256,7 +256,7 @@ pub fn ground_truth_field(scene: &Scene, cells_per_metre: f32) -> Result<(BuiltF
 pub fn density_field(
     geometry: GridGeometry,
     threshold: f32,
-    density: impl Fn(&[[f32; 3]], &mut [f32]) + Sync,
+    density: impl Fn(&[Point3<f32>], &mut [f32]) + Sync,
 ) -> Result<BuiltField, CollisionError> {
     // 1 / cell, rounded to 1e-3 so that a geometry made at 400 cells/m passes.
     let cells_per_metre = ((1.0 / geometry.cell as f64) * 1e3).round() / 1e3;

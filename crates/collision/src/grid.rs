@@ -276,16 +276,15 @@ impl ScalarGrid {
     /// [`SAMPLE_BATCH`] nodes in storage order, evaluated in parallel (rayon). A batch's points
     /// and its place in `data` do not depend on scheduling, so the result is deterministic.
     /// Suited to fields that are cheaper per batch than per point, such as a NeRF's density.
-    pub fn sample_batched(geometry: GridGeometry, f: impl Fn(&[[f32; 3]], &mut [f32]) + Sync) -> ScalarGrid {
+    pub fn sample_batched(geometry: GridGeometry, f: impl Fn(&[Point3<f32>], &mut [f32]) + Sync) -> ScalarGrid {
         let mut data = vec![0f32; geometry.len()];
         data.par_chunks_mut(SAMPLE_BATCH).enumerate().for_each_init(
             || Vec::with_capacity(SAMPLE_BATCH),
-            |points: &mut Vec<[f32; 3]>, (b, out)| {
+            |points: &mut Vec<Point3<f32>>, (b, out)| {
                 points.clear();
                 points.extend((b * SAMPLE_BATCH..b * SAMPLE_BATCH + out.len()).map(|idx| {
                     let [i, j, k] = geometry.coords(idx);
-                    let p = geometry.position_of(i, j, k);
-                    [p.x, p.y, p.z]
+                    geometry.position_of(i, j, k)
                 }));
                 f(points, out);
             },

@@ -12,6 +12,7 @@
 //! have density 0 (the model answers 0 there, [`crate::fields::NgpField::density_batch`]) and
 //! gradient 0.
 
+use nalgebra::Point3;
 use rayon::prelude::*;
 
 use crate::field_components::mlp::trunc_exp_exact_grad;
@@ -28,7 +29,7 @@ impl Nerf {
     /// grads [n, P])`, `P = field.sigma_net_range().len()`, row-major. σ is bit-identical to
     /// [`Nerf::density`]. Outside the model's box both are 0. Parallel over chunks of
     /// [`DENSITY_GRADIENT_CHUNK`] points; the per-point loop allocates nothing.
-    pub fn density_param_gradients(&self, points: &[[f32; 3]]) -> (Vec<f32>, Vec<f32>) {
+    pub fn density_param_gradients(&self, points: &[Point3<f32>]) -> (Vec<f32>, Vec<f32>) {
         let p = self.field.sigma_net_range().len();
         let mut sigma = vec![0.0f32; points.len()];
         let mut grads = vec![0.0f32; points.len() * p];
@@ -40,7 +41,7 @@ impl Nerf {
             .for_each(|((s, g), pts)| {
                 pool.with(|(ws, pos)| {
                     pos.clear();
-                    pos.extend(pts.iter().flat_map(|q| self.field.normalize(*q)));
+                    pos.extend(pts.iter().flat_map(|q| self.field.normalize(q.coords.into())));
                     self.field.density_batch(&self.params, pos, ws, s);
                     self.density_gradient_rows(ws, s, g);
                 })

@@ -17,6 +17,8 @@
 
 use std::ops::Range;
 
+use nalgebra::{Point3, Vector3};
+
 use rand::{RngExt, SeedableRng};
 
 use crate::config::NerfConfig;
@@ -243,11 +245,13 @@ pub const TRAIN_CHUNK: usize = 256;
 /// every core).
 pub(crate) const RENDER_CHUNK: usize = 128;
 
-/// One ray of a chunk: world origin and unit direction, with its background.
-#[derive(Clone, Copy, Debug, Default)]
+/// One ray of a chunk: world origin (m) and unit direction, with its background. The points and
+/// directions of the crate's interface are nalgebra's, as in the scene crate; the kernels work on
+/// the same values as arrays.
+#[derive(Clone, Copy, Debug)]
 pub struct RayInput {
-    pub origin: [f32; 3],
-    pub direction: [f32; 3],
+    pub origin: Point3<f32>,
+    pub direction: Vector3<f32>,
     pub background: [f32; 3],
     /// Start offset of the marching lattice in steps, `[0, 1)` (0 for rendering).
     pub jitter: f32,
@@ -257,7 +261,25 @@ impl RayInput {
     /// The rendering ray through the centre of pixel `(i, j)` (column, row) of `camera`.
     pub fn through_pixel(camera: &nerfsv_scene::Camera, i: u32, j: u32, background: [f32; 3]) -> Self {
         let r = camera.pixel_ray(i, j);
-        Self { origin: r.origin.coords.into(), direction: r.direction.into(), background, jitter: 0.0 }
+        Self { origin: r.origin, direction: r.direction, background, jitter: 0.0 }
+    }
+
+    /// The origin as the kernels take it.
+    #[inline]
+    pub(crate) fn o(&self) -> [f32; 3] {
+        self.origin.coords.into()
+    }
+
+    /// The direction as the kernels take it.
+    #[inline]
+    pub(crate) fn d(&self) -> [f32; 3] {
+        self.direction.into()
+    }
+}
+
+impl Default for RayInput {
+    fn default() -> Self {
+        Self { origin: Point3::origin(), direction: Vector3::zeros(), background: [0.0; 3], jitter: 0.0 }
     }
 }
 
@@ -377,7 +399,7 @@ impl ChunkWorkspace {
         self.trans.clear();
         self.count.clear();
         for (i, r) in rays.iter().enumerate() {
-            let (t0, t1) = ray_aabb(r.origin, r.direction, grid.aabb_min, grid.aabb_max).unwrap_or((0.0, -1.0));
+            let (t0, t1) = ray_aabb(r.o(), r.d(), grid.aabb_min, grid.aabb_max).unwrap_or((0.0, -1.0));
             self.t_next.push(t0 + r.jitter * step);
             self.t_far.push(t1);
             self.trans.push(1.0);
@@ -394,7 +416,7 @@ impl ChunkWorkspace {
                 let before = self.t.len();
                 let k = round.max(1).min(max_samples - self.count[ri] as usize);
                 self.t_next[ri] =
-                    march_segment(r.origin, r.direction, grid, step, self.t_next[ri], self.t_far[ri], k, &mut self.t);
+                    march_segment(r.o(), r.d(), grid, step, self.t_next[ri], self.t_far[ri], k, &mut self.t);
                 let added = self.t.len() - before;
                 self.count[ri] += added as u32;
                 self.sample_ray.extend(std::iter::repeat_n(ri as u32, added));
@@ -458,7 +480,7 @@ impl ChunkWorkspace {
         for (j, &s) in self.act.iter().enumerate() {
             let s = s as usize;
             let row = &mut self.cin[j * ci..(j + 1) * ci];
-            sh_encode(rays[self.sample_ray[s] as usize].direction, &mut row[..SH_DIM]);
+            sh_encode(rays[self.sample_ray[s] as usize].d(), &mut row[..SH_DIM]);
             row[SH_DIM..].copy_from_slice(&self.out0[s * o + 1..(s + 1) * o]);
         }
         self.h1.resize(m * ch, 0.0);
@@ -594,8 +616,8 @@ mod tests {
                 let d = [0.3 * (i as f32 - 2.5), 1.0, -0.2 + 0.05 * i as f32];
                 let nrm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 RayInput {
-                    origin: [0.1, -2.0, 0.1],
-                    direction: d.map(|x| x / nrm),
+                    origin: [0.1, -2.0, 0.1].into(),
+                    direction: d.map(|x| x / nrm).into(),
                     background: [0.3, 0.5, 0.9],
                     jitter: 0.3,
                 }

@@ -230,7 +230,7 @@ impl JacobianWorkspace {
         // View term: ∂C/∂d += (∂C/∂SH · ∂SH/∂u) · (I − u uᵀ)/|d|.
         let mut jsh = [[0.0f32; 3]; SH_DIM];
         for (ri, r) in rays.iter().enumerate() {
-            let d = r.direction;
+            let d = r.d();
             let nrm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             if nrm == 0.0 {
                 continue;
@@ -502,7 +502,7 @@ impl Nerf {
                 linear_forward(&enc, f.w(&self.params, 1), &mut h0, n, e, sh);
                 relu(&mut h0);
                 linear_forward(&h0, f.w(&self.params, 2), &mut out0, n, sh, o);
-                let d = r.direction;
+                let d = r.d();
                 let nrm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 let mut cin = vec![0.0; n * ci];
                 for i in 0..n {

@@ -64,7 +64,7 @@
 //! let report = evaluate(&nerf, &test, EvalOptions::default()).unwrap();
 //! println!("PSNR {:.2} dB", report.psnr);
 //! let view = nerf.render_camera(&test.frames[0].camera, [1.0, 1.0, 1.0]);
-//! let sigma = nerf.density(&[[0.0, 0.0, 0.5]]);
+//! let sigma = nerf.density(&[nalgebra::Point3::new(0.0, 0.0, 0.5)]);
 //! # let _ = (view, sigma);
 //! ```
 

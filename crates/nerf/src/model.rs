@@ -3,6 +3,7 @@
 
 use std::sync::Mutex;
 
+use nalgebra::{Point3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
 
@@ -81,13 +82,13 @@ impl Nerf {
     }
 
     /// Density σ in 1/m at world points (metres); 0 outside the scene box. Parallel.
-    pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
+    pub fn density(&self, points: &[Point3<f32>]) -> Vec<f32> {
         let mut out = vec![0.0; points.len()];
         let pool = Pool::<(DensityWorkspace, Vec<f32>)>::new();
         out.par_chunks_mut(DENSITY_CHUNK).zip(points.par_chunks(DENSITY_CHUNK)).for_each(|(o, p)| {
             pool.with(|(ws, pos)| {
                 pos.clear();
-                pos.extend(p.iter().flat_map(|q| self.field.normalize(*q)));
+                pos.extend(p.iter().flat_map(|q| self.field.normalize(q.coords.into())));
                 self.field.density_batch(&self.params, pos, ws, o);
             })
         });
@@ -97,7 +98,7 @@ impl Nerf {
     /// Density σ (1/m) and its gradient ∇σ (1/m², world frame) at world points (metres); both 0
     /// outside the scene box. Parallel. ∇σ is that of the hash encoding's trilinear interpolation
     /// (continuous inside a cell, jumping across cell faces).
-    pub fn density_and_gradient(&self, points: &[[f32; 3]]) -> (Vec<f32>, Vec<[f32; 3]>) {
+    pub fn density_and_gradient(&self, points: &[Point3<f32>]) -> (Vec<f32>, Vec<Vector3<f32>>) {
         let mut sigma = vec![0.0; points.len()];
         let mut grad = vec![[0.0; 3]; points.len()];
         let pool = Pool::<(DensityWorkspace, Vec<f32>)>::new();
@@ -108,11 +109,11 @@ impl Nerf {
             .for_each(|((s, g), p)| {
                 pool.with(|(ws, pos)| {
                     pos.clear();
-                    pos.extend(p.iter().flat_map(|q| self.field.normalize(*q)));
+                    pos.extend(p.iter().flat_map(|q| self.field.normalize(q.coords.into())));
                     self.field.density_and_gradient_batch(&self.params, pos, ws, s, g);
                 })
             });
-        (sigma, grad)
+        (sigma, grad.into_iter().map(Vector3::from).collect())
     }
 
     /// The step Δt (metres) the occupancy test `σ·Δt > threshold` uses: the marching step.
@@ -154,7 +155,7 @@ impl Nerf {
     /// sample": the rays a fit on the `sigma_net` weights can use.
     pub fn ray_composites_a_sample(&self, ray: &RayInput) -> bool {
         let mut ts = Vec::with_capacity(1);
-        march_ray(ray.origin, ray.direction, &self.grid, self.config.step_size, 1, ray.jitter, &mut ts) > 0
+        march_ray(ray.o(), ray.d(), &self.grid, self.config.step_size, 1, ray.jitter, &mut ts) > 0
     }
 
     /// The indices (increasing) of the `rays` for which

@@ -217,12 +217,7 @@ impl Trainer {
             let a = px[3];
             // Straight alpha: target = rgb·a + bg·(1 − a).
             self.targets.push([0, 1, 2].map(|c| px[c] * a + bg[c] * (1.0 - a)));
-            self.rays.push(RayInput {
-                origin: [ray.origin.x, ray.origin.y, ray.origin.z],
-                direction: [ray.direction.x, ray.direction.y, ray.direction.z],
-                background: bg,
-                jitter,
-            });
+            self.rays.push(RayInput { origin: ray.origin, direction: ray.direction, background: bg, jitter });
         }
     }
 

@@ -1,6 +1,7 @@
 //! `Nerf::density_param_gradients`: the density's derivatives with respect to every
 //! `sigma_net` weight against central differences of `Nerf::density`.
 
+use nalgebra::Point3;
 use nerfsv_nerf::{Nerf, NerfConfig};
 use rand::{RngExt, SeedableRng};
 
@@ -26,7 +27,7 @@ fn model() -> Nerf {
 #[test]
 fn density_gradient_matches_central_differences_for_every_sigma_net_weight() {
     let mut nerf = model();
-    let points = [[0.1f32, -0.3, 0.2], [-0.5, 0.4, -0.1], [0.7, 0.6, -0.8], [0.0, 0.05, 0.9]];
+    let points = [[0.1f32, -0.3, 0.2], [-0.5, 0.4, -0.1], [0.7, 0.6, -0.8], [0.0, 0.05, 0.9]].map(Point3::from);
     let (sigma, grads) = nerf.density_param_gradients(&points);
     assert_eq!(sigma, nerf.density(&points), "densities are those of Nerf::density");
     let p = nerf.field.sigma_net_range().len();
@@ -78,7 +79,7 @@ fn density_gradient_matches_central_differences_for_every_sigma_net_weight() {
 #[test]
 fn outside_the_box_density_and_gradient_are_zero() {
     let nerf = model();
-    let points = [[1.5f32, 0.0, 0.0], [0.0, -1.01, 0.0], [0.2, 0.1, 0.3]];
+    let points = [[1.5f32, 0.0, 0.0], [0.0, -1.01, 0.0], [0.2, 0.1, 0.3]].map(Point3::from);
     let (sigma, grads) = nerf.density_param_gradients(&points);
     let p = nerf.field.sigma_net_range().len();
     assert_eq!(&sigma[..2], &[0.0, 0.0]);
@@ -90,8 +91,9 @@ fn outside_the_box_density_and_gradient_are_zero() {
 #[test]
 fn batched_rows_equal_one_point_at_a_time() {
     let nerf = model();
-    let points: Vec<[f32; 3]> =
-        (0..700).map(|i| [((i * 37) % 100) as f32 / 60.0 - 0.8, ((i * 11) % 90) as f32 / 50.0 - 0.9, 0.1]).collect();
+    let points: Vec<Point3<f32>> = (0..700)
+        .map(|i| Point3::new(((i * 37) % 100) as f32 / 60.0 - 0.8, ((i * 11) % 90) as f32 / 50.0 - 0.9, 0.1))
+        .collect();
     let (sigma, grads) = nerf.density_param_gradients(&points);
     let p = nerf.field.sigma_net_range().len();
     for i in [0, 255, 256, 699] {

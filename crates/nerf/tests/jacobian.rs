@@ -139,8 +139,13 @@ mod reference {
         [0, 1, 2].map(|ch| c[ch] + trans * bg[ch] as f64)
     }
 
+    /// A vector's components in f64.
+    pub fn f64s(v: nalgebra::Vector3<f32>) -> [f64; 3] {
+        [0, 1, 2].map(|a| f64::from(v[a]))
+    }
+
     pub fn ray_colour(nerf: &Nerf, r: &RayInput, ts: &[f32]) -> [f64; 3] {
-        colour(nerf, r.origin.map(f64::from), r.direction.map(f64::from), r.background, ts)
+        colour(nerf, f64s(r.origin.coords), f64s(r.direction), r.background, ts)
     }
 }
 
@@ -178,7 +183,7 @@ fn ray_jacobians_match_central_differences_with_fixed_sample_distances() {
             let mut fd = [[0.0f64; 3]; 3];
             for a in 0..3 {
                 let shifted = |s: f64| {
-                    let (mut o, mut d) = (rays[k].origin.map(f64::from), rays[k].direction.map(f64::from));
+                    let (mut o, mut d) = (reference::f64s(rays[k].origin.coords), reference::f64s(rays[k].direction));
                     let v = if which == "origin" { &mut o } else { &mut d };
                     v[a] += s;
                     reference::colour(nerf, o, d, rays[k].background, &ts[k])
@@ -255,8 +260,8 @@ fn density_gradient_matches_central_differences_on_a_trained_model() {
                 f.encoding.levels.iter().any(|lv| corners_frac(lv, x0).0 != corners_frac(lv, x1).0)
             })
         });
-        let (sigma, grad) = nerf.density_and_gradient(&[p]);
-        assert_eq!(sigma[0], nerf.density(&[p])[0]);
+        let (sigma, grad) = nerf.density_and_gradient(&[p.into()]);
+        assert_eq!(sigma[0], nerf.density(&[p.into()])[0]);
         if crosses || sigma[0] < 1.0 {
             continue;
         }
@@ -268,7 +273,7 @@ fn density_gradient_matches_central_differences_on_a_trained_model() {
             qm[a] -= h;
             fd[a] = (reference::density(nerf, qp) - reference::density(nerf, qm)) / (2.0 * h);
         }
-        let g = grad[0].map(f64::from);
+        let g = reference::f64s(grad[0]);
         let err = ((0..3).map(|a| (g[a] - fd[a]).powi(2)).sum::<f64>()).sqrt();
         let norm = (g.iter().map(|v| v * v).sum::<f64>()).sqrt();
         assert!(err <= 1e-3 * norm, "at {p:?} (σ = {}): ∇σ {g:?} vs fd {fd:?}", sigma[0]);
@@ -276,7 +281,7 @@ fn density_gradient_matches_central_differences_on_a_trained_model() {
     }
     assert!(checked >= 30, "only {checked} points checked");
     // Outside the box: no density, no gradient.
-    assert_eq!(nerf.density_and_gradient(&[[5.0, 0.0, 0.0]]), (vec![0.0], vec![[0.0; 3]]));
+    assert_eq!(nerf.density_and_gradient(&[[5.0, 0.0, 0.0].into()]), (vec![0.0], vec![nalgebra::Vector3::zeros()]));
 }
 
 /// The forward pass kept for later differentiation: a `RayRender` reused for a second, different

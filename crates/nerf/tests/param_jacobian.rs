@@ -30,7 +30,12 @@ fn rays(n: usize, jitter: f32) -> Vec<RayInput> {
         .map(|i| {
             let d = [0.3 * (i as f32 - 2.5), 1.0, -0.2 + 0.05 * i as f32];
             let nrm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            RayInput { origin: [0.1, -2.0, 0.1], direction: d.map(|x| x / nrm), background: [0.3, 0.5, 0.9], jitter }
+            RayInput {
+                origin: [0.1, -2.0, 0.1].into(),
+                direction: d.map(|x| x / nrm).into(),
+                background: [0.3, 0.5, 0.9],
+                jitter,
+            }
         })
         .collect()
 }
@@ -109,8 +114,8 @@ fn sigma_net_jacobian_matches_central_differences_of_render_rays() {
 fn composited_samples_rebuild_the_render_and_are_thread_count_independent() {
     let nerf = model();
     let mut rs = rays(40, 0.0);
-    rs[7].origin = [5.0, 5.0, 5.0]; // pointing away from the box: no samples
-    rs[7].direction = [0.0, 0.0, 1.0];
+    rs[7].origin = [5.0, 5.0, 5.0].into(); // pointing away from the box: no samples
+    rs[7].direction = [0.0, 0.0, 1.0].into();
     let plain = nerf.render_rays(&rs);
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

@@ -105,7 +105,12 @@ fn a_ray_composites_a_sample_exactly_when_the_render_gives_it_one() {
             let origin = [0, 1, 2].map(|_| rng.random_range(-2.5f32..2.5));
             let d = [0, 1, 2].map(|_| rng.random_range(-1.0f32..1.0));
             let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-3);
-            RayInput { origin, direction: d.map(|x| x / n), background: [1.0; 3], jitter: rng.random() }
+            RayInput {
+                origin: origin.into(),
+                direction: d.map(|x| x / n).into(),
+                background: [1.0; 3],
+                jitter: rng.random(),
+            }
         })
         .collect();
     let out = nerf.render_rays_samples(&rays);

@@ -52,16 +52,17 @@ fn main() {
     let post = DensityPosterior::new(&d, m, cfg.prior_precision).expect("posterior");
     println!("Schur complement + eigen-decomposition of {m}²: {:.1} s", t.elapsed().as_secs_f64());
     let g = field_geometry(&nerf, cfg.field_cells_per_metre).expect("grid");
-    let positions: Vec<[f32; 3]> = (0..g.len())
+    let positions: Vec<nalgebra::Point3<f32>> = (0..g.len())
         .map(|n| {
             let [i, j, k] = g.coords(n);
-            g.position_of(i, j, k).coords.into()
+            g.position_of(i, j, k)
         })
         .collect();
     let sigma = nerf.density(&positions);
     let dense_nodes: Vec<usize> = (0..g.len()).filter(|&n| sigma[n] >= 1.0).collect();
     let n = dense_nodes.len().min(samples);
-    let picked: Vec<[f32; 3]> = (0..n).map(|q| positions[dense_nodes[q * dense_nodes.len() / n]]).collect();
+    let picked: Vec<nalgebra::Point3<f32>> =
+        (0..n).map(|q| positions[dense_nodes[q * dense_nodes.len() / n]]).collect();
     println!("{} of {} nodes have σ ≥ 1/m; {n} sampled", dense_nodes.len(), g.len());
     let (_, grads) = nerf.density_param_gradients(&picked);
     let p = nerf.field.sigma_net_range().len();

@@ -237,11 +237,11 @@ pub fn field_geometry(nerf: &Nerf, cells_per_metre: f64) -> Result<GridGeometry,
 /// Memory a field needs per node while it is built, bytes (for the memory budget).
 const BYTES_PER_NODE: u64 = 4 * 4 + 2 * 8 + 12 + 2;
 
-fn node_positions(g: &GridGeometry) -> Vec<[f32; 3]> {
+fn node_positions(g: &GridGeometry) -> Vec<Point3<f32>> {
     (0..g.len())
         .map(|n| {
             let [i, j, k] = g.coords(n);
-            g.position_of(i, j, k).coords.into()
+            g.position_of(i, j, k)
         })
         .collect()
 }
@@ -710,8 +710,8 @@ impl UncertaintyField {
 
     /// The looked-up value `v` at `p` (GA σ̂², BLA relative variance), `None` outside the grid
     /// or with no data around `p`.
-    pub fn value_at(&self, p: [f32; 3]) -> Option<f32> {
-        let (idx, w) = cell_of(&self.geometry, p)?;
+    pub fn value_at(&self, p: Point3<f32>) -> Option<f32> {
+        let (idx, w) = cell_of(&self.geometry, p.coords.into())?;
         interp_masked(&self.lookup, &idx, &w)
     }
 
@@ -816,7 +816,7 @@ impl UncertaintyField {
                     return (f32::NAN, f32::NAN);
                 }
                 let ray = &rays[p];
-                let at = |t: f32| [0, 1, 2].map(|a| ray.origin[a] + t * ray.direction[a]);
+                let at = |t: f32| Point3::from([0, 1, 2].map(|a| ray.origin[a] + t * ray.direction[a]));
                 let opacity = samples.opacity[p];
                 let z = camera.z_depth_factor((p as u32 % k.width) as f32 + 0.5, (p as u32 / k.width) as f32 + 0.5);
                 let (var_c, var_d) = match self.method {
@@ -881,8 +881,8 @@ impl UncertaintyField {
     }
 
     /// BLA: `Var[σ]` at `p` (trilinear; 0 outside the grid).
-    fn bla_variance_at(&self, p: [f32; 3]) -> f32 {
-        cell_of(&self.geometry, p).map_or(0.0, |(idx, w)| interp(&self.variance, &idx, &w).max(0.0))
+    fn bla_variance_at(&self, p: Point3<f32>) -> f32 {
+        cell_of(&self.geometry, p.coords.into()).map_or(0.0, |(idx, w)| interp(&self.variance, &idx, &w).max(0.0))
     }
 
     /// Refuses a field built from another model than the one whose [`model_id`] is

@@ -886,7 +886,9 @@ pub fn field_slice_png(field: &UncertaintyField) -> Result<Option<Vec<u8>>, UqEr
     let values: Vec<f64> = (0..nx * ny)
         .map(|n| {
             let p = g.position_of(n % nx, n / nx, 0);
-            field.value_at([p.x, p.y, FIELD_SLICE_ALTITUDE]).map_or(f64::NAN, |v| f64::from(v.max(0.0)).sqrt())
+            field
+                .value_at(nalgebra::Point3::new(p.x, p.y, FIELD_SLICE_ALTITUDE))
+                .map_or(f64::NAN, |v| f64::from(v.max(0.0)).sqrt())
         })
         .collect();
     let mut positive: Vec<f64> = values.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
@@ -960,8 +962,12 @@ mod tests {
 
     /// Rays from far outside the model's box, pointing away from it.
     fn missing_rays() -> (Vec<RayInput>, Vec<[f32; 3]>) {
-        let ray =
-            RayInput { origin: [10.0, 10.0, 10.0], direction: [1.0, 0.0, 0.0], background: BACKGROUND, jitter: 0.0 };
+        let ray = RayInput {
+            origin: [10.0, 10.0, 10.0].into(),
+            direction: [1.0, 0.0, 0.0].into(),
+            background: BACKGROUND,
+            jitter: 0.0,
+        };
         (vec![ray; 6], vec![[0.5; 3]; 6])
     }
 

@@ -423,7 +423,7 @@ fn bla_refuses_bad_config_and_an_image_whose_rays_all_miss_naming_them() {
     }
     let away: Vec<_> = rays
         .iter()
-        .map(|r| nerfsv_nerf::RayInput { origin: [0.0, 5.0, 0.0], direction: [0.0, 1.0, 0.0], ..*r })
+        .map(|r| nerfsv_nerf::RayInput { origin: [0.0, 5.0, 0.0].into(), direction: [0.0, 1.0, 0.0].into(), ..*r })
         .collect();
     let err = bla_image(&nerf, "r_9", &away, &reference, &UqConfig::default()).unwrap_err();
     assert!(err.to_string().starts_with("r_9: all 16 rays miss"), "{err}");

@@ -106,8 +106,7 @@ fn bla_field_variance_at_a_node_equals_the_dense_quadratic_form() {
     let mut checked = 0;
     for node in (0..g.len()).step_by(37) {
         let [i, j, k] = g.coords(node);
-        let x: [f32; 3] = g.position_of(i, j, k).coords.into();
-        let (s, grad) = nerf.density_param_gradients(&[x]);
+        let (s, grad) = nerf.density_param_gradients(&[g.position_of(i, j, k)]);
         assert_eq!(field.density[node], s[0]);
         let dense = quadratic_form(&grad, &sigma);
         let prior_only = grad.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / cfg.prior_precision;
@@ -136,7 +135,8 @@ fn rank_k_variance_decreases_with_k_to_the_dense_value() {
     let post = DensityPosterior::new(&d, m, cfg.prior_precision).unwrap();
     assert!(post.eigenvalues.windows(2).all(|w| w[0] >= w[1]));
     let dense = post.covariance();
-    let points: Vec<[f32; 3]> = (0..20).map(|i| [0.09 * i as f32 - 0.9, 0.3 - 0.02 * i as f32, 0.1]).collect();
+    let points: Vec<nalgebra::Point3<f32>> =
+        (0..20).map(|i| nalgebra::Point3::new(0.09 * i as f32 - 0.9, 0.3 - 0.02 * i as f32, 0.1)).collect();
     let (_, grads) = nerf.density_param_gradients(&points);
     let p = nerf.field.sigma_net_range().len();
     let ranks = [4, 16, 64, 256, m];

@@ -105,7 +105,7 @@ fn ga_flags_the_papers_exclusions_and_refuses_an_image_whose_rays_all_miss() {
 fn ga_of_a_render_against_itself_has_unit_mu_and_vanishing_sigma() {
     let nerf = common::tiny_nerf();
     let mut rays = common::view_rays(24);
-    rays.push(nerfsv_nerf::RayInput { origin: [5.0, 5.0, 5.0], direction: [0.0, 0.0, 1.0], ..rays[0] });
+    rays.push(nerfsv_nerf::RayInput { origin: [5.0, 5.0, 5.0].into(), direction: [0.0, 0.0, 1.0].into(), ..rays[0] });
     let render = nerf.render_rays(&rays);
     let reference: Vec<[f32; 3]> = render.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     assert!(render.opacity.iter().any(|&o| o > 0.5) && render.opacity.iter().any(|&o| o < 0.3));

@@ -114,8 +114,8 @@ fn bla_pixel_variance_equals_the_naive_quadratic_form() {
     let sigma = random_covariance(p, 48, 3);
     let factor = CovarianceFactor::new("r_0", &sigma).unwrap();
     let mut rays = common::view_rays(6);
-    rays[4].origin = [5.0, 5.0, 5.0]; // away from the box: no samples
-    rays[4].direction = [0.0, 0.0, 1.0];
+    rays[4].origin = [5.0, 5.0, 5.0].into(); // away from the box: no samples
+    rays[4].direction = [0.0, 0.0, 1.0].into();
     let jac = nerf.render_rays_sigma_jacobian(&rays);
     let var = bla_ray_variances(&jac, &factor);
     assert_eq!(var.len(), rays.len());

@@ -64,8 +64,10 @@ fn tri_bounds(m: &TriangleMesh, t: usize) -> Aabb {
     Aabb::new(a.inf(&b).inf(&c), a.sup(&b).sup(&c))
 }
 
+/// The box around both; the union of two [`EMPTY`] boxes (an empty SAH bin) stays empty, so it
+/// is built directly rather than through `Aabb::new`, which asserts `min ≤ max`.
 fn union(a: &Aabb, b: &Aabb) -> Aabb {
-    Aabb::new(a.min.inf(&b.min), a.max.sup(&b.max))
+    Aabb { min: a.min.inf(&b.min), max: a.max.sup(&b.max) }
 }
 
 fn half_area(b: &Aabb) -> f32 {

@@ -26,8 +26,8 @@ pub fn view_rays(n: usize) -> Vec<RayInput> {
             let d = [0.8 * u, 1.0, 0.8 * v];
             let nrm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             rays.push(RayInput {
-                origin: [0.0, -3.0, 0.0],
-                direction: d.map(|x| x / nrm),
+                origin: [0.0, -3.0, 0.0].into(),
+                direction: d.map(|x| x / nrm).into(),
                 background: [0.5, 0.5, 0.5],
                 jitter: 0.0,
             });

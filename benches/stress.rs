@@ -27,6 +27,7 @@ fn mc_truth_replay(c: &mut Criterion) {
         estimator: EstimatorKind::Truth,
         uncertainty: None,
         estimate_log: None,
+        remote: None,
     };
     let replay = DroneSystem {
         sim: &sim,
@@ -34,6 +35,7 @@ fn mc_truth_replay(c: &mut Criterion) {
         estimator: EstimatorKind::Truth,
         uncertainty: None,
         estimate_log: None,
+        remote: None,
     };
     let prior = Prior::drone(cfg.steps);
     let mut g = c.benchmark_group("stress");

@@ -147,6 +147,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
             field: field.as_ref().map(|(p, f)| (*p, f)),
             out: &args.out,
             resume: args.resume,
+            remote: None,
         },
         &reporter,
     )?;

@@ -7,6 +7,7 @@ use nerfsv_scene::seed::fnv1a;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, Flight, SimConfig, WorldKind};
 use nerfsv_study::flight::FlightInputs;
+use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
     stress, Drone, OnlineSettings, Sampler, StressFigures, StressSetup, JOURNAL, ROLLOUTS_CSV, STAGE, STRESS_JSON,
     TABLE_CSV,
@@ -128,6 +129,9 @@ pub struct StressRequest<'a> {
     pub out: &'a Path,
     /// Continue a killed search in `out` (its journal must be there and be this request's).
     pub resume: bool,
+    /// Where the rollouts fly, if not in this process (the Python package's Ray executor); the
+    /// results are the same bytes either way, so it is not part of the key.
+    pub remote: Option<&'a dyn RemoteRollouts>,
 }
 
 impl StressRequest<'_> {
@@ -222,6 +226,7 @@ pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<St
         replay: request.replay,
         online: request.online,
         field: request.field.map(|(_, f)| f),
+        remote: request.remote,
         ..StressSetup::new(drone, &cfg.validation, &prior, &samplers, &cfg.uq)
     };
     std::fs::create_dir_all(request.out).map_err(|e| PipelineError::io(request.out, e))?;

@@ -4,11 +4,15 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Mutex;
 
+use rayon::prelude::*;
+
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::dynamics::so3_log;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
 
-use nerfsv_validation::{Outcome, System, Trajectory, ValidationError};
+use nerfsv_validation::{Finished, Job, Outcome, System, Trajectory, ValidationError};
+
+use crate::remote::{decode_result, encode_job, RemoteRollouts, RemoteSpec};
 
 use crate::uncertainty::ViewUncertainty;
 
@@ -22,6 +26,9 @@ pub struct DroneSystem<'a> {
     pub uncertainty: Option<&'a dyn ViewUncertainty>,
     /// Collects the estimator's error after every image update of the rollouts flown, if given.
     pub estimate_log: Option<&'a EstimateLog>,
+    /// Where batches of rollouts fly ([`System::run_all`]), if not in this process. Refused
+    /// with `uncertainty` (a remote rollout measures nothing).
+    pub remote: Option<&'a dyn RemoteRollouts>,
 }
 
 /// The estimator's errors after its image updates, `[position (m), attitude (°)]` each, per
@@ -41,6 +48,11 @@ impl EstimateLog {
     /// Sets the errors of the rollout flown with `seed`.
     pub fn insert(&self, seed: u64, errors: Vec<[f64; 2]>) {
         self.lock().insert(seed, errors);
+    }
+
+    /// The errors of the rollout flown with `seed` (none if it was not logged).
+    pub fn errors(&self, seed: u64) -> Vec<[f64; 2]> {
+        self.lock().get(&seed).cloned().unwrap_or_default()
     }
 
     /// Every error recorded, sorted by position error (then attitude error), so the result does
@@ -99,6 +111,29 @@ impl System for DroneSystem<'_> {
     /// Substeps whose box left the field's grid have no clearance and do not count; a step with
     /// none scores +∞. Steps not flown (after a crash that ended the rollout) score NaN and
     /// have NaN positions (and, when measured, NaN uncertainty).
+    /// In this process, in parallel; or, with [`DroneSystem::remote`], wherever it flies them,
+    /// each result put in the estimate log as [`run`](System::run) would have.
+    fn run_all(&self, jobs: &[Job<'_>], finished: Finished<'_>) -> Result<(), ValidationError> {
+        let Some(remote) = self.remote else {
+            return jobs.par_iter().enumerate().try_for_each(|(i, &(x, seed))| finished(i, self.run(x, seed)));
+        };
+        if self.uncertainty.is_some() {
+            return Err(ValidationError::Executor("rollouts flown elsewhere cannot measure uncertainty".into()));
+        }
+        let spec = RemoteSpec { world: self.world.kind(), estimator: self.estimator };
+        let encoded: Vec<Vec<u8>> = jobs.iter().map(encode_job).collect();
+        remote.run(spec, &encoded, &mut |i, bytes| {
+            let &(_, seed) = jobs
+                .get(i)
+                .ok_or_else(|| ValidationError::Executor(format!("a result for job {i} of {}", jobs.len())))?;
+            let (outcome, errors) = decode_result(bytes)?;
+            if let Some(log) = self.estimate_log {
+                log.insert(seed, errors);
+            }
+            finished(i, outcome)
+        })
+    }
+
     fn run(&self, disturbances: &Trajectory, seed: u64) -> Outcome {
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
         if let Some(log) = self.estimate_log {

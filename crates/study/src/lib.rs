@@ -8,6 +8,8 @@
 //!   BLA against the ground truth's render ([`ExactUncertainty`]) or looked up in an
 //!   uncertainty field ([`FieldUncertainty`]), on a fixed set of pixels ([`online_pixels`]);
 //!   the paper's rewards of eqs. 10–11 ([`UncertaintyReward`]) for CEM's ranking.
+//! - [`remote`]: rollouts flown in other processes (the Python package's Ray executor), and
+//!   the exact encodings of what crosses to them.
 //! - [`flight`]: one flight planned, flown, written and plotted ([`flight::fly_and_write`]).
 //! - [`stress`]: the searches over the drone's disturbances in one world, replayed in the other,
 //!   with the paper's tables, the confusion matrices and the most likely failures
@@ -19,6 +21,7 @@
 
 mod drone;
 pub mod flight;
+pub mod remote;
 pub mod stress;
 mod uncertainty;
 

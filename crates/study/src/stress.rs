@@ -25,6 +25,7 @@ use nerfsv_validation::{
 use serde::{Deserialize, Serialize};
 
 use crate::flight::{fly_and_write, world, FlightFigures, FlightInputs};
+use crate::remote::RemoteRollouts;
 use crate::{
     drone_disturbances, online_pixels, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Observer,
     StudyError, UncertaintyReward, UqMode, ViewUncertainty,
@@ -370,6 +371,8 @@ pub struct StressSetup<'a> {
     pub field: Option<&'a UncertaintyField>,
     /// The name progress and notes are reported under ([`STAGE`], or the calling stage's).
     pub stage: &'static str,
+    /// Where the rollouts fly, if not in this process (searches without `online` only).
+    pub remote: Option<&'a dyn RemoteRollouts>,
     /// Whether the caller reports the failure probability. Without (the online stage's
     /// rewarded CEM, whose one-sample batch only closes the search) the warnings that an
     /// estimate rests on few effective failures are not given.
@@ -399,6 +402,7 @@ impl<'a> StressSetup<'a> {
             uq,
             field: None,
             stage: STAGE,
+            remote: None,
             reports_p_fail: true,
         }
     }
@@ -600,6 +604,11 @@ pub fn stress(
     observer: &dyn Observer,
 ) -> Result<(StressFigures, Vec<RolloutRecord>), StudyError> {
     let progress = |done: u64, total: u64, status: &str| observer.progress(setup.stage, done, total, status);
+    if setup.remote.is_some() && setup.online.is_some() {
+        return Err(StudyError::Internal(
+            "a search whose rollouts fly elsewhere cannot measure their uncertainty: run it in one process".into(),
+        ));
+    }
     let start = Instant::now();
     let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
     let search_world = world(setup.world, setup.drone.inputs, setup.drone.scene, setup.drone.render)?;
@@ -653,6 +662,7 @@ pub fn stress(
         estimator: setup.estimator,
         uncertainty: timed.as_ref().map(|t| t as &dyn ViewUncertainty),
         estimate_log: Some(&search_log),
+        remote: setup.remote,
     };
     let v = setup.validation;
     if resume {
@@ -774,6 +784,7 @@ pub fn stress(
             estimator: setup.estimator,
             uncertainty: None,
             estimate_log: Some(&replay_log),
+            remote: setup.remote,
         };
         let originals: Vec<RolloutRecord> = searched(&records).cloned().collect();
         let replays = replay_all(&system, &originals, &replaying)?;

@@ -24,6 +24,7 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
         estimator: EstimatorKind::Truth,
         uncertainty: None,
         estimate_log: None,
+        remote: None,
     };
     assert_eq!((system.steps(), system.dim()), (6, 12));
     let undisturbed = system.run(&Trajectory::from_flat(12, vec![0.0; 72]).unwrap(), 0);

@@ -50,7 +50,7 @@ impl Fit {
 }
 
 /// A GA row: the image's μ_d and σ_d.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct GaRow {
     pub mu_d: f64,
     pub sigma_d: f64,
@@ -79,7 +79,7 @@ impl GaRow {
 }
 
 /// A BLA row: the summaries of the image's posterior covariance.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct BlaRow {
     pub normalized_trace: f64,
     pub rmv: f64,

@@ -18,6 +18,9 @@ pub enum ValidationError {
     /// A journal that does not belong to this run.
     #[error("{}: {message}", .path.display())]
     Journal { path: PathBuf, message: String },
+    /// Rollouts that ran elsewhere (a cluster) did not come back: the executor's own message.
+    #[error("rollouts run elsewhere failed: {0}")]
+    Executor(String),
 }
 
 impl ValidationError {

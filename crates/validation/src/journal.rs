@@ -4,8 +4,12 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use std::sync::Mutex;
+
 use crate::error::ValidationError;
 use crate::record::{read_csv_file, write_csv_file, RolloutRecord};
+use crate::system::{Job, Outcome, System};
+use crate::Trajectory;
 
 /// Where the samplers look up and keep finished rollouts.
 pub trait Recorder: Sync {
@@ -30,6 +34,51 @@ pub(crate) fn recall_or_run(
     let record = run();
     recorder.record(&record)?;
     Ok((record, false))
+}
+
+/// One rollout a sampler asks for: its key in the journal, its seed, its disturbances.
+pub(crate) struct Planned<'a> {
+    pub sampler: &'a str,
+    pub population: usize,
+    pub index: usize,
+    pub seed: u64,
+    pub disturbances: Trajectory,
+}
+
+/// [`recall_or_run`] for a batch: the rollouts `recorder` recalls (with the same seed) come back
+/// as they were (`true`); the others fly together through [`System::run_all`] (in parallel, or
+/// wherever the system runs them), each made into its record by `make(job index, disturbances,
+/// outcome)` and kept in `recorder` as it finishes (`false`). In the order of `planned`.
+pub(crate) fn recall_or_run_all<S: System + ?Sized>(
+    system: &S,
+    recorder: &dyn Recorder,
+    planned: Vec<Planned<'_>>,
+    make: &(dyn Fn(usize, Trajectory, Outcome) -> RolloutRecord + Sync),
+) -> Result<Vec<(RolloutRecord, bool)>, ValidationError> {
+    let mut out: Vec<Option<(RolloutRecord, bool)>> = planned
+        .iter()
+        .map(|p| recorder.recall(p.sampler, p.population, p.index).filter(|d| d.seed == p.seed).map(|d| (d, true)))
+        .collect();
+    let todo: Vec<usize> = (0..planned.len()).filter(|&i| out[i].is_none()).collect();
+    let jobs: Vec<Job> = todo.iter().map(|&i| (&planned[i].disturbances, planned[i].seed)).collect();
+    let fresh: Vec<Mutex<Option<RolloutRecord>>> = todo.iter().map(|_| Mutex::new(None)).collect();
+    system.run_all(&jobs, &|k, outcome| {
+        let i = *todo
+            .get(k)
+            .ok_or_else(|| ValidationError::Executor(format!("an outcome for job {k} of {}", todo.len())))?;
+        let record = make(i, planned[i].disturbances.clone(), outcome);
+        recorder.record(&record)?;
+        *fresh[k].lock().unwrap_or_else(|e| e.into_inner()) = Some(record);
+        Ok(())
+    })?;
+    for (k, slot) in fresh.into_iter().enumerate() {
+        let record = slot
+            .into_inner()
+            .unwrap_or_else(|e| e.into_inner())
+            .ok_or_else(|| ValidationError::Executor(format!("no outcome came back for rollout {}", todo[k])))?;
+        out[todo[k]] = Some((record, false));
+    }
+    Ok(out.into_iter().flatten().collect())
 }
 
 /// Keeps nothing: every rollout runs.

@@ -6,17 +6,16 @@
 
 use nalgebra::{DMatrix, DVector};
 use nerfsv_scene::validate::InvalidValue;
-use rayon::prelude::*;
 
 use serde::{Deserialize, Serialize};
 
 use crate::config::{CemConfig, MonteCarloConfig, ValidationConfig};
 use crate::error::ValidationError;
 use crate::gaussian::{Gaussian, Prior, Proposal};
-use crate::journal::{recall_or_run, Recorder};
+use crate::journal::{recall_or_run_all, Planned, Recorder};
 use crate::record::RolloutRecord;
 use crate::seed::rollout_seed;
-use crate::system::System;
+use crate::system::{Outcome, System};
 use crate::Trajectory;
 
 /// Sampler label of Monte Carlo rollouts.
@@ -135,6 +134,22 @@ pub(crate) fn run_record<S: System + ?Sized>(
     seed: u64,
 ) -> RolloutRecord {
     let outcome = system.run(&disturbances, seed);
+    record_of(prior, proposal, disturbances, sampler, population, index, seed, outcome)
+}
+
+/// The record of a rollout that flew `disturbances` with `seed` to `outcome`, with their
+/// log-densities under `prior` and under `proposal` (without one, the prior's: a weight of 1).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn record_of(
+    prior: &Prior,
+    proposal: Option<&Proposal>,
+    disturbances: Trajectory,
+    sampler: &str,
+    population: usize,
+    index: usize,
+    seed: u64,
+    outcome: Outcome,
+) -> RolloutRecord {
     let step_log_p = prior.step_log_pdfs(&disturbances);
     let (step_log_q, log_q) = match proposal {
         Some(q) => (q.step_log_pdfs(&disturbances), q.log_pdf(&disturbances)),
@@ -184,7 +199,20 @@ pub fn replay_all<S: System + ?Sized>(
     records: &[RolloutRecord],
     recorder: &dyn Recorder,
 ) -> Result<Vec<RolloutRecord>, ValidationError> {
-    records.par_iter().map(|r| Ok(recall_or_run(recorder, r.key(), r.seed, || replay_on(system, r))?.0)).collect()
+    let planned = records
+        .iter()
+        .map(|r| Planned {
+            sampler: &r.sampler,
+            population: r.population,
+            index: r.index,
+            seed: r.seed,
+            disturbances: r.disturbances.clone(),
+        })
+        .collect();
+    let make = |i: usize, _: Trajectory, outcome: Outcome| {
+        RolloutRecord { reward: None, ..records[i].clone() }.with_outcome(outcome)
+    };
+    Ok(recall_or_run_all(system, recorder, planned, &make)?.into_iter().map(|(r, _)| r).collect())
 }
 
 /// `n` rollouts of one population in parallel, in index order; rollouts `recorder` recalls
@@ -201,19 +229,29 @@ fn population<S: System + ?Sized>(
     reward: Option<Reward<'_>>,
     recorder: &dyn Recorder,
 ) -> Result<Vec<RolloutRecord>, ValidationError> {
-    (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let seed = rollout_seed(run_seed, sampler, population, i);
-            let run = || rollout(system, prior, proposal, sampler, population, i, seed, reward);
-            let (mut record, recalled) = recall_or_run(recorder, (sampler, population, i), seed, run)?;
+    let planned = (0..n)
+        .map(|index| {
+            let seed = rollout_seed(run_seed, sampler, population, index);
+            Planned { sampler, population, index, seed, disturbances: proposal.draw(seed) }
+        })
+        .collect();
+    let make = |i: usize, x: Trajectory, outcome: Outcome| {
+        let seed = rollout_seed(run_seed, sampler, population, i);
+        let mut record = record_of(prior, Some(proposal), x, sampler, population, i, seed, outcome);
+        record.reward = reward.map(|r| r(&record));
+        record
+    };
+    let done = recall_or_run_all(system, recorder, planned, &make)?;
+    Ok(done
+        .into_iter()
+        .map(|(mut record, recalled)| {
             if recalled {
                 // Scored by this run's reward, whatever the journal kept.
                 record.reward = reward.map(|r| r(&record));
             }
-            Ok(record)
+            record
         })
-        .collect()
+        .collect())
 }
 
 pub(crate) fn check_shapes<S: System + ?Sized>(system: &S, prior: &Prior) -> Result<(), InvalidValue> {

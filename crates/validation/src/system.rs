@@ -1,8 +1,15 @@
 //! The system under test, as the adversary sees it.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::Trajectory;
+use crate::{Trajectory, ValidationError};
+
+/// One rollout to run: its disturbances and its seed.
+pub type Job<'a> = (&'a Trajectory, u64);
+
+/// What [`System::run_all`] hands each finished rollout to: `(job index, outcome)`.
+pub type Finished<'a> = &'a (dyn Fn(usize, Outcome) -> Result<(), ValidationError> + Sync);
 
 /// The system under test: flies one trajectory of `steps()` steps, each step's disturbance a
 /// `dim()`-vector (12 for the drone: Δposition, Δvelocity, Δrotation vector, Δangular velocity).
@@ -18,6 +25,15 @@ pub trait System: Sync {
     /// seed for the system's own randomness (the rollout's seed; derive a separate stream from
     /// it rather than reusing the disturbance stream).
     fn run(&self, disturbances: &Trajectory, seed: u64) -> Outcome;
+
+    /// Runs every job and hands each outcome to `finished` as it completes (in any order, on any
+    /// thread), stopping at the first error `finished` returns. Every sampler and the replays
+    /// fly their rollouts through here. The default runs them in this process, in parallel,
+    /// with [`System::run`]; a system whose rollouts run elsewhere (on a cluster) overrides it,
+    /// and must give each job exactly what `run` would.
+    fn run_all(&self, jobs: &[Job<'_>], finished: Finished<'_>) -> Result<(), ValidationError> {
+        jobs.par_iter().enumerate().try_for_each(|(i, &(x, seed))| finished(i, self.run(x, seed)))
+    }
 }
 
 /// What one trajectory did.

@@ -1,0 +1,309 @@
+//! A trained NeRF from Python: training, rendering, density, its uncertainty for an image, and
+//! the collision fields on a ground truth's grid.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use nalgebra::{Matrix4, Point3};
+use nerfsv_collision::SdfGrid;
+use nerfsv_dataset::Frame;
+use nerfsv_nerf::{Budget, Nerf};
+use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
+use nerfsv_pipeline::stages::load_dataset_split;
+use nerfsv_pipeline::{load_toml, NerfSettings, RunConfig};
+use nerfsv_scene::{Camera, Image, Intrinsics};
+use nerfsv_study::flight::FlightInputs;
+use nerfsv_uq::offline::{fit_frame, Fit};
+use nerfsv_uq::Method;
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::drone::scene_of;
+use crate::{must_exist, py_err, to_json, value_error};
+
+/// A trained NeRF and the checkpoint it was read from.
+#[pyclass(module = "nerfsv._nerfsv", frozen)]
+pub struct Model {
+    pub(crate) nerf: Arc<Nerf>,
+    pub(crate) path: PathBuf,
+}
+
+/// The camera of a 4×4 camera-to-world `pose` (row-major, OpenGL axes) with pixel intrinsics
+/// `(fx, fy, cx, cy)` and an image of `width` × `height`.
+fn camera(pose: &Bound<'_, PyAny>, width: u32, height: u32, intrinsics: (f32, f32, f32, f32)) -> PyResult<Camera> {
+    let (shape, pose) = f32_array(pose, "pose")?;
+    if shape != [4, 4] {
+        return Err(value_error(format!("pose: expected shape (4, 4), found {shape:?}")));
+    }
+    let (fx, fy, cx, cy) = intrinsics;
+    if width == 0 || height == 0 || !(fx > 0.0 && fy > 0.0) || !cx.is_finite() || !cy.is_finite() {
+        return Err(value_error(format!(
+            "camera: width and height must be positive and fx, fy positive, cx, cy finite; found {width}×{height}, \
+             ({fx}, {fy}, {cx}, {cy})"
+        )));
+    }
+    let m = Matrix4::from_row_slice(&pose);
+    if !m.iter().all(|v| v.is_finite()) {
+        return Err(value_error("pose: every entry must be finite"));
+    }
+    Ok(Camera::new(Intrinsics { width, height, fx, fy, cx, cy }, m))
+}
+
+#[pymethods]
+impl Model {
+    /// Reads a checkpoint (`checkpoint.safetensors` of `nerfsv train`).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        must_exist(&path, "path")?;
+        let nerf = py.detach(|| Nerf::load(&path)).map_err(py_err)?;
+        Ok(Self { nerf: Arc::new(nerf), path })
+    }
+
+    /// The checkpoint this model was read from.
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    /// The scene box the model covers: `(min, max)`, metres.
+    #[getter]
+    fn aabb(&self) -> ([f32; 3], [f32; 3]) {
+        (self.nerf.config.aabb_min, self.nerf.config.aabb_max)
+    }
+
+    /// Renders the view of a camera: `(rgb [h, w, 3], depth [h, w], opacity [h, w])`, float32,
+    /// colour composited on `background`, z-depth in metres (0 where nothing is seen). The same
+    /// numbers as `nerfsv render` for the same camera.
+    #[pyo3(signature = (pose, width, height, intrinsics, background = (1.0, 1.0, 1.0)))]
+    #[allow(clippy::type_complexity)]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        pose: &Bound<'py, PyAny>,
+        width: u32,
+        height: u32,
+        intrinsics: (f32, f32, f32, f32),
+        background: (f32, f32, f32),
+    ) -> PyResult<(Bound<'py, PyArray3<f32>>, Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>)> {
+        let cam = camera(pose, width, height, intrinsics)?;
+        let nerf = self.nerf.clone();
+        let bg = [background.0, background.1, background.2];
+        let v = py.detach(move || nerf.render_camera(&cam, bg));
+        let (h, w) = (height as usize, width as usize);
+        Ok((
+            PyArray1::from_vec(py, v.rgb).reshape([h, w, 3])?,
+            PyArray1::from_vec(py, v.depth).reshape([h, w])?,
+            PyArray1::from_vec(py, v.opacity).reshape([h, w])?,
+        ))
+    }
+
+    /// Density σ (1/m) at world points `[n, 3]` (metres): `[n]` float32, 0 outside the box.
+    fn density<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let (shape, points) = f32_array(points, "points")?;
+        if shape.len() != 2 || shape[1] != 3 {
+            return Err(value_error(format!("points: expected shape (n, 3), found {shape:?}")));
+        }
+        let pts: Vec<Point3<f32>> = points.chunks_exact(3).map(|p| Point3::new(p[0], p[1], p[2])).collect();
+        let nerf = self.nerf.clone();
+        Ok(PyArray1::from_vec(py, py.detach(move || nerf.density(&pts))))
+    }
+
+    /// The paper's uncertainty of one image: `method` `"ga"` (σ_d of eq. 10, on every pixel) or
+    /// `"bla"` (eq. 11's normalised trace and rmv). `image` `[h, w, 4]` RGBA (straight alpha)
+    /// or `[h, w, 3]` RGB, in `[0, 1]`; `config` a run config whose `[uq]` table sets the fit
+    /// (default: the embedded one). Returns the figures (dict), `None` values when every ray
+    /// misses the model.
+    #[pyo3(signature = (method, pose, width, height, intrinsics, image, config = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn uncertainty(
+        &self,
+        py: Python<'_>,
+        method: &str,
+        pose: &Bound<'_, PyAny>,
+        width: u32,
+        height: u32,
+        intrinsics: (f32, f32, f32, f32),
+        image: &Bound<'_, PyAny>,
+        config: Option<PathBuf>,
+    ) -> PyResult<String> {
+        let method = match method {
+            "ga" => Method::Ga,
+            "bla" => Method::Bla,
+            other => return Err(value_error(format!("method: expected \"ga\" or \"bla\", found {other:?}"))),
+        };
+        let cam = camera(pose, width, height, intrinsics)?;
+        let (shape, values) = f32_array(image, "image")?;
+        if shape.len() != 3
+            || shape[0] != height as usize
+            || shape[1] != width as usize
+            || !(shape[2] == 3 || shape[2] == 4)
+        {
+            return Err(value_error(format!(
+                "image: expected shape ({height}, {width}, 4) or ({height}, {width}, 3), found {shape:?}"
+            )));
+        }
+        let rgba: Vec<f32> = if shape[2] == 4 {
+            values.to_vec()
+        } else {
+            values.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 1.0]).collect()
+        };
+        let cfg = run_config(config.as_deref())?.uq;
+        let frame = Frame {
+            file_path: "python".into(),
+            image_path: PathBuf::from("python"),
+            camera: cam,
+            image: Image { width, height, rgba },
+            depth: None,
+        };
+        let nerf = self.nerf.clone();
+        let fit = py.detach(move || fit_frame(&nerf, method, "python", &frame, None, &cfg)).map_err(py_err)?;
+        match fit {
+            Fit::Ga(row) => to_json(&row),
+            Fit::Bla(row) => to_json(&row),
+        }
+    }
+
+    /// The model's signed collision field on the grid of a ground truth (`scene`, a built-in
+    /// name, or `mesh`, a mesh file) at `cells_per_metre`, as `nerfsv collision --model` builds
+    /// it: a dict of `values` `[nz, ny, nx]` float32 (metres, negative inside), `origin`
+    /// (node (0, 0, 0), metres), `cell` (metres), `dims` `(nx, ny, nz)`.
+    #[pyo3(signature = (scene = "stonehenge", mesh = None, cells_per_metre = 40.0))]
+    fn collision_field<'py>(
+        &self,
+        py: Python<'py>,
+        scene: &str,
+        mesh: Option<PathBuf>,
+        cells_per_metre: f32,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let world = scene_of(scene, mesh.as_deref())?;
+        let path = self.path.clone();
+        let inputs =
+            py.detach(move || FlightInputs::from_files(&path, None, &world, cells_per_metre)).map_err(py_err)?;
+        field_dict(py, inputs.nerf_field)
+    }
+}
+
+/// `a` as a C-ordered float32 array (numpy converts lists and other dtypes): its shape and
+/// values; what numpy cannot convert is a `ValueError` naming the argument.
+pub(crate) fn f32_array(a: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<usize>, Vec<f32>)> {
+    let np = a.py().import("numpy")?;
+    let arr = np
+        .call_method1("ascontiguousarray", (a, "float32"))
+        .and_then(|x| x.cast_into::<PyArrayDyn<f32>>().map_err(PyErr::from))
+        .map_err(|e| value_error(format!("{name}: not an array of numbers ({e})")))?;
+    let ro = arr.readonly();
+    Ok((ro.shape().to_vec(), ro.as_slice()?.to_vec()))
+}
+
+/// The run config at `path`, or the embedded default.
+pub(crate) fn run_config(path: Option<&Path>) -> PyResult<RunConfig> {
+    match path {
+        Some(p) => RunConfig::load(p).map_err(py_err),
+        None => Ok(RunConfig::default()),
+    }
+}
+
+/// A signed field as the dict the Python side shows.
+fn field_dict(py: Python<'_>, f: SdfGrid) -> PyResult<Bound<'_, PyDict>> {
+    let g = f.geometry;
+    let [nx, ny, nz] = g.dims;
+    let d = PyDict::new(py);
+    d.set_item("values", PyArray1::from_vec(py, f.data).reshape([nz, ny, nx])?)?;
+    d.set_item("origin", [g.origin.x, g.origin.y, g.origin.z])?;
+    d.set_item("cell", g.cell)?;
+    d.set_item("dims", (nx, ny, nz))?;
+    Ok(d)
+}
+
+/// The ground truth's signed field (`nerfsv collision`): `scene` a built-in name or `mesh` a
+/// mesh file, at `cells_per_metre`; the dict of [`Model::collision_field`].
+#[pyfunction]
+#[pyo3(signature = (scene = "stonehenge", mesh = None, cells_per_metre = 40.0))]
+pub fn ground_truth_field<'py>(
+    py: Python<'py>,
+    scene: &str,
+    mesh: Option<PathBuf>,
+    cells_per_metre: f32,
+) -> PyResult<Bound<'py, PyDict>> {
+    let world = scene_of(scene, mesh.as_deref())?;
+    let (field, _) =
+        py.detach(move || nerfsv_collision::ground_truth_field(&world, cells_per_metre)).map_err(py_err)?;
+    field_dict(py, field.sdf)
+}
+
+/// A signed field file (`*_sdf.safetensors` of `nerfsv collision` or a run's stages).
+#[pyfunction]
+pub fn load_field(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> {
+    must_exist(&path, "path")?;
+    let f = py.detach(|| SdfGrid::load(&path)).map_err(py_err)?;
+    field_dict(py, f)
+}
+
+/// Trains a NeRF on the train split of the dataset `data` into `out` (checkpoints as `nerfsv
+/// train` writes them) for `steps` steps or `seconds` seconds (default 300 s), with the NeRF
+/// and training settings of the TOML file `config` (`[nerf]`, `[train]`; default: the embedded
+/// ones), calling `progress(dict)` after every step (`step`, `fraction`, `elapsed_s`, `loss`,
+/// `psnr`). Returns the model. An exception in `progress` stops reporting and is raised when
+/// training ends.
+#[pyfunction]
+#[pyo3(signature = (data, out, steps = None, seconds = None, config = None, seed = None, resume = false, progress = None))]
+#[allow(clippy::too_many_arguments)]
+pub fn train(
+    py: Python<'_>,
+    data: PathBuf,
+    out: PathBuf,
+    steps: Option<u64>,
+    seconds: Option<f64>,
+    config: Option<PathBuf>,
+    seed: Option<u64>,
+    resume: bool,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Model> {
+    let mut s = match &config {
+        Some(path) => load_toml::<NerfSettings>(path).map_err(py_err)?,
+        None => NerfSettings::default(),
+    };
+    if let Some(seed) = seed {
+        s.train.seed = seed;
+    }
+    let budget = match (steps, seconds) {
+        (Some(n), _) => {
+            nerfsv_scene::validate::in_range("steps", n, 1, MAX_TRAIN_STEPS).map_err(py_err)?;
+            Budget::Steps(n)
+        }
+        (None, Some(t)) => {
+            nerfsv_scene::validate::positive("seconds", t).map_err(py_err)?;
+            Budget::Seconds(t)
+        }
+        (None, None) => Budget::Seconds(300.0),
+    };
+    must_exist(&data, "data")?;
+    nerfsv_pipeline::refuse_output_inside(&out, &[("data", &data)]).map_err(py_err)?;
+    let split = py.detach(|| load_dataset_split(&data, "train", 1).map_err(Box::new)).map_err(py_err)?;
+    let mut failed: Option<PyErr> = None;
+    let trained = py.detach(|| {
+        nerfsv_nerf::train(&split, &out, budget, resume, s.nerf, s.train, |p| {
+            let (Some(cb), None) = (&progress, &failed) else { return };
+            Python::attach(|py| {
+                let d = PyDict::new(py);
+                let r = (|| {
+                    d.set_item("step", p.step)?;
+                    d.set_item("fraction", p.fraction)?;
+                    d.set_item("elapsed_s", p.elapsed_s)?;
+                    d.set_item("loss", p.loss)?;
+                    d.set_item("psnr", p.psnr)?;
+                    cb.call1(py, (d,)).map(|_| ())
+                })();
+                if let Err(e) = r {
+                    failed = Some(e);
+                }
+            })
+        })
+    });
+    let (nerf, _) = trained.map_err(py_err)?;
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    Ok(Model { nerf: Arc::new(nerf), path: nerfsv_nerf::checkpoint_path(&out) })
+}

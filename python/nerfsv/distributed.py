@@ -29,7 +29,27 @@ from typing import Any, Dict, Iterator, List, Optional, Tuple
 from . import _nerfsv
 from . import stress as _stress
 
-__all__ = ["stress", "executor"]
+__all__ = ["stress", "executor", "outputs"]
+
+
+def outputs(folder) -> Dict[str, bytes]:
+    """The files of a stress folder that its config and seed determine, by relative path:
+    every file, ``stress.json`` without its timings (``seconds``, ``rollouts_per_second``). Two
+    runs of the same study, in one process or on any cluster, give equal dicts."""
+    from pathlib import Path
+
+    root = Path(folder)
+    files = {}
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            b = p.read_bytes()
+            if p.name == "stress.json":
+                v = json.loads(b)
+                v.pop("seconds", None)
+                v.pop("rollouts_per_second", None)
+                b = json.dumps(v, sort_keys=True).encode()
+            files[str(p.relative_to(root))] = b
+    return files
 
 
 def _rollouts(context: bytes, world: str, estimator: str, jobs: List[bytes], threads: int,

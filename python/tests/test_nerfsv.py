@@ -61,18 +61,9 @@ def world(tmp_path_factory):
 
 
 def stress_files(out: Path):
-    """Every file of a stress folder, stress.json without its timings."""
-    files = {}
-    for p in sorted(out.rglob("*")):
-        if p.is_file():
-            b = p.read_bytes()
-            if p.name == "stress.json":
-                v = json.loads(b)
-                v.pop("seconds", None)
-                v.pop("rollouts_per_second", None)
-                b = json.dumps(v, sort_keys=True).encode()
-            files[str(p.relative_to(out))] = b
-    return files
+    from nerfsv.distributed import outputs
+
+    return outputs(out)
 
 
 def test_dataset_model_and_fields_have_their_shapes_and_dtypes(world, tmp_path):

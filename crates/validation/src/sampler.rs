@@ -115,26 +115,11 @@ pub fn rollout<S: System + ?Sized>(
     seed: u64,
     reward: Option<Reward<'_>>,
 ) -> RolloutRecord {
-    let mut record = run_record(system, prior, Some(proposal), proposal.draw(seed), sampler, population, index, seed);
+    let x = proposal.draw(seed);
+    let outcome = system.run(&x, seed);
+    let mut record = record_of(prior, Some(proposal), x, sampler, population, index, seed, outcome);
     record.reward = reward.map(|r| r(&record));
     record
-}
-
-/// Runs `system` on `disturbances` with `seed` and records them with their log-densities under
-/// `prior` and under `proposal` (without one, the prior's: a weight of 1).
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn run_record<S: System + ?Sized>(
-    system: &S,
-    prior: &Prior,
-    proposal: Option<&Proposal>,
-    disturbances: Trajectory,
-    sampler: &str,
-    population: usize,
-    index: usize,
-    seed: u64,
-) -> RolloutRecord {
-    let outcome = system.run(&disturbances, seed);
-    record_of(prior, proposal, disturbances, sampler, population, index, seed, outcome)
 }
 
 /// The record of a rollout that flew `disturbances` with `seed` to `outcome`, with their

@@ -31,7 +31,7 @@ use crate::error::ValidationError;
 use crate::gaussian::Prior;
 use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
-use crate::sampler::{check_shapes, most_likely_failure, run_record, wilson, ImportanceEstimate, SAMPLER_SUBSET};
+use crate::sampler::{check_shapes, most_likely_failure, record_of, wilson, ImportanceEstimate, SAMPLER_SUBSET};
 use crate::seed::rollout_seed;
 use crate::system::System;
 use crate::Trajectory;
@@ -128,7 +128,11 @@ fn fly<S: System + ?Sized>(
     seed: u64,
     recorder: &dyn Recorder,
 ) -> Result<RolloutRecord, ValidationError> {
-    let run = || run_record(system, prior, None, trajectory(prior, z), SAMPLER_SUBSET, level, index, seed);
+    let run = || {
+        let x = trajectory(prior, z);
+        let outcome = system.run(&x, seed);
+        record_of(prior, None, x, SAMPLER_SUBSET, level, index, seed, outcome)
+    };
     Ok(recall_or_run(recorder, (SAMPLER_SUBSET, level, index), seed, run)?.0)
 }
 

@@ -179,3 +179,23 @@ def test_training_reports_progress_and_gives_a_model(world, tmp_path):
     model = nerfsv.train(world["ds"], tmp_path / "nerf", steps=2, config=world["nerf_toml"], progress=seen.append)
     assert [p["step"] for p in seen] == [1, 2] and all(np.isfinite(p["loss"]) for p in seen)
     assert Path(model.path).is_file()
+
+
+def test_the_command_line_entry_runs_the_study_of_nerfsv_stress(world, tmp_path):
+    import sys
+
+    from nerfsv.distributed import outputs
+
+    cli("stress", "--scene", "monolith", "--model", world["model"], "--nerf-field", world["field"], "--config",
+        world["study"], "--sampler", "mc", "--out", tmp_path / "cli")
+    entry = [sys.executable, "-m", "nerfsv.distributed", "--model", str(world["model"]), "--nerf-field",
+             str(world["field"]), "--scene", "monolith", "--sampler", "mc", "--chunk", "3"]
+    r = subprocess.run([*entry, "--config", str(world["study"]), "--out", str(tmp_path / "ray")], capture_output=True,
+                       text=True)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["samplers"][0]["rollouts"] == 8
+    assert outputs(tmp_path / "ray") == outputs(tmp_path / "cli")
+    bad = tmp_path / "bad.toml"
+    bad.write_text(STUDY.replace("rollouts = 8", "rollouts = 0"))
+    r = subprocess.run([*entry, "--config", str(bad), "--out", str(tmp_path / "bad")], capture_output=True, text=True)
+    assert r.returncode == 1 and "validation.monte_carlo.rollouts" in r.stderr, r.stderr

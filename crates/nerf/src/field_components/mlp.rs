@@ -1,5 +1,13 @@
 //! Bias-free linear layers (torch `nn.Linear(bias=False)`, weight `[out, in]` row-major) on
-//! row-major activations `[n, width]`, via `matrixmultiply::sgemm`, and their activations.
+//! row-major activations `[n, width]`, and their activations.
+//!
+//! The forward and input-gradient products have a short inner dimension (the layer widths, at
+//! most [`SMALL_MAX`]): on AVX-512 hosts they run in [`small_gemm`], which keeps the weights in
+//! L1 and never packs the activations (packing cost `matrixmultiply` nearly as much as its
+//! product at these sizes). Each output is the same fused multiply-add chain over the inner
+//! index in order that `matrixmultiply`'s FMA kernels compute, so the results are bit-identical
+//! to it; other hosts, wider layers and the weight gradients (whose inner dimension is the
+//! batch) use `matrixmultiply::sgemm`.
 //!
 //! Maths for `Y = X·Wᵀ` (`X: [n, in]`, `W: [out, in]`, `Y: [n, out]`):
 //!   forward          `Y = X·Wᵀ`
@@ -12,6 +20,10 @@
 pub fn linear_forward(x: &[f32], w: &[f32], y: &mut [f32], n: usize, din: usize, dout: usize) {
     assert!(x.len() >= n * din && w.len() == dout * din && y.len() >= n * dout);
     if n == 0 {
+        return;
+    }
+    // B = Wᵀ: B[k][o] = W[o][k].
+    if small_gemm(x, |k, o| w[o * din + k], y, n, din, dout) {
         return;
     }
     // SAFETY: the asserts above bound every index the strides reach.
@@ -39,6 +51,10 @@ pub fn linear_forward(x: &[f32], w: &[f32], y: &mut [f32], n: usize, din: usize,
 pub fn linear_backward_input(dy: &[f32], w: &[f32], dx: &mut [f32], n: usize, din: usize, dout: usize) {
     assert!(dy.len() >= n * dout && w.len() == dout * din && dx.len() >= n * din);
     if n == 0 {
+        return;
+    }
+    // B = W: B[k][i] = W[k][i].
+    if small_gemm(dy, |k, i| w[k * din + i], dx, n, dout, din) {
         return;
     }
     // SAFETY: as above.
@@ -100,6 +116,116 @@ pub fn linear_backward_weight(
     }
 }
 
+/// The widest inner and outer dimension [`small_gemm`] takes.
+pub const SMALL_MAX: usize = 64;
+
+thread_local! {
+    /// Each thread's copy of the right-hand matrix, `[k, 64]`, columns zero-padded to 64.
+    static PANEL: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// `C[n, m] = A[n, k] · B[k, m]` with `B[kk][j] = b(kk, j)`, for `k, m ≤ SMALL_MAX` on a host with
+/// AVX-512 (others keep `matrixmultiply`, whose packing costs less there): every `C[i][j]` is `fma(A[i][k−1], B[k−1][j], … fma(A[i][0], B[0][j], 0))`, the chain
+/// `matrixmultiply`'s FMA kernels compute (one accumulator per output, the inner index in order,
+/// the product scaled by α = 1), so the two agree bit for bit. Returns false, having done
+/// nothing, where it does not apply.
+pub fn small_gemm(a: &[f32], b: impl Fn(usize, usize) -> f32, c: &mut [f32], n: usize, k: usize, m: usize) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if k == 0 || k > SMALL_MAX || m > SMALL_MAX || !std::arch::is_x86_feature_detected!("avx512f") {
+            return false;
+        }
+        PANEL.with_borrow_mut(|panel| {
+            panel.clear();
+            panel.resize(k * SMALL_MAX, 0.0);
+            for kk in 0..k {
+                for j in 0..m {
+                    panel[kk * SMALL_MAX + j] = b(kk, j);
+                }
+            }
+            // SAFETY: AVX-512F was detected above; the asserts of the callers bound a and c.
+            unsafe { rows_avx512(a, panel, c, n, k, m) }
+        });
+        true
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (a, b, c, n, k, m);
+        false
+    }
+}
+
+/// The kernel for AVX-512 hosts: `V` vectors of 16 outputs (`m ≤ 16·V`) for 4 rows at a time,
+/// `4·V` zmm accumulators, one `vfmadd` per output and inner index in order; the last rows one
+/// at a time; the outputs past `m` (the panel's zero padding) are not stored.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn rows_avx512(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
+    match m.div_ceil(16) {
+        0 => {}
+        1 => rows_v::<1>(a, panel, c, n, k, m),
+        2 => rows_v::<2>(a, panel, c, n, k, m),
+        3 => rows_v::<3>(a, panel, c, n, k, m),
+        _ => rows_v::<4>(a, panel, c, n, k, m),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn rows_v<const V: usize>(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
+    let mut i = 0;
+    while i + 4 <= n {
+        block_v::<4, V>(a, panel, c, i, k, m);
+        i += 4;
+    }
+    while i < n {
+        block_v::<1, V>(a, panel, c, i, k, m);
+        i += 1;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn block_v<const R: usize, const V: usize>(
+    a: &[f32],
+    panel: &[f32],
+    c: &mut [f32],
+    i: usize,
+    k: usize,
+    m: usize,
+) {
+    use std::arch::x86_64::*;
+    debug_assert!(a.len() >= (i + R) * k && c.len() >= (i + R) * m && panel.len() >= k * SMALL_MAX);
+    let mut acc = [[_mm512_setzero_ps(); V]; R];
+    let (ap, pp) = (a.as_ptr(), panel.as_ptr());
+    for kk in 0..k {
+        let mut b = [_mm512_setzero_ps(); V];
+        for (v, bv) in b.iter_mut().enumerate() {
+            *bv = _mm512_loadu_ps(pp.add(kk * SMALL_MAX + 16 * v));
+        }
+        for (r, acc_r) in acc.iter_mut().enumerate() {
+            let av = _mm512_set1_ps(*ap.add((i + r) * k + kk));
+            for (s, &bv) in acc_r.iter_mut().zip(&b) {
+                *s = _mm512_fmadd_ps(av, bv, *s);
+            }
+        }
+    }
+    let cp = c.as_mut_ptr();
+    for (r, acc_r) in acc.iter().enumerate() {
+        for (v, &s) in acc_r.iter().enumerate() {
+            let left = m - 16 * v;
+            let out = cp.add((i + r) * m + 16 * v);
+            if left >= 16 {
+                _mm512_storeu_ps(out, s);
+            } else {
+                _mm512_mask_storeu_ps(out, ((1u32 << left) - 1) as u16, s);
+            }
+        }
+    }
+}
+
 /// In-place ReLU.
 #[inline]
 pub fn relu(y: &mut [f32]) {
@@ -150,6 +276,62 @@ pub fn trunc_exp_exact_grad(x: f32) -> f32 {
 mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
+
+    /// `C = A·B` by `matrixmultiply::sgemm` (`B` row-major `[k, m]`).
+    fn sgemm_reference(a: &[f32], b: &[f32], n: usize, k: usize, m: usize) -> Vec<f32> {
+        let mut c = vec![f32::NAN; n * m];
+        // SAFETY: the buffers are exactly [n, k], [k, m], [n, m].
+        unsafe {
+            matrixmultiply::sgemm(
+                n,
+                k,
+                m,
+                1.0,
+                a.as_ptr(),
+                k as isize,
+                1,
+                b.as_ptr(),
+                m as isize,
+                1,
+                0.0,
+                c.as_mut_ptr(),
+                m as isize,
+                1,
+            );
+        }
+        c
+    }
+
+    /// The small-matrix kernel gives `matrixmultiply`'s bits on every layer shape the NeRF uses
+    /// and on ragged ones (rows not a multiple of the kernel's block, widths not of the vector),
+    /// on values of mixed sign and magnitude (so that a different summation order would show).
+    #[test]
+    fn small_gemm_is_bit_identical_to_matrixmultiply() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        let mut applied = 0;
+        for &(k, m) in &[(32, 64), (64, 16), (31, 64), (64, 64), (64, 3), (3, 64), (16, 64), (64, 31), (1, 1), (5, 7)] {
+            for n in [0, 1, 2, 3, 5, 8, 37, 130] {
+                let mut r = |len: usize| -> Vec<f32> {
+                    (0..len).map(|_| (rng.random::<f32>() - 0.5) * 10f32.powi(rng.random_range(-3..4))).collect()
+                };
+                let (a, b) = (r(n * k), r(k * m));
+                let mut c = vec![f32::NAN; n * m];
+                if !small_gemm(&a, |kk, j| b[kk * m + j], &mut c, n, k, m) {
+                    continue;
+                }
+                applied += 1;
+                let want = sgemm_reference(&a, &b, n, k, m);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&c), bits(&want), "n {n}, k {k}, m {m}");
+            }
+        }
+        // On an AVX-512 host the kernel was used.
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            assert!(applied > 0);
+        }
+        let _ = applied;
+    }
 
     /// Two layers with ReLU: L = Σ u · (relu(X W0ᵀ) W1ᵀ); checks ∂L/∂W0, ∂L/∂W1, ∂L/∂X.
     #[test]

@@ -18,8 +18,9 @@ use nerfsv_pipeline::stress::{run_stress, StressRequest};
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::mesh::MeshOptions;
 use nerfsv_scene::Scene;
-use nerfsv_sim::{Disturbance, EstimatorKind, Flight, WorldKind};
-use nerfsv_study::flight::{world as world_of, FlightFigures, FlightInputs};
+use nerfsv_sim::io::MAX_PRIOR_SIGMAS;
+use nerfsv_sim::{check_component, Disturbance, EstimatorKind, Flight, WorldKind, DISTURBANCE_COLUMNS};
+use nerfsv_study::flight::{world as world_of, FlightInputs};
 use nerfsv_study::remote::{decode_job, encode_result, RemoteRollouts, RemoteSpec, Returned};
 use nerfsv_study::stress::Sampler;
 use nerfsv_study::{drone_disturbances, DroneSystem, EstimateLog};
@@ -116,13 +117,24 @@ pub fn fly<'py>(
                 )));
             }
             let values = a.as_slice()?.to_vec();
-            if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-                return Err(value_error(format!(
-                    "disturbances: row {}, column {} is {}, not a finite number",
-                    i / Disturbance::DIM,
-                    i % Disturbance::DIM,
-                    values[i]
-                )));
+            let std = cfg.disturbance_prior().map_err(py_err)?.step().std();
+            for (i, &v) in values.iter().enumerate() {
+                let (row, c) = (i / Disturbance::DIM, i % Disturbance::DIM);
+                let name = DISTURBANCE_COLUMNS[c];
+                match check_component(v, c, &std) {
+                    Ok(_) => {}
+                    Err(None) => {
+                        return Err(value_error(format!(
+                            "disturbances[{row}, {c}] ({name}) is {v:?}, not a finite number"
+                        )))
+                    }
+                    Err(Some(limit)) => {
+                        return Err(value_error(format!(
+                            "disturbances[{row}, {c}] ({name}) is {v:?}, beyond the prior's support (|value| ≤ {limit}, \
+                             {MAX_PRIOR_SIGMAS} standard deviations)"
+                        )))
+                    }
+                }
             }
             drone_disturbances(&Trajectory::from_flat(Disturbance::DIM, values).map_err(py_err)?)
         }
@@ -134,12 +146,18 @@ pub fn fly<'py>(
     let (figures, r) = py
         .detach(|| -> Result<_, nerfsv_study::StudyError> {
             let inputs = FlightInputs::from_files(&model, nerf_field.as_deref(), &ground_truth, 40.0)?;
-            let flight = inputs.plan(&cfg.sim)?;
-            let w = world_of(kind, &inputs, Some(&ground_truth), cfg.dataset.render_settings())?;
-            let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
-            let start = std::time::Instant::now();
-            let r = sim.fly(w.as_ref(), est, &ds, seed);
-            Ok((FlightFigures::new(kind, est, &r, start.elapsed().as_secs_f64()), r))
+            let render = cfg.dataset.render_settings();
+            nerfsv_study::flight::fly(
+                &inputs,
+                Some(&ground_truth),
+                &cfg.sim,
+                cfg.camera_intrinsics(),
+                render,
+                kind,
+                est,
+                &ds,
+                seed,
+            )
         })
         .map_err(py_err)?;
     let n = r.substeps.len();

@@ -162,6 +162,10 @@ def test_bad_arguments_raise_value_error_with_the_rust_message(world, tmp_path):
         nerfsv.stress(world["model"], tmp_path / "s", sampler="nope")
     with pytest.raises(ValueError, match="disturbances: expected shape"):
         nerfsv.fly(world["model"], disturbances=np.zeros((2, 3)), scene="monolith", nerf_field=world["field"])
+    far = np.zeros((6, 12))
+    far[2, 3] = 1e300  # finite, but far outside the prior: refused as `nerfsv fly --disturbances` refuses it
+    with pytest.raises(ValueError, match=r"disturbances\[2, 3\] \(dv_x\) is 1e\+?300, beyond the prior's support"):
+        nerfsv.fly(world["model"], disturbances=far, scene="monolith", nerf_field=world["field"])
     bad = tmp_path / "bad.toml"
     bad.write_text(STUDY.replace("m_elite = 2", "m_elite = 7"))
     with pytest.raises(ValueError, match="validation.cem.m_elite"):

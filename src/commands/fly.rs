@@ -143,12 +143,7 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
 
     // Everything that can be refused is checked before anything is written.
     let disturbances = match (&args.disturbances, args.random_seed) {
-        (Some(path), _) => {
-            let prior = cfg.disturbance_prior()?;
-            let cov = prior.step().covariance();
-            let std: Vec<f64> = (0..cov.nrows()).map(|i| cov[(i, i)].sqrt()).collect();
-            read_disturbances(path, cfg.sim.steps, &std)?
-        }
+        (Some(path), _) => read_disturbances(path, cfg.sim.steps, &cfg.disturbance_prior()?.step().std())?,
         (None, Some(seed)) => drone_disturbances(&cfg.disturbance_prior()?.to_proposal().draw(seed)),
         (None, None) => vec![nerfsv_sim::Disturbance::ZERO; cfg.sim.steps],
     };

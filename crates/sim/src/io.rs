@@ -43,6 +43,20 @@ pub enum DisturbanceFileError {
 /// The largest disturbance accepted from a file, in standard deviations of the prior.
 pub const MAX_PRIOR_SIGMAS: f64 = 50.0;
 
+/// A disturbance component `v` of column `c` as rollouts accept it: finite and within
+/// [`MAX_PRIOR_SIGMAS`] of the prior's standard deviation `prior_std[c]` (a column whose prior is 0
+/// bounded by the widest; no bound when every prior is 0). `Err(Some(limit))` beyond the bound,
+/// `Err(None)` when not finite. The rule of disturbance files and of every other source.
+pub fn check_component(v: f64, c: usize, prior_std: &[f64]) -> Result<f64, Option<f64>> {
+    let widest = prior_std.iter().copied().fold(0.0, f64::max);
+    let limit = MAX_PRIOR_SIGMAS * prior_std.get(c).copied().filter(|&s| s > 0.0).unwrap_or(widest);
+    match v {
+        v if !v.is_finite() => Err(None),
+        v if widest == 0.0 || v.abs() <= limit => Ok(v),
+        _ => Err(Some(limit)),
+    }
+}
+
 /// Reads `steps` disturbances from a CSV file; `prior_std` is the disturbance prior's standard
 /// deviation per column (a column whose prior is 0 is bounded by the largest of them).
 pub fn read_disturbances(
@@ -61,8 +75,6 @@ pub fn parse_disturbances(
     prior_std: &[f64],
     path: &Path,
 ) -> Result<Vec<Disturbance>, DisturbanceFileError> {
-    let widest = prior_std.iter().copied().fold(0.0, f64::max);
-    let limit = |c: usize| MAX_PRIOR_SIGMAS * prior_std.get(c).copied().filter(|&s| s > 0.0).unwrap_or(widest);
     let mut out = Vec::with_capacity(steps);
     for (n, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -78,16 +90,16 @@ pub fn parse_disturbances(
         }
         let mut d = [0.0; Disturbance::DIM];
         for (c, f) in fields.iter().enumerate() {
-            d[c] = match f.parse::<f64>() {
-                Ok(v) if v.is_finite() && (widest == 0.0 || v.abs() <= limit(c)) => v,
-                Ok(v) if v.is_finite() => {
+            d[c] = match f.parse::<f64>().map(|v| check_component(v, c, prior_std)) {
+                Ok(Ok(v)) => v,
+                Ok(Err(Some(limit))) => {
                     return Err(DisturbanceFileError::OutsidePrior {
                         path: path.into(),
                         line: n + 1,
                         column: c + 1,
                         name: DISTURBANCE_COLUMNS[c],
                         found: f.to_string(),
-                        limit: limit(c),
+                        limit,
                     })
                 }
                 _ => {

@@ -32,7 +32,7 @@ pub use dynamics::{Disturbance, DroneParams, State};
 pub use estimator::{EstimatorKind, PosePrior, VisionConfig};
 pub use filter::{Belief, PoseMeasurement};
 pub use flight::{plan_flight, Flight, SimError};
-pub use io::{read_disturbances, trajectory_csv, DisturbanceFileError};
+pub use io::{check_component, read_disturbances, trajectory_csv, DisturbanceFileError, DISTURBANCE_COLUMNS};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};
 pub use rollout::{Collision, Event, ImageUpdate, Rollout, Simulator, Substep};
 pub use world::{GroundTruthWorld, NerfWorld, World, WorldKind};

@@ -178,6 +178,44 @@ pub fn estimate_figures(world: WorldKind, r: &Rollout) -> [ScatterFigure; 2] {
     [figure("position", "mm", position), figure("attitude", "°", attitude)]
 }
 
+/// Flies one rollout and times it: its figures and the rollout.
+#[allow(clippy::too_many_arguments)]
+fn fly_timed(
+    flight: &Flight,
+    cfg: &SimConfig,
+    nerf: &Nerf,
+    intrinsics: Intrinsics,
+    world: &dyn World,
+    estimator: EstimatorKind,
+    disturbances: &[Disturbance],
+    seed: u64,
+) -> (FlightFigures, Rollout) {
+    let sim = flight.simulator(cfg, nerf, intrinsics);
+    let start = Instant::now();
+    let rollout = sim.fly(world, estimator, disturbances, seed);
+    (FlightFigures::new(world.kind(), estimator, &rollout, start.elapsed().as_secs_f64()), rollout)
+}
+
+/// One flight planned on `inputs` and flown in the world `kind`, without writing anything: its
+/// figures (those of `flight.json`) and the rollout (every substep). What the Python package's
+/// `fly` returns.
+#[allow(clippy::too_many_arguments)]
+pub fn fly(
+    inputs: &FlightInputs,
+    scene: Option<&Scene>,
+    sim: &SimConfig,
+    intrinsics: Intrinsics,
+    render: RenderSettings,
+    kind: WorldKind,
+    estimator: EstimatorKind,
+    disturbances: &[Disturbance],
+    seed: u64,
+) -> Result<(FlightFigures, Rollout), StudyError> {
+    let flight = inputs.plan(sim)?;
+    let w = world(kind, inputs, scene, render)?;
+    Ok(fly_timed(&flight, sim, &inputs.nerf, intrinsics, w.as_ref(), estimator, disturbances, seed))
+}
+
 /// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths; for
 /// the vision estimator also its error figures beside the PNG (`…_position_error.png`,
 /// `…_attitude_error.png`).
@@ -194,10 +232,7 @@ pub fn fly_and_write(
     csv_path: &Path,
     png_path: &Path,
 ) -> Result<(FlightFigures, Rollout), StudyError> {
-    let sim = flight.simulator(cfg, nerf, intrinsics);
-    let start = Instant::now();
-    let rollout = sim.fly(world, estimator, disturbances, seed);
-    let figures = FlightFigures::new(world.kind(), estimator, &rollout, start.elapsed().as_secs_f64());
+    let (figures, rollout) = fly_timed(flight, cfg, nerf, intrinsics, world, estimator, disturbances, seed);
     let csv = trajectory_csv(&rollout);
     nerfsv_scene::io::atomic_write_bytes(csv_path, csv.as_bytes()).map_err(|e| StudyError::io(csv_path, e))?;
     let png = nerfsv_plot::trajectory_png(&flight_figure(flight, cfg, world, estimator, &rollout), 1200, 640)

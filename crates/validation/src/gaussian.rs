@@ -121,6 +121,11 @@ impl Gaussian {
         &self.mean
     }
 
+    /// Each component's standard deviation (the root of the covariance's diagonal), `[dim]`.
+    pub fn std(&self) -> Vec<f64> {
+        (0..self.dim()).map(|i| self.covariance()[(i, i)].sqrt()).collect()
+    }
+
     /// The covariance, `[dim, dim]`.
     pub fn covariance(&self) -> &DMatrix<f64> {
         &self.covariance

@@ -3,8 +3,7 @@ use std::path::PathBuf;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::refuse_output_inside;
 use nerfsv_pipeline::stress::{run_stress, StressRequest};
-use nerfsv_sim::WorldKind;
-use nerfsv_study::stress::{OnlineSettings, Sampler, JOURNAL};
+use nerfsv_study::stress::{journal_dir, OnlineSettings, Sampler};
 use nerfsv_study::UqMode;
 use nerfsv_uq::{Method, UncertaintyField};
 use nerfsv_validation::Journal;
@@ -122,7 +121,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         (Some(UqMode::Exact), Some(_)) => anyhow::bail!("--field is read only with --uncertainty field"),
         _ => {}
     }
-    if args.resume && !Journal::exists(&args.out.join(JOURNAL).join(WorldKind::from(d.world).name())) {
+    if args.resume && !Journal::exists(&journal_dir(&args.out, d.world.into())) {
         anyhow::bail!("{}: --resume needs the folder of an interrupted stress run", args.out.display());
     }
     let (scene, worlds) = d.load()?;

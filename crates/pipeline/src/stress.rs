@@ -1,7 +1,7 @@
 //! The stress stage: the drone study's searches ([`nerfsv_study::stress`]) over this run's
 //! model and fields, cached and resumable.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
@@ -9,7 +9,7 @@ use nerfsv_sim::{EstimatorKind, Flight, SimConfig, WorldKind};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
-    stress, Drone, OnlineSettings, Sampler, StressFigures, StressSetup, JOURNAL, ROLLOUTS_CSV, STAGE, STRESS_JSON,
+    journal_dir, stress, Drone, OnlineSettings, Sampler, StressFigures, StressSetup, ROLLOUTS_CSV, STAGE, STRESS_JSON,
     TABLE_CSV,
 };
 use nerfsv_study::UqMode;
@@ -135,11 +135,6 @@ pub struct StressRequest<'a> {
 }
 
 impl StressRequest<'_> {
-    /// The journal folder of this request's search world in `out`.
-    pub fn journal(&self) -> PathBuf {
-        self.out.join(JOURNAL).join(self.world.name())
-    }
-
     /// Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
     /// results (the code it runs included): a resume into the results of anything else is
     /// refused.
@@ -202,7 +197,7 @@ pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<St
     if let Some((path, field)) = request.field {
         field.check_checkpoint(path, &model_id(&request.inputs.nerf))?;
     }
-    if request.resume && !Journal::exists(&request.journal()) {
+    if request.resume && !Journal::exists(&journal_dir(request.out, request.world)) {
         return Err(refuse(format!(
             "{}: resuming needs the folder of an interrupted stress run",
             request.out.display()

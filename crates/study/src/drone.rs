@@ -4,13 +4,11 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Mutex;
 
-use rayon::prelude::*;
-
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::dynamics::so3_log;
 use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
 
-use nerfsv_validation::{Finished, Job, Outcome, System, Trajectory, ValidationError};
+use nerfsv_validation::{run_here, Finished, Job, Outcome, System, Trajectory, ValidationError};
 
 use crate::remote::{decode_result, encode_job, RemoteRollouts, RemoteSpec};
 
@@ -115,7 +113,7 @@ impl System for DroneSystem<'_> {
     /// each result put in the estimate log as [`run`](System::run) would have.
     fn run_all(&self, jobs: &[Job<'_>], finished: Finished<'_>) -> Result<(), ValidationError> {
         let Some(remote) = self.remote else {
-            return jobs.par_iter().enumerate().try_for_each(|(i, &(x, seed))| finished(i, self.run(x, seed)));
+            return run_here(self, jobs, finished);
         };
         if self.uncertainty.is_some() {
             return Err(ValidationError::Executor("rollouts flown elsewhere cannot measure uncertainty".into()));

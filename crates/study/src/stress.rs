@@ -6,7 +6,7 @@
 //! Every finished rollout is kept in a journal under the output folder as it completes, so a
 //! killed run resumes without flying it again and ends with the same bytes.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -414,6 +414,12 @@ pub const TABLE_CSV: &str = "table.csv";
 pub const STRESS_JSON: &str = "stress.json";
 /// The journal's folder under the output folder.
 pub const JOURNAL: &str = "journal";
+
+/// The journal folder of the searches flown in `world` in the stress folder `out` (what a
+/// resume needs to find).
+pub fn journal_dir(out: &Path, world: WorldKind) -> PathBuf {
+    out.join(JOURNAL).join(world.name())
+}
 /// The name progress and notes are reported under.
 pub const STAGE: &str = "stress";
 
@@ -630,7 +636,7 @@ pub fn stress(
     let to_replay: usize = setup.samplers.iter().map(|s| s.searched(setup.validation)).sum();
     let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
 
-    let journal = Journal::open(&journal_dir.join(setup.world.name()), key, resume)?;
+    let journal = Journal::open(&self::journal_dir(out, setup.world), key, resume)?;
     let (search_log, replay_log) = (EstimateLog::default(), EstimateLog::default());
     let mut counting = Counting {
         journal: &journal,

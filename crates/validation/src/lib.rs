@@ -66,6 +66,6 @@ pub use sampler::{
 };
 pub use seed::rollout_seed;
 pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult};
-pub use system::{Finished, Job, Outcome, System};
+pub use system::{run_here, Finished, Job, Outcome, System};
 pub use table::{table_row, TableRow};
 pub use trajectory::{RaggedRow, Trajectory};

@@ -32,8 +32,18 @@ pub trait System: Sync {
     /// with [`System::run`]; a system whose rollouts run elsewhere (on a cluster) overrides it,
     /// and must give each job exactly what `run` would.
     fn run_all(&self, jobs: &[Job<'_>], finished: Finished<'_>) -> Result<(), ValidationError> {
-        jobs.par_iter().enumerate().try_for_each(|(i, &(x, seed))| finished(i, self.run(x, seed)))
+        run_here(self, jobs, finished)
     }
+}
+
+/// [`System::run_all`]'s default: every job in this process, in parallel, with [`System::run`]
+/// (for a system that overrides `run_all` and still flies some batches here).
+pub fn run_here<S: System + ?Sized>(
+    system: &S,
+    jobs: &[Job<'_>],
+    finished: Finished<'_>,
+) -> Result<(), ValidationError> {
+    jobs.par_iter().enumerate().try_for_each(|(i, &(x, seed))| finished(i, system.run(x, seed)))
 }
 
 /// What one trajectory did.

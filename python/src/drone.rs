@@ -128,12 +128,10 @@ pub fn fly<'py>(
                             "disturbances[{row}, {c}] ({name}) is {v:?}, not a finite number"
                         )))
                     }
-                    Err(Some(limit)) => {
-                        return Err(value_error(format!(
-                            "disturbances[{row}, {c}] ({name}) is {v:?}, beyond the prior's support (|value| ≤ {limit}, \
+                    Err(Some(limit)) => return Err(value_error(format!(
+                        "disturbances[{row}, {c}] ({name}) is {v:?}, beyond the prior's support (|value| ≤ {limit}, \
                              {MAX_PRIOR_SIGMAS} standard deviations)"
-                        )))
-                    }
+                    ))),
                 }
             }
             drone_disturbances(&Trajectory::from_flat(Disturbance::DIM, values).map_err(py_err)?)

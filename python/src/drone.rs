@@ -121,18 +121,16 @@ pub fn fly<'py>(
             for (i, &v) in values.iter().enumerate() {
                 let (row, c) = (i / Disturbance::DIM, i % Disturbance::DIM);
                 let name = DISTURBANCE_COLUMNS[c];
-                match check_component(v, c, &std) {
-                    Ok(_) => {}
-                    Err(None) => {
-                        return Err(value_error(format!(
-                            "disturbances[{row}, {c}] ({name}) is {v:?}, not a finite number"
-                        )))
+                let why = match check_component(v, c, &std) {
+                    Ok(_) => continue,
+                    Err(None) => "not a finite number".to_owned(),
+                    Err(Some(limit)) => {
+                        format!(
+                            "beyond the prior's support (|value| ≤ {limit}, {MAX_PRIOR_SIGMAS} standard deviations)"
+                        )
                     }
-                    Err(Some(limit)) => return Err(value_error(format!(
-                        "disturbances[{row}, {c}] ({name}) is {v:?}, beyond the prior's support (|value| ≤ {limit}, \
-                             {MAX_PRIOR_SIGMAS} standard deviations)"
-                    ))),
-                }
+                };
+                return Err(value_error(format!("disturbances[{row}, {c}] ({name}) is {v:?}, {why}")));
             }
             drone_disturbances(&Trajectory::from_flat(Disturbance::DIM, values).map_err(py_err)?)
         }

@@ -152,11 +152,7 @@ impl NgpField {
         ws.enc.resize(n * e, 0.0);
         ws.h.resize(n * sh, 0.0);
         ws.out.resize(n * o, 0.0);
-        let emb = self.w(params, 0);
-        for i in 0..n {
-            let x = [pos01[3 * i], pos01[3 * i + 1], pos01[3 * i + 2]];
-            self.encoding.encode(emb, x, &mut ws.enc[i * e..(i + 1) * e]);
-        }
+        self.encoding.encode_batch(self.w(params, 0), &pos01[..3 * n], &mut ws.enc);
         linear_forward(&ws.enc, self.w(params, 1), &mut ws.h, n, e, sh);
         relu(&mut ws.h);
         linear_forward(&ws.h, self.w(params, 2), &mut ws.out, n, sh, o);
@@ -187,7 +183,7 @@ impl NgpField {
         let w1 = self.w(params, 2);
         ws.d_h.resize(n * sh, 0.0);
         ws.d_enc.resize(n * e, 0.0);
-        ws.jac.resize(e * 3, 0.0);
+        ws.jac.resize(n * e * 3, 0.0);
         for (i, &s) in sigma.iter().enumerate() {
             let ds = if s > 0.0 { trunc_exp_exact_grad(ws.out[i * o]) } else { 0.0 };
             let (d_h, h) = (&mut ws.d_h[i * sh..(i + 1) * sh], &ws.h[i * sh..(i + 1) * sh]);
@@ -196,17 +192,16 @@ impl NgpField {
             }
         }
         linear_backward_input(&ws.d_h, self.w(params, 1), &mut ws.d_enc, n, e, sh);
-        let emb = self.w(params, 0);
+        self.encoding.position_jacobian_batch(self.w(params, 0), &pos01[..3 * n], &mut ws.jac);
         let inv_ext = [0, 1, 2].map(|d| 1.0 / (self.aabb_max[d] - self.aabb_min[d]));
         for i in 0..n {
             if sigma[i] == 0.0 {
                 grad[i] = [0.0; 3];
                 continue;
             }
-            let x = [pos01[3 * i], pos01[3 * i + 1], pos01[3 * i + 2]];
-            self.encoding.position_jacobian(emb, x, &mut ws.jac);
             let mut g = [0.0f32; 3];
-            for (&dk, jk) in ws.d_enc[i * e..(i + 1) * e].iter().zip(ws.jac.chunks_exact(3)) {
+            let jac = &ws.jac[i * e * 3..(i + 1) * e * 3];
+            for (&dk, jk) in ws.d_enc[i * e..(i + 1) * e].iter().zip(jac.chunks_exact(3)) {
                 for (gd, &jd) in g.iter_mut().zip(jk) {
                     *gd += dk * jd;
                 }
@@ -356,11 +351,7 @@ impl ChunkWorkspace {
         self.h0.resize(n1 * sh, 0.0);
         self.out0.resize(n1 * o, 0.0);
         self.sigma.resize(n1, 0.0);
-        let emb = field.w(params, 0);
-        for s in n0..n1 {
-            let x = [self.pos[3 * s], self.pos[3 * s + 1], self.pos[3 * s + 2]];
-            field.encoding.encode(emb, x, &mut self.enc[s * e..(s + 1) * e]);
-        }
+        field.encoding.encode_batch(field.w(params, 0), &self.pos[3 * n0..3 * n1], &mut self.enc[n0 * e..n1 * e]);
         let n = n1 - n0;
         linear_forward(&self.enc[n0 * e..], field.w(params, 1), &mut self.h0[n0 * sh..], n, e, sh);
         relu(&mut self.h0[n0 * sh..n1 * sh]);

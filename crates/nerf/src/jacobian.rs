@@ -65,8 +65,10 @@ pub(crate) struct JacobianWorkspace {
     d_out0: Vec<f32>,
     d_h0: Vec<f32>,
     d_enc: Vec<f32>,
-    /// `[2·levels, 3]` hash encoding position Jacobian of one sample.
+    /// `[B, 2·levels · 3]` the hash encoding's position Jacobians of a block's samples, whose
+    /// box coordinates are `block_pos` `[B, 3]`.
     jac: Vec<f32>,
+    block_pos: Vec<f32>,
     /// `[r, 3, 16]` `Σ_j ∂C_c/∂SH` per ray.
     view: Vec<f32>,
     /// Active samples (indices `j`) taken through the colour net, and those whose compositing
@@ -129,7 +131,6 @@ impl JacobianWorkspace {
         d_direction[..nr].fill([[0.0; 3]; 3]);
         self.view.clear();
         self.view.resize(nr * 3 * SH_DIM, 0.0);
-        self.jac.resize(e * 3, 0.0);
         let (w_c0, w_c1, w_c2) = (field.w(params, 3), field.w(params, 4), field.w(params, 5));
         let (w_s0, w_s1) = (field.w(params, 1), field.w(params, 2));
         let emb = field.w(params, 0);
@@ -212,15 +213,14 @@ impl JacobianWorkspace {
             self.d_enc.resize(rows * e, 0.0);
             linear_backward_input(&self.d_h0, w_s0, &mut self.d_enc, rows, e, sh);
             // Through the hash encoding and the box normalisation to ∂C/∂x_j, then o and d.
+            self.block_jacobians(field, emb, ws, block);
             for (q, &j) in block.iter().enumerate() {
                 let j = j as usize;
-                let s = ws.act[j] as usize;
-                let x = [ws.pos[3 * s], ws.pos[3 * s + 1], ws.pos[3 * s + 2]];
-                field.encoding.position_jacobian(emb, x, &mut self.jac);
+                let jac = &self.jac[q * 3 * e..(q + 1) * 3 * e];
                 let (ri, tj) = (self.ray[j] as usize, self.t[j]);
                 for c in 0..3 {
                     let row = 3 * q + c;
-                    let dx = through_encoding(&self.d_enc[row * e..(row + 1) * e], &self.jac);
+                    let dx = through_encoding(&self.d_enc[row * e..(row + 1) * e], jac);
                     add_to_ray(dx, 1.0, inv_ext, tj, &mut d_origin[ri][c], &mut d_direction[ri][c]);
                 }
             }
@@ -286,6 +286,17 @@ fn add_to_ray(
 }
 
 impl JacobianWorkspace {
+    /// The hash encoding's position Jacobians of the block's samples into `jac` (`[B, e·3]`).
+    fn block_jacobians(&mut self, field: &NgpField, emb: &[f32], ws: &ChunkWorkspace, block: &[u32]) {
+        self.block_pos.clear();
+        for &j in block {
+            let s = ws.act[j as usize] as usize;
+            self.block_pos.extend_from_slice(&ws.pos[3 * s..3 * s + 3]);
+        }
+        self.jac.resize(block.len() * field.enc_dim * 3, 0.0);
+        field.encoding.position_jacobian_batch(emb, &self.block_pos, &mut self.jac);
+    }
+
     /// The density term alone for the samples in `thin`: `∂C_c/∂x_j = ∂C_c/∂o_0 · ∇o_0(x_j)`,
     /// one row per sample through `sigma_net` (`∂o_0/∂h = W1[0, :]` masked by the ReLU) and the
     /// encoding, where the full path takes three rows through both nets. What it leaves out,
@@ -316,12 +327,10 @@ impl JacobianWorkspace {
             }
             self.d_enc.resize(rows * e, 0.0);
             linear_backward_input(&self.d_h0, w_s0, &mut self.d_enc, rows, e, sh);
+            self.block_jacobians(field, emb, ws, block);
             for (q, &j) in block.iter().enumerate() {
                 let j = j as usize;
-                let s = ws.act[j] as usize;
-                let x = [ws.pos[3 * s], ws.pos[3 * s + 1], ws.pos[3 * s + 2]];
-                field.encoding.position_jacobian(emb, x, &mut self.jac);
-                let grad = through_encoding(&self.d_enc[q * e..(q + 1) * e], &self.jac);
+                let grad = through_encoding(&self.d_enc[q * e..(q + 1) * e], &self.jac[q * 3 * e..(q + 1) * 3 * e]);
                 let (ri, tj) = (self.ray[j] as usize, self.t[j]);
                 for c in 0..3 {
                     let gc = self.g[3 * j + c];

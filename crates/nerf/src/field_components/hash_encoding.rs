@@ -84,15 +84,7 @@ impl HashEncoding {
     #[inline]
     pub fn encode(&self, emb: &[f32], x: [f32; 3], out: &mut [f32]) {
         for (l, lv) in self.levels.iter().enumerate() {
-            let (idx, w) = corners(lv, x);
-            let (mut a, mut b) = (0.0f32, 0.0f32);
-            for c in 0..8 {
-                let k = idx[c] as usize * 2;
-                a += w[c] * emb[k];
-                b += w[c] * emb[k + 1];
-            }
-            out[2 * l] = a;
-            out[2 * l + 1] = b;
+            (out[2 * l], out[2 * l + 1]) = encode_one_level(lv, emb, x);
         }
     }
 
@@ -126,27 +118,193 @@ impl HashEncoding {
         }
     }
 
-    /// Backward of one level over many points, accumulating into that level's gradient rows.
+    /// [`encode`](Self::encode) of many points: pos `[n, 3]`, out `[n, n_levels · 2]`, the same
+    /// bits. On a host with AVX-512 sixteen points of a level at a time.
+    pub fn encode_batch(&self, emb: &[f32], pos: &[f32], out: &mut [f32]) {
+        let (n, e) = (pos.len() / 3, self.output_dim());
+        assert!(emb.len() >= self.n_params() && out.len() >= n * e, "encode_batch: slices too short");
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: AVX-512F was detected; the assert above bounds the table and the output.
+            unsafe { self.encode_batch_avx512(emb, pos, out) };
+            return;
+        }
+        for i in 0..n {
+            self.encode(emb, [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]], &mut out[i * e..(i + 1) * e]);
+        }
+    }
+
+    /// [`position_jacobian`](Self::position_jacobian) of many points: pos `[n, 3]`, jac
+    /// `[n, n_levels · 2 · 3]` (point `i`'s Jacobian in row `i`), the same bits.
+    pub fn position_jacobian_batch(&self, emb: &[f32], pos: &[f32], jac: &mut [f32]) {
+        let (n, row) = (pos.len() / 3, self.output_dim() * 3);
+        assert!(emb.len() >= self.n_params() && jac.len() >= n * row, "position_jacobian_batch: slices too short");
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: as in `encode_batch`.
+            unsafe { self.position_jacobian_batch_avx512(emb, pos, jac) };
+            return;
+        }
+        for i in 0..n {
+            let x = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
+            self.position_jacobian(emb, x, &mut jac[i * row..(i + 1) * row]);
+        }
+    }
+
+    /// Backward of one level over many points, accumulating into that level's gradient rows in
+    /// the points' order (so the sums' bits do not depend on the host).
     ///
     /// positions: `[n, 3]` in `[0,1]`; d_out: `[n, 2]` (∂L/∂y of this level);
     /// grad_level: `[size_l, 2]`, the level's slice of the embedding gradient.
     pub fn backward_level(&self, l: usize, positions: &[f32], d_out: &[f32], grad_level: &mut [f32]) {
         let lv = self.levels[l];
         let n = d_out.len() / 2;
-        for i in 0..n {
+        assert!(
+            positions.len() >= 3 * n && grad_level.len() >= 2 * lv.size as usize,
+            "backward_level: slices too short"
+        );
+        let scatter = |grad_level: &mut [f32], i: usize, idx: &[u32; 8], w: &[f32; 8]| {
             let (ga, gb) = (d_out[2 * i], d_out[2 * i + 1]);
-            if ga == 0.0 && gb == 0.0 {
-                continue;
-            }
-            let x = [positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]];
-            let (idx, w) = corners(&lv, x);
             for c in 0..8 {
                 let k = (idx[c] - lv.offset) as usize * 2;
                 grad_level[k] += w[c] * ga;
                 grad_level[k + 1] += w[c] * gb;
             }
+        };
+        let live = |i: usize| d_out[2 * i] != 0.0 || d_out[2 * i + 1] != 0.0;
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") && (lv.dense || lv.size.is_power_of_two()) {
+            let mut i0 = 0;
+            while i0 < n {
+                let m = (n - i0).min(16);
+                if (i0..i0 + m).any(live) {
+                    // SAFETY: AVX-512F was detected; the level's corners are rows of the level.
+                    let (idx, w) = unsafe { block_corners_avx512(&lv, positions, i0, m) };
+                    for j in (0..m).filter(|&j| live(i0 + j)) {
+                        scatter(grad_level, i0 + j, &idx[j], &w[j]);
+                    }
+                }
+                i0 += m;
+            }
+            return;
+        }
+        for i in (0..n).filter(|&i| live(i)) {
+            let (idx, w) = corners(&lv, [positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]]);
+            scatter(grad_level, i, &idx, &w);
         }
     }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn encode_batch_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32]) {
+        use super::hash_avx512::{cells, encode_level, load_points, LANES};
+        let (n, e) = (pos.len() / 3, self.output_dim());
+        let mut i0 = 0;
+        while i0 < n {
+            let m = (n - i0).min(LANES);
+            let x = load_points(pos, i0, m);
+            for (l, lv) in self.levels.iter().enumerate() {
+                let Some((idx, f)) = cells(lv, &x) else {
+                    for i in i0..i0 + m {
+                        let p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
+                        let (a, b) = encode_one_level(lv, emb, p);
+                        out[i * e + 2 * l] = a;
+                        out[i * e + 2 * l + 1] = b;
+                    }
+                    continue;
+                };
+                // SAFETY: `cells` gives rows of this level, which `emb` holds (asserted).
+                let (a, b) = unsafe { encode_level(emb, &idx, &f) };
+                let (mut va, mut vb) = ([0f32; LANES], [0f32; LANES]);
+                // SAFETY: each array holds 16 floats.
+                unsafe {
+                    std::arch::x86_64::_mm512_storeu_ps(va.as_mut_ptr(), a);
+                    std::arch::x86_64::_mm512_storeu_ps(vb.as_mut_ptr(), b);
+                }
+                for j in 0..m {
+                    out[(i0 + j) * e + 2 * l] = va[j];
+                    out[(i0 + j) * e + 2 * l + 1] = vb[j];
+                }
+            }
+            i0 += m;
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn position_jacobian_batch_avx512(&self, emb: &[f32], pos: &[f32], jac: &mut [f32]) {
+        use super::hash_avx512::{cells, jacobian_level, load_points, LANES};
+        let (n, row) = (pos.len() / 3, self.output_dim() * 3);
+        let mut i0 = 0;
+        while i0 < n {
+            let m = (n - i0).min(LANES);
+            let x = load_points(pos, i0, m);
+            for (l, lv) in self.levels.iter().enumerate() {
+                let Some((idx, f)) = cells(lv, &x) else {
+                    // A level without a vector form: the whole Jacobian of these points the
+                    // scalar way (it rewrites the levels already done with the same values).
+                    for i in i0..i0 + m {
+                        let p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
+                        self.position_jacobian(emb, p, &mut jac[i * row..(i + 1) * row]);
+                    }
+                    break;
+                };
+                // SAFETY: as in `encode_batch_avx512`.
+                let j = unsafe { jacobian_level(emb, lv.scale, &x, &idx, &f) };
+                let mut v = [[[0f32; LANES]; 3]; 2];
+                for (vf, jf) in v.iter_mut().zip(&j) {
+                    for (vd, &jd) in vf.iter_mut().zip(jf) {
+                        // SAFETY: each array holds 16 floats.
+                        unsafe { std::arch::x86_64::_mm512_storeu_ps(vd.as_mut_ptr(), jd) };
+                    }
+                }
+                for k in 0..m {
+                    let r = &mut jac[(i0 + k) * row + 6 * l..(i0 + k) * row + 6 * l + 6];
+                    for d in 0..3 {
+                        r[d] = v[0][d][k];
+                        r[3 + d] = v[1][d][k];
+                    }
+                }
+            }
+            i0 += m;
+        }
+    }
+}
+
+/// One level of [`HashEncoding::encode`] at one point.
+#[inline(always)]
+fn encode_one_level(lv: &Level, emb: &[f32], x: [f32; 3]) -> (f32, f32) {
+    let (idx, w) = corners(lv, x);
+    let (mut a, mut b) = (0.0f32, 0.0f32);
+    for c in 0..8 {
+        let k = idx[c] as usize * 2;
+        a += w[c] * emb[k];
+        b += w[c] * emb[k + 1];
+    }
+    (a, b)
+}
+
+/// The corner rows and weights of points `i0 .. i0 + m` (`m ≤ 16`) of one level, per point.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn block_corners_avx512(lv: &Level, positions: &[f32], i0: usize, m: usize) -> ([[u32; 8]; 16], [[f32; 8]; 16]) {
+    use super::hash_avx512::{cells, load_points, weights};
+    use std::arch::x86_64::*;
+    let x = load_points(positions, i0, m);
+    let (idx, f) = cells(lv, &x).expect("a dense level or a power-of-two table (checked by the caller)");
+    let w = weights(&f);
+    let (mut vi, mut vw) = ([[0u32; 16]; 8], [[0f32; 16]; 8]);
+    for c in 0..8 {
+        // SAFETY: each array holds 16 lanes.
+        unsafe {
+            _mm512_storeu_si512(vi[c].as_mut_ptr() as *mut __m512i, idx[c]);
+            _mm512_storeu_ps(vw[c].as_mut_ptr(), w[c]);
+        }
+    }
+    (
+        std::array::from_fn(|j| std::array::from_fn(|c| vi[c][j])),
+        std::array::from_fn(|j| std::array::from_fn(|c| vw[c][j])),
+    )
 }
 
 /// The 8 corner rows (absolute, including the level offset) and trilinear weights of `x`.
@@ -304,6 +462,88 @@ mod tests {
             }
         }
         assert!(n > 100_000, "{n} points");
+    }
+
+    /// Points for the batch kernels: random ones inside, outside and on cell boundaries, and the
+    /// edge cases of `corners_frac` (0, 1, ±∞, NaN, just outside), on each axis.
+    fn batch_points(e: &HashEncoding, n: usize, seed: u64) -> Vec<f32> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let specials =
+            [0.0, -0.0, 1.0, 1.0 - f32::EPSILON / 2.0, -1e-7, 1.0 + 1e-7, 2.0, -3.0, f32::INFINITY, f32::NAN];
+        (0..n)
+            .flat_map(|i| {
+                let mut p: [f32; 3] = [rng.random(), rng.random(), rng.random()];
+                match i % 7 {
+                    0 => p[i % 3] = specials[(i / 7) % specials.len()],
+                    1 => {
+                        let lv = &e.levels[i % e.levels.len()];
+                        p[(i + 1) % 3] = ((i % lv.resolution as usize) as f32 - 0.5) / lv.scale;
+                    }
+                    2 => p = p.map(|v| 1.4 * v - 0.2),
+                    _ => {}
+                }
+                p
+            })
+            .collect()
+    }
+
+    fn same_bits(a: &[f32], b: &[f32]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(u, v)| u.to_bits() == v.to_bits() || (u.is_nan() && v.is_nan()))
+    }
+
+    /// The batch kernels (sixteen points of a level at a time on AVX-512 hosts) give the
+    /// per-point functions' bits: the encoding, the position Jacobian and the backward's
+    /// accumulated gradient, for batch lengths around multiples of sixteen, on the default
+    /// config's dense and hashed levels and on a hashed level whose size is not a power of two.
+    #[test]
+    fn batch_kernels_are_bit_identical_to_the_per_point_functions() {
+        let d = crate::config::NerfConfig::default();
+        let mut odd = HashEncoding::new(3, 4, 40, 9);
+        let last = odd.levels[2];
+        assert!(!last.dense);
+        odd.levels[2] = Level { size: 500, ..last };
+        odd.n_entries = (last.offset + 500) as usize;
+        let encodings =
+            [HashEncoding::new(d.hash_levels, d.base_resolution, d.finest_resolution, d.log2_hashmap_size), odd];
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for (t, e) in encodings.iter().enumerate() {
+            let emb: Vec<f32> = (0..e.n_params()).map(|_| rng.random::<f32>() - 0.5).collect();
+            let (w, row) = (e.output_dim(), e.output_dim() * 3);
+            for n in [0, 1, 15, 16, 17, 33, 200] {
+                let pos = batch_points(e, n, 100 * t as u64 + n as u64);
+                let mut want = vec![0f32; n * w];
+                let mut want_jac = vec![0f32; n * row];
+                for i in 0..n {
+                    let x = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
+                    e.encode(&emb, x, &mut want[i * w..(i + 1) * w]);
+                    e.position_jacobian(&emb, x, &mut want_jac[i * row..(i + 1) * row]);
+                }
+                let mut got = vec![7f32; n * w];
+                e.encode_batch(&emb, &pos, &mut got);
+                assert!(same_bits(&got, &want), "encoding {t}, n {n}");
+                let mut got_jac = vec![7f32; n * row];
+                e.position_jacobian_batch(&emb, &pos, &mut got_jac);
+                assert!(same_bits(&got_jac, &want_jac), "Jacobian {t}, n {n}");
+                // Backward: some points without gradient (skipped), the rest accumulated in order.
+                let d_out: Vec<f32> =
+                    (0..2 * n).map(|k| if (k / 2) % 5 == 3 { 0.0 } else { rng.random::<f32>() - 0.5 }).collect();
+                for (l, lv) in e.levels.iter().enumerate() {
+                    let d: Vec<f32> = d_out.clone();
+                    let mut want_g = vec![0f32; 2 * lv.size as usize];
+                    for i in (0..n).filter(|&i| d[2 * i] != 0.0 || d[2 * i + 1] != 0.0) {
+                        let (idx, wc) = corners(lv, [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]]);
+                        for c in 0..8 {
+                            let k = (idx[c] - lv.offset) as usize * 2;
+                            want_g[k] += wc[c] * d[2 * i];
+                            want_g[k + 1] += wc[c] * d[2 * i + 1];
+                        }
+                    }
+                    let mut got_g = vec![0f32; 2 * lv.size as usize];
+                    e.backward_level(l, &pos, &d, &mut got_g);
+                    assert!(same_bits(&got_g, &want_g), "backward {t}, n {n}, level {l}");
+                }
+            }
+        }
     }
 
     #[test]

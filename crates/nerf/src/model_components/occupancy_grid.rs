@@ -39,10 +39,13 @@ impl OccupancyGrid {
     #[inline]
     pub fn cell_of(&self, p: [f32; 3]) -> [usize; 3] {
         let r = self.resolution;
-        [0, 1, 2].map(|d| {
+        // A loop rather than `[0, 1, 2].map`, which the compiler left as a call per sample.
+        let mut c = [0usize; 3];
+        for d in 0..3 {
             let u = (p[d] - self.aabb_min[d]) / (self.aabb_max[d] - self.aabb_min[d]) * r as f32;
-            (u.max(0.0) as usize).min(r - 1)
-        })
+            c[d] = (u.max(0.0) as usize).min(r - 1);
+        }
+        c
     }
 
     #[inline]

@@ -79,16 +79,53 @@ pub fn march_segment(
                     t_exit = te;
                 }
             }
-            let k = ((t_exit - t) / step).ceil().max(1.0);
-            t += k * step;
+            t += steps_past((t_exit - t) / step) * step;
         }
     }
     t
 }
 
+/// `ceil(x).max(1)`: the whole number of steps (at least one) that reaches past `x` steps, with
+/// the same bits as `x.ceil().max(1.0)` (NaN gives 1) but without a libm `ceilf` call, which
+/// x86-64's baseline instruction set has no instruction for.
+#[inline(always)]
+fn steps_past(x: f32) -> f32 {
+    if x > 1.0 {
+        if x < 8_388_608.0 {
+            // 1 < x < 2²³: the truncation is exact and is the ceiling unless x had a fraction.
+            let i = x as i32 as f32;
+            if i < x {
+                i + 1.0
+            } else {
+                i
+            }
+        } else {
+            x // 2²³ and above (and ∞): already whole
+        }
+    } else {
+        1.0 // x ≤ 1, and NaN
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`steps_past`] is `ceil(x).max(1)` bit for bit: at whole numbers, next to them, across
+    /// the range up to and past 2²³, at ±0, negatives, ∞ and NaN.
+    #[test]
+    fn steps_past_is_the_ceiling_at_least_one() {
+        let mut xs = vec![0.0f32, -0.0, -1.5, 0.5, 1.0, 2.0, 8_388_607.5, 8_388_608.0, 1e30, f32::INFINITY];
+        xs.extend([f32::NEG_INFINITY, f32::NAN, f32::MIN_POSITIVE]);
+        for k in 0..40_000u32 {
+            let v = (k as f32) * 0.37 + 1.0;
+            xs.extend([v, f32::from_bits(v.to_bits() + 1), f32::from_bits(v.to_bits() - 1), (k as f32).powi(2)]);
+        }
+        for x in xs {
+            let want = x.ceil().max(1.0);
+            assert_eq!(steps_past(x).to_bits(), want.to_bits(), "x = {x}");
+        }
+    }
 
     #[test]
     fn marching_an_empty_grid_yields_no_samples_and_a_full_grid_fills_the_box() {

@@ -21,7 +21,7 @@
 use rayon::prelude::*;
 
 use crate::field_components::mlp::{
-    linear_backward_input, linear_forward, relu, sigmoid, trunc_exp, trunc_exp_exact_grad,
+    linear_backward_input, linear_forward, relu, relu_backward, sigmoid, trunc_exp, trunc_exp_exact_grad,
 };
 use crate::field_components::sh_encoding::{sh_encode, sh_jacobian, SH_DIM};
 use crate::fields::{ChunkWorkspace, NgpField, RayInput};
@@ -171,11 +171,7 @@ impl JacobianWorkspace {
                 let h1 = &ws.h1[j * ch..(j + 1) * ch];
                 for c in 0..3 {
                     let row = &mut self.d_h1[(3 * q + c) * ch..(3 * q + c + 1) * ch];
-                    for (d, &hk) in row.iter_mut().zip(h1) {
-                        if hk <= 0.0 {
-                            *d = 0.0;
-                        }
-                    }
+                    relu_backward(h1, row);
                 }
             }
             self.d_cin.resize(rows * ci, 0.0);
@@ -203,11 +199,7 @@ impl JacobianWorkspace {
                 let h0 = &ws.h0[s * sh..(s + 1) * sh];
                 for c in 0..3 {
                     let row = &mut self.d_h0[(3 * q + c) * sh..(3 * q + c + 1) * sh];
-                    for (d, &hk) in row.iter_mut().zip(h0) {
-                        if hk <= 0.0 {
-                            *d = 0.0;
-                        }
-                    }
+                    relu_backward(h0, row);
                 }
             }
             self.d_enc.resize(rows * e, 0.0);

@@ -25,7 +25,9 @@
 
 use rayon::prelude::*;
 
-use crate::field_components::mlp::{linear_backward_input, linear_backward_weight, trunc_exp_exact_grad};
+use crate::field_components::mlp::{
+    linear_backward_input, linear_backward_weight, relu_backward, trunc_exp_exact_grad,
+};
 use crate::field_components::sh_encoding::SH_DIM;
 use crate::fields::{ChunkWorkspace, RayInput};
 use crate::model::Nerf;
@@ -241,11 +243,7 @@ impl ParamJacobianWorkspace {
             for i in 0..k {
                 let h1 = &ws.h1[(j0 + i) * ch..(j0 + i + 1) * ch];
                 let row = &mut self.d_h1[(c * k + i) * ch..(c * k + i + 1) * ch];
-                for (d, &hk) in row.iter_mut().zip(h1) {
-                    if hk <= 0.0 {
-                        *d = 0.0;
-                    }
-                }
+                relu_backward(h1, row);
             }
         }
         self.d_cin.resize(rows * ci, 0.0);
@@ -269,11 +267,7 @@ impl ParamJacobianWorkspace {
             for i in 0..k {
                 let h = &self.h0[i * sh..(i + 1) * sh];
                 let row = &mut self.d_h0[(q * k + i) * sh..(q * k + i + 1) * sh];
-                for (d, &hk) in row.iter_mut().zip(h) {
-                    if hk <= 0.0 {
-                        *d = 0.0;
-                    }
-                }
+                relu_backward(h, row);
             }
         }
         let n_p = p0 + o * sh;

@@ -3,7 +3,7 @@
 //! of Levenberg–Marquardt on the `sigma_net` weights, then the dense 3072² covariance by
 //! Cholesky), with the default `UqConfig`; and the per-pixel colour/depth uncertainty maps of
 //! each, given the image's fit (`ga_maps`: σ_d; `bla_maps`: the Laplace covariance, factorised
-//! inside, the Jacobians taken at the mode).
+//! inside, the Jacobians taken at the mode); and the plain render of the same rays, GA's yardstick.
 //!
 //! Uses the trained model and the first test view of `NERFSV_BENCH_RUN` (default
 //! `runs/stonehenge`, made by `cargo run --release -- run`); without one, a freshly initialised
@@ -75,6 +75,8 @@ fn uq(c: &mut Criterion) {
     CovarianceFactor::new("bench", &bla.laplace.covariance).expect("Cholesky of Σ");
     eprintln!("uq: Cholesky of the 3072² covariance (inside bla_maps) {:.3} s", t.elapsed().as_secs_f64());
     let mut g = c.benchmark_group("uq");
+    // The plain render of the same view, the yardstick of GA's cost (issue 26: GA ≤ 1.1 render).
+    g.bench_function("render_100x100", |b| b.iter(|| nerf.render_rays(&rays)));
     g.bench_function("ga_100x100", |b| {
         b.iter(|| ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max, cfg.noise_std))
     });

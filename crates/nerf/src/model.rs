@@ -193,7 +193,7 @@ impl Nerf {
             (0..n_cells as u32).collect()
         } else {
             let k = n_cells / self.config.grid_partial_fraction;
-            let occ: Vec<u32> = (0..n_cells as u32).filter(|&c| self.grid.occupied[c as usize] != 0).collect();
+            let occ: Vec<u32> = (0..n_cells as u32).filter(|&c| self.grid.is_occupied_index(c as usize)).collect();
             let mut v: Vec<u32> = (0..k).map(|_| rng.random_range(0..n_cells as u32)).collect();
             if !occ.is_empty() {
                 v.extend((0..k).map(|_| occ[rng.random_range(0..occ.len())]));

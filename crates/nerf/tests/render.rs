@@ -93,12 +93,12 @@ fn a_ray_composites_a_sample_exactly_when_the_render_gives_it_one() {
     use rand::{RngExt, SeedableRng};
     let mut nerf = Nerf::new(tiny_config(), 3).unwrap();
     let res = nerf.grid.resolution;
-    nerf.grid.occupied.fill(0);
+    nerf.grid.fill_occupied(false);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     for _ in 0..res * res {
         let c = [rng.random_range(0..res), rng.random_range(0..res), rng.random_range(0..res)];
         let i = nerf.grid.index(c);
-        nerf.grid.occupied[i] = 1;
+        nerf.grid.set_occupied(i, true);
     }
     let rays: Vec<RayInput> = (0..4000)
         .map(|_| {

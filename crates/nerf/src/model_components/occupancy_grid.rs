@@ -14,8 +14,11 @@ pub struct OccupancyGrid {
     pub aabb_max: [f32; 3],
     /// `[res³]` running max of σ·Δt (dimensionless).
     pub density: Vec<f32>,
-    /// `[res³]` 1 where occupied.
-    pub occupied: Vec<u8>,
+    /// `[⌈res³/64⌉]` one bit per cell (cell `i` is bit `i % 64` of word `i / 64`), set where
+    /// occupied: 256 KiB at 128³, so that marching's lookups stay in the L2 cache (a byte per
+    /// cell, 2 MiB, did not). Read and written through [`Self::is_occupied_index`],
+    /// [`Self::set_occupied`] and [`Self::fill_occupied`].
+    occupied: Vec<u64>,
     /// Mean of `density` at the last update.
     pub mean: f32,
     /// The threshold in force: `min(grid_threshold, mean)`.
@@ -26,7 +29,45 @@ impl OccupancyGrid {
     /// A grid with every cell occupied (before the first update).
     pub fn new(resolution: usize, aabb_min: [f32; 3], aabb_max: [f32; 3]) -> Self {
         let n = resolution.pow(3);
-        Self { resolution, aabb_min, aabb_max, density: vec![0.0; n], occupied: vec![1; n], mean: 0.0, threshold: 0.0 }
+        let mut grid = Self {
+            resolution,
+            aabb_min,
+            aabb_max,
+            density: vec![0.0; n],
+            occupied: Vec::new(),
+            mean: 0.0,
+            threshold: 0.0,
+        };
+        grid.fill_occupied(true);
+        grid
+    }
+
+    /// Whether cell `i` (an [`index`](Self::index)) is occupied.
+    #[inline(always)]
+    pub fn is_occupied_index(&self, i: usize) -> bool {
+        (self.occupied[i >> 6] >> (i & 63)) & 1 != 0
+    }
+
+    /// Marks cell `i` occupied or not.
+    pub fn set_occupied(&mut self, i: usize, occupied: bool) {
+        let (w, b) = (i >> 6, 1u64 << (i & 63));
+        if occupied {
+            self.occupied[w] |= b;
+        } else {
+            self.occupied[w] &= !b;
+        }
+    }
+
+    /// Marks every cell occupied or none.
+    pub fn fill_occupied(&mut self, occupied: bool) {
+        let n = self.resolution.pow(3);
+        self.occupied.clear();
+        self.occupied.resize(n.div_ceil(64), 0);
+        if occupied {
+            for i in 0..n {
+                self.set_occupied(i, true);
+            }
+        }
     }
 
     /// Cell edge lengths in metres.
@@ -55,12 +96,12 @@ impl OccupancyGrid {
 
     #[inline]
     pub fn is_occupied(&self, c: [usize; 3]) -> bool {
-        self.occupied[self.index(c)] != 0
+        self.is_occupied_index(self.index(c))
     }
 
     /// Fraction of occupied cells.
     pub fn occupancy(&self) -> f64 {
-        self.occupied.iter().map(|&o| o as u64).sum::<u64>() as f64 / self.occupied.len() as f64
+        self.occupied.iter().map(|w| w.count_ones() as u64).sum::<u64>() as f64 / self.density.len() as f64
     }
 
     /// Applies new measurements `(cell, σ·Δt)` as instant-ngp does: every cell decays,
@@ -86,8 +127,37 @@ impl OccupancyGrid {
         self.mean = (sum / self.density.len() as f64) as f32;
         self.threshold = threshold.min(self.mean);
         let th = self.threshold;
-        for (o, &d) in self.occupied.iter_mut().zip(&self.density) {
-            *o = (d > th) as u8;
+        for (w, chunk) in self.occupied.iter_mut().zip(self.density.chunks(64)) {
+            *w = chunk.iter().enumerate().fold(0u64, |acc, (b, &d)| acc | (((d > th) as u64) << b));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bitfield holds exactly `density > threshold` per cell after a refresh, on a grid whose
+    /// cell count is not a multiple of 64; set/fill change one cell or all, and the occupancy is
+    /// the fraction of set cells.
+    #[test]
+    fn the_bitfield_is_the_threshold_of_every_cell() {
+        let mut g = OccupancyGrid::new(7, [-1.0; 3], [1.0; 3]);
+        let n = 7usize.pow(3);
+        assert!((0..n).all(|i| g.is_occupied_index(i)) && g.occupancy() == 1.0);
+        for (i, d) in g.density.iter_mut().enumerate() {
+            *d = ((i * 37) % 11) as f32 / 10.0;
+        }
+        g.refresh(0.45);
+        let th = g.threshold;
+        assert!((0..n).all(|i| g.is_occupied_index(i) == (g.density[i] > th)));
+        let set = (0..n).filter(|&i| g.density[i] > th).count();
+        assert_eq!(g.occupancy(), set as f64 / n as f64);
+        g.fill_occupied(false);
+        g.set_occupied(200, true);
+        assert!((0..n).all(|i| g.is_occupied_index(i) == (i == 200)));
+        assert!(g.is_occupied([4, 0, 4]) == (g.index([4, 0, 4]) == 200));
+        g.set_occupied(200, false);
+        assert_eq!(g.occupancy(), 0.0);
     }
 }

@@ -65,7 +65,7 @@ pub fn march_segment(
     while t < t_far && n < max_new {
         let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
         let c = grid.cell_of(p);
-        if grid.occupied[c[0] + r * (c[1] + r * c[2])] != 0 {
+        if grid.is_occupied_index(c[0] + r * (c[1] + r * c[2])) {
             ts.push(t);
             n += 1;
             t += step;
@@ -134,10 +134,10 @@ mod tests {
         let n = march_ray([-3.0, 0.1, 0.2], [1.0, 0.0, 0.0], &g, 0.1, 1000, 0.0, &mut ts);
         assert!((20..=21).contains(&n), "{n}");
         assert!((ts[0] - 2.0).abs() < 1e-5);
-        g.occupied.fill(0);
+        g.fill_occupied(false);
         let c = g.cell_of([0.3, 0.1, 0.2]);
         let i = g.index(c);
-        g.occupied[i] = 1;
+        g.set_occupied(i, true);
         ts.clear();
         let n = march_ray([-3.0, 0.1, 0.2], [1.0, 0.0, 0.0], &g, 0.05, 1000, 0.0, &mut ts);
         // Only the cell [0.25, 0.5] in x is occupied: samples at 3.25, 3.30, ... < 3.5.

@@ -33,14 +33,12 @@ pub(crate) fn load_points(pos: &[f32], i0: usize, n: usize) -> [__m512; 3] {
 
 /// One level's cells of sixteen points: the eight corner rows (absolute, with the level's
 /// offset; corner `c` is `+ (c & 1, c >> 1 & 1, c >> 2 & 1)`) and the fractions per axis, as
-/// [`super::hash_encoding::corners_frac`] computes them lane by lane. `None` for a hashed level
-/// whose size is not a power of two (its modulo has no vector form; no config makes one).
+/// [`super::hash_encoding::corners_frac`] computes them lane by lane. A hashed level's size must
+/// be a power of two (its modulo is a mask here; the callers check).
 #[target_feature(enable = "avx512f")]
 #[inline]
-pub(crate) fn cells(lv: &Level, x: &[__m512; 3]) -> Option<([__m512i; 8], [__m512; 3])> {
-    if !lv.dense && !lv.size.is_power_of_two() {
-        return None;
-    }
+pub(crate) fn cells(lv: &Level, x: &[__m512; 3]) -> ([__m512i; 8], [__m512; 3]) {
+    debug_assert!(lv.dense || lv.size.is_power_of_two(), "a hashed level of {} rows", lv.size);
     let (zero, one, half) = (_mm512_setzero_ps(), _mm512_set1_ps(1.0), _mm512_set1_ps(0.5));
     let scale = _mm512_set1_ps(lv.scale);
     let mut g = [_mm512_setzero_si512(); 3];
@@ -86,7 +84,7 @@ pub(crate) fn cells(lv: &Level, x: &[__m512; 3]) -> Option<([__m512i; 8], [__m51
             *ic = _mm512_add_epi32(offset, _mm512_and_si512(h, mask));
         }
     }
-    Some((idx, f))
+    (idx, f)
 }
 
 /// The trilinear weights `(wx·wy)·wz` of the eight corners.

@@ -121,34 +121,36 @@ impl HashEncoding {
     /// [`encode`](Self::encode) of many points: pos `[n, 3]`, out `[n, n_levels · 2]`, the same
     /// bits. On a host with AVX-512 sixteen points of a level at a time.
     pub fn encode_batch(&self, emb: &[f32], pos: &[f32], out: &mut [f32]) {
-        let (n, e) = (pos.len() / 3, self.output_dim());
-        assert!(emb.len() >= self.n_params() && out.len() >= n * e, "encode_batch: slices too short");
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: AVX-512F was detected; the assert above bounds the table and the output.
-            unsafe { self.encode_batch_avx512(emb, pos, out) };
-            return;
-        }
-        for i in 0..n {
-            self.encode(emb, [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]], &mut out[i * e..(i + 1) * e]);
+        let e = self.output_dim();
+        if !self.batch_on_avx512(emb, pos, out, e, Kernel::Encode) {
+            per_point(pos, out, e, |x, row| self.encode(emb, x, row));
         }
     }
 
     /// [`position_jacobian`](Self::position_jacobian) of many points: pos `[n, 3]`, jac
     /// `[n, n_levels · 2 · 3]` (point `i`'s Jacobian in row `i`), the same bits.
     pub fn position_jacobian_batch(&self, emb: &[f32], pos: &[f32], jac: &mut [f32]) {
-        let (n, row) = (pos.len() / 3, self.output_dim() * 3);
-        assert!(emb.len() >= self.n_params() && jac.len() >= n * row, "position_jacobian_batch: slices too short");
+        let row = self.output_dim() * 3;
+        if !self.batch_on_avx512(emb, pos, jac, row, Kernel::PositionJacobian) {
+            per_point(pos, jac, row, |x, r| self.position_jacobian(emb, x, r));
+        }
+    }
+
+    /// Checks a batch's slices (rows of `width` floats in `out`) and runs `kernel` on them where
+    /// the host has AVX-512 (and every level a vector form); false, having done nothing, elsewhere.
+    fn batch_on_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32], width: usize, kernel: Kernel) -> bool {
+        assert!(
+            emb.len() >= self.n_params() && out.len() >= pos.len() / 3 * width,
+            "hash encoding batch: slices too short"
+        );
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: as in `encode_batch`.
-            unsafe { self.position_jacobian_batch_avx512(emb, pos, jac) };
-            return;
+        if std::arch::is_x86_feature_detected!("avx512f") && self.levels.iter().all(has_vector_form) {
+            // SAFETY: AVX-512F was detected; the assert above bounds the table and the output.
+            unsafe { self.batch_avx512(emb, pos, out, kernel) };
+            return true;
         }
-        for i in 0..n {
-            let x = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
-            self.position_jacobian(emb, x, &mut jac[i * row..(i + 1) * row]);
-        }
+        let _ = kernel;
+        false
     }
 
     /// Backward of one level over many points, accumulating into that level's gradient rows in
@@ -173,7 +175,7 @@ impl HashEncoding {
         };
         let live = |i: usize| d_out[2 * i] != 0.0 || d_out[2 * i + 1] != 0.0;
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") && (lv.dense || lv.size.is_power_of_two()) {
+        if std::arch::is_x86_feature_detected!("avx512f") && has_vector_form(&lv) {
             let mut i0 = 0;
             while i0 < n {
                 let m = (n - i0).min(16);
@@ -194,80 +196,72 @@ impl HashEncoding {
         }
     }
 
+    /// The AVX-512 batch kernels: sixteen points at a time, level by level, each level's
+    /// encoding (`out` `[n, 2·levels]`) or position Jacobian (`out` `[n, 2·levels·3]`).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
-    unsafe fn encode_batch_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32]) {
-        use super::hash_avx512::{cells, encode_level, load_points, LANES};
+    unsafe fn batch_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32], kernel: Kernel) {
+        use super::hash_avx512::{cells, encode_level, jacobian_level, load_points, LANES};
+        use std::arch::x86_64::_mm512_storeu_ps;
         let (n, e) = (pos.len() / 3, self.output_dim());
         let mut i0 = 0;
         while i0 < n {
             let m = (n - i0).min(LANES);
             let x = load_points(pos, i0, m);
             for (l, lv) in self.levels.iter().enumerate() {
-                let Some((idx, f)) = cells(lv, &x) else {
-                    for i in i0..i0 + m {
-                        let p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
-                        let (a, b) = encode_one_level(lv, emb, p);
-                        out[i * e + 2 * l] = a;
-                        out[i * e + 2 * l + 1] = b;
+                let (idx, f) = cells(lv, &x);
+                // Lanes per output column: (y₀, y₁), or ∂y₀/∂x_d then ∂y₁/∂x_d.
+                let mut v = [[0f32; LANES]; 6];
+                // SAFETY: `cells` gives rows of this level, which `emb` holds (asserted by the
+                // caller); each array holds 16 floats.
+                let width = unsafe {
+                    match kernel {
+                        Kernel::Encode => {
+                            let (a, b) = encode_level(emb, &idx, &f);
+                            _mm512_storeu_ps(v[0].as_mut_ptr(), a);
+                            _mm512_storeu_ps(v[1].as_mut_ptr(), b);
+                            2
+                        }
+                        Kernel::PositionJacobian => {
+                            let j = jacobian_level(emb, lv.scale, &x, &idx, &f);
+                            for (k, &jk) in j.iter().flatten().enumerate() {
+                                _mm512_storeu_ps(v[k].as_mut_ptr(), jk);
+                            }
+                            6
+                        }
                     }
-                    continue;
                 };
-                // SAFETY: `cells` gives rows of this level, which `emb` holds (asserted).
-                let (a, b) = unsafe { encode_level(emb, &idx, &f) };
-                let (mut va, mut vb) = ([0f32; LANES], [0f32; LANES]);
-                // SAFETY: each array holds 16 floats.
-                unsafe {
-                    std::arch::x86_64::_mm512_storeu_ps(va.as_mut_ptr(), a);
-                    std::arch::x86_64::_mm512_storeu_ps(vb.as_mut_ptr(), b);
-                }
+                let row = e * width / 2;
                 for j in 0..m {
-                    out[(i0 + j) * e + 2 * l] = va[j];
-                    out[(i0 + j) * e + 2 * l + 1] = vb[j];
+                    let r = &mut out[(i0 + j) * row + width * l..(i0 + j) * row + width * (l + 1)];
+                    for (rk, vk) in r.iter_mut().zip(&v) {
+                        *rk = vk[j];
+                    }
                 }
             }
             i0 += m;
         }
     }
+}
 
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    unsafe fn position_jacobian_batch_avx512(&self, emb: &[f32], pos: &[f32], jac: &mut [f32]) {
-        use super::hash_avx512::{cells, jacobian_level, load_points, LANES};
-        let (n, row) = (pos.len() / 3, self.output_dim() * 3);
-        let mut i0 = 0;
-        while i0 < n {
-            let m = (n - i0).min(LANES);
-            let x = load_points(pos, i0, m);
-            for (l, lv) in self.levels.iter().enumerate() {
-                let Some((idx, f)) = cells(lv, &x) else {
-                    // A level without a vector form: the whole Jacobian of these points the
-                    // scalar way (it rewrites the levels already done with the same values).
-                    for i in i0..i0 + m {
-                        let p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
-                        self.position_jacobian(emb, p, &mut jac[i * row..(i + 1) * row]);
-                    }
-                    break;
-                };
-                // SAFETY: as in `encode_batch_avx512`.
-                let j = unsafe { jacobian_level(emb, lv.scale, &x, &idx, &f) };
-                let mut v = [[[0f32; LANES]; 3]; 2];
-                for (vf, jf) in v.iter_mut().zip(&j) {
-                    for (vd, &jd) in vf.iter_mut().zip(jf) {
-                        // SAFETY: each array holds 16 floats.
-                        unsafe { std::arch::x86_64::_mm512_storeu_ps(vd.as_mut_ptr(), jd) };
-                    }
-                }
-                for k in 0..m {
-                    let r = &mut jac[(i0 + k) * row + 6 * l..(i0 + k) * row + 6 * l + 6];
-                    for d in 0..3 {
-                        r[d] = v[0][d][k];
-                        r[3 + d] = v[1][d][k];
-                    }
-                }
-            }
-            i0 += m;
-        }
+/// Whether the AVX-512 kernels can compute `lv`'s corners: a dense level, or a hashed one whose
+/// table size is a power of two (its modulo a mask; every config makes one, but a hand-built
+/// level need not).
+fn has_vector_form(lv: &Level) -> bool {
+    lv.dense || lv.size.is_power_of_two()
+}
+
+/// Which batch kernel [`HashEncoding::batch_on_avx512`] runs.
+#[derive(Clone, Copy)]
+enum Kernel {
+    Encode,
+    PositionJacobian,
+}
+
+/// `f(point, row)` for each point of `pos` (`[n, 3]`) and its row of `width` floats in `out`.
+fn per_point(pos: &[f32], out: &mut [f32], width: usize, mut f: impl FnMut([f32; 3], &mut [f32])) {
+    for (p, row) in pos.chunks_exact(3).zip(out.chunks_exact_mut(width)) {
+        f([p[0], p[1], p[2]], row);
     }
 }
 
@@ -291,7 +285,7 @@ unsafe fn block_corners_avx512(lv: &Level, positions: &[f32], i0: usize, m: usiz
     use super::hash_avx512::{cells, load_points, weights};
     use std::arch::x86_64::*;
     let x = load_points(positions, i0, m);
-    let (idx, f) = cells(lv, &x).expect("a dense level or a power-of-two table (checked by the caller)");
+    let (idx, f) = cells(lv, &x);
     let w = weights(&f);
     let (mut vi, mut vw) = ([[0u32; 16]; 8], [[0f32; 16]; 8]);
     for c in 0..8 {

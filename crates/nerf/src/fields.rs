@@ -224,6 +224,16 @@ pub struct DensityWorkspace {
     jac: Vec<f32>,
 }
 
+/// Makes `v` at least `len` long. The per-sample buffers of a forward pass only grow: each
+/// round writes its rows before anything reads them, and a `resize` down and up again would
+/// zero-fill the regrown part on every round of every call.
+#[inline]
+fn grow(v: &mut Vec<f32>, len: usize) {
+    if v.len() < len {
+        v.resize(len, 0.0);
+    }
+}
+
 /// Samples marched per live ray between density evaluations when training. Samples are stored
 /// in evaluation order and the training backward sums over them in that order, so this fixes
 /// the trained weights' bits.
@@ -347,10 +357,10 @@ impl ChunkWorkspace {
     /// Encoding and `sigma_net` for samples `n0..n1` (already in `pos`).
     fn density_rows(&mut self, field: &NgpField, params: &[f32], n0: usize, n1: usize) {
         let (e, sh, o) = (field.enc_dim, field.sigma_hidden, 1 + field.geo);
-        self.enc.resize(n1 * e, 0.0);
-        self.h0.resize(n1 * sh, 0.0);
-        self.out0.resize(n1 * o, 0.0);
-        self.sigma.resize(n1, 0.0);
+        grow(&mut self.enc, n1 * e);
+        grow(&mut self.h0, n1 * sh);
+        grow(&mut self.out0, n1 * o);
+        grow(&mut self.sigma, n1);
         field.encoding.encode_batch(field.w(params, 0), &self.pos[3 * n0..3 * n1], &mut self.enc[n0 * e..n1 * e]);
         let n = n1 - n0;
         linear_forward(&self.enc[n0 * e..], field.w(params, 1), &mut self.h0[n0 * sh..], n, e, sh);
@@ -413,7 +423,7 @@ impl ChunkWorkspace {
                 self.sample_ray.extend(std::iter::repeat_n(ri as u32, added));
             }
             let n1 = self.t.len();
-            self.pos.resize(3 * n1, 0.0);
+            grow(&mut self.pos, 3 * n1);
             for s in n0..n1 {
                 let r = &rays[self.sample_ray[s] as usize];
                 let t = self.t[s];

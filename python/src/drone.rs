@@ -20,7 +20,7 @@ use nerfsv_scene::mesh::MeshOptions;
 use nerfsv_scene::Scene;
 use nerfsv_sim::io::MAX_PRIOR_SIGMAS;
 use nerfsv_sim::{check_component, Disturbance, EstimatorKind, Flight, WorldKind, DISTURBANCE_COLUMNS};
-use nerfsv_study::flight::{world as world_of, FlightInputs};
+use nerfsv_study::flight::{world as world_of, FlightInputs, FlightRequest};
 use nerfsv_study::remote::{decode_job, encode_result, RemoteRollouts, RemoteSpec, Returned};
 use nerfsv_study::stress::Sampler;
 use nerfsv_study::{drone_disturbances, DroneSystem, EstimateLog};
@@ -142,18 +142,17 @@ pub fn fly<'py>(
     let (figures, r) = py
         .detach(|| -> Result<_, nerfsv_study::StudyError> {
             let inputs = FlightInputs::from_files(&model, nerf_field.as_deref(), &ground_truth, 40.0)?;
-            let render = cfg.dataset.render_settings();
-            nerfsv_study::flight::fly(
-                &inputs,
-                Some(&ground_truth),
-                &cfg.sim,
-                cfg.camera_intrinsics(),
-                render,
+            nerfsv_study::flight::fly(&FlightRequest {
+                inputs: &inputs,
+                scene: Some(&ground_truth),
+                sim: &cfg.sim,
+                intrinsics: cfg.camera_intrinsics(),
+                render: cfg.dataset.render_settings(),
                 kind,
-                est,
-                &ds,
+                estimator: est,
+                disturbances: &ds,
                 seed,
-            )
+            })
         })
         .map_err(py_err)?;
     let n = r.substeps.len();

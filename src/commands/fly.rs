@@ -1,12 +1,11 @@
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nerfsv_pipeline::{refuse_output_inside, RunConfig};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
 use nerfsv_study::drone_disturbances;
-use nerfsv_study::flight::{fly_into, FlightInputs};
+use nerfsv_study::flight::{fly_into, FlightInputs, FlightRequest};
 
 use crate::commands::world::{load_mesh_scene, MeshArgs};
 
@@ -148,20 +147,22 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         (None, None) => vec![nerfsv_sim::Disturbance::ZERO; cfg.sim.steps],
     };
     let (scene, inputs) = args.drone.load()?;
-    // Planned before the folder is made: a flight that cannot be planned writes nothing.
-    inputs.plan(&cfg.sim).context("planning the flight")?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let figures = fly_into(
-        &args.out,
-        &inputs,
-        Some(&scene),
-        &cfg.sim,
-        cfg.camera_intrinsics(),
-        cfg.dataset.render_settings(),
-        args.drone.world.into(),
-        args.drone.estimator.into(),
-        &disturbances,
-        args.seed.or(args.random_seed).unwrap_or(0),
-    )?;
+    // `fly_into` plans the flight before it makes the folder: a flight that cannot be planned
+    // writes nothing.
+    let request = FlightRequest {
+        inputs: &inputs,
+        scene: Some(&scene),
+        sim: &cfg.sim,
+        intrinsics: cfg.camera_intrinsics(),
+        render: cfg.dataset.render_settings(),
+        kind: args.drone.world.into(),
+        estimator: args.drone.estimator.into(),
+        disturbances: &disturbances,
+        seed: args.seed.or(args.random_seed).unwrap_or(0),
+    };
+    let figures = fly_into(&args.out, &request).map_err(|e| match e {
+        nerfsv_study::StudyError::Sim(_) => anyhow::Error::from(e).context("planning the flight"),
+        e => e.into(),
+    })?;
     crate::commands::report(args.json, &figures, || figures.describe())
 }

@@ -196,24 +196,35 @@ fn fly_timed(
     (FlightFigures::new(world.kind(), estimator, &rollout, start.elapsed().as_secs_f64()), rollout)
 }
 
-/// One flight planned on `inputs` and flown in the world `kind`, without writing anything: its
-/// figures (those of `flight.json`) and the rollout (every substep). What the Python package's
-/// `fly` returns.
-#[allow(clippy::too_many_arguments)]
-pub fn fly(
-    inputs: &FlightInputs,
-    scene: Option<&Scene>,
-    sim: &SimConfig,
-    intrinsics: Intrinsics,
-    render: RenderSettings,
-    kind: WorldKind,
-    estimator: EstimatorKind,
-    disturbances: &[Disturbance],
-    seed: u64,
-) -> Result<(FlightFigures, Rollout), StudyError> {
-    let flight = inputs.plan(sim)?;
-    let w = world(kind, inputs, scene, render)?;
-    Ok(fly_timed(&flight, sim, &inputs.nerf, intrinsics, w.as_ref(), estimator, disturbances, seed))
+/// One flight to plan and fly: what it is planned and flown on, the world it is flown in, its
+/// estimator and disturbances. The request of [`fly`] (the Python package's `fly`) and of
+/// [`fly_into`] (`nerfsv fly`).
+pub struct FlightRequest<'a> {
+    pub inputs: &'a FlightInputs,
+    /// The ground truth's scene, which GT-sim renders (see [`world`]).
+    pub scene: Option<&'a Scene>,
+    pub sim: &'a SimConfig,
+    pub intrinsics: Intrinsics,
+    pub render: RenderSettings,
+    pub kind: WorldKind,
+    pub estimator: EstimatorKind,
+    pub disturbances: &'a [Disturbance],
+    pub seed: u64,
+}
+
+impl FlightRequest<'_> {
+    /// The planned flight and its world: everything that can be refused before flying.
+    fn planned(&self) -> Result<(Flight, Box<dyn World + '_>), StudyError> {
+        Ok((self.inputs.plan(self.sim)?, world(self.kind, self.inputs, self.scene, self.render)?))
+    }
+}
+
+/// One flight planned and flown, without writing anything: its figures (those of
+/// `flight.json`) and the rollout (every substep).
+pub fn fly(req: &FlightRequest) -> Result<(FlightFigures, Rollout), StudyError> {
+    let (flight, w) = req.planned()?;
+    let (nerf, sim) = (&req.inputs.nerf, req.sim);
+    Ok(fly_timed(&flight, sim, nerf, req.intrinsics, w.as_ref(), req.estimator, req.disturbances, req.seed))
 }
 
 /// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths; for
@@ -250,38 +261,27 @@ pub fn fly_and_write(
     Ok((figures, rollout))
 }
 
-/// One flight into the folder `out` (which exists): `trajectory.csv`, `trajectory.png` (and the
-/// vision estimator's error plots), `disturbances.csv` (replayable) and `flight.json` (the
-/// figures, which it returns). What `nerfsv fly` does after reading its arguments.
-#[allow(clippy::too_many_arguments)]
-pub fn fly_into(
-    out: &Path,
-    inputs: &FlightInputs,
-    scene: Option<&Scene>,
-    sim: &SimConfig,
-    intrinsics: Intrinsics,
-    render: RenderSettings,
-    kind: WorldKind,
-    estimator: EstimatorKind,
-    disturbances: &[Disturbance],
-    seed: u64,
-) -> Result<FlightFigures, StudyError> {
-    let flight = inputs.plan(sim)?;
-    let w = world(kind, inputs, scene, render)?;
+/// One flight into the folder `out`, made once the flight is planned and its world built (a
+/// request that is refused writes nothing): `trajectory.csv`, `trajectory.png` (and the vision
+/// estimator's error plots), `disturbances.csv` (replayable) and `flight.json` (the figures,
+/// which it returns). What `nerfsv fly` does after reading its arguments.
+pub fn fly_into(out: &Path, req: &FlightRequest) -> Result<FlightFigures, StudyError> {
+    let (flight, w) = req.planned()?;
+    std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
     let (figures, _) = fly_and_write(
         &flight,
-        sim,
-        &inputs.nerf,
-        intrinsics,
+        req.sim,
+        &req.inputs.nerf,
+        req.intrinsics,
         w.as_ref(),
-        estimator,
-        disturbances,
-        seed,
+        req.estimator,
+        req.disturbances,
+        req.seed,
         &out.join("trajectory.csv"),
         &out.join("trajectory.png"),
     )?;
     let path = out.join("disturbances.csv");
-    nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(disturbances).as_bytes())
+    nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(req.disturbances).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;
     let path = out.join("flight.json");
     nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer_pretty(w, &figures).map_err(std::io::Error::other))

@@ -79,7 +79,7 @@ fn vision_steps(c: &mut Criterion) {
                 poses
                     .iter()
                     .enumerate()
-                    .map(|(k, (t, p))| sim.observe_and_refine(world, t, &prior(p), k as u64).renders)
+                    .map(|(k, (t, p))| sim.observe_and_refine(world, t, &prior(p), k as u64, true).renders)
                     .sum::<usize>()
             })
         });

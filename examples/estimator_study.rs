@@ -210,12 +210,14 @@ fn main() -> anyhow::Result<()> {
                         &at,
                         &PosePrior::isotropic(at.position, at.rotation, 0.05, 3.0),
                         seed,
+                        true,
                     );
                     let fit = sim.observe_and_refine(
                         w.as_ref(),
                         &at,
                         &PosePrior::isotropic(start_p, start_r, 0.05, 3.0),
                         seed,
+                        true,
                     );
                     let angle = |a: &nalgebra::Matrix3<f64>, b: &nalgebra::Matrix3<f64>| {
                         so3_log(&(a * b.transpose())).norm().to_degrees()

@@ -89,7 +89,7 @@ fn vision_estimator_reduces_a_5_cm_3_degree_error_five_fold_on_nerf_images_at_mo
         predicted.position += Vector3::new(1.0, -1.0, 1.0).normalize() * 0.05;
         predicted.rotation = so3_exp(&(Vector3::new(1.0, 1.0, -1.0).normalize() * 3f64.to_radians())) * truth.rotation;
         let prior = PosePrior::isotropic(predicted.position, predicted.rotation, 0.05, 3.0);
-        let fit = sim.observe_and_refine(w.as_ref(), &truth, &prior, k as u64);
+        let fit = sim.observe_and_refine(w.as_ref(), &truth, &prior, k as u64, true);
         let position = (fit.position - truth.position).norm();
         let rotation = rotation_error(&fit.rotation, &truth.rotation).to_degrees();
         eprintln!("step {k}: 5 cm / 3° became {:.1} mm / {rotation:.2}°", 1e3 * position);

@@ -5,9 +5,10 @@
 //! (see [`crate::filter`]); at every camera image it:
 //! 1. *observes*: the camera image at the true pose, read at `pixels` stratified random pixels
 //!    (a seeded choice per image);
-//! 2. *chooses a start*: the prediction and, with `start_candidates` > 0, the poses ±1σ along the
-//!    principal axes of the prediction's pose covariance, each rendered once (forward only) and
-//!    scored at the coarsest pyramid level; the cheapest starts the search (a wider basin);
+//! 2. *chooses a start*: the prediction and, at the image right after a step's disturbance, the
+//!    poses ±1σ along `start_candidates` principal axes of the prediction's pose covariance,
+//!    each rendered once (forward only) and scored at the coarsest pyramid level; the cheapest
+//!    starts the search (a wider basin);
 //! 3. *fits* the 6-DoF pose by Levenberg–Marquardt on
 //!    `Σ_blocks ρ(‖C(pose) − I‖ / σ_I) + eᵀ·P_pp⁻¹·e`, where `C` is the NeRF's rendered colour,
 //!    `ρ` the Huber loss, and `e = (p − p̂, log(R·R̂ᵀ))` the pose's difference from the
@@ -94,8 +95,14 @@ pub struct VisionConfig {
     /// near the optimum and stop after 2–3 renders, so 8 images cost about what 4 did without
     /// early stopping (BENCHMARKS.md has the crash rates per camera rate).
     pub images_per_step: usize,
-    /// Poses tried before the search besides the prediction: ±1σ along this many principal axes
-    /// of the prediction's pose covariance, each one forward render scored at the coarsest level.
+    /// Poses tried before the search besides the prediction, at the image right after each
+    /// step's disturbance (whose prior is as wide as the disturbance; the later images of a step
+    /// start within millimetres of their optimum): ±1σ along this many principal axes of the
+    /// prediction's pose covariance, each one forward render scored at the coarsest level, the
+    /// cheapest starting the search. Default 3 (six renders a step): from 5 cm / 3° off on
+    /// the default study's NeRF images 35 of 36 searches end within 1 cm / 0.5° of the truth
+    /// (30 with none), and one image from the paper's disturbance brings 95 of 100 drones
+    /// within it (94); the crash rates did not change (BENCHMARKS.md).
     pub start_candidates: usize,
     /// The innovation gate: a fit whose squared Mahalanobis distance from the prediction (under
     /// the prediction's pose covariance) exceeds this is rejected and the prediction kept.
@@ -152,7 +159,7 @@ impl Default for VisionConfig {
             disturbance_std: crate::dynamics::Disturbance::PAPER_STD,
             initial_std: [1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3],
             images_per_step: 8,
-            start_candidates: 0,
+            start_candidates: 3,
             gate_chi2: 22.46,
             gate_inflation: 2.0,
             recover_variance_factor: 1.0,

@@ -379,7 +379,7 @@ impl Simulator<'_> {
             rotation: predicted.rotation,
             information: belief.pose_information(),
         };
-        let fit = self.observe_and_refine(world, truth, &prior, seed);
+        let fit = self.observe_and_refine(world, truth, &prior, seed, substep == 0);
         let measurement = PoseMeasurement {
             // The residuals' own scale: a fit that explains the image better than
             // `photometric_sigma` says is worth more (a NeRF rendering its own image), one that
@@ -412,11 +412,27 @@ impl Simulator<'_> {
     }
 
     /// The vision estimator's measurement: the camera image at the true pose, read at the
-    /// image's pixels, aligned against the NeRF from `prior`.
-    pub fn observe_and_refine(&self, world: &dyn World, truth: &State, prior: &PosePrior, seed: u64) -> PoseFit {
+    /// image's pixels, aligned against the NeRF from `prior`. The start candidates
+    /// ([`VisionConfig::start_candidates`]) are tried only for the image right after a step's
+    /// disturbance (`after_disturbance`), the one whose prior is as wide as the disturbance.
+    pub fn observe_and_refine(
+        &self,
+        world: &dyn World,
+        truth: &State,
+        prior: &PosePrior,
+        seed: u64,
+        after_disturbance: bool,
+    ) -> PoseFit {
         let pixels = stratified_pixels(&self.intrinsics, self.vision.pixels, seed);
         let camera = drone_camera(self.intrinsics, &truth.position, &truth.rotation);
         let observed = world.observe(&camera, &pixels, self.background);
-        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, &self.vision)
+        let without_candidates;
+        let cfg = if after_disturbance || self.vision.start_candidates == 0 {
+            &self.vision
+        } else {
+            without_candidates = VisionConfig { start_candidates: 0, ..self.vision.clone() };
+            &without_candidates
+        };
+        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, cfg)
     }
 }

@@ -20,7 +20,7 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     let nerf = tiny_nerf();
     let k = Intrinsics::from_fov_x(32, 32, 0.8);
     let (p, r) = (Vector3::new(0.1, -0.2, 0.3), Matrix3::identity());
-    let cfg = VisionConfig { pixels: 64, stop_step: [5e-4, 0.03], ..VisionConfig::default() };
+    let cfg = VisionConfig { pixels: 64, stop_step: [5e-4, 0.03], start_candidates: 0, ..VisionConfig::default() };
     let pixels = stratified_pixels(&k, cfg.pixels, 4);
     let bg = [1.0; 3];
     let out = nerf.render_rays(&pixel_rays(&drone_camera(k, &p, &r), &pixels, bg));
@@ -43,4 +43,37 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &refusing);
     let levels = (cfg.levels[0] - cfg.levels[1] + 1) as usize;
     assert_eq!((fit.renders, fit.linearisations), (1 + 2 * levels, 1));
+}
+
+/// The start candidates are `2·n` forward renders, scored and never differentiated: from the
+/// optimum itself, each candidate 1σ away costs more, so the search starts (and, a null step
+/// later, ends) at the prediction, three candidate pairs adding six renders and nothing else.
+/// From a start 1σ off along the prior's first principal axis, its candidate pair holds the
+/// optimum itself, which the search then starts from.
+#[test]
+fn start_candidates_are_forward_renders_and_the_cheapest_starts_the_search() {
+    let nerf = tiny_nerf();
+    let k = Intrinsics::from_fov_x(32, 32, 0.8);
+    let (p, r) = (Vector3::new(0.1, -0.2, 0.3), Matrix3::identity());
+    let plain = VisionConfig { pixels: 64, stop_step: [5e-4, 0.03], start_candidates: 0, ..VisionConfig::default() };
+    let pixels = stratified_pixels(&k, plain.pixels, 4);
+    let bg = [1.0; 3];
+    let out = nerf.render_rays(&pixel_rays(&drone_camera(k, &p, &r), &pixels, bg));
+    let observed: Vec<[f32; 3]> = out.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let with = VisionConfig { start_candidates: 3, ..plain.clone() };
+
+    let at_optimum = PosePrior::isotropic(p, r, 0.05, 3.0);
+    let a = refine_pose(&nerf, k, &at_optimum, &pixels, &observed, bg, &plain);
+    let b = refine_pose(&nerf, k, &at_optimum, &pixels, &observed, bg, &with);
+    assert_eq!((b.renders, b.linearisations), (a.renders + 6, a.linearisations));
+    assert_eq!((b.position, b.rotation), (a.position, a.rotation));
+
+    // An anisotropic prior (x the widest, 8 cm) predicting the pose 8 cm off along x: the
+    // candidate at −1σ of the first axis is the optimum.
+    let mut offset = PosePrior::isotropic(p + Vector3::new(0.08, 0.0, 0.0), r, 0.02, 1.0);
+    offset.information[(0, 0)] = 0.08f64.powi(-2);
+    let one_pair = VisionConfig { start_candidates: 1, iterations: 1, ..plain.clone() };
+    let fit = refine_pose(&nerf, k, &offset, &pixels, &observed, bg, &one_pair);
+    assert_eq!(fit.renders, 3);
+    assert!((fit.position - p).norm() < 1e-9, "started at {} instead of the optimum {p}", fit.position);
 }

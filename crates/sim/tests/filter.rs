@@ -57,12 +57,12 @@ fn gaussian_disturbance(rng: &mut ChaCha8Rng) -> Disturbance {
 /// From a disturbance drawn from the paper's prior (the drone held at the disturbed state), one
 /// image brings the estimate within 1 cm / 0.5° of the truth in most cases, and one step's
 /// images at the default camera rate (eight, new pixels each) in all of them (measured on this
-/// small, blurry 48×48-pixel model: 89 of 100 after one image, 100 after eight; median 32.1 mm /
-/// 2.06° → 1.1 mm / 0.02°).
+/// small, blurry 48×48-pixel model: 94 of 100 after one image with the default three start
+/// candidate pairs, 86 without them; 100 after eight; median 32.1 mm / 2.06° → 1.2 mm / 0.02°).
 ///
-/// Issue 21's bar, ≥ 95 % after one image, is met on the default study's model (97 of 100,
-/// `cargo run --release --example estimator_study -- update 100`, BENCHMARKS.md), not on this
-/// one: its misses start 4–6 cm off, where the blurry model's basin ends.
+/// Issue 21's bar, ≥ 95 % after one image, is met on the default study's model (95 of 100,
+/// `cargo run --release --example estimator_study -- update 100`, BENCHMARKS.md), not quite on
+/// this one: its misses start 4–6 cm off, where the blurry model's basin ends.
 #[test]
 fn one_image_and_one_steps_images_bring_a_paper_prior_disturbance_within_1_cm() {
     let nerf = trained();
@@ -112,7 +112,7 @@ fn one_image_and_one_steps_images_bring_a_paper_prior_disturbance_within_1_cm() 
         1e3 * p1,
         r1
     );
-    assert!(within_first >= 85, "{within_first}/100 within 1 cm / 0.5° after one image");
+    assert!(within_first >= 90, "{within_first}/100 within 1 cm / 0.5° after one image");
     assert!(within == 100, "{within}/100 within 1 cm / 0.5° after one step's images");
     assert!(p1 <= 0.1 * p0 && r1 <= 0.1 * r0, "median error {p1} m / {r1}° from {p0} m / {r0}°");
 }

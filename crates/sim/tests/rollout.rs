@@ -202,10 +202,12 @@ fn a_replayed_rollout_reproduces_its_trajectory_bit_for_bit_on_any_thread_count(
     let c = fly(1);
     assert_eq!(a, b);
     assert_eq!(a, c);
-    // The vision estimator did work: its renders are counted (`iterations`, no early stop) and
-    // its fits moved the estimate away from the prediction.
+    // The vision estimator did work: its renders are counted (`iterations`, no early stop, and
+    // the start candidates at each step's image) and its fits moved the estimate away from the
+    // prediction.
     assert_eq!(a.updates.len(), 4, "one image per step");
-    assert!(a.updates.iter().all(|e| e.renders == 2 && e.substep == 0), "{:?}", a.updates);
+    let first = 2 + 2 * sim.vision.start_candidates;
+    assert!(a.updates.iter().all(|e| e.renders == first && e.substep == 0), "{:?}", a.updates);
     assert!(a.updates.iter().any(|e| e.mahalanobis_sq > 0.0), "{:?}", a.updates);
     // Another seed picks other pixels, so the estimates differ.
     let d = sim.fly(&world, EstimatorKind::Vision, &ds, 6);
@@ -305,4 +307,23 @@ fn images_are_spread_over_the_step_the_first_right_after_the_disturbance() {
     assert_eq!(schedule(&sim), (0..8).collect::<Vec<_>>());
     sim.vision.images_per_step = 100;
     assert_eq!(schedule(&sim), (0..8).collect::<Vec<_>>());
+}
+
+/// The start candidates are tried at the image right after each step's disturbance only: with
+/// two images a step, the second image of every step spends the search's renders alone.
+#[test]
+fn start_candidates_are_tried_only_after_a_disturbance() {
+    let nerf = tiny_nerf();
+    let mut sim = straight(&nerf, 3);
+    sim.vision.stop_step = [0.0, 0.0];
+    sim.vision.images_per_step = 2;
+    sim.vision.start_candidates = 3;
+    let field = post_world([0.6, 0.4, 0.3], [0.02, 0.02, 0.5]).field;
+    let world = NerfWorld { nerf: &nerf, field: &field };
+    let ds = vec![Disturbance(std::array::from_fn(|i| Disturbance::PAPER_STD[i])); 3];
+    let r = sim.fly(&world, EstimatorKind::Vision, &ds, 3);
+    assert_eq!(r.updates.len(), 6);
+    for u in &r.updates {
+        assert_eq!(u.renders, if u.substep == 0 { 2 + 6 } else { 2 }, "{u:?}");
+    }
 }

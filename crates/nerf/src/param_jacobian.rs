@@ -340,6 +340,33 @@ impl Nerf {
         out
     }
 
+    /// `f(i, c, w)` of every ray `i` and its composited samples' colours `c` and weights `w`
+    /// (those of [`render_rays_samples`](Self::render_rays_samples), bit for bit), in ray order,
+    /// without keeping the samples: each chunk's are handed to `f` where they were composited.
+    /// Parallel over chunks of 128 rays.
+    pub fn map_ray_samples<T: Send>(
+        &self,
+        rays: &[RayInput],
+        f: impl Fn(usize, &[[f32; 3]], &[f32]) -> T + Sync,
+    ) -> Vec<T> {
+        rays.par_chunks(SAMPLES_CHUNK)
+            .enumerate()
+            .flat_map_iter(|(n, rs)| {
+                WORKSPACE.with_borrow_mut(|(ws, _)| {
+                    self.forward_chunk(ws, rs);
+                    let mut c = ChunkSamples::default();
+                    chunk_composites(ws, rs.len(), &mut c, true);
+                    (0..rs.len())
+                        .map(|i| {
+                            let (a, b) = (c.start[i] as usize, c.start[i + 1] as usize);
+                            f(n * SAMPLES_CHUNK + i, &c.sample_rgb[a..b], &c.sample_weight[a..b])
+                        })
+                        .collect::<Vec<T>>()
+                })
+            })
+            .collect()
+    }
+
     /// Renders rays with each ray's composited samples and the Jacobian of its colour and
     /// expected distance with respect to the `sigma_net` weights, sample positions held fixed
     /// (see [the module docs](crate::param_jacobian)). The output holds `4·P` floats per ray

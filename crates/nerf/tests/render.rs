@@ -127,4 +127,10 @@ fn a_ray_composites_a_sample_exactly_when_the_render_gives_it_one() {
     assert!(hits > 400 && misses > 400, "both kinds must occur: {hits} hits, {misses} misses");
     let listed: Vec<usize> = (0..rays.len()).filter(|&i| !out.ray(i).1.is_empty()).collect();
     assert_eq!(nerf.rays_compositing_a_sample(&rays), listed);
+    // The samples handed to `map_ray_samples` are those `render_rays_samples` keeps, in ray order.
+    let mapped = nerf.map_ray_samples(&rays, |i, c, w| (i, c.to_vec(), w.to_vec()));
+    assert_eq!(mapped.len(), rays.len());
+    for (i, (j, c, w)) in mapped.into_iter().enumerate() {
+        assert_eq!((j, c.as_slice(), w.as_slice()), (i, out.ray(i).0, out.ray(i).1), "ray {i}");
+    }
 }

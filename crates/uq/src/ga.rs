@@ -25,8 +25,9 @@
 //! exact model with 0.02 pixel noise and a tenth of the rays at opacity 0.02, σ̂ = 1.27, almost
 //! all of it from those rays). Beside the paper's form, [`GaFit::floored`] fits
 //! `r ~ N(μ·m, σ²·s + σ_n²)` with σ_n the pixel noise ([`crate::UqConfig::noise_std`]): μ in
-//! closed form for each σ (weighted least squares), σ by golden-section search of the profile
-//! objective; σ_d is then ≈ 0 when the model explains the image up to the noise.
+//! closed form for each σ (weighted least squares), σ the lowest minimum of the profile
+//! objective (a scan of its slope, each sign change refined by root finding); σ_d is then ≈ 0
+//! when the model explains the image up to the noise.
 //!
 //! Rays that composite no sample (they miss the box or cross only empty occupancy cells) have
 //! `s = 0` and no information about the density scale: they are left out of the fit, counted,
@@ -192,38 +193,138 @@ fn floored_mu(rays: &[GaRay], sigma: f64, noise_std: f64) -> f64 {
     }
 }
 
-/// The noise-floored GA of an image's rays: golden-section search over σ ∈ [0, σ_hi] of the
-/// profile objective (μ in closed form at each σ), σ_hi doubled until the optimum lies inside;
-/// `plain_sigma` (the paper's σ̂) starts the bracket.
+/// The noise-floored GA of an image's rays: the lowest of the profile objective's minima (μ in
+/// closed form at each σ). They are where its slope
+/// `dP/dσ² = Σ_k (s_k/V_k)·(1 − e_k²/V_k)` (`e_k = r_k − μ m_k`; by the envelope theorem μ's own
+/// change does not enter) turns from negative to positive, or at σ = 0 when it starts
+/// positive (the noise alone explains the image). The slope is scanned at 24 points
+/// `σ_hi·(j/24)²` (dense near 0, where the profile of an image with a few poorly explained rays
+/// can have a second minimum), σ_hi doubled from twice `plain_sigma` (the paper's σ̂) until the
+/// slope there is positive; each sign change is refined by Brent–Dekker root finding to
+/// `1e-9·σ_hi`, and the objective compared between the candidates. A slope evaluation is two
+/// passes of divisions over the terms, no logarithm.
 fn floored_fit(rays: &[GaRay], plain_sigma: f64, noise_std: f64) -> GaFloored {
-    let profile = |sigma: f64| ga_floored_objective(rays, floored_mu(rays, sigma, noise_std), sigma, noise_std);
+    const SCAN: usize = 24;
+    let terms = Terms::of(rays);
+    let n2 = noise_std * noise_std;
+    let slope = |sigma: f64| terms.slope(sigma * sigma, n2);
     let mut hi = plain_sigma.max(noise_std).max(1e-6) * 2.0;
-    while profile(hi) < profile(0.5 * hi) && hi < 1e6 {
+    while slope(hi) < 0.0 && hi < 1e6 {
         hi *= 2.0;
     }
-    let g = (5f64.sqrt() - 1.0) / 2.0;
-    let (mut a, mut b) = (0.0, hi);
-    let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
-    let (mut fc, mut fd) = (profile(c), profile(d));
-    for _ in 0..100 {
-        if b - a <= 1e-9 * hi {
+    let mut candidates = Vec::new();
+    let (mut a, mut fa) = (0.0, slope(0.0));
+    if fa >= 0.0 || fa.is_nan() {
+        candidates.push(0.0);
+    }
+    for j in 1..=SCAN {
+        let b = hi * (j as f64 / SCAN as f64).powi(2);
+        let fb = slope(b);
+        if fa < 0.0 && fb >= 0.0 {
+            candidates.push(brent_root(slope, a, b, fa, fb, 1e-9 * hi));
+        }
+        (a, fa) = (b, fb);
+    }
+    if candidates.is_empty() {
+        // The slope is still negative at σ_hi = 1e6: the optimum is beyond any useful bound.
+        candidates.push(hi);
+    }
+    candidates
+        .into_iter()
+        .map(|sigma| {
+            let mu = floored_mu(rays, sigma, noise_std);
+            GaFloored {
+                mu_d: mu,
+                sigma_d: sigma,
+                noise_std,
+                objective: ga_floored_objective(rays, mu, sigma, noise_std),
+            }
+        })
+        .min_by(|x, y| x.objective.total_cmp(&y.objective))
+        .expect("at least one candidate")
+}
+
+/// The (ray, channel) terms with `s > 0`, one array per quantity (the σ search's passes run
+/// over them alone).
+struct Terms {
+    m: Vec<f64>,
+    s: Vec<f64>,
+    r: Vec<f64>,
+}
+
+impl Terms {
+    fn of(rays: &[GaRay]) -> Self {
+        let mut t = Terms { m: Vec::new(), s: Vec::new(), r: Vec::new() };
+        for ray in rays {
+            for ch in 0..3 {
+                if ray.s[ch] > 0.0 {
+                    t.m.push(ray.m[ch]);
+                    t.s.push(ray.s[ch]);
+                    t.r.push(ray.r[ch]);
+                }
+            }
+        }
+        t
+    }
+
+    /// `dP/du` at `u = σ²`: `Σ (s/V)·(1 − e²/V)`, `V = u·s + n²`, e at the profile's μ.
+    fn slope(&self, u: f64, n2: f64) -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for ((&m, &s), &r) in self.m.iter().zip(&self.s).zip(&self.r) {
+            let w = 1.0 / (u * s + n2);
+            num += r * m * w;
+            den += m * m * w;
+        }
+        let mu = if den > 0.0 { num / den } else { 0.0 };
+        let mut g = 0.0;
+        for ((&m, &s), &r) in self.m.iter().zip(&self.s).zip(&self.r) {
+            let w = 1.0 / (u * s + n2);
+            let e = r - mu * m;
+            g += s * w * (1.0 - e * e * w);
+        }
+        g
+    }
+}
+
+/// Brent–Dekker: a root of `f` in `[a, b]`, where `f(a) = fa` and `f(b) = fb` differ in sign,
+/// to within `tol` (inverse quadratic interpolation, secant or bisection, whichever is safe).
+fn brent_root(f: impl Fn(f64) -> f64, mut a: f64, mut b: f64, mut fa: f64, mut fb: f64, tol: f64) -> f64 {
+    if fa.abs() < fb.abs() {
+        (a, b, fa, fb) = (b, a, fb, fa);
+    }
+    let (mut c, mut fc, mut d) = (a, fa, a);
+    let mut bisected = true;
+    for _ in 0..200 {
+        if fb == 0.0 || (b - a).abs() <= tol {
             break;
         }
-        if fc < fd {
-            (b, d, fd) = (d, c, fc);
-            c = b - g * (b - a);
-            fc = profile(c);
+        let mut s = if fa != fc && fb != fc {
+            a * fb * fc / ((fa - fb) * (fa - fc))
+                + b * fa * fc / ((fb - fa) * (fb - fc))
+                + c * fa * fb / ((fc - fa) * (fc - fb))
         } else {
-            (a, c, fc) = (c, d, fd);
-            d = a + g * (b - a);
-            fd = profile(d);
+            b - fb * (b - a) / (fb - fa)
+        };
+        let q = (3.0 * a + b) / 4.0;
+        let outside = !(s > q.min(b) && s < q.max(b));
+        let slow = if bisected { (s - b).abs() >= (b - c).abs() / 2.0 } else { (s - b).abs() >= (c - d).abs() / 2.0 };
+        let tiny = if bisected { (b - c).abs() < tol } else { (c - d).abs() < tol };
+        bisected = outside || slow || tiny || !s.is_finite();
+        if bisected {
+            s = 0.5 * (a + b);
+        }
+        let fs = f(s);
+        (d, c, fc) = (c, b, fb);
+        if (fa < 0.0) != (fs < 0.0) {
+            (b, fb) = (s, fs);
+        } else {
+            (a, fa) = (s, fs);
+        }
+        if fa.abs() < fb.abs() {
+            (a, b, fa, fb) = (b, a, fb, fa);
         }
     }
-    // The optimum may sit on the boundary σ = 0 (the noise alone explains the image).
-    let inner = 0.5 * (a + b);
-    let sigma = if profile(0.0) <= profile(inner) { 0.0 } else { inner };
-    let mu = floored_mu(rays, sigma, noise_std);
-    GaFloored { mu_d: mu, sigma_d: sigma, noise_std, objective: ga_floored_objective(rays, mu, sigma, noise_std) }
+    b
 }
 
 /// The closed-form GA optimum of an image's rays (see the module docs), and beside it the
@@ -310,7 +411,8 @@ pub fn ga_fit(image: &str, rays: &[GaRay], sigma_max: f64, noise_std: f64) -> Re
 
 /// Renders `rays` (one per pixel, each with its background) and fits the GA to the image's
 /// `reference` colours (`[r]`, straight colour already composited on the same backgrounds).
-/// Rendering is parallel over rays (rayon); the fit is two passes over the rays.
+/// Rendering is parallel over rays (rayon), each ray's `(m, s, r)` taken where its samples were
+/// composited (they are not kept); the fit is a few passes over the rays.
 pub fn ga_image(
     nerf: &Nerf,
     image: &str,
@@ -320,7 +422,8 @@ pub fn ga_image(
     noise_std: f64,
 ) -> Result<GaFit, UqError> {
     check_reference(image, rays.len(), reference)?;
-    fit_rendered(image, rays, &nerf.render_rays_samples(rays), reference, sigma_max, noise_std)
+    let ga_rays = nerf.map_ray_samples(rays, |i, c, w| GaRay::from_samples(c, w, reference[i], rays[i].background));
+    ga_fit(image, &ga_rays, sigma_max, noise_std)
 }
 
 /// [`ga_image`] on an already rendered view: `samples` of `rays` (from

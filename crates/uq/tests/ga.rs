@@ -210,3 +210,36 @@ fn the_noise_floored_sigma_d_is_near_zero_for_an_exact_model_whose_faint_rays_dr
     let exact = ga_fit("scaled", &scaled, 3.0, 1e-9).unwrap();
     assert!((exact.floored.sigma_d - exact.sigma_d).abs() < 1e-6 * exact.sigma_d);
 }
+
+/// A profile with two minima: 1000 terms the model explains exactly (their slope at σ = 0 is
+/// positive and outweighs the rest there) and 100 faint ones off by ±0.5, which a σ near 1.3
+/// explains at a far lower objective. The noise-floored fit takes the lower minimum (a search that
+/// stopped at σ = 0, where the slope starts positive, would report the noise alone explaining
+/// the image), within a scan's resolution.
+#[test]
+fn the_noise_floored_fit_takes_the_lower_of_two_minima() {
+    let noise = 0.05;
+    let mut rays = Vec::new();
+    for i in 0..1100 {
+        let (m, s, r) = if i < 1000 { (0.5, 0.2, 0.5) } else { (0.5, 0.01, if i % 2 == 0 { 0.0 } else { 1.0 }) };
+        rays.push(GaRay { m: [m, 0.0, 0.0], s: [s, 0.0, 0.0], r: [r, 0.0, 0.0] });
+    }
+    let profile = |sigma: f64| {
+        let v = |r: &GaRay| sigma * sigma * r.s[0] + noise * noise;
+        let num: f64 = rays.iter().map(|r| r.r[0] * r.m[0] / v(r)).sum();
+        let den: f64 = rays.iter().map(|r| r.m[0] * r.m[0] / v(r)).sum();
+        ga_floored_objective(&rays, num / den, sigma, noise)
+    };
+    let (mut best, mut at) = (f64::INFINITY, 0.0);
+    for k in 0..=3000 {
+        let sigma = k as f64 * 1e-3;
+        if profile(sigma) < best {
+            (best, at) = (profile(sigma), sigma);
+        }
+    }
+    // The case is what it says: a local minimum at 0, the global one inside.
+    assert!(profile(0.0) < profile(0.01) && at > 1.0 && best < profile(0.0) - 1000.0, "{at} {best}");
+    let f = ga_fit("two minima", &rays, 3.0, noise).unwrap().floored;
+    assert!((f.sigma_d - at).abs() <= 1e-3, "σ_d {} vs scan {at}", f.sigma_d);
+    assert!(f.objective <= best + 1e-9 * best.abs(), "{} vs scan {best}", f.objective);
+}

@@ -11,12 +11,20 @@ use nerfsv_sim::estimator::{refine_pose, stratified_pixels, PosePrior};
 use nerfsv_sim::world::pixel_rays;
 use nerfsv_sim::VisionConfig;
 
-/// A prediction that is already the optimum (the image is the model's own render there)
-/// proposes a null step at every level: one render, one linearisation, and the prediction back;
-/// with every stopping rule off the search spends its whole budget instead, and with only the
-/// refused-steps rule, two refused steps per level.
-#[test]
-fn the_search_stops_at_the_first_step_below_its_tolerance() {
+/// The tiny model's own image at a pose, read at 64 stratified pixels, and a search config
+/// without start candidates.
+struct OwnImage {
+    nerf: nerfsv_nerf::Nerf,
+    k: Intrinsics,
+    p: Vector3<f64>,
+    r: Matrix3<f64>,
+    cfg: VisionConfig,
+    pixels: Vec<[u32; 2]>,
+    bg: [f32; 3],
+    observed: Vec<[f32; 3]>,
+}
+
+fn own_image() -> OwnImage {
     let nerf = tiny_nerf();
     let k = Intrinsics::from_fov_x(32, 32, 0.8);
     let (p, r) = (Vector3::new(0.1, -0.2, 0.3), Matrix3::identity());
@@ -24,7 +32,17 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     let pixels = stratified_pixels(&k, cfg.pixels, 4);
     let bg = [1.0; 3];
     let out = nerf.render_rays(&pixel_rays(&drone_camera(k, &p, &r), &pixels, bg));
-    let observed: Vec<[f32; 3]> = out.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let observed = out.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    OwnImage { nerf, k, p, r, cfg, pixels, bg, observed }
+}
+
+/// A prediction that is already the optimum (the image is the model's own render there)
+/// proposes a null step at every level: one render, one linearisation, and the prediction back;
+/// with every stopping rule off the search spends its whole budget instead, and with only the
+/// refused-steps rule, two refused steps per level.
+#[test]
+fn the_search_stops_at_the_first_step_below_its_tolerance() {
+    let OwnImage { nerf, k, p, r, cfg, pixels, bg, observed } = own_image();
     assert!(observed.iter().any(|c| (c[0] - observed[0][0]).abs() > 1e-3), "a flat image tests nothing");
 
     let prior = PosePrior::isotropic(p, r, 0.05, 3.0);
@@ -52,14 +70,7 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
 /// optimum itself, which the search then starts from.
 #[test]
 fn start_candidates_are_forward_renders_and_the_cheapest_starts_the_search() {
-    let nerf = tiny_nerf();
-    let k = Intrinsics::from_fov_x(32, 32, 0.8);
-    let (p, r) = (Vector3::new(0.1, -0.2, 0.3), Matrix3::identity());
-    let plain = VisionConfig { pixels: 64, stop_step: [5e-4, 0.03], start_candidates: 0, ..VisionConfig::default() };
-    let pixels = stratified_pixels(&k, plain.pixels, 4);
-    let bg = [1.0; 3];
-    let out = nerf.render_rays(&pixel_rays(&drone_camera(k, &p, &r), &pixels, bg));
-    let observed: Vec<[f32; 3]> = out.rgb.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let OwnImage { nerf, k, p, r, cfg: plain, pixels, bg, observed } = own_image();
     let with = VisionConfig { start_candidates: 3, ..plain.clone() };
 
     let at_optimum = PosePrior::isotropic(p, r, 0.05, 3.0);

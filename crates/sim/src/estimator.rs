@@ -392,8 +392,9 @@ struct PoseRender<'a> {
 /// `observed` at `pixels` (drawn by [`stratified_pixels`] with `cfg.pixels`), by
 /// Levenberg–Marquardt with the analytic pose Jacobian of the NeRF's rendered colours, coarse to
 /// fine over `cfg.levels` (by default the first half of the renders align blocks of 4×4 strata,
-/// the rest blocks of 2×2), from the best of the prediction and `cfg.start_candidates` pairs of
-/// poses ±1σ along the prior's principal axes.
+/// the rest blocks of 2×2), from the best of the prediction and `start_candidates` pairs of
+/// poses ±1σ along the prior's principal axes (the caller decides how many an image gets:
+/// [`VisionConfig::start_candidates`] after a disturbance, none otherwise).
 ///
 /// Each render is a forward pass at a trial pose; the reverse pass that gives the colours' pose
 /// Jacobians runs only at poses the search accepts and linearises at. A level ends early when
@@ -410,6 +411,7 @@ pub fn refine_pose(
     observed: &[[f32; 3]],
     background: [f32; 3],
     cfg: &VisionConfig,
+    start_candidates: usize,
 ) -> PoseFit {
     let prior_info = prior.information;
     let (cols, _) = strata(&intrinsics, pixels.len());
@@ -457,7 +459,7 @@ pub fn refine_pose(
     render_at(&mut current, prior.position, prior.rotation);
     let (mut renders, mut linearisations) = (1, 0);
     // The start: the cheapest of the prediction and the candidates, at the coarsest level.
-    let offsets = prior.principal_offsets(cfg.start_candidates);
+    let offsets = prior.principal_offsets(start_candidates);
     if !offsets.is_empty() {
         let mut best = linearise(&current, None, coarsest).0.cost;
         for d in &offsets {

@@ -426,13 +426,7 @@ impl Simulator<'_> {
         let pixels = stratified_pixels(&self.intrinsics, self.vision.pixels, seed);
         let camera = drone_camera(self.intrinsics, &truth.position, &truth.rotation);
         let observed = world.observe(&camera, &pixels, self.background);
-        let without_candidates;
-        let cfg = if after_disturbance || self.vision.start_candidates == 0 {
-            &self.vision
-        } else {
-            without_candidates = VisionConfig { start_candidates: 0, ..self.vision.clone() };
-            &without_candidates
-        };
-        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, cfg)
+        let candidates = if after_disturbance { self.vision.start_candidates } else { 0 };
+        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, &self.vision, candidates)
     }
 }

@@ -11,8 +11,7 @@ use nerfsv_sim::estimator::{refine_pose, stratified_pixels, PosePrior};
 use nerfsv_sim::world::pixel_rays;
 use nerfsv_sim::VisionConfig;
 
-/// The tiny model's own image at a pose, read at 64 stratified pixels, and a search config
-/// without start candidates.
+/// The tiny model's own image at a pose, read at 64 stratified pixels, and a search config.
 struct OwnImage {
     nerf: nerfsv_nerf::Nerf,
     k: Intrinsics,
@@ -28,7 +27,7 @@ fn own_image() -> OwnImage {
     let nerf = tiny_nerf();
     let k = Intrinsics::from_fov_x(32, 32, 0.8);
     let (p, r) = (Vector3::new(0.1, -0.2, 0.3), Matrix3::identity());
-    let cfg = VisionConfig { pixels: 64, stop_step: [5e-4, 0.03], start_candidates: 0, ..VisionConfig::default() };
+    let cfg = VisionConfig { pixels: 64, stop_step: [5e-4, 0.03], ..VisionConfig::default() };
     let pixels = stratified_pixels(&k, cfg.pixels, 4);
     let bg = [1.0; 3];
     let out = nerf.render_rays(&pixel_rays(&drone_camera(k, &p, &r), &pixels, bg));
@@ -46,19 +45,19 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     assert!(observed.iter().any(|c| (c[0] - observed[0][0]).abs() > 1e-3), "a flat image tests nothing");
 
     let prior = PosePrior::isotropic(p, r, 0.05, 3.0);
-    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &cfg);
+    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &cfg, 0);
     assert_eq!((fit.renders, fit.linearisations), (1, 1));
     assert_eq!((fit.position, fit.rotation), (p, r));
     assert_eq!(fit.rmse, 0.0);
 
     let exhaustive = VisionConfig { stop_step: [0.0, 0.0], max_refused: 0, stop_cost_decrease: 0.0, ..cfg.clone() };
-    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &exhaustive);
+    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &exhaustive, 0);
     assert_eq!(fit.renders, cfg.iterations);
     // Null steps do not lower the cost, so no trial is accepted and none is differentiated.
     assert_eq!(fit.linearisations, 1);
 
     let refusing = VisionConfig { max_refused: 2, ..exhaustive };
-    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &refusing);
+    let fit = refine_pose(&nerf, k, &prior, &pixels, &observed, bg, &refusing, 0);
     let levels = (cfg.levels[0] - cfg.levels[1] + 1) as usize;
     assert_eq!((fit.renders, fit.linearisations), (1 + 2 * levels, 1));
 }
@@ -70,12 +69,11 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
 /// optimum itself, which the search then starts from.
 #[test]
 fn start_candidates_are_forward_renders_and_the_cheapest_starts_the_search() {
-    let OwnImage { nerf, k, p, r, cfg: plain, pixels, bg, observed } = own_image();
-    let with = VisionConfig { start_candidates: 3, ..plain.clone() };
+    let OwnImage { nerf, k, p, r, cfg, pixels, bg, observed } = own_image();
 
     let at_optimum = PosePrior::isotropic(p, r, 0.05, 3.0);
-    let a = refine_pose(&nerf, k, &at_optimum, &pixels, &observed, bg, &plain);
-    let b = refine_pose(&nerf, k, &at_optimum, &pixels, &observed, bg, &with);
+    let a = refine_pose(&nerf, k, &at_optimum, &pixels, &observed, bg, &cfg, 0);
+    let b = refine_pose(&nerf, k, &at_optimum, &pixels, &observed, bg, &cfg, 3);
     assert_eq!((b.renders, b.linearisations), (a.renders + 6, a.linearisations));
     assert_eq!((b.position, b.rotation), (a.position, a.rotation));
 
@@ -83,8 +81,8 @@ fn start_candidates_are_forward_renders_and_the_cheapest_starts_the_search() {
     // candidate at −1σ of the first axis is the optimum.
     let mut offset = PosePrior::isotropic(p + Vector3::new(0.08, 0.0, 0.0), r, 0.02, 1.0);
     offset.information[(0, 0)] = 0.08f64.powi(-2);
-    let one_pair = VisionConfig { start_candidates: 1, iterations: 1, ..plain.clone() };
-    let fit = refine_pose(&nerf, k, &offset, &pixels, &observed, bg, &one_pair);
+    let one_pair = VisionConfig { iterations: 1, ..cfg.clone() };
+    let fit = refine_pose(&nerf, k, &offset, &pixels, &observed, bg, &one_pair, 1);
     assert_eq!(fit.renders, 3);
     assert!((fit.position - p).norm() < 1e-9, "started at {} instead of the optimum {p}", fit.position);
 }

@@ -172,27 +172,6 @@ pub fn ga_floored_objective(rays: &[GaRay], mu: f64, sigma: f64, noise_std: f64)
     f
 }
 
-/// μ minimising the noise-floored objective at σ: `Σ(r m/V) / Σ(m²/V)`.
-fn floored_mu(rays: &[GaRay], sigma: f64, noise_std: f64) -> f64 {
-    let (v, n2) = (sigma * sigma, noise_std * noise_std);
-    let (mut num, mut den) = (0.0, 0.0);
-    for ray in rays {
-        for ch in 0..3 {
-            let s = ray.s[ch];
-            if s > 0.0 {
-                let var = v * s + n2;
-                num += ray.r[ch] * ray.m[ch] / var;
-                den += ray.m[ch] * ray.m[ch] / var;
-            }
-        }
-    }
-    if den > 0.0 {
-        num / den
-    } else {
-        0.0
-    }
-}
-
 /// The noise-floored GA of an image's rays: the lowest of the profile objective's minima (μ in
 /// closed form at each σ). They are where its slope
 /// `dP/dσ² = Σ_k (s_k/V_k)·(1 − e_k²/V_k)` (`e_k = r_k − μ m_k`; by the envelope theorem μ's own
@@ -232,7 +211,7 @@ fn floored_fit(rays: &[GaRay], plain_sigma: f64, noise_std: f64) -> GaFloored {
     candidates
         .into_iter()
         .map(|sigma| {
-            let mu = floored_mu(rays, sigma, noise_std);
+            let mu = terms.mu(sigma * sigma, n2);
             GaFloored {
                 mu_d: mu,
                 sigma_d: sigma,
@@ -267,15 +246,25 @@ impl Terms {
         t
     }
 
-    /// `dP/du` at `u = σ²`: `Σ (s/V)·(1 − e²/V)`, `V = u·s + n²`, e at the profile's μ.
-    fn slope(&self, u: f64, n2: f64) -> f64 {
+    /// μ minimising the noise-floored objective at `u = σ²`: `Σ(r m/V) / Σ(m²/V)`,
+    /// `V = u·s + n²` (0 without terms).
+    fn mu(&self, u: f64, n2: f64) -> f64 {
         let (mut num, mut den) = (0.0, 0.0);
         for ((&m, &s), &r) in self.m.iter().zip(&self.s).zip(&self.r) {
             let w = 1.0 / (u * s + n2);
             num += r * m * w;
             den += m * m * w;
         }
-        let mu = if den > 0.0 { num / den } else { 0.0 };
+        if den > 0.0 {
+            num / den
+        } else {
+            0.0
+        }
+    }
+
+    /// `dP/du` at `u = σ²`: `Σ (s/V)·(1 − e²/V)`, `V = u·s + n²`, e at the profile's μ.
+    fn slope(&self, u: f64, n2: f64) -> f64 {
+        let mu = self.mu(u, n2);
         let mut g = 0.0;
         for ((&m, &s), &r) in self.m.iter().zip(&self.s).zip(&self.r) {
             let w = 1.0 / (u * s + n2);

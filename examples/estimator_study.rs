@@ -8,6 +8,7 @@
 //! cargo run --release --example estimator_study -- update 36       # single updates from the prior
 //! cargo run --release --example estimator_study -- floor 36        # updates started at the truth
 //! cargo run --release --example estimator_study -- basin 36        # fits from 5 cm / 3° off vs from the truth
+//! cargo run --release --example estimator_study -- scatter 6       # fits from the truth, N pixel draws per pose
 //! cargo run --release --example estimator_study -- nominal         # the undisturbed flights
 //! ```
 //!
@@ -16,7 +17,9 @@
 //! (photometric σ), `STOP_MM` (stop step in mm, with 0.06° per mm), `CANDIDATES`, `PIXELS`,
 //! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both), `RECOVER`
 //! (`recover_variance_factor`), `MODEL_M` and `MODEL_DEG` (`model_error_per_rmse`), `REFUSED`
-//! (`max_refused`), `STOP_COST` (`stop_cost_decrease`), `JACOBIAN_MIN_WEIGHT`. `DIAG=1` adds, for the vision
+//! (`max_refused`), `STOP_COST` (`stop_cost_decrease`), `JACOBIAN_MIN_WEIGHT`, `FINEST` (the
+//! finest pyramid level); `CHECKPOINT` flies another model than the run folder's, `PER_STEP`
+//! sets `scatter`'s poses per step (default 1). `DIAG=1` adds, for the vision
 //! estimator's Monte Carlo, what the gate refused and recovered and the largest accepted errors.
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
@@ -80,6 +83,7 @@ fn main() -> anyhow::Result<()> {
     v.jacobian_min_weight = env("JACOBIAN_MIN_WEIGHT", v.jacobian_min_weight);
     v.stop_cost_decrease = env("STOP_COST", v.stop_cost_decrease);
     v.model_error_per_rmse = [env("MODEL_M", v.model_error_per_rmse[0]), env("MODEL_DEG", v.model_error_per_rmse[1])];
+    v.levels[1] = env("FINEST", v.levels[1]).min(v.levels[0]);
     let stop_mm: f64 = env("STOP_MM", v.stop_step[0] * 1e3);
     v.stop_step = [stop_mm * 1e-3, stop_mm * 0.06];
     if env("COLLISION", String::new()) == "centre_cell" {
@@ -87,7 +91,7 @@ fn main() -> anyhow::Result<()> {
     }
     let scene = Scene::builtin(&cfg.scene)?;
     let inputs = FlightInputs::load(
-        &Train::checkpoint(&out),
+        &std::env::var("CHECKPOINT").map_or_else(|_| Train::checkpoint(&out), PathBuf::from),
         &out.join(NerfField::NAME).join(NerfField::SDF),
         Some(&GroundTruthField::sdf_path(&out)),
     )?;
@@ -186,6 +190,51 @@ fn main() -> anyhow::Result<()> {
                         1e3 * updates.iter().map(|u| u.position_error_m).sum::<f64>() / images,
                         updates.iter().map(|u| u.rotation_error_deg).sum::<f64>() / images,
                         start.elapsed().as_secs_f64()
+                    );
+                }
+            }
+            "scatter" => {
+                // Fits from the true pose (under the 5 cm / 3° prior) on the nominal path, with n
+                // pixel draws per pose: the mean of their errors is the image's bias, their spread
+                // what a different set of pixels moves the optimum by. Body frame: x forward,
+                // y left, z up; roll, pitch, yaw about those axes.
+                let per_step: usize = env("PER_STEP", 1).max(1);
+                let n = n.max(2);
+                println!("{}-sim, fits from the true pose, {n} pixel draws each (body frame; mean ± sd):", kind.name());
+                for i in 0..cfg.sim.steps * per_step {
+                    let t = i as f64 * sim.step_duration() / per_step as f64;
+                    let at = flight.reference.at_rest(t);
+                    let r = at.rotation;
+                    let rows: Vec<[f64; 7]> = (0..n as u64)
+                        .map(|seed| {
+                            let prior = PosePrior::isotropic(at.position, at.rotation, 0.05, 3.0);
+                            let f = sim.observe_and_refine(w.as_ref(), &at, &prior, 100 + seed, false);
+                            let dp = r.transpose() * (f.position - at.position) * 1e3;
+                            let dr = (r.transpose() * so3_log(&(f.rotation * r.transpose()))).map(f64::to_degrees);
+                            [dp.x, dp.y, dp.z, dr.x, dr.y, dr.z, f.rmse]
+                        })
+                        .collect();
+                    let mean = |c: usize| rows.iter().map(|x| x[c]).sum::<f64>() / n as f64;
+                    let sd = |c: usize| {
+                        let m = mean(c);
+                        (rows.iter().map(|x| (x[c] - m).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt()
+                    };
+                    println!(
+                        "t {t:4.1} s: position mm x {:6.1} ± {:4.1}, y {:6.1} ± {:4.1}, z {:6.1} ± {:4.1}; \
+                         roll {:5.2} ± {:4.2}°, pitch {:5.2} ± {:4.2}°, yaw {:5.2} ± {:4.2}°; rmse {:.3}",
+                        mean(0),
+                        sd(0),
+                        mean(1),
+                        sd(1),
+                        mean(2),
+                        sd(2),
+                        mean(3),
+                        sd(3),
+                        mean(4),
+                        sd(4),
+                        mean(5),
+                        sd(5),
+                        mean(6)
                     );
                 }
             }

@@ -322,17 +322,7 @@ impl Nerf {
     /// compositing weight `w_i` (the inputs of the Gaussian approximation) and distance `t_i`. Parallel over
     /// chunks of 128 rays; bit-identical for any rayon thread count.
     pub fn render_rays_samples(&self, rays: &[RayInput]) -> RaySamples {
-        let chunks: Vec<ChunkSamples> = rays
-            .par_chunks(SAMPLES_CHUNK)
-            .map(|rs| {
-                WORKSPACE.with_borrow_mut(|(ws, _)| {
-                    self.forward_chunk(ws, rs);
-                    let mut c = ChunkSamples::default();
-                    chunk_composites(ws, rs.len(), &mut c, true);
-                    c
-                })
-            })
-            .collect();
+        let chunks: Vec<ChunkSamples> = rays.par_chunks(SAMPLES_CHUNK).map(|rs| self.chunk_samples(rs)).collect();
         let mut out = RaySamples::with_rays(rays.len());
         for (n, c) in chunks.into_iter().enumerate() {
             out.extend_from_chunk(c, n * SAMPLES_CHUNK);
@@ -352,19 +342,25 @@ impl Nerf {
         rays.par_chunks(SAMPLES_CHUNK)
             .enumerate()
             .flat_map_iter(|(n, rs)| {
-                WORKSPACE.with_borrow_mut(|(ws, _)| {
-                    self.forward_chunk(ws, rs);
-                    let mut c = ChunkSamples::default();
-                    chunk_composites(ws, rs.len(), &mut c, true);
-                    (0..rs.len())
-                        .map(|i| {
-                            let (a, b) = (c.start[i] as usize, c.start[i + 1] as usize);
-                            f(n * SAMPLES_CHUNK + i, &c.sample_rgb[a..b], &c.sample_weight[a..b])
-                        })
-                        .collect::<Vec<T>>()
-                })
+                let c = self.chunk_samples(rs);
+                (0..rs.len())
+                    .map(|i| {
+                        let (a, b) = (c.start[i] as usize, c.start[i + 1] as usize);
+                        f(n * SAMPLES_CHUNK + i, &c.sample_rgb[a..b], &c.sample_weight[a..b])
+                    })
+                    .collect::<Vec<T>>()
             })
             .collect()
+    }
+
+    /// One chunk of rays rendered, with its composited samples (this thread's workspace).
+    fn chunk_samples(&self, rays: &[RayInput]) -> ChunkSamples {
+        WORKSPACE.with_borrow_mut(|(ws, _)| {
+            self.forward_chunk(ws, rays);
+            let mut c = ChunkSamples::default();
+            chunk_composites(ws, rays.len(), &mut c, true);
+            c
+        })
     }
 
     /// Renders rays with each ray's composited samples and the Jacobian of its colour and

@@ -188,8 +188,10 @@ fn floored_fit(rays: &[GaRay], plain_sigma: f64, noise_std: f64) -> GaFloored {
     let n2 = noise_std * noise_std;
     let slope = |sigma: f64| terms.slope(sigma * sigma, n2);
     let mut hi = plain_sigma.max(noise_std).max(1e-6) * 2.0;
-    while slope(hi) < 0.0 && hi < 1e6 {
+    let mut f_hi = slope(hi);
+    while f_hi < 0.0 && hi < 1e6 {
         hi *= 2.0;
+        f_hi = slope(hi);
     }
     let mut candidates = Vec::new();
     let (mut a, mut fa) = (0.0, slope(0.0));
@@ -197,8 +199,13 @@ fn floored_fit(rays: &[GaRay], plain_sigma: f64, noise_std: f64) -> GaFloored {
         candidates.push(0.0);
     }
     for j in 1..=SCAN {
-        let b = hi * (j as f64 / SCAN as f64).powi(2);
-        let fb = slope(b);
+        // The last point is σ_hi itself, whose slope the bracket search took.
+        let (b, fb) = if j == SCAN {
+            (hi, f_hi)
+        } else {
+            let b = hi * (j as f64 / SCAN as f64).powi(2);
+            (b, slope(b))
+        };
         if fa < 0.0 && fb >= 0.0 {
             candidates.push(brent_root(slope, a, b, fa, fb, 1e-9 * hi));
         }
@@ -430,18 +437,6 @@ pub fn ga_fit_samples(
     if samples.len() != rays.len() {
         return Err(UqError::LengthMismatch { image: image.to_string(), rays: samples.len(), references: rays.len() });
     }
-    fit_rendered(image, rays, samples, reference, sigma_max, noise_std)
-}
-
-/// The GA of checked inputs: each ray's `(m, s, r)` from its samples, then [`ga_fit`].
-fn fit_rendered(
-    image: &str,
-    rays: &[RayInput],
-    samples: &RaySamples,
-    reference: &[[f32; 3]],
-    sigma_max: f64,
-    noise_std: f64,
-) -> Result<GaFit, UqError> {
     let ga_rays: Vec<GaRay> = (0..rays.len())
         .into_par_iter()
         .map(|i| {

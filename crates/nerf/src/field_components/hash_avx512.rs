@@ -87,6 +87,34 @@ pub(crate) fn cells(lv: &Level, x: &[__m512; 3]) -> ([__m512i; 8], [__m512; 3]) 
     (idx, f)
 }
 
+/// Sixteen points' outputs written to their rows: point `j < m`'s row is
+/// `out[j·stride..]`, and gets `cols[t][0][j], cols[t][1][j]` at `2t, 2t + 1` for every pair
+/// `t`. The pairs are interleaved in registers and each point's row is written with 64-bit
+/// stores (a loop over points and columns of a `[[f32; 16]; k]` array was compiled into a
+/// masked gather and store per point, the kernels' largest cost).
+#[target_feature(enable = "avx512f")]
+#[inline]
+pub(crate) fn store_rows<const P: usize>(cols: &[[__m512; 2]; P], m: usize, out: &mut [f32], stride: usize) {
+    let first = _mm512_setr_epi32(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+    let second = _mm512_setr_epi32(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
+    let mut pairs = [[0u64; LANES]; P];
+    for ([x, y], p) in cols.iter().zip(&mut pairs) {
+        let ptr = p.as_mut_ptr() as *mut f32;
+        // SAFETY: `p` holds 16 × 8 bytes, two vectors of 16 floats.
+        unsafe {
+            _mm512_storeu_ps(ptr, _mm512_permutex2var_ps(*x, first, *y));
+            _mm512_storeu_ps(ptr.add(LANES), _mm512_permutex2var_ps(*x, second, *y));
+        }
+    }
+    for j in 0..m.min(LANES) {
+        let row = &mut out[j * stride..j * stride + 2 * P];
+        for (t, p) in pairs.iter().enumerate() {
+            // SAFETY: `row` holds 2·P floats; the store is unaligned.
+            unsafe { std::ptr::write_unaligned(row.as_mut_ptr().add(2 * t) as *mut u64, p[j]) };
+        }
+    }
+}
+
 /// The trilinear weights `(wx·wy)·wz` of the eight corners.
 #[target_feature(enable = "avx512f")]
 #[inline]

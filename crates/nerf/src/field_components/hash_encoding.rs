@@ -201,8 +201,7 @@ impl HashEncoding {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
     unsafe fn batch_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32], kernel: Kernel) {
-        use super::hash_avx512::{cells, encode_level, jacobian_level, load_points, LANES};
-        use std::arch::x86_64::_mm512_storeu_ps;
+        use super::hash_avx512::{cells, encode_level, jacobian_level, load_points, store_rows, LANES};
         let (n, e) = (pos.len() / 3, self.output_dim());
         let mut i0 = 0;
         while i0 < n {
@@ -210,32 +209,18 @@ impl HashEncoding {
             let x = load_points(pos, i0, m);
             for (l, lv) in self.levels.iter().enumerate() {
                 let (idx, f) = cells(lv, &x);
-                // Lanes per output column: (y₀, y₁), or ∂y₀/∂x_d then ∂y₁/∂x_d.
-                let mut v = [[0f32; LANES]; 6];
                 // SAFETY: `cells` gives rows of this level, which `emb` holds (asserted by the
-                // caller); each array holds 16 floats.
-                let width = unsafe {
-                    match kernel {
-                        Kernel::Encode => {
-                            let (a, b) = encode_level(emb, &idx, &f);
-                            _mm512_storeu_ps(v[0].as_mut_ptr(), a);
-                            _mm512_storeu_ps(v[1].as_mut_ptr(), b);
-                            2
-                        }
-                        Kernel::PositionJacobian => {
-                            let j = jacobian_level(emb, lv.scale, &x, &idx, &f);
-                            for (k, &jk) in j.iter().flatten().enumerate() {
-                                _mm512_storeu_ps(v[k].as_mut_ptr(), jk);
-                            }
-                            6
-                        }
+                // caller).
+                match kernel {
+                    // Row of a point: (y₀, y₁) per level.
+                    Kernel::Encode => {
+                        let (a, b) = unsafe { encode_level(emb, &idx, &f) };
+                        store_rows(&[[a, b]], m, &mut out[i0 * e + 2 * l..], e);
                     }
-                };
-                let row = e * width / 2;
-                for j in 0..m {
-                    let r = &mut out[(i0 + j) * row + width * l..(i0 + j) * row + width * (l + 1)];
-                    for (rk, vk) in r.iter_mut().zip(&v) {
-                        *rk = vk[j];
+                    // Row of a point: ∂y₀/∂x_d then ∂y₁/∂x_d per level.
+                    Kernel::PositionJacobian => {
+                        let [[a0, a1, a2], [b0, b1, b2]] = unsafe { jacobian_level(emb, lv.scale, &x, &idx, &f) };
+                        store_rows(&[[a0, a1], [a2, b0], [b1, b2]], m, &mut out[i0 * 3 * e + 6 * l..], 3 * e);
                     }
                 }
             }

@@ -93,6 +93,44 @@ impl JacobianWorkspace {
         d_origin: &mut [[[f32; 3]; 3]],
         d_direction: &mut [[[f32; 3]; 3]],
     ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: AVX-512F was detected.
+            return unsafe { self.backward_avx512(field, params, ws, rays, min_weight, d_origin, d_direction) };
+        }
+        self.backward_body(field, params, ws, rays, min_weight, d_origin, d_direction)
+    }
+
+    /// [`backward`](Self::backward) compiled with AVX-512 (its element-wise loops in 16-lane
+    /// vectors; no operation is fused or reordered, so the results are the same bits).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn backward_avx512(
+        &mut self,
+        field: &NgpField,
+        params: &[f32],
+        ws: &ChunkWorkspace,
+        rays: &[RayInput],
+        min_weight: f32,
+        d_origin: &mut [[[f32; 3]; 3]],
+        d_direction: &mut [[[f32; 3]; 3]],
+    ) {
+        self.backward_body(field, params, ws, rays, min_weight, d_origin, d_direction)
+    }
+
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn backward_body(
+        &mut self,
+        field: &NgpField,
+        params: &[f32],
+        ws: &ChunkWorkspace,
+        rays: &[RayInput],
+        min_weight: f32,
+        d_origin: &mut [[[f32; 3]; 3]],
+        d_direction: &mut [[[f32; 3]; 3]],
+    ) {
         let nr = rays.len();
         let m = ws.act.len();
         let (e, sh, o, ch) = (field.enc_dim, field.sigma_hidden, 1 + field.geo, field.color_hidden);

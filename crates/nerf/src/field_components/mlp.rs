@@ -23,7 +23,7 @@ pub fn linear_forward(x: &[f32], w: &[f32], y: &mut [f32], n: usize, din: usize,
         return;
     }
     // B = Wᵀ: B[k][o] = W[o][k].
-    if small_gemm(x, |k, o| w[o * din + k], y, n, din, dout) {
+    if small_gemm(x, Right::Transposed(w), y, n, din, dout) {
         return;
     }
     // SAFETY: the asserts above bound every index the strides reach.
@@ -54,7 +54,7 @@ pub fn linear_backward_input(dy: &[f32], w: &[f32], dx: &mut [f32], n: usize, di
         return;
     }
     // B = W: B[k][i] = W[k][i].
-    if small_gemm(dy, |k, i| w[k * din + i], dx, n, dout, din) {
+    if small_gemm(dy, Right::Rows(w), dx, n, dout, din) {
         return;
     }
     // SAFETY: as above.
@@ -124,23 +124,55 @@ thread_local! {
     static PANEL: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// `C[n, m] = A[n, k] · B[k, m]` with `B[kk][j] = b(kk, j)`, for `k, m ≤ SMALL_MAX` on a host with
-/// AVX-512 (others keep `matrixmultiply`, whose packing costs less there): every `C[i][j]` is `fma(A[i][k−1], B[k−1][j], … fma(A[i][0], B[0][j], 0))`, the chain
+/// The right-hand matrix `B[k, m]` of [`small_gemm`], as it is stored.
+#[derive(Clone, Copy, Debug)]
+pub enum Right<'a> {
+    /// Row-major: `B[kk][j] = b[kk·m + j]`.
+    Rows(&'a [f32]),
+    /// Stored transposed (a layer's weights `W[m, k]`): `B[kk][j] = w[j·k + kk]`.
+    Transposed(&'a [f32]),
+}
+
+/// `C[n, m] = A[n, k] · B[k, m]` for `k, m ≤ SMALL_MAX` on a host with AVX-512 (others keep
+/// `matrixmultiply`, whose packing costs less there): every `C[i][j]` is `fma(A[i][k−1], B[k−1][j], … fma(A[i][0], B[0][j], 0))`, the chain
 /// `matrixmultiply`'s FMA kernels compute (one accumulator per output, the inner index in order,
 /// the product scaled by α = 1), so the two agree bit for bit. Returns false, having done
 /// nothing, where it does not apply.
-pub fn small_gemm(a: &[f32], b: impl Fn(usize, usize) -> f32, c: &mut [f32], n: usize, k: usize, m: usize) -> bool {
+pub fn small_gemm(a: &[f32], b: Right<'_>, c: &mut [f32], n: usize, k: usize, m: usize) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         if k == 0 || k > SMALL_MAX || m > SMALL_MAX || !std::arch::is_x86_feature_detected!("avx512f") {
             return false;
         }
+        let src = match b {
+            Right::Rows(b) | Right::Transposed(b) => b,
+        };
+        assert!(src.len() >= k * m, "small_gemm: right-hand matrix too short");
         PANEL.with_borrow_mut(|panel| {
-            panel.clear();
-            panel.resize(k * SMALL_MAX, 0.0);
-            for kk in 0..k {
-                for j in 0..m {
-                    panel[kk * SMALL_MAX + j] = b(kk, j);
+            // Every row of the panel is written whole below (columns past m zeroed), so a panel
+            // that is long enough is reused as it is.
+            if panel.len() < k * SMALL_MAX {
+                panel.resize(k * SMALL_MAX, 0.0);
+            }
+            let panel = &mut panel[..k * SMALL_MAX];
+            match b {
+                Right::Rows(b) => {
+                    for (row, src) in panel.chunks_exact_mut(SMALL_MAX).zip(b.chunks_exact(m)) {
+                        row[..m].copy_from_slice(src);
+                        row[m..].fill(0.0);
+                    }
+                }
+                Right::Transposed(w) => {
+                    for (j, col) in w.chunks_exact(k).take(m).enumerate() {
+                        for (kk, &v) in col.iter().enumerate() {
+                            panel[kk * SMALL_MAX + j] = v;
+                        }
+                    }
+                    if m < SMALL_MAX {
+                        for row in panel.chunks_exact_mut(SMALL_MAX) {
+                            row[m..].fill(0.0);
+                        }
+                    }
                 }
             }
             // SAFETY: AVX-512F was detected above; the asserts of the callers bound a and c.
@@ -315,14 +347,18 @@ mod tests {
                     (0..len).map(|_| (rng.random::<f32>() - 0.5) * 10f32.powi(rng.random_range(-3..4))).collect()
                 };
                 let (a, b) = (r(n * k), r(k * m));
-                let mut c = vec![f32::NAN; n * m];
-                if !small_gemm(&a, |kk, j| b[kk * m + j], &mut c, n, k, m) {
-                    continue;
-                }
-                applied += 1;
                 let want = sgemm_reference(&a, &b, n, k, m);
                 let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                assert_eq!(bits(&c), bits(&want), "n {n}, k {k}, m {m}");
+                // B row-major, and the same B stored transposed (bt[j·k + kk] = b[kk·m + j]).
+                let bt: Vec<f32> = (0..m * k).map(|q| b[(q % k) * m + q / k]).collect();
+                for right in [Right::Rows(&b), Right::Transposed(&bt)] {
+                    let mut c = vec![f32::NAN; n * m];
+                    if !small_gemm(&a, right, &mut c, n, k, m) {
+                        continue;
+                    }
+                    applied += 1;
+                    assert_eq!(bits(&c), bits(&want), "n {n}, k {k}, m {m}, {right:?}");
+                }
             }
         }
         // On an AVX-512 host the kernel was used.

@@ -224,11 +224,11 @@ pub struct DensityWorkspace {
     jac: Vec<f32>,
 }
 
-/// Makes `v` at least `len` long. The per-sample buffers of a forward pass only grow: each
-/// round writes its rows before anything reads them, and a `resize` down and up again would
-/// zero-fill the regrown part on every round of every call.
+/// Makes `v` at least `len` long. The per-sample buffers of the forward and reverse passes only
+/// grow: each round or block writes its rows before anything reads them, and a `resize` down
+/// and up again would zero-fill the regrown part on every round of every call.
 #[inline]
-fn grow(v: &mut Vec<f32>, len: usize) {
+pub(crate) fn grow(v: &mut Vec<f32>, len: usize) {
     if v.len() < len {
         v.resize(len, 0.0);
     }
@@ -477,16 +477,16 @@ impl ChunkWorkspace {
             self.act.extend_from_slice(&self.order[a..a + k]);
         }
         let m = self.act.len();
-        self.cin.resize(m * ci, 0.0);
+        grow(&mut self.cin, m * ci);
         for (j, &s) in self.act.iter().enumerate() {
             let s = s as usize;
             let row = &mut self.cin[j * ci..(j + 1) * ci];
             sh_encode(rays[self.sample_ray[s] as usize].d(), &mut row[..SH_DIM]);
             row[SH_DIM..].copy_from_slice(&self.out0[s * o + 1..(s + 1) * o]);
         }
-        self.h1.resize(m * ch, 0.0);
-        self.h2.resize(m * ch, 0.0);
-        self.rgb.resize(m * 3, 0.0);
+        grow(&mut self.h1, m * ch);
+        grow(&mut self.h2, m * ch);
+        grow(&mut self.rgb, m * 3);
         linear_forward(&self.cin, field.w(params, 3), &mut self.h1, m, ci, ch);
         relu(&mut self.h1[..m * ch]);
         linear_forward(&self.h1, field.w(params, 4), &mut self.h2, m, ch, ch);

@@ -24,7 +24,7 @@ use crate::field_components::mlp::{
     linear_backward_input, linear_forward, relu, relu_backward, sigmoid, trunc_exp, trunc_exp_exact_grad,
 };
 use crate::field_components::sh_encoding::{sh_encode, sh_jacobian, SH_DIM};
-use crate::fields::{ChunkWorkspace, NgpField, RayInput};
+use crate::fields::{grow, ChunkWorkspace, NgpField, RayInput};
 use crate::model::Nerf;
 use crate::model_components::renderer::composite_forward;
 
@@ -189,7 +189,7 @@ impl JacobianWorkspace {
             let rows = 3 * block.len();
             // color_net backward of C_c: d(pre-sigmoid) = w_j·s(1 − s) on channel c only, so
             // d h2 = that · W2[c, :] masked by the ReLU.
-            self.d_h2.resize(rows * ch, 0.0);
+            grow(&mut self.d_h2, rows * ch);
             for (q, &j) in block.iter().enumerate() {
                 let j = j as usize;
                 for c in 0..3 {
@@ -202,7 +202,7 @@ impl JacobianWorkspace {
                     }
                 }
             }
-            self.d_h1.resize(rows * ch, 0.0);
+            grow(&mut self.d_h1, rows * ch);
             linear_backward_input(&self.d_h2, w_c1, &mut self.d_h1, rows, ch, ch);
             for (q, &j) in block.iter().enumerate() {
                 let j = j as usize;
@@ -212,10 +212,10 @@ impl JacobianWorkspace {
                     relu_backward(h1, row);
                 }
             }
-            self.d_cin.resize(rows * ci, 0.0);
+            grow(&mut self.d_cin, rows * ci);
             linear_backward_input(&self.d_h1, w_c0, &mut self.d_cin, rows, ci, ch);
             // sigma_net output adjoint [∂C/∂o_0, ∂C/∂geo]; SH part summed per ray.
-            self.d_out0.resize(rows * o, 0.0);
+            grow(&mut self.d_out0, rows * o);
             for (q, &j) in block.iter().enumerate() {
                 let j = j as usize;
                 let ri = self.ray[j] as usize;
@@ -229,7 +229,7 @@ impl JacobianWorkspace {
                     self.d_out0[row * o + 1..(row + 1) * o].copy_from_slice(&dc[SH_DIM..]);
                 }
             }
-            self.d_h0.resize(rows * sh, 0.0);
+            grow(&mut self.d_h0, rows * sh);
             linear_backward_input(&self.d_out0, w_s1, &mut self.d_h0, rows, sh, o);
             for (q, &j) in block.iter().enumerate() {
                 let j = j as usize;
@@ -240,7 +240,7 @@ impl JacobianWorkspace {
                     relu_backward(h0, row);
                 }
             }
-            self.d_enc.resize(rows * e, 0.0);
+            grow(&mut self.d_enc, rows * e);
             linear_backward_input(&self.d_h0, w_s0, &mut self.d_enc, rows, e, sh);
             // Through the hash encoding and the box normalisation to ∂C/∂x_j, then o and d.
             self.block_jacobians(field, emb, ws, block);

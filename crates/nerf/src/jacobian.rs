@@ -77,60 +77,44 @@ pub(crate) struct JacobianWorkspace {
     thin: Vec<u32>,
 }
 
+/// One chunk's reverse pass ([`JacobianWorkspace::backward`]): the field and its parameters,
+/// the chunk's forward pass and rays, the weight below which samples go through their density
+/// only, and the `[r]` Jacobians it writes.
+pub(crate) struct ChunkBackward<'a> {
+    pub field: &'a NgpField,
+    pub params: &'a [f32],
+    pub ws: &'a ChunkWorkspace,
+    pub rays: &'a [RayInput],
+    pub min_weight: f32,
+    pub d_origin: &'a mut [[[f32; 3]; 3]],
+    pub d_direction: &'a mut [[[f32; 3]; 3]],
+}
+
 impl JacobianWorkspace {
     /// After `ws.forward(field, params, rays, …)`: writes `∂C/∂o` and `∂C/∂d` of every ray of
     /// the chunk (`[r]` each, overwritten). Samples whose compositing weight `w_j` is below
     /// `min_weight` keep only their density term `∂C/∂σ_j ⊗ ∇σ(x_j)` (see
     /// [`RayRender::jacobians_above`]); `min_weight = 0` is exact.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn backward(
-        &mut self,
-        field: &NgpField,
-        params: &[f32],
-        ws: &ChunkWorkspace,
-        rays: &[RayInput],
-        min_weight: f32,
-        d_origin: &mut [[[f32; 3]; 3]],
-        d_direction: &mut [[[f32; 3]; 3]],
-    ) {
+    pub(crate) fn backward(&mut self, chunk: ChunkBackward<'_>) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx512f") {
             // SAFETY: AVX-512F was detected.
-            return unsafe { self.backward_avx512(field, params, ws, rays, min_weight, d_origin, d_direction) };
+            return unsafe { self.backward_avx512(chunk) };
         }
-        self.backward_body(field, params, ws, rays, min_weight, d_origin, d_direction)
+        self.backward_body(chunk)
     }
 
     /// [`backward`](Self::backward) compiled with AVX-512 (its element-wise loops in 16-lane
     /// vectors; no operation is fused or reordered, so the results are the same bits).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
-    #[allow(clippy::too_many_arguments)]
-    unsafe fn backward_avx512(
-        &mut self,
-        field: &NgpField,
-        params: &[f32],
-        ws: &ChunkWorkspace,
-        rays: &[RayInput],
-        min_weight: f32,
-        d_origin: &mut [[[f32; 3]; 3]],
-        d_direction: &mut [[[f32; 3]; 3]],
-    ) {
-        self.backward_body(field, params, ws, rays, min_weight, d_origin, d_direction)
+    unsafe fn backward_avx512(&mut self, chunk: ChunkBackward<'_>) {
+        self.backward_body(chunk)
     }
 
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    fn backward_body(
-        &mut self,
-        field: &NgpField,
-        params: &[f32],
-        ws: &ChunkWorkspace,
-        rays: &[RayInput],
-        min_weight: f32,
-        d_origin: &mut [[[f32; 3]; 3]],
-        d_direction: &mut [[[f32; 3]; 3]],
-    ) {
+    fn backward_body(&mut self, chunk: ChunkBackward<'_>) {
+        let ChunkBackward { field, params, ws, rays, min_weight, d_origin, d_direction } = chunk;
         let nr = rays.len();
         let m = ws.act.len();
         let (e, sh, o, ch) = (field.enc_dim, field.sigma_hidden, 1 + field.geo, field.color_hidden);
@@ -475,7 +459,17 @@ impl RayRender<'_> {
             .zip(out.d_direction.par_chunks_mut(JACOBIAN_CHUNK))
             .zip(self.rays.par_chunks(JACOBIAN_CHUNK))
             .for_each(|(((ws, d_o), d_d), rs)| {
-                WORKSPACE.with_borrow_mut(|jw| jw.backward(&nerf.field, &nerf.params, ws, rs, min_weight, d_o, d_d))
+                WORKSPACE.with_borrow_mut(|jw| {
+                    jw.backward(ChunkBackward {
+                        field: &nerf.field,
+                        params: &nerf.params,
+                        ws,
+                        rays: rs,
+                        min_weight,
+                        d_origin: d_o,
+                        d_direction: d_d,
+                    })
+                })
             });
         out
     }

@@ -141,7 +141,7 @@ pub enum Right<'a> {
 pub fn small_gemm(a: &[f32], b: Right<'_>, c: &mut [f32], n: usize, k: usize, m: usize) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        if k == 0 || k > SMALL_MAX || m > SMALL_MAX || !std::arch::is_x86_feature_detected!("avx512f") {
+        if k == 0 || m == 0 || k > SMALL_MAX || m > SMALL_MAX || !std::arch::is_x86_feature_detected!("avx512f") {
             return false;
         }
         let src = match b {
@@ -341,7 +341,9 @@ mod tests {
     fn small_gemm_is_bit_identical_to_matrixmultiply() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
         let mut applied = 0;
-        for &(k, m) in &[(32, 64), (64, 16), (31, 64), (64, 64), (64, 3), (3, 64), (16, 64), (64, 31), (1, 1), (5, 7)] {
+        for &(k, m) in
+            &[(32, 64), (64, 16), (31, 64), (64, 64), (64, 3), (3, 64), (16, 64), (64, 31), (1, 1), (5, 7), (3, 0)]
+        {
             for n in [0, 1, 2, 3, 5, 8, 37, 130] {
                 let mut r = |len: usize| -> Vec<f32> {
                     (0..len).map(|_| (rng.random::<f32>() - 0.5) * 10f32.powi(rng.random_range(-3..4))).collect()

@@ -31,7 +31,14 @@ use std::time::Instant;
 /// Edge of an empty block the candidate skips at once, in cells.
 const B: usize = 4;
 
-fn blocks(grid: &OccupancyGrid) -> (usize, Vec<bool>) {
+/// The coarse level: per block of `B³` cells, whether any of its cells is occupied.
+struct Blocks {
+    /// Blocks per axis.
+    n: usize,
+    occupied: Vec<bool>,
+}
+
+fn blocks(grid: &OccupancyGrid) -> Blocks {
     let r = grid.resolution;
     let nb = r.div_ceil(B);
     let mut occ = vec![false; nb * nb * nb];
@@ -44,7 +51,7 @@ fn blocks(grid: &OccupancyGrid) -> (usize, Vec<bool>) {
             }
         }
     }
-    (nb, occ)
+    Blocks { n: nb, occupied: occ }
 }
 
 fn exit(grid: &OccupancyGrid, o: [f32; 3], inv_d: [f32; 3], d: [f32; 3], c: [usize; 3], size: usize) -> f32 {
@@ -65,8 +72,7 @@ fn march_blocks(
     o: [f32; 3],
     d: [f32; 3],
     grid: &OccupancyGrid,
-    nb: usize,
-    bocc: &[bool],
+    blocks: &Blocks,
     step: f32,
     cap: usize,
     ts: &mut Vec<f32>,
@@ -84,7 +90,8 @@ fn march_blocks(
         }
         let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
         let c = grid.cell_of(p);
-        let size = if !bocc[c[0] / B + nb * (c[1] / B + nb * (c[2] / B))] {
+        let nb = blocks.n;
+        let size = if !blocks.occupied[c[0] / B + nb * (c[1] / B + nb * (c[2] / B))] {
             B
         } else if grid.is_occupied_index(c[0] + r * (c[1] + r * c[2])) {
             ts.push(t);
@@ -108,10 +115,10 @@ fn main() -> anyhow::Result<()> {
     let test = load_split(&run.join("dataset"), "test", LoadOptions::default())?;
     let grid = &nerf.grid;
     let step = nerf.config.step_size;
-    let (nb, bocc) = blocks(grid);
+    let coarse = blocks(grid);
     println!(
         "{B}³ blocks with an occupied cell: {:.3}",
-        bocc.iter().filter(|&&b| b).count() as f64 / bocc.len() as f64
+        coarse.occupied.iter().filter(|&&b| b).count() as f64 / coarse.occupied.len() as f64
     );
     for frame in test.frames.iter().take(3) {
         let rays = camera_rays(&frame.camera, [1.0; 3]);
@@ -141,7 +148,7 @@ fn main() -> anyhow::Result<()> {
             ts.clear();
             let s = Instant::now();
             for (r, &cap) in rays.iter().zip(&caps) {
-                march_blocks(r.origin.coords.into(), r.direction.into(), grid, nb, &bocc, step, cap, &mut ts);
+                march_blocks(r.origin.coords.into(), r.direction.into(), grid, &coarse, step, cap, &mut ts);
             }
             b = b.min(s.elapsed().as_secs_f64());
             nb_ = ts.len();

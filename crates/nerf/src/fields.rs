@@ -30,7 +30,7 @@ use crate::field_components::mlp::{
 use crate::field_components::sh_encoding::{sh_encode, SH_DIM};
 use crate::model_components::losses::mse_and_grad;
 use crate::model_components::occupancy_grid::OccupancyGrid;
-use crate::model_components::ray_samplers::{march_segment, ray_aabb};
+use crate::model_components::ray_samplers::{march_segment, ray_aabb, Lattice};
 use crate::model_components::renderer::{active_count, composite_backward, composite_forward};
 
 /// Names of the parameter tensors, in flat-vector order.
@@ -244,6 +244,31 @@ pub const TRAIN_ROUND: usize = 16;
 /// are composited).
 pub const RENDER_ROUND: usize = 4;
 
+/// How a forward pass walks the occupancy grid (see [`crate::model_components::ray_samplers`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Walk {
+    /// Cell by cell, the lattice position accumulated step by step: training's walk, whose
+    /// sample positions fix the trained weights' bits.
+    CellByCell,
+    /// The lattice by index, empty blocks of the coarse level skipped whole: rendering's.
+    Blocks,
+}
+
+/// How a forward pass marches its rays ([`ChunkWorkspace::forward`]).
+#[derive(Clone, Copy, Debug)]
+pub struct March {
+    /// The lattice step Δt (m).
+    pub step: f32,
+    /// Samples per ray at most.
+    pub max_samples: usize,
+    /// Early-stop transmittance: a ray is not marched further once its transmittance is below.
+    pub t_min: f32,
+    /// Samples marched per live ray between density evaluations (≥ 1; [`TRAIN_ROUND`],
+    /// [`RENDER_ROUND`]).
+    pub round: usize,
+    pub walk: Walk,
+}
+
 /// Rays per chunk of the fused training kernels (fixed: part of the determinism contract).
 pub const TRAIN_CHUNK: usize = 256;
 /// Rays per parallel task of rendering (small enough that a pose update's few hundred rays use
@@ -301,9 +326,11 @@ pub struct ChunkWorkspace {
     /// `[n]` density and distance in ray-major order.
     pub(crate) sig_o: Vec<f32>,
     pub(crate) t_o: Vec<f32>,
-    // Per-ray marching state.
+    // Per-ray marching state (`lattice`, `m_next`: [`Walk::Blocks`] only).
     live: Vec<u32>,
     t_next: Vec<f32>,
+    lattice: Vec<Lattice>,
+    m_next: Vec<u32>,
     t_far: Vec<f32>,
     trans: Vec<f32>,
     count: Vec<u32>,
@@ -371,37 +398,43 @@ impl ChunkWorkspace {
         }
     }
 
-    /// Forward pass over a chunk of rays: marches through `grid` in rounds of `round` (≥ 1;
-    /// [`TRAIN_ROUND`], [`RENDER_ROUND`]) samples per live ray, evaluating densities as it goes
-    /// so that a ray stops being marched once its transmittance falls below `t_min` (or it
-    /// leaves the box, or has `max_samples`); then colours for the samples before termination,
-    /// and composites per ray.
+    /// Forward pass over a chunk of rays: marches through `grid` ([`March::walk`]) in rounds of
+    /// [`March::round`] samples per live ray, evaluating densities as it goes so that a ray
+    /// stops being marched once its transmittance falls below [`March::t_min`] (or it leaves the
+    /// box, or has [`March::max_samples`]); then colours for the samples before termination, and
+    /// composites per ray.
     ///
     /// Samples are stored in evaluation order (`t`, `pos`, `sigma`, … indexed by sample id);
     /// `order` lists them ray by ray, and `ray_start` indexes `order`.
-    #[allow(clippy::too_many_arguments)]
     pub fn forward(
         &mut self,
         field: &NgpField,
         params: &[f32],
         rays: &[RayInput],
         grid: &OccupancyGrid,
-        step: f32,
-        max_samples: usize,
-        t_min: f32,
-        round: usize,
+        march: &March,
     ) {
+        let March { step, max_samples, t_min, round, walk } = *march;
         let nr = rays.len();
         self.t.clear();
         self.sample_ray.clear();
         self.live.clear();
         self.t_next.clear();
         self.t_far.clear();
+        self.lattice.clear();
+        self.m_next.clear();
         self.trans.clear();
         self.count.clear();
         for (i, r) in rays.iter().enumerate() {
             let (t0, t1) = ray_aabb(r.o(), r.d(), grid.aabb_min, grid.aabb_max).unwrap_or((0.0, -1.0));
-            self.t_next.push(t0 + r.jitter * step);
+            if walk == Walk::Blocks {
+                let lattice = Lattice::on_span(r.o(), r.d(), (t0, t1), step, r.jitter);
+                self.t_next.push(lattice.t(0));
+                self.lattice.push(lattice);
+                self.m_next.push(0);
+            } else {
+                self.t_next.push(t0 + r.jitter * step);
+            }
             self.t_far.push(t1);
             self.trans.push(1.0);
             self.count.push(0);
@@ -416,8 +449,16 @@ impl ChunkWorkspace {
                 let r = &rays[ri];
                 let before = self.t.len();
                 let k = round.max(1).min(max_samples - self.count[ri] as usize);
-                self.t_next[ri] =
-                    march_segment(r.o(), r.d(), grid, step, self.t_next[ri], self.t_far[ri], k, &mut self.t);
+                self.t_next[ri] = match walk {
+                    Walk::CellByCell => {
+                        march_segment(r.o(), r.d(), grid, step, self.t_next[ri], self.t_far[ri], k, &mut self.t)
+                    }
+                    Walk::Blocks => {
+                        let lattice = &self.lattice[ri];
+                        self.m_next[ri] = lattice.march(grid, self.m_next[ri], k, &mut self.t);
+                        lattice.t(self.m_next[ri])
+                    }
+                };
                 let added = self.t.len() - before;
                 self.count[ri] += added as u32;
                 self.sample_ray.extend(std::iter::repeat_n(ri as u32, added));
@@ -627,7 +668,19 @@ mod tests {
         let targets: Vec<[f32; 3]> = (0..6).map(|i| [0.1 * i as f32, 0.5, 0.9 - 0.1 * i as f32]).collect();
         let mut ws = ChunkWorkspace::default();
         let loss = |p: &[f32], ws: &mut ChunkWorkspace| -> f64 {
-            ws.forward(&field, p, &rays, &grid, cfg.step_size, 1000, 0.0, TRAIN_ROUND);
+            ws.forward(
+                &field,
+                p,
+                &rays,
+                &grid,
+                &March {
+                    step: cfg.step_size,
+                    max_samples: 1000,
+                    t_min: 0.0,
+                    round: TRAIN_ROUND,
+                    walk: Walk::CellByCell,
+                },
+            );
             ws.backward(&field, p, &targets, rays.len());
             ws.sq_err / (3 * rays.len()) as f64
         };

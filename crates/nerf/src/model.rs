@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use crate::config::NerfConfig;
 use crate::fields::{ChunkWorkspace, DensityWorkspace, NgpField, RayInput, RENDER_CHUNK};
 use crate::model_components::occupancy_grid::OccupancyGrid;
-use crate::model_components::ray_samplers::march_ray;
+use crate::model_components::ray_samplers::march_lattice;
 
 /// Points per parallel task of density queries.
 const DENSITY_CHUNK: usize = 4096;
@@ -155,7 +155,7 @@ impl Nerf {
     /// sample": the rays a fit on the `sigma_net` weights can use.
     pub fn ray_composites_a_sample(&self, ray: &RayInput) -> bool {
         let mut ts = Vec::with_capacity(1);
-        march_ray(ray.o(), ray.d(), &self.grid, self.config.step_size, 1, ray.jitter, &mut ts) > 0
+        march_lattice(ray.o(), ray.d(), &self.grid, self.config.step_size, 1, ray.jitter, &mut ts) > 0
     }
 
     /// The indices (increasing) of the `rays` for which
@@ -167,16 +167,14 @@ impl Nerf {
     /// [`ChunkWorkspace::forward`] with the rendering settings of this model.
     pub(crate) fn forward_chunk(&self, ws: &mut ChunkWorkspace, rays: &[RayInput]) {
         let c = &self.config;
-        ws.forward(
-            &self.field,
-            &self.params,
-            rays,
-            &self.grid,
-            c.step_size,
-            c.max_samples_per_ray,
-            c.early_stop_transmittance,
-            crate::fields::RENDER_ROUND,
-        );
+        let march = crate::fields::March {
+            step: c.step_size,
+            max_samples: c.max_samples_per_ray,
+            t_min: c.early_stop_transmittance,
+            round: crate::fields::RENDER_ROUND,
+            walk: crate::fields::Walk::Blocks,
+        };
+        ws.forward(&self.field, &self.params, rays, &self.grid, &march);
     }
 
     /// One occupancy-grid update (`update_index` = how many came before): evaluates σ·Δt at a

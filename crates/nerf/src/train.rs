@@ -243,16 +243,14 @@ impl Trainer {
             .zip(self.targets.par_chunks(TRAIN_CHUNK))
             .for_each(|((ws, rays), tg)| {
                 let c = &cfg;
-                ws.forward(
-                    &nerf.field,
-                    &nerf.params,
-                    rays,
-                    &nerf.grid,
-                    c.step_size,
-                    c.max_samples_per_ray,
-                    c.early_stop_transmittance,
-                    crate::fields::TRAIN_ROUND,
-                );
+                let march = crate::fields::March {
+                    step: c.step_size,
+                    max_samples: c.max_samples_per_ray,
+                    t_min: c.early_stop_transmittance,
+                    round: crate::fields::TRAIN_ROUND,
+                    walk: crate::fields::Walk::CellByCell,
+                };
+                ws.forward(&nerf.field, &nerf.params, rays, &nerf.grid, &march);
                 ws.backward(&nerf.field, &nerf.params, tg, b);
             });
         let ws = &self.ws[..n_chunks];

@@ -355,39 +355,40 @@ fn a_weight_threshold_changes_the_jacobians_by_a_few_percent() {
 }
 
 /// Rendering marches in rounds of `RENDER_ROUND` samples, training in rounds of `TRAIN_ROUND`:
-/// a ray's colour, opacity and depth do not depend on the round (only how many samples past
-/// its termination get a density), bit for bit, and shorter rounds evaluate fewer samples.
+/// with either walk, a ray's colour, opacity and depth do not depend on the round (only how many
+/// samples past its termination get a density), bit for bit, and shorter rounds evaluate fewer
+/// samples.
 #[test]
 fn a_rays_render_does_not_depend_on_the_marching_round() {
-    use nerfsv_nerf::fields::ChunkWorkspace;
+    use nerfsv_nerf::fields::{ChunkWorkspace, March, Walk};
     let nerf = model();
     let rays = view_rays();
     let c = &nerf.config;
-    let render = |round: usize| {
-        let mut ws = ChunkWorkspace::default();
-        let mut out = (Vec::new(), Vec::new(), Vec::new(), 0);
-        for chunk in rays.chunks(64) {
-            ws.forward(
-                &nerf.field,
-                &nerf.params,
-                chunk,
-                &nerf.grid,
-                c.step_size,
-                c.max_samples_per_ray,
-                c.early_stop_transmittance,
-                round,
-            );
-            out.0.extend_from_slice(&ws.color);
-            out.1.extend_from_slice(&ws.opacity);
-            out.2.extend_from_slice(&ws.depth);
-            out.3 += ws.n_samples();
+    for walk in [Walk::CellByCell, Walk::Blocks] {
+        let render = |round: usize| {
+            let mut ws = ChunkWorkspace::default();
+            let mut out = (Vec::new(), Vec::new(), Vec::new(), 0);
+            for chunk in rays.chunks(64) {
+                let march = March {
+                    step: c.step_size,
+                    max_samples: c.max_samples_per_ray,
+                    t_min: c.early_stop_transmittance,
+                    round,
+                    walk,
+                };
+                ws.forward(&nerf.field, &nerf.params, chunk, &nerf.grid, &march);
+                out.0.extend_from_slice(&ws.color);
+                out.1.extend_from_slice(&ws.opacity);
+                out.2.extend_from_slice(&ws.depth);
+                out.3 += ws.n_samples();
+            }
+            out
+        };
+        let long = render(16);
+        for round in [1, 4] {
+            let short = render(round);
+            assert_eq!((&short.0, &short.1, &short.2), (&long.0, &long.1, &long.2), "{walk:?}, round {round}");
+            assert!(short.3 < long.3, "{walk:?}, round {round}: {} samples against {}", short.3, long.3);
         }
-        out
-    };
-    let long = render(16);
-    for round in [1, 4] {
-        let short = render(round);
-        assert_eq!((&short.0, &short.1, &short.2), (&long.0, &long.1, &long.2), "round {round}");
-        assert!(short.3 < long.3, "round {round}: {} samples against {}", short.3, long.3);
     }
 }

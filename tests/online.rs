@@ -6,11 +6,12 @@ mod common;
 
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
+use nerfsv_sim::WorldKind;
 use nerfsv_study::flight::FlightInputs;
-use nerfsv_study::stress::{measure_recorded, stress, Drone, OnlineSettings, Sampler, StressSetup};
+use nerfsv_study::stress::{journal_dir, measure_recorded, stress, Drone, Flown, OnlineSettings, Sampler, StressSetup};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
-use nerfsv_validation::{parse_csv, write_csv};
+use nerfsv_validation::{parse_csv, write_csv, SAMPLER_CEM};
 
 #[test]
 fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
@@ -73,4 +74,54 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
         let e = measure_recorded(&setup, vec![bare], &Silent).unwrap_err().to_string();
         assert!(e.contains("keeps no pose per step"), "{e}");
     }
+}
+
+/// The online stage's rewarded CEM takes its first population from the stress stage's CEM (the
+/// same seeds, drawn from the prior): with those rollouts given as flown before, it writes the
+/// same records bit for bit and does not fly them again (its journal lacks them).
+#[test]
+fn a_rewarded_cem_takes_its_first_population_from_rollouts_flown_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let inputs = FlightInputs::load(&model, &field, Some(&field)).unwrap();
+    let text = "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[validation]\nseed = 5\n\
+                [validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 1\n[uq]\nonline_rays = 64\n";
+    let cfg: RunConfig = toml::from_str(text).unwrap();
+    let scene = Scene::builtin("monolith").unwrap();
+    let prior = cfg.disturbance_prior().unwrap();
+    let flight = inputs.plan(&cfg.sim).unwrap();
+    let drone = Drone {
+        inputs: &inputs,
+        flight: &flight,
+        scene: Some(&scene),
+        sim: &cfg.sim,
+        intrinsics: cfg.camera_intrinsics(),
+        render: cfg.dataset.render_settings(),
+    };
+    let setup = |reward: bool| StressSetup {
+        replay: false,
+        online: Some(OnlineSettings { method: Method::Ga, mode: UqMode::Exact, reward }),
+        ..StressSetup::new(drone, &cfg.validation, &prior, &[Sampler::Cem], &cfg.uq)
+    };
+    let run = |name: &str, setup: &StressSetup| {
+        let out = dir.path().join(name);
+        std::fs::create_dir_all(&out).unwrap();
+        let (_, records) = stress(setup, &out, "k", false, &Silent).unwrap();
+        let mut bytes = Vec::new();
+        write_csv(&mut bytes, &records).unwrap();
+        let journal = journal_dir(&out, WorldKind::Nerf);
+        let flown_files = std::fs::read_dir(&journal)
+            .unwrap()
+            .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "csv"));
+        (records, bytes, flown_files.count(), journal)
+    };
+    // The plain search flies the first population; the rewarded one, alone and with it given.
+    let (plain, _, _, plain_journal) = run("plain", &setup(false));
+    let (_, alone, flown_alone, _) = run("alone", &setup(true));
+    let first: Vec<_> = plain.iter().filter(|r| r.sampler == SAMPLER_CEM && r.population == 0).cloned().collect();
+    assert_eq!(first.len(), 4);
+    let given = StressSetup { flown: Some(Flown { records: &first, journal: &plain_journal }), ..setup(true) };
+    let (_, reused, flown_reused, _) = run("reused", &given);
+    assert_eq!(alone, reused, "the same records bit for bit");
+    assert_eq!(flown_alone, flown_reused + 4, "the first population is not flown again");
 }

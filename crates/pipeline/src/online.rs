@@ -41,8 +41,8 @@ use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::stress::StressStage;
 use crate::PipelineError;
 use nerfsv_study::stress::{
-    measure_recorded, replay_csv, stress, write_table as write_stress_table, OnlineSettings, Sampler, StressSetup,
-    ROLLOUTS_CSV, TABLE_CSV,
+    measure_recorded, replay_csv, stress, write_table as write_stress_table, Flown, OnlineSettings, Sampler,
+    StressSetup, ROLLOUTS_CSV, TABLE_CSV,
 };
 
 /// The stage's combined table.
@@ -204,7 +204,14 @@ impl Stage for OnlineStage<'_> {
                 let out = dir.join("reward");
                 std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
                 let key = format!("online {} reward", method.name());
-                stress(&setup(&[Sampler::Cem], true), &out, &key, cx.resume, cx.observer)?
+                // Its first population is the stress stage's CEM's (drawn from the prior with
+                // the same seeds), measured above: not flown again.
+                let first: Vec<RolloutRecord> =
+                    plain_records.iter().filter(|r| r.sampler == SAMPLER_CEM && r.population == 0).cloned().collect();
+                let stress_journal = nerfsv_study::stress::journal_dir(&stress_dir, WorldKind::Nerf);
+                let flown = Flown { records: &first, journal: &stress_journal };
+                let setup = StressSetup { flown: Some(flown), ..setup(&[Sampler::Cem], true) };
+                stress(&setup, &out, &key, cx.resume, cx.observer)?
             };
             let scorer = UncertaintyReward::new(method, self.uq);
             let scored: Vec<RolloutRecord> =

@@ -377,6 +377,21 @@ pub struct StressSetup<'a> {
     /// rewarded CEM, whose one-sample batch only closes the search) the warnings that an
     /// estimate rests on few effective failures are not given.
     pub reports_p_fail: bool,
+    /// Rollouts flown before, taken instead of flying them again where one of this search's
+    /// rollouts has the same sampler, population, index and seed. Only rollouts drawn from the
+    /// same distribution belong here (the online stage's rewarded CEM gets the stress stage's
+    /// CEM's first population: both draw it from the prior with the same seeds; later
+    /// populations reuse the seeds with other proposals). With the journal folder that keeps
+    /// their estimator errors.
+    pub flown: Option<Flown<'a>>,
+}
+
+/// Rollouts flown before ([`StressSetup::flown`]) and the journal folder of their estimator
+/// errors.
+#[derive(Clone, Copy)]
+pub struct Flown<'a> {
+    pub records: &'a [RolloutRecord],
+    pub journal: &'a Path,
 }
 
 impl<'a> StressSetup<'a> {
@@ -404,6 +419,7 @@ impl<'a> StressSetup<'a> {
             stage: STAGE,
             remote: None,
             reports_p_fail: true,
+            flown: None,
         }
     }
 }
@@ -563,16 +579,29 @@ struct Counting<'a> {
     observer: &'a dyn Observer,
     stage: &'static str,
     status: String,
+    flown: Option<Flown<'a>>,
+}
+
+impl Counting<'_> {
+    /// The rollout `(s, p, i)` among those flown before, with its estimator errors read back.
+    fn flown_before(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
+        let flown = self.flown?;
+        let r = flown.records.iter().find(|r| r.sampler == s && r.population == p && r.index == i)?;
+        let beside = flown.journal.join(format!("{s}-{p}-{i}.{ESTIMATES_EXTENSION}"));
+        self.estimates.load(r.seed, &beside).is_ok().then(|| r.clone())
+    }
 }
 
 impl Recorder for Counting<'_> {
     fn recall(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
         // A rollout whose estimator errors cannot be read back is flown again (to the same
-        // result), so the errors cover every rollout as in an uninterrupted run.
+        // result), so the errors cover every rollout as in an uninterrupted run. The caller
+        // compares the seed (a rollout flown before with another seed is flown).
         let r = self
             .journal
             .recall(s, p, i)
-            .filter(|r| self.estimates.load(r.seed, &self.journal.beside(s, p, i, ESTIMATES_EXTENSION)).is_ok());
+            .filter(|r| self.estimates.load(r.seed, &self.journal.beside(s, p, i, ESTIMATES_EXTENSION)).is_ok())
+            .or_else(|| self.flown_before(s, p, i));
         if r.is_some() {
             self.done.fetch_add(1, Ordering::Relaxed);
         }
@@ -647,6 +676,7 @@ pub fn stress(
         observer,
         stage: setup.stage,
         status: String::new(),
+        flown: setup.flown,
     };
     // Online uncertainty: exact mode compares the NeRF with the ground truth's render of the view.
     let gt_world = if setup.world == WorldKind::Gt { Some(search_world.as_ref()) } else { replay_world.as_deref() };
@@ -782,6 +812,8 @@ pub fn stress(
             observer,
             stage: setup.stage,
             status: format!("replaying in {}-sim", replay_kind.name()),
+            // Replays fly in the other world: nothing flown before stands for them.
+            flown: None,
         };
         progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
         let system = DroneSystem {

@@ -6,12 +6,24 @@ mod common;
 
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
-use nerfsv_sim::WorldKind;
+use nerfsv_sim::{Flight, WorldKind};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_study::stress::{journal_dir, measure_recorded, stress, Drone, Flown, OnlineSettings, Sampler, StressSetup};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
 use nerfsv_validation::{parse_csv, write_csv, SAMPLER_CEM};
+
+/// The drone of the tests' runs: the tiny model's flight over the monolith scene.
+fn drone<'a>(inputs: &'a FlightInputs, flight: &'a Flight, scene: &'a Scene, cfg: &'a RunConfig) -> Drone<'a> {
+    Drone {
+        inputs,
+        flight,
+        scene: Some(scene),
+        sim: &cfg.sim,
+        intrinsics: cfg.camera_intrinsics(),
+        render: cfg.dataset.render_settings(),
+    }
+}
 
 #[test]
 fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
@@ -27,14 +39,7 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
     let prior = cfg.disturbance_prior().unwrap();
     let flight = inputs.plan(&cfg.sim).unwrap();
     for method in [Method::Ga, Method::Bla] {
-        let drone = Drone {
-            inputs: &inputs,
-            flight: &flight,
-            scene: Some(&scene),
-            sim: &cfg.sim,
-            intrinsics: cfg.camera_intrinsics(),
-            render: cfg.dataset.render_settings(),
-        };
+        let drone = drone(&inputs, &flight, &scene, &cfg);
         let setup = StressSetup {
             replay: false,
             online: Some(OnlineSettings { method, mode: UqMode::Exact, reward: false }),
@@ -90,14 +95,7 @@ fn a_rewarded_cem_takes_its_first_population_from_rollouts_flown_before() {
     let scene = Scene::builtin("monolith").unwrap();
     let prior = cfg.disturbance_prior().unwrap();
     let flight = inputs.plan(&cfg.sim).unwrap();
-    let drone = Drone {
-        inputs: &inputs,
-        flight: &flight,
-        scene: Some(&scene),
-        sim: &cfg.sim,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
-    };
+    let drone = drone(&inputs, &flight, &scene, &cfg);
     let setup = |reward: bool| StressSetup {
         replay: false,
         online: Some(OnlineSettings { method: Method::Ga, mode: UqMode::Exact, reward }),

@@ -587,7 +587,7 @@ impl Counting<'_> {
     fn flown_before(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
         let flown = self.flown?;
         let r = flown.records.iter().find(|r| r.sampler == s && r.population == p && r.index == i)?;
-        let beside = flown.journal.join(format!("{s}-{p}-{i}.{ESTIMATES_EXTENSION}"));
+        let beside = Journal::beside_in(flown.journal, s, p, i, ESTIMATES_EXTENSION);
         self.estimates.load(r.seed, &beside).is_ok().then(|| r.clone())
     }
 }

@@ -166,7 +166,12 @@ impl Journal {
     /// Where a file kept beside the rollout (sampler, population, index) goes: its journal
     /// file's name with `extension` (anything but `csv`, which is the journal's own).
     pub fn beside(&self, sampler: &str, population: usize, index: usize, extension: &str) -> PathBuf {
-        self.dir.join(format!("{sampler}-{population}-{index}.{extension}"))
+        Self::beside_in(&self.dir, sampler, population, index, extension)
+    }
+
+    /// [`Journal::beside`] for the journal in `dir`, without opening it.
+    pub fn beside_in(dir: &Path, sampler: &str, population: usize, index: usize, extension: &str) -> PathBuf {
+        dir.join(format!("{sampler}-{population}-{index}.{extension}"))
     }
 
     /// Whether `dir` holds a journal (of any run).

@@ -110,21 +110,20 @@ impl OccupancyGrid {
         }
     }
 
-    /// Recomputes the whole coarse level from the cells.
+    /// Recomputes the whole coarse level from the cells: visits the set bits only (a few
+    /// percent of the cells once trained), word by word.
     fn refresh_blocks(&mut self) {
         let nb = self.blocks_per_axis();
         self.blocks.clear();
         self.blocks.resize((nb * nb * nb).div_ceil(64), 0);
         let r = self.resolution;
-        for z in 0..r {
-            for y in 0..r {
-                let row = r * (y + r * z);
-                for x in 0..r {
-                    if self.is_occupied_index(x + row) {
-                        let i = self.block_index([x, y, z]);
-                        self.blocks[i >> 6] |= 1 << (i & 63);
-                    }
-                }
+        for (w, &word) in self.occupied.iter().enumerate() {
+            let mut bits = word;
+            while bits != 0 {
+                let cell = 64 * w + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                let i = self.block_index([cell % r, (cell / r) % r, cell / (r * r)]);
+                self.blocks[i >> 6] |= 1 << (i & 63);
             }
         }
     }

@@ -270,7 +270,13 @@ pub struct March {
 }
 
 /// Rays per chunk of the fused training kernels (fixed: part of the determinism contract).
-pub const TRAIN_CHUNK: usize = 256;
+/// A step's ray count is a multiple of [`TRAIN_RAYS_MULTIPLE`], so a step has an even number of
+/// chunks, two at least: on two cores a step of 768 rays is six chunks, three a core, where chunks
+/// of 256 rays left one core idle for a third of the kernels' time.
+pub const TRAIN_CHUNK: usize = 128;
+/// A training step's ray count, when it adapts to `target_samples_per_step`, is a multiple of
+/// this (and at least this).
+pub const TRAIN_RAYS_MULTIPLE: usize = 256;
 /// Rays per parallel task of rendering (small enough that a pose update's few hundred rays use
 /// every core).
 pub(crate) const RENDER_CHUNK: usize = 128;

@@ -25,7 +25,7 @@ use crate::model_components::losses::psnr_from_mse;
 use crate::optim::{Adam, AdamParams};
 use crate::NerfError;
 
-pub use crate::fields::TRAIN_CHUNK;
+pub use crate::fields::{TRAIN_CHUNK, TRAIN_RAYS_MULTIPLE};
 
 /// Statistics of one step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -302,24 +302,31 @@ impl Trainer {
                 }
             }
         });
-        // Hash-table gradient, one level per task (disjoint rows).
-        {
-            let g = &mut self.grad[emb.clone()];
-            g.fill(0.0);
+        // Hash-table gradient, one level per task (disjoint rows), each task zeroing its rows and
+        // checking its level's upstream gradient (no serial pass over either).
+        let finite = {
             let mut slices = Vec::with_capacity(levels);
-            let mut rest = g;
+            let mut rest = &mut self.grad[emb.clone()];
             for lv in &field.encoding.levels {
                 let (a, r) = rest.split_at_mut(lv.size as usize * 2);
                 slices.push(a);
                 rest = r;
             }
+            debug_assert!(rest.is_empty(), "the levels cover the embedding table");
             let pos = &self.pos_all;
             let denc = &self.denc_all;
-            slices.into_par_iter().enumerate().for_each(|(l, gl)| {
-                field.encoding.backward_level(l, pos, &denc[2 * l * n_total..2 * (l + 1) * n_total], gl);
-            });
-        }
-        if self.denc_all.iter().any(|v| !v.is_finite()) {
+            slices
+                .into_par_iter()
+                .enumerate()
+                .map(|(l, gl)| {
+                    gl.fill(0.0);
+                    let d = &denc[2 * l * n_total..2 * (l + 1) * n_total];
+                    field.encoding.backward_level(l, pos, d, gl);
+                    d.iter().all(|v| v.is_finite())
+                })
+                .reduce(|| true, |a, b| a && b)
+        };
+        if !finite {
             return Err(NerfError::NonFinite { step, what: "encoding gradient".into() });
         }
         let h = AdamParams {
@@ -334,7 +341,7 @@ impl Trainer {
         if self.config.target_samples_per_step > 0 {
             let spr = (n_total as f64 / b as f64).max(1.0);
             let want = (self.config.target_samples_per_step as f64 / spr) as usize;
-            self.n_rays = want.clamp(TRAIN_CHUNK, 1 << 16) / TRAIN_CHUNK * TRAIN_CHUNK;
+            self.n_rays = want.clamp(TRAIN_RAYS_MULTIPLE, 1 << 16) / TRAIN_RAYS_MULTIPLE * TRAIN_RAYS_MULTIPLE;
         }
         let psnr = psnr_from_mse(mse);
         self.rays_total += b as f64;

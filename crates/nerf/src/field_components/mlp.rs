@@ -6,8 +6,11 @@
 //! L1 and never packs the activations (packing cost `matrixmultiply` nearly as much as its
 //! product at these sizes). Each output is the same fused multiply-add chain over the inner
 //! index in order that `matrixmultiply`'s FMA kernels compute, so the results are bit-identical
-//! to it; other hosts, wider layers and the weight gradients (whose inner dimension is the
-//! batch) use `matrixmultiply::sgemm`.
+//! to it. The weight gradients (whose inner dimension is the batch) run in [`weight_gradient`],
+//! which holds a block of the gradient in registers while the samples stream through (one fused
+//! multiply-add chain per output over the samples in order; `matrixmultiply` splits that chain
+//! into blocks, so the two differ in the last bits). Other hosts and wider layers use
+//! `matrixmultiply::sgemm`.
 //!
 //! Maths for `Y = X·Wᵀ` (`X: [n, in]`, `W: [out, in]`, `Y: [n, out]`):
 //!   forward          `Y = X·Wᵀ`
@@ -93,6 +96,9 @@ pub fn linear_backward_weight(
         if !accumulate {
             dw.fill(0.0);
         }
+        return;
+    }
+    if weight_gradient(dy, x, dw, n, din, dout, accumulate) {
         return;
     }
     // SAFETY: as above.
@@ -258,6 +264,131 @@ unsafe fn block_v<const R: usize, const V: usize>(
     }
 }
 
+/// Samples per tile of [`weight_gradient`]: a tile of the activations (`[64, ≤ 64]`, 16 KiB)
+/// stays in L1 while every block of output rows passes over it.
+const WG_TILE: usize = 64;
+
+/// `dW[out, in] (+)= dY[n, out]ᵀ · X[n, in]` for `in, out ≤ SMALL_MAX` on a host with AVX-512
+/// (others keep `matrixmultiply`): every `dW[o][i]` is the fused multiply-add chain over the
+/// samples in order, `fma(dY[n−1][o], X[n−1][i], … fma(dY[0][o], X[0][i], c₀))` with `c₀` = 0, or
+/// `dW[o][i]` when accumulating, whatever the tiling (see `weight_gradient_is_the_fma_chain_over_samples`).
+/// Nothing is packed: four output rows × `in` columns are held in up to 16 zmm accumulators while
+/// a tile of samples streams through, each sample's `X` row loaded once per block and its four
+/// `dY` values broadcast. Returns false, having done nothing, where it does not apply.
+pub fn weight_gradient(
+    dy: &[f32],
+    x: &[f32],
+    dw: &mut [f32],
+    n: usize,
+    din: usize,
+    dout: usize,
+    accumulate: bool,
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if din == 0
+            || dout == 0
+            || din > SMALL_MAX
+            || dout > SMALL_MAX
+            || !std::arch::is_x86_feature_detected!("avx512f")
+        {
+            return false;
+        }
+        assert!(
+            dy.len() >= n * dout && x.len() >= n * din && dw.len() >= dout * din,
+            "weight_gradient: slices too short"
+        );
+        if !accumulate {
+            dw[..dout * din].fill(0.0);
+        }
+        // SAFETY: AVX-512F was detected above; the assert bounds every index the kernel reaches.
+        unsafe {
+            match din.div_ceil(16) {
+                1 => weight_gradient_v::<1>(dy, x, dw, n, din, dout),
+                2 => weight_gradient_v::<2>(dy, x, dw, n, din, dout),
+                3 => weight_gradient_v::<3>(dy, x, dw, n, din, dout),
+                _ => weight_gradient_v::<4>(dy, x, dw, n, din, dout),
+            }
+        }
+        true
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (dy, x, dw, n, din, dout, accumulate);
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn weight_gradient_v<const V: usize>(dy: &[f32], x: &[f32], dw: &mut [f32], n: usize, din: usize, dout: usize) {
+    let mut s0 = 0;
+    while s0 < n {
+        let s1 = (s0 + WG_TILE).min(n);
+        let mut o = 0;
+        while o + 4 <= dout {
+            weight_gradient_block::<4, V>(dy, x, dw, s0..s1, o, din, dout);
+            o += 4;
+        }
+        match dout - o {
+            1 => weight_gradient_block::<1, V>(dy, x, dw, s0..s1, o, din, dout),
+            2 => weight_gradient_block::<2, V>(dy, x, dw, s0..s1, o, din, dout),
+            3 => weight_gradient_block::<3, V>(dy, x, dw, s0..s1, o, din, dout),
+            _ => {}
+        }
+        s0 = s1;
+    }
+}
+
+/// Rows `o..o + R` of `dW` over the samples `tile`: loads them, adds the tile's products in
+/// sample order, stores them. Columns past `din` are neither loaded nor stored (masked).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn weight_gradient_block<const R: usize, const V: usize>(
+    dy: &[f32],
+    x: &[f32],
+    dw: &mut [f32],
+    tile: std::ops::Range<usize>,
+    o: usize,
+    din: usize,
+    dout: usize,
+) {
+    use std::arch::x86_64::*;
+    let mask = |v: usize| -> u16 {
+        let left = din - 16 * v;
+        if left >= 16 {
+            u16::MAX
+        } else {
+            ((1u32 << left) - 1) as u16
+        }
+    };
+    let (xp, yp, wp) = (x.as_ptr(), dy.as_ptr(), dw.as_mut_ptr());
+    let mut acc = [[_mm512_setzero_ps(); V]; R];
+    for (r, acc_r) in acc.iter_mut().enumerate() {
+        for (v, a) in acc_r.iter_mut().enumerate() {
+            *a = _mm512_maskz_loadu_ps(mask(v), wp.add((o + r) * din + 16 * v));
+        }
+    }
+    for s in tile {
+        let mut xv = [_mm512_setzero_ps(); V];
+        for (v, xv) in xv.iter_mut().enumerate() {
+            *xv = _mm512_maskz_loadu_ps(mask(v), xp.add(s * din + 16 * v));
+        }
+        for (r, acc_r) in acc.iter_mut().enumerate() {
+            let g = _mm512_set1_ps(*yp.add(s * dout + o + r));
+            for (a, &xv) in acc_r.iter_mut().zip(&xv) {
+                *a = _mm512_fmadd_ps(g, xv, *a);
+            }
+        }
+    }
+    for (r, acc_r) in acc.iter().enumerate() {
+        for (v, &a) in acc_r.iter().enumerate() {
+            _mm512_mask_storeu_ps(wp.add((o + r) * din + 16 * v), mask(v), a);
+        }
+    }
+}
+
 /// In-place ReLU.
 #[inline]
 pub fn relu(y: &mut [f32]) {
@@ -364,6 +495,47 @@ mod tests {
             }
         }
         // On an AVX-512 host the kernel was used.
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            assert!(applied > 0);
+        }
+        let _ = applied;
+    }
+
+    /// The weight-gradient kernel computes each output as one fused multiply-add chain over the
+    /// samples in order (from 0, or from the old value when accumulating), bit for bit, on every
+    /// layer shape the NeRF uses and ragged ones (sample counts across the tile size, widths not
+    /// a multiple of the vector or of the four-row block), on values of mixed sign and magnitude.
+    #[test]
+    fn weight_gradient_is_the_fma_chain_over_samples() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+        let mut applied = 0;
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for &(din, dout) in
+            &[(32, 64), (64, 16), (31, 64), (64, 64), (64, 3), (3, 64), (16, 64), (64, 31), (1, 1), (5, 7)]
+        {
+            for n in [0, 1, 3, 63, 64, 65, 130, 200] {
+                let mut r = |len: usize| -> Vec<f32> {
+                    (0..len).map(|_| (rng.random::<f32>() - 0.5) * 10f32.powi(rng.random_range(-3..4))).collect()
+                };
+                let (dy, x, old) = (r(n * dout), r(n * din), r(dout * din));
+                for accumulate in [false, true] {
+                    let want: Vec<f32> = (0..dout * din)
+                        .map(|q| {
+                            let (o, i) = (q / din, q % din);
+                            let c0 = if accumulate { old[q] } else { 0.0 };
+                            (0..n).fold(c0, |c, s| dy[s * dout + o].mul_add(x[s * din + i], c))
+                        })
+                        .collect();
+                    let mut got = if accumulate { old.clone() } else { vec![f32::NAN; dout * din] };
+                    if !weight_gradient(&dy, &x, &mut got, n, din, dout, accumulate) {
+                        continue;
+                    }
+                    applied += 1;
+                    assert_eq!(bits(&got), bits(&want), "n {n}, in {din}, out {dout}, accumulate {accumulate}");
+                }
+            }
+        }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx512f") {
             assert!(applied > 0);

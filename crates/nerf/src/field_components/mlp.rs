@@ -6,8 +6,8 @@
 //! L1 and never packs the activations (packing cost `matrixmultiply` nearly as much as its
 //! product at these sizes). Each output is the same fused multiply-add chain over the inner
 //! index in order that `matrixmultiply`'s FMA kernels compute, so the results are bit-identical
-//! to it. The weight gradients (whose inner dimension is the batch) run in [`weight_gradient`],
-//! which holds a block of the gradient in registers while the samples stream through (one fused
+//! to it. The weight gradients (whose inner dimension is the batch) run in a kernel of their own
+//! ([`linear_backward_weight`]) that holds a block of the gradient in registers while the samples stream through (one fused
 //! multiply-add chain per output over the samples in order; `matrixmultiply` splits that chain
 //! into blocks, so the two differ in the last bits). Other hosts and wider layers use
 //! `matrixmultiply::sgemm`.
@@ -98,7 +98,26 @@ pub fn linear_backward_weight(
         }
         return;
     }
-    if weight_gradient(dy, x, dw, n, din, dout, accumulate) {
+    // On AVX-512 hosts, layers up to SMALL_MAX wide: every `dW[o][i]` is the fused multiply-add
+    // chain over the samples in order, `fma(dY[n−1][o], X[n−1][i], … fma(dY[0][o], X[0][i], c₀))`
+    // with `c₀` = 0, or the old `dW[o][i]` when accumulating, whatever the tiling (test
+    // `weight_gradient_is_the_fma_chain_over_samples`). Nothing is packed: four output rows × `in`
+    // columns are held in up to 16 zmm accumulators while a tile of samples streams through, each
+    // sample's `X` row loaded once per block and its four `dY` values broadcast.
+    #[cfg(target_arch = "x86_64")]
+    if din <= SMALL_MAX && dout <= SMALL_MAX && std::arch::is_x86_feature_detected!("avx512f") {
+        if !accumulate {
+            dw.fill(0.0);
+        }
+        // SAFETY: AVX-512F was detected; the assert above bounds every index the kernel reaches.
+        unsafe {
+            match din.div_ceil(16) {
+                1 => weight_gradient_v::<1>(dy, x, dw, n, din, dout),
+                2 => weight_gradient_v::<2>(dy, x, dw, n, din, dout),
+                3 => weight_gradient_v::<3>(dy, x, dw, n, din, dout),
+                _ => weight_gradient_v::<4>(dy, x, dw, n, din, dout),
+            }
+        }
         return;
     }
     // SAFETY: as above.
@@ -264,60 +283,9 @@ unsafe fn block_v<const R: usize, const V: usize>(
     }
 }
 
-/// Samples per tile of [`weight_gradient`]: a tile of the activations (`[64, ≤ 64]`, 16 KiB)
+/// Samples per tile of [`linear_backward_weight`]'s AVX-512 kernel: a tile of the activations (`[64, ≤ 64]`, 16 KiB)
 /// stays in L1 while every block of output rows passes over it.
 const WG_TILE: usize = 64;
-
-/// `dW[out, in] (+)= dY[n, out]ᵀ · X[n, in]` for `in, out ≤ SMALL_MAX` on a host with AVX-512
-/// (others keep `matrixmultiply`): every `dW[o][i]` is the fused multiply-add chain over the
-/// samples in order, `fma(dY[n−1][o], X[n−1][i], … fma(dY[0][o], X[0][i], c₀))` with `c₀` = 0, or
-/// `dW[o][i]` when accumulating, whatever the tiling (see `weight_gradient_is_the_fma_chain_over_samples`).
-/// Nothing is packed: four output rows × `in` columns are held in up to 16 zmm accumulators while
-/// a tile of samples streams through, each sample's `X` row loaded once per block and its four
-/// `dY` values broadcast. Returns false, having done nothing, where it does not apply.
-pub fn weight_gradient(
-    dy: &[f32],
-    x: &[f32],
-    dw: &mut [f32],
-    n: usize,
-    din: usize,
-    dout: usize,
-    accumulate: bool,
-) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if din == 0
-            || dout == 0
-            || din > SMALL_MAX
-            || dout > SMALL_MAX
-            || !std::arch::is_x86_feature_detected!("avx512f")
-        {
-            return false;
-        }
-        assert!(
-            dy.len() >= n * dout && x.len() >= n * din && dw.len() >= dout * din,
-            "weight_gradient: slices too short"
-        );
-        if !accumulate {
-            dw[..dout * din].fill(0.0);
-        }
-        // SAFETY: AVX-512F was detected above; the assert bounds every index the kernel reaches.
-        unsafe {
-            match din.div_ceil(16) {
-                1 => weight_gradient_v::<1>(dy, x, dw, n, din, dout),
-                2 => weight_gradient_v::<2>(dy, x, dw, n, din, dout),
-                3 => weight_gradient_v::<3>(dy, x, dw, n, din, dout),
-                _ => weight_gradient_v::<4>(dy, x, dw, n, din, dout),
-            }
-        }
-        true
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        let _ = (dy, x, dw, n, din, dout, accumulate);
-        false
-    }
-}
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
@@ -465,6 +433,28 @@ mod tests {
         c
     }
 
+    /// `(inner, outer)` widths of every layer the NeRF uses, and ragged ones.
+    const SHAPES: [(usize, usize); 10] =
+        [(32, 64), (64, 16), (31, 64), (64, 64), (64, 3), (3, 64), (16, 64), (64, 31), (1, 1), (5, 7)];
+
+    /// Values of mixed sign and magnitude (so that a different summation order would show).
+    fn mixed(rng: &mut rand_chacha::ChaCha8Rng, len: usize) -> Vec<f32> {
+        (0..len).map(|_| (rng.random::<f32>() - 0.5) * 10f32.powi(rng.random_range(-3..4))).collect()
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// On an AVX-512 host a kernel that declines every case tests nothing.
+    fn assert_applied(applied: usize) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            assert!(applied > 0);
+        }
+        let _ = applied;
+    }
+
     /// The small-matrix kernel gives `matrixmultiply`'s bits on every layer shape the NeRF uses
     /// and on ragged ones (rows not a multiple of the kernel's block, widths not of the vector),
     /// on values of mixed sign and magnitude (so that a different summation order would show).
@@ -472,16 +462,10 @@ mod tests {
     fn small_gemm_is_bit_identical_to_matrixmultiply() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
         let mut applied = 0;
-        for &(k, m) in
-            &[(32, 64), (64, 16), (31, 64), (64, 64), (64, 3), (3, 64), (16, 64), (64, 31), (1, 1), (5, 7), (3, 0)]
-        {
+        for &(k, m) in SHAPES.iter().chain(&[(3, 0)]) {
             for n in [0, 1, 2, 3, 5, 8, 37, 130] {
-                let mut r = |len: usize| -> Vec<f32> {
-                    (0..len).map(|_| (rng.random::<f32>() - 0.5) * 10f32.powi(rng.random_range(-3..4))).collect()
-                };
-                let (a, b) = (r(n * k), r(k * m));
+                let (a, b) = (mixed(&mut rng, n * k), mixed(&mut rng, k * m));
                 let want = sgemm_reference(&a, &b, n, k, m);
-                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 // B row-major, and the same B stored transposed (bt[j·k + kk] = b[kk·m + j]).
                 let bt: Vec<f32> = (0..m * k).map(|q| b[(q % k) * m + q / k]).collect();
                 for right in [Right::Rows(&b), Right::Transposed(&bt)] {
@@ -494,12 +478,7 @@ mod tests {
                 }
             }
         }
-        // On an AVX-512 host the kernel was used.
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            assert!(applied > 0);
-        }
-        let _ = applied;
+        assert_applied(applied);
     }
 
     /// The weight-gradient kernel computes each output as one fused multiply-add chain over the
@@ -510,15 +489,13 @@ mod tests {
     fn weight_gradient_is_the_fma_chain_over_samples() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
         let mut applied = 0;
-        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        for &(din, dout) in
-            &[(32, 64), (64, 16), (31, 64), (64, 64), (64, 3), (3, 64), (16, 64), (64, 31), (1, 1), (5, 7)]
-        {
+        #[cfg(target_arch = "x86_64")]
+        let avx512 = std::arch::is_x86_feature_detected!("avx512f");
+        #[cfg(not(target_arch = "x86_64"))]
+        let avx512 = false;
+        for &(din, dout) in &SHAPES {
             for n in [0, 1, 3, 63, 64, 65, 130, 200] {
-                let mut r = |len: usize| -> Vec<f32> {
-                    (0..len).map(|_| (rng.random::<f32>() - 0.5) * 10f32.powi(rng.random_range(-3..4))).collect()
-                };
-                let (dy, x, old) = (r(n * dout), r(n * din), r(dout * din));
+                let (dy, x, old) = (mixed(&mut rng, n * dout), mixed(&mut rng, n * din), mixed(&mut rng, dout * din));
                 for accumulate in [false, true] {
                     let want: Vec<f32> = (0..dout * din)
                         .map(|q| {
@@ -528,7 +505,9 @@ mod tests {
                         })
                         .collect();
                     let mut got = if accumulate { old.clone() } else { vec![f32::NAN; dout * din] };
-                    if !weight_gradient(&dy, &x, &mut got, n, din, dout, accumulate) {
+                    linear_backward_weight(&dy, &x, &mut got, n, din, dout, accumulate);
+                    if !avx512 {
+                        // matrixmultiply (other hosts) splits the chain at its blocks.
                         continue;
                     }
                     applied += 1;
@@ -536,11 +515,7 @@ mod tests {
                 }
             }
         }
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            assert!(applied > 0);
-        }
-        let _ = applied;
+        assert_applied(applied);
     }
 
     /// Two layers with ReLU: L = Σ u · (relu(X W0ᵀ) W1ᵀ); checks ∂L/∂W0, ∂L/∂W1, ∂L/∂X.

@@ -7,10 +7,10 @@
 //! product at these sizes). Each output is the same fused multiply-add chain over the inner
 //! index in order that `matrixmultiply`'s FMA kernels compute, so the results are bit-identical
 //! to it. The weight gradients (whose inner dimension is the batch) run in a kernel of their own
-//! ([`linear_backward_weight`]) that holds a block of the gradient in registers while the samples stream through (one fused
-//! multiply-add chain per output over the samples in order; `matrixmultiply` splits that chain
-//! into blocks, so the two differ in the last bits). Other hosts and wider layers use
-//! `matrixmultiply::sgemm`.
+//! ([`linear_backward_weight`]) that holds a block of the gradient in registers while the samples
+//! stream through (one fused multiply-add chain per output over the samples in order;
+//! `matrixmultiply` splits that chain into blocks, so the two differ in the last bits). Other
+//! hosts and wider layers use `matrixmultiply::sgemm`.
 //!
 //! Maths for `Y = X·Wᵀ` (`X: [n, in]`, `W: [out, in]`, `Y: [n, out]`):
 //!   forward          `Y = X·Wᵀ`
@@ -283,8 +283,8 @@ unsafe fn block_v<const R: usize, const V: usize>(
     }
 }
 
-/// Samples per tile of [`linear_backward_weight`]'s AVX-512 kernel: a tile of the activations (`[64, ≤ 64]`, 16 KiB)
-/// stays in L1 while every block of output rows passes over it.
+/// Samples per tile of [`linear_backward_weight`]'s AVX-512 kernel: a tile of the activations
+/// (`[64, ≤ 64]`, 16 KiB) stays in L1 while every block of output rows passes over it.
 const WG_TILE: usize = 64;
 
 #[cfg(target_arch = "x86_64")]
@@ -446,13 +446,17 @@ mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
+    /// Whether this host runs the AVX-512 kernels.
+    fn avx512() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        return std::arch::is_x86_feature_detected!("avx512f");
+        #[cfg(not(target_arch = "x86_64"))]
+        false
+    }
+
     /// On an AVX-512 host a kernel that declines every case tests nothing.
     fn assert_applied(applied: usize) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            assert!(applied > 0);
-        }
-        let _ = applied;
+        assert!(!avx512() || applied > 0, "the AVX-512 kernel was never used");
     }
 
     /// The small-matrix kernel gives `matrixmultiply`'s bits on every layer shape the NeRF uses
@@ -488,11 +492,7 @@ mod tests {
     #[test]
     fn weight_gradient_is_the_fma_chain_over_samples() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
-        let mut applied = 0;
-        #[cfg(target_arch = "x86_64")]
-        let avx512 = std::arch::is_x86_feature_detected!("avx512f");
-        #[cfg(not(target_arch = "x86_64"))]
-        let avx512 = false;
+        let (mut applied, avx512) = (0, avx512());
         for &(din, dout) in &SHAPES {
             for n in [0, 1, 3, 63, 64, 65, 130, 200] {
                 let (dy, x, old) = (mixed(&mut rng, n * dout), mixed(&mut rng, n * din), mixed(&mut rng, dout * din));

@@ -225,14 +225,14 @@ pub fn stress(
     let (kind, est) = (world_kind(world)?, estimator_kind(estimator)?);
     inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
     let cfg = config_with_seed(config.as_deref(), seed)?;
-    let mut inputs: Vec<(&str, &Path)> = vec![("model", &model)];
-    if let Some(p) = &nerf_field {
-        inputs.push(("nerf_field", p));
-    }
+    let mut guard = nerfsv_pipeline::Guard::new()
+        .output("out", &out)
+        .input("model", &model)
+        .input_opt("nerf_field", nerf_field.as_deref());
     if let Some(p) = &mesh {
-        inputs.push(("mesh", p));
+        guard = guard.mesh("mesh", p);
     }
-    nerfsv_pipeline::refuse_output_inside(&out, &inputs).map_err(py_err)?;
+    guard.check().map_err(py_err)?;
     let ground_truth = scene_of(scene, mesh.as_deref())?;
     let remote = executor.map(PyExecutor);
     let figures = py

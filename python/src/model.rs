@@ -279,7 +279,7 @@ pub fn train(
         (None, None) => Budget::Seconds(300.0),
     };
     must_exist(&data, "data")?;
-    nerfsv_pipeline::refuse_output_inside(&out, &[("data", &data)]).map_err(py_err)?;
+    nerfsv_pipeline::Guard::new().dataset("data", &data).output("out", &out).check().map_err(py_err)?;
     let split = py.detach(|| load_dataset_split(&data, "train", 1).map_err(Box::new)).map_err(py_err)?;
     let mut failed: Option<PyErr> = None;
     let trained = py.detach(|| {

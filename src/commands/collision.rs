@@ -3,8 +3,8 @@ use std::path::PathBuf;
 use clap::Args;
 use nerfsv_collision::{check_cells_per_metre, check_grid_memory, field_bounds, scene_field, GridGeometry, SdfGrid};
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::refuse_output_inside;
 use nerfsv_pipeline::stages::{build_ground_truth, build_nerf_field};
+use nerfsv_pipeline::Guard;
 use nerfsv_scene::{Aabb, Scene};
 
 use crate::commands::world::{load_mesh_scene, MeshArgs};
@@ -50,14 +50,14 @@ pub struct CollisionArgs {
 pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
     check_cells_per_metre("--cells-per-metre", args.cells_per_metre)?;
     let mesh = args.mesh.as_deref();
+    let mut guard = Guard::new().output("--out", &args.out).output_opt("--mesh", mesh);
+    if let Some(path) = &args.gt_mesh {
+        guard = guard.mesh("--gt-mesh", path);
+    }
+    guard.input_opt("--model", args.model.as_deref()).input_opt("--gt", args.gt.as_deref()).check()?;
     let ground_truth = match (&args.scene, &args.gt_mesh) {
         (Some(name), _) => Some(Scene::builtin(name)?),
-        (None, Some(path)) => {
-            for out in std::iter::once(args.out.as_path()).chain(mesh) {
-                refuse_output_inside(out, &[("--gt-mesh", path)])?;
-            }
-            Some(load_mesh_scene(path, &args.mesh_options)?)
-        }
+        (None, Some(path)) => Some(load_mesh_scene(path, &args.mesh_options)?),
         (None, None) => None,
     };
     let figures = match &args.model {
@@ -73,13 +73,6 @@ pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
         Some(model) => {
             if let Some(t) = args.density_threshold {
                 nerfsv_scene::validate::positive("--density-threshold", f64::from(t))?;
-            }
-            let mut inputs = vec![("--model", model.as_path())];
-            if let Some(gt) = &args.gt {
-                inputs.push(("--gt", gt.as_path()));
-            }
-            for out in std::iter::once(args.out.as_path()).chain(mesh) {
-                refuse_output_inside(out, &inputs)?;
             }
             let given = args.gt.as_deref().map(SdfGrid::load).transpose()?;
             let nerf = Nerf::load(model)?;

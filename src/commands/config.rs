@@ -39,6 +39,7 @@ const TABLES: &[(&str, &str, FieldDocs)] = &[
     ("uq_offline", "UqOfflineConfig", nerfsv_pipeline::UqOfflineConfig::FIELD_DOCS),
     ("online", "OnlineConfig", nerfsv_pipeline::OnlineConfig::FIELD_DOCS),
     ("world", "WorldConfig", nerfsv_pipeline::WorldConfig::FIELD_DOCS),
+    ("ensemble", "EnsembleConfig", nerfsv_pipeline::EnsembleConfig::FIELD_DOCS),
 ];
 
 /// Comment lines are wrapped at this width.

@@ -1,7 +1,7 @@
 use std::path::{Path, PathBuf};
 
 use clap::{Args, ValueEnum};
-use nerfsv_pipeline::{refuse_output_inside, RunConfig};
+use nerfsv_pipeline::{Guard, RunConfig};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
 use nerfsv_study::drone_disturbances;
@@ -54,16 +54,13 @@ pub struct DroneArgs {
 }
 
 impl DroneArgs {
-    /// The files read, for `refuse_output_inside`.
-    pub fn inputs(&self) -> Vec<(&'static str, &Path)> {
-        let mut inputs: Vec<(&str, &Path)> = vec![("--model", &self.model)];
-        if let Some(p) = &self.nerf_field {
-            inputs.push(("--nerf-field", p));
+    /// The files read, for the guard against writing over them.
+    pub fn inputs(&self, guard: Guard) -> Guard {
+        let guard = guard.input("--model", &self.model).input_opt("--nerf-field", self.nerf_field.as_deref());
+        match &self.gt_mesh {
+            Some(p) => guard.mesh("--gt-mesh", p),
+            None => guard,
         }
-        if let Some(p) = &self.gt_mesh {
-            inputs.push(("--gt-mesh", p));
-        }
-        inputs
     }
 
     /// The scene and the drone's worlds ([`FlightInputs::from_files`], the ground truth at
@@ -134,11 +131,11 @@ impl From<EstimatorArg> for EstimatorKind {
 
 pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let cfg = load_config(args.config.as_deref())?;
-    let mut inputs = args.drone.inputs();
-    if let Some(p) = &args.disturbances {
-        inputs.push(("--disturbances", p));
-    }
-    refuse_output_inside(&args.out, &inputs)?;
+    let guard = args.drone.inputs(Guard::new().output("--out", &args.out));
+    guard
+        .input_opt("--disturbances", args.disturbances.as_deref())
+        .input_opt("--config", args.config.as_deref())
+        .check()?;
 
     // Everything that can be refused is checked before anything is written.
     let disturbances = match (&args.disturbances, args.random_seed) {

@@ -8,7 +8,7 @@ use nerfsv_dataset::Split;
 use nerfsv_nerf::{evaluate_with_progress, render_split, Budget, EvalOptions, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::{load_dataset_split, train_status, EvalFigures};
-use nerfsv_pipeline::{load_toml, refuse_output_inside, NerfSettings, Observer};
+use nerfsv_pipeline::{load_toml, Guard, NerfSettings, Observer};
 use nerfsv_scene::validate::{in_range, positive};
 
 use crate::progress::Reporter;
@@ -114,7 +114,11 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         }
         (None, None) => Budget::Seconds(300.0),
     };
-    refuse_output_inside(&args.out, &[("--data", &args.data)])?;
+    Guard::new()
+        .dataset("--data", &args.data)
+        .input_opt("--config", args.config.as_deref())
+        .output("--out", &args.out)
+        .check()?;
     let data = load_dataset_split(&args.data, "train", args.downscale)?;
     nerfsv_scene::io::remove_stale_temporaries_in(&args.out);
     let created = !args.out.exists();
@@ -171,7 +175,11 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_render(args: RenderArgs) -> anyhow::Result<()> {
-    refuse_output_inside(&args.out, &[("--data", &args.input.data), ("--model", &args.input.model)])?;
+    Guard::new()
+        .dataset("--data", &args.input.data)
+        .input("--model", &args.input.model)
+        .output("--out", &args.out)
+        .check()?;
     let (nerf, split) = args.input.load()?;
     nerfsv_scene::io::remove_stale_temporaries_in(&args.out);
     render_split(&nerf, &split, &args.out, [1.0, 1.0, 1.0])

@@ -16,6 +16,9 @@ pub struct RunArgs {
     /// Print one JSON object with the figures instead of progress.
     #[arg(long)]
     pub json: bool,
+    /// Check the config (values, start and goal, memory, paths) and write nothing.
+    #[arg(long)]
+    pub check: bool,
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
@@ -27,17 +30,26 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         cfg.out = out;
     }
     let reporter = Reporter::new(args.json);
-    let (scene, warnings) = cfg.ground_truth()?;
+    let named = |e: nerfsv_pipeline::PipelineError| match (&args.config, e) {
+        (Some(path), nerfsv_pipeline::PipelineError::Invalid(error)) => {
+            anyhow::Error::new(nerfsv_pipeline::PipelineError::InvalidConfig { path: path.clone(), error })
+        }
+        (Some(path), e @ nerfsv_pipeline::PipelineError::World { .. }) => {
+            anyhow::anyhow!("{}: invalid config: {e}", path.display())
+        }
+        (_, e) => e.into(),
+    };
+    let (scene, warnings) = cfg.ground_truth().map_err(named)?;
     for w in &warnings {
         reporter.note("world", &format!("warning: {w}"));
     }
-    if let Some(scene) = &scene {
-        cfg.check_world_fits(scene)?;
-        if let Some(p) = &args.config {
-            // Before any stage: a start or goal inside the scene, named with its file.
-            cfg.check_endpoints(scene)
-                .map_err(|error| nerfsv_pipeline::PipelineError::InvalidConfig { path: p.clone(), error })?;
-        }
+    // Before any stage writes: every value, the flight's ends, the grid's memory, the paths.
+    cfg.preflight(scene.as_ref()).map_err(named)?;
+    nerfsv_pipeline::run_guard(&cfg).check()?;
+    if args.check {
+        let name = args.config.as_ref().map_or("the default config".into(), |p| p.display().to_string());
+        eprintln!("{name}: ready to run into {} (nothing written)", cfg.out.display());
+        return Ok(());
     }
     let summary = nerfsv_pipeline::run_in(&cfg, scene.as_ref(), &reporter)?;
     let index = cfg.out.join(nerfsv_pipeline::report::REPORT).join(nerfsv_pipeline::report::INDEX);

@@ -65,12 +65,29 @@ impl SceneArgs {
     }
 }
 
+/// The flag a user typed for each generation option the command sets.
+const FLAGS: [(&str, &str); 8] = [
+    ("width", "--width"),
+    ("height", "--height"),
+    ("train", "--train"),
+    ("val", "--val"),
+    ("test", "--test"),
+    ("camera_angle_x", "--fov"),
+    ("close_up_fraction", "--close-up"),
+    ("supersample", "--supersample"),
+];
+
 pub fn run(args: SceneArgs) -> anyhow::Result<()> {
+    // Before anything is read or written, each bad value named by its flag.
+    args.options().validate().map_err(|mut e| {
+        if let Some((_, flag)) = FLAGS.iter().find(|(field, _)| *field == e.field) {
+            e.field = flag.to_string();
+        }
+        e
+    })?;
     if let Some(mesh) = &args.world.mesh {
-        // The mesh's textures sit beside it: its folder is an input too.
-        let folder = mesh.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
-        nerfsv_pipeline::refuse_output_inside(&args.out, &[("--mesh", mesh)])?;
-        nerfsv_pipeline::refuse_output_holding(&args.out, &[("--mesh", mesh), ("--mesh's folder", folder)])?;
+        // The mesh's textures sit beside it: they are inputs too.
+        nerfsv_pipeline::Guard::new().mesh("--mesh", mesh).output("--out", &args.out).check()?;
     }
     let scene = args.world.load()?;
     let reporter = Reporter::new(args.json);

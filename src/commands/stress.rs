@@ -1,8 +1,8 @@
 use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
-use nerfsv_pipeline::refuse_output_inside;
 use nerfsv_pipeline::stress::{run_stress, StressRequest};
+use nerfsv_pipeline::Guard;
 use nerfsv_study::stress::{journal_dir, OnlineSettings, Sampler};
 use nerfsv_study::UqMode;
 use nerfsv_uq::{Method, UncertaintyField};
@@ -103,11 +103,8 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         cfg.validation.seed = seed;
     }
     let d = &args.drone;
-    let mut inputs = d.inputs();
-    if let Some(f) = &args.field {
-        inputs.push(("--field", f));
-    }
-    refuse_output_inside(&args.out, &inputs)?;
+    let guard = d.inputs(Guard::new().output("--out", &args.out));
+    guard.input_opt("--field", args.field.as_deref()).input_opt("--config", args.config.as_deref()).check()?;
     let online = args.reward.map(|m| (m, true)).or(args.measure.map(|m| (m, false))).map(|(m, reward)| {
         let mode = match args.uncertainty {
             UqModeArg::Exact => UqMode::Exact,

@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::{refuse_output_inside, Observer};
+use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_scene::validate::in_range;
 use nerfsv_uq::offline::{
     ause_frames, csv, figure_files, has_split, offline_split, write_files, ImageAuse, Method, OfflineSummary, SPLITS,
@@ -217,7 +217,7 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
             cfg.max_rays = n;
         }
     }
-    refuse_output_inside(&args.out, &[("--data", &args.data), ("--model", &args.model)])?;
+    Guard::new().dataset("--data", &args.data).input("--model", &args.model).output("--out", &args.out).check()?;
     if !args.data.is_dir() {
         anyhow::bail!("{}: no such dataset folder", args.data.display());
     }

@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::Args;
 use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::{refuse_output_inside, Observer};
+use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_uq::offline::{build_field, has_split, save_field_with_slice, Method, FIELD_SLICE_ALTITUDE};
 use serde::Serialize;
 
@@ -71,7 +71,7 @@ struct Summary {
 
 pub fn run(args: FieldArgs) -> anyhow::Result<()> {
     let cfg = load_uq_config(args.config.as_deref())?;
-    refuse_output_inside(&args.out, &[("--data", &args.data), ("--model", &args.model)])?;
+    Guard::new().dataset("--data", &args.data).input("--model", &args.model).output("--out", &args.out).check()?;
     if !has_split(&args.data, "train") {
         anyhow::bail!(
             "{}: no transforms_train.json (or transforms.json): not a Blender-format dataset",

@@ -23,7 +23,7 @@ pub mod writer;
 pub use error::DatasetError;
 pub use generate::{generate, sample_cameras, GenerateOptions};
 pub use nerfsv_scene::image::{DepthImage, Image};
-pub use transforms::{load_split, Frame, LoadOptions, Split};
+pub use transforms::{dataset_files, load_split, Frame, LoadOptions, Split};
 pub use writer::{write_split, FrameToWrite};
 
 /// The split names of the Blender format, in the order they are written.

@@ -137,6 +137,34 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     Ok(Split { name: split.to_string(), path, frames, aabb_scale })
 }
 
+/// The files a dataset folder's loader reads, as far as its transforms files can be parsed:
+/// every `transforms*.json` it would open and the images and depth images their frames name
+/// (resolved as [`load_split`] resolves them, not followed through symbolic links). A guard
+/// against writing over an input needs them: a split folder may be a link to another folder.
+/// A transforms file that cannot be read or parsed lists only itself (loading it fails later,
+/// by name).
+pub fn dataset_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files = Vec::new();
+    let names = ["transforms_train.json", "transforms_val.json", "transforms_test.json", "transforms.json"];
+    for path in names.iter().map(|n| dir.join(n)).filter(|p| p.exists()) {
+        let base = path.parent().unwrap_or(Path::new("."));
+        let root = std::fs::read_to_string(&path)
+            .ok()
+            .and_then(|text| serde_json::from_str::<Value>(&quote_non_finite(&text)).ok());
+        let frames = root.as_ref().and_then(|r| r.get("frames")).and_then(Value::as_array);
+        for frame in frames.into_iter().flatten() {
+            if let Some(f) = frame.get("file_path").and_then(Value::as_str).filter(|f| check_inside(f).is_ok()) {
+                files.push(resolve_image(base, f));
+            }
+            if let Some(d) = frame.get("depth_file_path").and_then(Value::as_str).filter(|d| check_inside(d).is_ok()) {
+                files.push(base.join(d));
+            }
+        }
+        files.push(path);
+    }
+    files
+}
+
 /// Intrinsics fields as far as one JSON object gives them.
 #[derive(Clone, Copy, Default)]
 struct PartialIntrinsics {

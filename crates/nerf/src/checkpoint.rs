@@ -193,6 +193,20 @@ pub fn read(path: &Path, need_optimizer: bool) -> Result<Checkpoint, NerfError> 
     let config: NerfConfig =
         serde_json::from_str(field("nerf_config")?).map_err(|e| bad("nerf_config", e.to_string()))?;
     config.validate().map_err(|e| invalid(e.within("nerf_config")))?;
+    // The box again for other tools (torch-ngp's `aabb`): when present it must be the config's,
+    // or the file means two boxes.
+    if let Some(text) = meta.get("aabb") {
+        let aabb: [[f32; 3]; 2] = serde_json::from_str(text).map_err(|e| bad("aabb", e.to_string()))?;
+        if aabb != [config.aabb_min, config.aabb_max] {
+            return Err(bad(
+                "aabb",
+                format!(
+                    "{aabb:?} is not nerf_config's box [{:?}, {:?}] (min before max)",
+                    config.aabb_min, config.aabb_max
+                ),
+            ));
+        }
+    }
     let step: u64 = field("step")?.parse().map_err(|e| bad("step", format!("{e}")))?;
     in_range("step", step, 0, MAX_STEPS).map_err(invalid)?;
     let seed: u64 = field("seed")?.parse().map_err(|e| bad("seed", format!("{e}")))?;

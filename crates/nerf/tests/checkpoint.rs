@@ -91,6 +91,21 @@ fn a_crafted_step_beyond_any_run_is_refused_naming_step() {
 }
 
 #[test]
+fn a_box_for_other_tools_that_is_not_the_configs_is_refused_naming_aabb() {
+    let (_dir, good) = saved_checkpoint();
+    let c = tiny_config();
+    for (name, aabb) in
+        [("swapped.safetensors", [c.aabb_max, c.aabb_min]), ("other.safetensors", [[-9.0; 3], [9.0; 3]])]
+    {
+        let p = rewrite(&good, name, set("aabb", serde_json::to_string(&aabb).unwrap()), |_, _| {});
+        let message = read(&p, false).err().unwrap().to_string();
+        assert!(message.contains(name) && message.contains("metadata field aabb"), "{message}");
+    }
+    // The box as written reads back.
+    assert!(read(&good, false).is_ok());
+}
+
+#[test]
 fn out_of_range_configs_in_the_metadata_are_refused_naming_the_key_and_value() {
     let (_dir, good) = saved_checkpoint();
     let mut nerf = serde_json::to_value(tiny_config()).unwrap();

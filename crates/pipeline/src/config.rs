@@ -98,6 +98,9 @@ pub struct RunConfig {
     /// A user's own world instead of the built-in `scene`: a mesh as the ground truth and a
     /// dataset folder used as is (the `[world]` table).
     pub world: WorldConfig,
+    /// More NeRFs of the same data with other seeds: the world's model uncertainty, NeRF-sim's
+    /// world with `sim.nerf_world = "ensemble"` (the `[ensemble]` table).
+    pub ensemble: EnsembleConfig,
 }
 
 /// A user's own world, the `[world]` table. Relative paths are read from the config file's
@@ -194,6 +197,49 @@ impl Validate for UqOfflineConfig {
     }
 }
 
+/// The ensemble, the `[ensemble]` table.
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EnsembleConfig {
+    /// NeRFs in the ensemble, the deployed model (member 0) included: 1 to 16. Member k ≥ 1 is
+    /// trained like the deployed model with the training seed `train.seed + k`; 1 trains none.
+    pub members: usize,
+    /// Training steps of each member after the deployed one; none (the default): the deployed
+    /// model's `train_steps`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steps: Option<u64>,
+    /// Train each member after the deployed one on a bootstrap of the training views (as many
+    /// views as the split has, drawn with replacement, seeded by the member's seed) instead of on
+    /// all of them.
+    pub bootstrap: bool,
+}
+
+impl Default for EnsembleConfig {
+    fn default() -> Self {
+        Self { members: 1, steps: None, bootstrap: false }
+    }
+}
+
+/// Most members an ensemble may have.
+pub const MAX_MEMBERS: usize = 16;
+
+impl Validate for EnsembleConfig {
+    fn validate(&self) -> Result<(), InvalidValue> {
+        in_range("members", self.members, 1, MAX_MEMBERS)?;
+        if let Some(steps) = self.steps {
+            in_range("steps", steps, 1, MAX_TRAIN_STEPS)?;
+        }
+        Ok(())
+    }
+}
+
+impl EnsembleConfig {
+    /// The training seed of member `k` of an ensemble whose deployed model has `seed`.
+    pub fn member_seed(seed: u64, k: usize) -> u64 {
+        seed.wrapping_add(k as u64)
+    }
+}
+
 impl Default for RunConfig {
     fn default() -> Self {
         Self {
@@ -215,6 +261,7 @@ impl Default for RunConfig {
             uq_offline: UqOfflineConfig::default(),
             online: OnlineConfig::default(),
             world: WorldConfig::default(),
+            ensemble: EnsembleConfig::default(),
         }
     }
 }
@@ -318,6 +365,141 @@ impl RunConfig {
     }
 }
 
+impl RunConfig {
+    /// The collision grid the flights plan and crash in: the ground truth's field bounds
+    /// ([`nerfsv_collision::field_bounds`]), or the NeRF's box for a world without a ground
+    /// truth, at `cells_per_metre`.
+    pub fn collision_grid(
+        &self,
+        scene: Option<&nerfsv_scene::Scene>,
+    ) -> Result<nerfsv_collision::GridGeometry, InvalidValue> {
+        let bounds = match scene {
+            Some(scene) => nerfsv_collision::field_bounds(&scene.bounds()),
+            None => nerfsv_scene::Aabb::new(self.nerf.aabb_min.into(), self.nerf.aabb_max.into()),
+        };
+        nerfsv_collision::GridGeometry::covering(&bounds, self.cells_per_metre)
+            .map_err(|e| InvalidValue::new("cells_per_metre", e.to_string(), self.cells_per_metre))
+    }
+
+    /// Everything about the run that can be checked before its first stage, in well under a
+    /// second, each refusal naming its key once: the values' ranges ([`Validate`]); the
+    /// collision grid's memory; the flight's start and goal apart by more than
+    /// `sim.goal_tolerance_m`, inside the NeRF's box, inside the collision grid with the drone's
+    /// body and in the planner's altitude band, and clear of the ground truth's geometry
+    /// ([`RunConfig::check_endpoints`]); a mesh world inside the NeRF's box and, with a dataset
+    /// of its own, seen by that dataset's cameras.
+    pub fn preflight(&self, scene: Option<&nerfsv_scene::Scene>) -> Result<(), PipelineError> {
+        self.validate()?;
+        // The world first: a mesh of the wrong scale or axis explains what the checks of the
+        // flight's ends would find wrong.
+        if let Some(scene) = scene {
+            self.check_world_fits(scene)?;
+            self.check_cameras_see(scene)?;
+        }
+        let grid = self.collision_grid(scene)?;
+        nerfsv_collision::check_grid_memory("cells_per_metre", &grid)?;
+        let (start, goal) = (nalgebra::Vector3::from(self.sim.start), nalgebra::Vector3::from(self.sim.goal));
+        let shown = |p: &nalgebra::Vector3<f64>| format!("[{}, {}, {}]", p.x, p.y, p.z);
+        // Validated finite: a distance at or within the tolerance leaves nowhere to fly.
+        if (goal - start).norm() <= self.sim.goal_tolerance_m {
+            return Err(InvalidValue::new(
+                "sim.goal",
+                format!(
+                    "must lie more than sim.goal_tolerance_m = {} m from sim.start {} (it is {:.3} m away: the \
+                     flight would have reached its goal before it starts)",
+                    self.sim.goal_tolerance_m,
+                    shown(&start),
+                    (goal - start).norm()
+                ),
+                shown(&goal),
+            )
+            .into());
+        }
+        let (lo, hi) = (self.nerf.aabb_min, self.nerf.aabb_max);
+        for (key, which, p) in [("sim.start", "start", start), ("sim.goal", "goal", goal)] {
+            if !(0..3).all(|d| p[d] >= f64::from(lo[d]) && p[d] <= f64::from(hi[d])) {
+                return Err(InvalidValue::new(
+                    key,
+                    format!("must lie inside the NeRF's box nerf.aabb_min {lo:?} .. nerf.aabb_max {hi:?}"),
+                    shown(&p),
+                )
+                .into());
+            }
+            let placed = nerfsv_sim::planner::check_placement(
+                which,
+                &p,
+                &grid.bounds(),
+                nerfsv_collision::drone_half_extents(),
+                &self.sim.planner,
+            );
+            let expected = match placed {
+                Ok(()) => continue,
+                Err(nerfsv_sim::PlanError::OutsideGrid { usable_min: a, usable_max: b, .. }) => format!(
+                    "must lie inside the collision grid with the drone's body around it: the body centre within \
+                     ({:.2}, {:.2}, {:.2}) to ({:.2}, {:.2}, {:.2}) (the grid covers {}, at cells_per_metre)",
+                    a.x,
+                    a.y,
+                    a.z,
+                    b.x,
+                    b.y,
+                    b.z,
+                    if scene.is_some() {
+                        "the ground truth's bounds grown by 0.1 m and reaching 1 m up"
+                    } else {
+                        "the NeRF's box"
+                    }
+                ),
+                Err(nerfsv_sim::PlanError::OutsideAltitude { band, .. }) => {
+                    format!(
+                        "must fly inside the planner's altitude band sim.planner.altitude [{}, {}] m",
+                        band[0], band[1]
+                    )
+                }
+                Err(other) => other.to_string(),
+            };
+            return Err(InvalidValue::new(key, expected, shown(&p)).into());
+        }
+        if let Some(scene) = scene {
+            self.check_endpoints(scene)?;
+        }
+        Ok(())
+    }
+
+    /// A user's dataset must show the user's mesh: the principal ray of at least half of its
+    /// training views crosses the mesh's box (grown by a tenth of its size).
+    fn check_cameras_see(&self, scene: &nerfsv_scene::Scene) -> Result<(), PipelineError> {
+        let (Some(folder), Some(mesh)) = (&self.world.dataset, scene.mesh()) else { return Ok(()) };
+        let bounds = mesh.bounds();
+        let options = nerfsv_dataset::LoadOptions { downscale: 1, load_depth: false };
+        let split = nerfsv_dataset::load_split(folder, "train", options).map_err(|error| PipelineError::Dataset {
+            context: format!("loading the train split of {}", folder.display()),
+            error,
+        })?;
+        let grown = bounds.expanded(0.1 * bounds.extent().norm());
+        let seeing = split
+            .frames
+            .iter()
+            .filter(|f| {
+                let k = f.camera.intrinsics;
+                grown.intersect(&f.camera.ray(k.cx, k.cy)).is_some()
+            })
+            .count();
+        if seeing * 2 >= split.frames.len().max(1) {
+            return Ok(());
+        }
+        Err(PipelineError::World {
+            key: "world.dataset",
+            message: format!(
+                "{}: {} of its {} training views look at the mesh (world.mesh): the dataset and the mesh are not of \
+                 one world (a different scale or up axis?)",
+                folder.display(),
+                seeing,
+                split.frames.len()
+            ),
+        })
+    }
+}
+
 impl Validate for RunConfig {
     fn validate(&self) -> Result<(), InvalidValue> {
         if self.world.mesh.is_none() && !nerfsv_scene::BUILTIN_SCENES.contains(&self.scene.as_str()) {
@@ -343,6 +525,19 @@ impl Validate for RunConfig {
         }
         self.sim.validate().map_err(|e| e.within("sim"))?;
         self.validation.validate().map_err(|e| e.within("validation"))?;
+        self.ensemble.validate().map_err(|e| e.within("ensemble"))?;
+        if self.sim.nerf_world == nerfsv_sim::NerfWorldSource::Ensemble && self.ensemble.members < 2 {
+            return Err(InvalidValue::new(
+                "sim.nerf_world",
+                format!(
+                    "\"ensemble\" flies NeRF-sim in the ensemble's members after the deployed NeRF, and \
+                     ensemble.members = {} has none: set ensemble.members to 2 or more, or sim.nerf_world = \
+                     \"deployed\"",
+                    self.ensemble.members
+                ),
+                "\"ensemble\"",
+            ));
+        }
         let d = self.validation.disturbance.mean.len();
         if d != Disturbance::DIM {
             return Err(InvalidValue::new(
@@ -387,6 +582,10 @@ mod tests {
             ("[uq_offline]\nga_images_per_split = 0", "uq_offline.ga_images_per_split", "0"),
             ("[online]\nmc_rollouts = 0", "online.mc_rollouts", "0"),
             ("[online]\nmethods = [\"ga\", \"ga\"]", "online.methods", "Ga"),
+            ("[sim]\nnerf_world = \"ensemble\"", "sim.nerf_world", "ensemble"),
+            ("[sim]\nnerf_world = \"ensemble\"\n[ensemble]\nmembers = 1", "sim.nerf_world", "ensemble"),
+            ("[ensemble]\nmembers = 17", "ensemble.members", "17"),
+            ("[ensemble]\nsteps = 0", "ensemble.steps", "0"),
         ] {
             std::fs::write(&path, text).unwrap();
             let e = RunConfig::load(&path).unwrap_err().to_string();

@@ -61,13 +61,15 @@
 //! # Ok::<(), PipelineError>(())
 //! ```
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use serde::Serialize;
 
 pub mod config;
 pub mod digest;
+pub mod ensemble;
 pub mod flight;
+pub mod guard;
 pub mod layout;
 pub mod online;
 pub mod report;
@@ -77,7 +79,10 @@ pub mod stages;
 pub mod stress;
 pub mod uq;
 
-pub use config::{load_toml, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate, WorldConfig};
+pub use config::{
+    load_toml, EnsembleConfig, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate, WorldConfig,
+};
+pub use guard::Guard;
 pub use layout::{summary_path, SUMMARY};
 pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext};
 
@@ -112,10 +117,12 @@ pub enum PipelineError {
     Study(#[from] nerfsv_study::StudyError),
     #[error("stage {stage} reads stage {input}, which has not run before it")]
     MissingInput { stage: &'static str, input: &'static str },
-    #[error("{}: is inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
+    #[error("{}: is or lies inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
     OutputInsideInput { output: PathBuf, option: String, input: PathBuf },
-    #[error("{}: holds {option} {}, and the command replaces it whole; refusing to delete an input", .output.display(), .input.display())]
+    #[error("{}: holds {option} {}; refusing to write over or delete an input", .output.display(), .input.display())]
     OutputHoldsInput { output: PathBuf, option: String, input: PathBuf },
+    #[error("{first} and {second} are one path or one lies inside the other; two outputs must be apart")]
+    OutputsOverlap { first: String, second: String },
     #[error("{key}: {message}")]
     World { key: &'static str, message: String },
     #[error("{0}")]
@@ -125,60 +132,6 @@ pub enum PipelineError {
 impl PipelineError {
     pub fn io(path: impl Into<PathBuf>, error: std::io::Error) -> Self {
         Self::Io { path: path.into(), error }
-    }
-}
-
-/// Refuses an output path that lies inside (or is) one of a command's inputs, so that no
-/// command can overwrite what it reads: `inputs` are (option name, path) pairs.
-pub fn refuse_output_inside(output: &Path, inputs: &[(&str, &Path)]) -> Result<(), PipelineError> {
-    let out = resolve(output);
-    for (option, input) in inputs {
-        let input = resolve(input);
-        if out.starts_with(&input) {
-            return Err(PipelineError::OutputInsideInput {
-                output: output.to_path_buf(),
-                option: option.to_string(),
-                input: input.clone(),
-            });
-        }
-    }
-    Ok(())
-}
-
-/// Refuses an output folder that a command replaces whole when it holds one of the command's
-/// inputs (a mesh and its textures inside the dataset folder it renders into): `inputs` are
-/// (option name, path) pairs.
-pub fn refuse_output_holding(output: &Path, inputs: &[(&str, &Path)]) -> Result<(), PipelineError> {
-    let out = resolve(output);
-    for (option, input) in inputs {
-        let resolved = resolve(input);
-        if resolved.starts_with(&out) {
-            return Err(PipelineError::OutputHoldsInput {
-                output: output.to_path_buf(),
-                option: option.to_string(),
-                input: resolved,
-            });
-        }
-    }
-    Ok(())
-}
-
-/// `path` made absolute with symbolic links resolved, as far as it exists (the rest appended).
-fn resolve(path: &Path) -> PathBuf {
-    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
-    let mut existing = absolute.as_path();
-    let mut rest = Vec::new();
-    loop {
-        if let Ok(real) = existing.canonicalize() {
-            return rest.iter().rev().fold(real, |p, c| p.join(c));
-        }
-        match (existing.parent(), existing.file_name()) {
-            (Some(parent), Some(name)) => {
-                rest.push(name.to_os_string());
-                existing = parent;
-            }
-            _ => return absolute,
-        }
     }
 }
 
@@ -211,32 +164,17 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     run_in(cfg, scene.as_ref(), observer)
 }
 
-/// A user's dataset must show the user's mesh: the principal ray of at least half of its
-/// training views crosses the mesh's box (grown by a tenth of its size).
-fn check_cameras_see(folder: &Path, bounds: &nerfsv_scene::Aabb) -> Result<(), PipelineError> {
-    let split = stages::load_dataset_split(folder, "train", 1)?;
-    let grown = bounds.expanded(0.1 * bounds.extent().norm());
-    let seeing = split
-        .frames
-        .iter()
-        .filter(|f| {
-            let k = f.camera.intrinsics;
-            grown.intersect(&f.camera.ray(k.cx, k.cy)).is_some()
-        })
-        .count();
-    if seeing * 2 >= split.frames.len().max(1) {
-        return Ok(());
+/// What a run reads (the `[world]` table's dataset and mesh) and writes (its run folder), for
+/// the guard against writing over an input.
+pub fn run_guard(cfg: &RunConfig) -> Guard {
+    let mut guard = Guard::new().output("the run folder", &cfg.out);
+    if let Some(dataset) = &cfg.world.dataset {
+        guard = guard.dataset("world.dataset", dataset);
     }
-    Err(PipelineError::World {
-        key: "world.dataset",
-        message: format!(
-            "{}: {} of its {} training views look at the mesh (world.mesh): the dataset and the mesh are not of \
-             one world (a different scale or up axis?)",
-            folder.display(),
-            seeing,
-            split.frames.len()
-        ),
-    })
+    if let Some(mesh) = &cfg.world.mesh {
+        guard = guard.mesh("world.mesh", mesh);
+    }
+    guard
 }
 
 /// Why a world without a ground truth skips a stage.
@@ -251,14 +189,8 @@ pub fn run_in(
     scene: Option<&nerfsv_scene::Scene>,
     observer: &dyn Observer,
 ) -> Result<Summary, PipelineError> {
-    cfg.validate()?;
-    if let Some(scene) = scene {
-        cfg.check_world_fits(scene)?;
-        cfg.check_endpoints(scene)?;
-        if let (Some(folder), Some(mesh)) = (&cfg.world.dataset, scene.mesh()) {
-            check_cameras_see(folder, &mesh.bounds())?;
-        }
-    }
+    cfg.preflight(scene)?;
+    run_guard(cfg).check()?;
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(&cfg.out, observer)?;
     let source = match (&cfg.world.dataset, scene) {
@@ -275,7 +207,14 @@ pub fn run_in(
     }
     r.run(&stages::Train { settings: &settings, steps: cfg.train_steps })?;
     r.run(&stages::Eval)?;
-    r.run(&uq::Uncertainty { uq: &cfg.uq, offline: &cfg.uq_offline })?;
+    r.run(&ensemble::EnsembleStage {
+        settings: &settings,
+        ensemble: &cfg.ensemble,
+        train_steps: cfg.train_steps,
+        density_threshold: cfg.nerf_density_threshold,
+        own_grid: scene.is_none().then_some(cfg.cells_per_metre),
+    })?;
+    r.run(&uq::Uncertainty { uq: &cfg.uq, offline: &cfg.uq_offline, ensemble: cfg.ensemble.members > 1 })?;
     r.run(&stages::NerfField {
         density_threshold: cfg.nerf_density_threshold,
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
@@ -289,6 +228,7 @@ pub fn run_in(
     })?;
     let prior = cfg.disturbance_prior()?;
     let search = stress::StressStage {
+        ensemble: cfg.ensemble.members > 1,
         scene,
         sim: &cfg.sim,
         validation: &cfg.validation,
@@ -334,23 +274,6 @@ pub fn config_toml(cfg: &RunConfig) -> Result<String, PipelineError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn an_output_inside_an_input_is_refused_however_it_is_spelled() {
-        let root = tempfile::tempdir().unwrap();
-        let data = root.path().join("data");
-        std::fs::create_dir_all(data.join("test")).unwrap();
-        let model = root.path().join("model.safetensors");
-        std::fs::write(&model, b"x").unwrap();
-        let inputs = [("--data", data.as_path()), ("--model", model.as_path())];
-        for out in [data.join("test"), data.join("new/deeper"), data.join("test/../test"), data.clone(), model.clone()]
-        {
-            let e = refuse_output_inside(&out, &inputs).unwrap_err().to_string();
-            assert!(e.contains("refusing to write over an input"), "{e}");
-        }
-        assert!(refuse_output_inside(&root.path().join("renders"), &inputs).is_ok());
-        assert!(refuse_output_inside(&root.path().join("data2"), &inputs).is_ok());
-    }
 
     #[test]
     fn the_reported_config_shows_f32_settings_as_written_and_loads_back_to_the_same_config() {

@@ -163,8 +163,12 @@ impl Stage for OnlineStage<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
-        let inputs = flight_inputs(cx.root, true)?;
+        let mut inputs = flight_inputs(cx.root, true)?;
         let s = self.search;
+        if s.ensemble {
+            // Its rewarded searches fly in the stress stage's NeRF world.
+            inputs.members = crate::ensemble::EnsembleStage::load_members(cx.root)?;
+        }
         let flight = inputs.plan(s.sim)?;
         let validation = self.validation();
         let stress_dir = cx.input_dir(nerfsv_study::stress::STAGE);

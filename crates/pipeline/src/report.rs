@@ -108,6 +108,13 @@ impl Table {
         self.rows.extend(rows);
         self
     }
+
+    /// The table as HTML (for an answer line).
+    pub fn html(&self) -> String {
+        let mut out = String::new();
+        table(&mut out, &self.header, &self.rows);
+        out
+    }
 }
 
 impl Section {

@@ -53,6 +53,49 @@ impl Report for crate::stages::Train<'_> {
     const ABOUT: &'static str = "NeRF training";
 }
 
+impl Report for crate::ensemble::EnsembleStage<'_> {
+    const ABOUT: &'static str = "the ensemble's other NeRFs and their collision fields";
+
+    fn report(f: &crate::ensemble::EnsembleFigures, _: &ReportContext) -> Option<Section> {
+        if f.trained.is_empty() {
+            return None;
+        }
+        let mut s = Section::new("ensemble", "The ensemble: the NeRFs the same data could have given", "ensemble");
+        s.paragraph(format!(
+            "{} NeRFs: the deployed model (member 0) and {} more trained like it for {} steps with seeds of their own{}. \
+             Their disagreement stands for what the training views leave undetermined; with sim.nerf_world = \
+             \"ensemble\" NeRF-sim's camera and collisions come from member 1 + (seed mod {}) of each rollout while the \
+             estimator keeps the deployed model.",
+            f.members,
+            f.trained.len(),
+            f.steps,
+            if f.bootstrap { ", each on a bootstrap of the training views" } else { "" },
+            f.trained.len()
+        ));
+        s.table(
+            Table::new(&[
+                "member",
+                "seed",
+                "distinct training views",
+                "test PSNR (dB, first 20 views)",
+                "IoU with the GT field in the flight band",
+                "training (s)",
+            ])
+            .rows(f.trained.iter().map(|m| {
+                vec![
+                    m.member.to_string(),
+                    m.seed.to_string(),
+                    m.distinct_views.to_string(),
+                    num(m.test_psnr, 2),
+                    num(m.band_iou, 3),
+                    num(m.train.seconds, 0),
+                ]
+            })),
+        );
+        Some(s)
+    }
+}
+
 impl Report for Eval {
     const ABOUT: &'static str = "test-split PSNR, SSIM, depth error";
 
@@ -360,6 +403,53 @@ fn clearance_figure(dir: &Path) -> Option<Vec<u8>> {
 /// The study's answer from the stress stage: how likely the drone fails under the disturbance
 /// prior (subset simulation's estimate where the stage ran it, else Monte Carlo's), how
 /// NeRF-sim's failures carry over to GT-sim, and the most likely failure.
+/// A rate with its interval: `3.0 % [1.0, 8.5]`.
+fn rate_ci(value: f64, ci: [f64; 2]) -> String {
+    format!("{} [{:.1}, {:.1}]", pct(value), 100.0 * ci[0], 100.0 * ci[1])
+}
+
+/// A proportion or coefficient with its interval, or "–".
+fn estimate(e: Option<nerfsv_validation::Estimate>) -> String {
+    e.map_or("–".into(), |e| format!("{:.2} [{:.2}, {:.2}]", e.value, e.ci95[0], e.ci95[1]))
+}
+
+/// Each world's crash rate and each NeRF world's agreement with GT-sim, a row per world.
+fn transfer_table(t: &nerfsv_study::stress::TransferFigures) -> Table {
+    let world = |name: &str, r: &nerfsv_study::stress::RateFigure, x: Option<&nerfsv_validation::Transfer>| {
+        let mut row = vec![name.to_string(), format!("{} of {}", r.failures, r.rollouts), rate_ci(r.rate, r.ci95)];
+        match x {
+            Some(x) => row.extend([
+                format!("{} / {}", x.confusion.false_positive, x.confusion.false_negative),
+                format!("{:.2e}", x.mcnemar_p),
+                estimate(x.precision),
+                estimate(x.recall),
+                estimate(x.mcc),
+                format!(
+                    "{} (majority {})",
+                    x.accuracy.map_or("–".into(), |a| format!("{:.2}", a.value)),
+                    num(x.majority_accuracy, 2)
+                ),
+            ]),
+            None => row.extend(std::iter::repeat_n("–".to_string(), 6)),
+        }
+        row
+    };
+    Table::new(&[
+        "world",
+        "MC crashes",
+        "crash rate [95 %]",
+        "only NeRF / only GT",
+        "McNemar exact p",
+        "precision",
+        "recall",
+        "Matthews correlation",
+        "accuracy",
+    ])
+    .row(world("NeRF-sim, deployed NeRF as the world", &t.nerf_deployed, Some(&t.deployed)))
+    .row(world("NeRF-sim, the ensemble as the world", &t.nerf_ensemble, Some(&t.ensemble)))
+    .row(world("GT-sim", &t.gt, None))
+}
+
 fn stress_answer(s: &mut Section, f: &StressFigures) {
     let find = |sampler: Sampler| f.samplers.iter().find(|s| s.sampler == sampler);
     let world = |s: &SamplerFigures| format!("{}-sim, {} estimator", s.world.name(), s.estimator.name());
@@ -437,6 +527,22 @@ impl Report for StressStage<'_> {
         };
         let mut s = Section::new("stress", title, "stress tests");
         stress_answer(&mut s, f);
+        if let Some(t) = &f.transfer {
+            let table = transfer_table(t);
+            s.answer(
+                5,
+                format!(
+                    "<b>Do failures found in a NeRF predict failures in the world?</b> The same {} Monte Carlo rollouts \
+                     (disturbances and seeds) in NeRF-sim with the deployed NeRF as the world, in NeRF-sim with the \
+                     ensemble's other members as the world, and in GT-sim; each NeRF world against GT-sim, failure \
+                     positive, 95 % intervals (rates and proportions Wilson, correlation bootstrap over rollouts):\n{}",
+                    t.gt.rollouts,
+                    table.html()
+                ),
+            );
+            s.paragraph("The transfer table: the Monte Carlo rollouts in both NeRF worlds against GT-sim.");
+            s.table(table);
+        }
         let name = |x: &SamplerFigures| x.sampler.name().to_uppercase();
         s.table(
             Table::new(&[

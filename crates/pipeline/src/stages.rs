@@ -438,6 +438,28 @@ pub fn build_nerf_field(
     })
 }
 
+/// The grid a NeRF's field of run `root` is built on, and the ground truth's field it is
+/// compared with: with `own_grid` `None`, the ground-truth field's own grid (read back from its
+/// stage); with `Some(cells per metre)`, the model's box at that resolution and no comparison.
+pub fn nerf_field_geometry(
+    root: &Path,
+    own_grid: Option<f32>,
+    nerf: &Nerf,
+) -> Result<(nerfsv_collision::GridGeometry, Option<SdfGrid>), PipelineError> {
+    Ok(match own_grid {
+        None => {
+            let reference = SdfGrid::load(GroundTruthField::sdf_path(root))?;
+            (reference.geometry, Some(reference))
+        }
+        Some(cells_per_metre) => {
+            let bounds = nerfsv_scene::Aabb::new(nerf.config.aabb_min.into(), nerf.config.aabb_max.into());
+            let geometry = nerfsv_collision::GridGeometry::covering(&bounds, cells_per_metre)?;
+            nerfsv_collision::check_grid_memory("cells_per_metre", &geometry)?;
+            (geometry, None)
+        }
+    })
+}
+
 impl Stage for NerfField {
     const NAME: &'static str = "nerf_collision";
     const CODE: &'static [&'static str] = &["nerfsv-nerf", "nerfsv-collision", "stages.rs"];
@@ -458,19 +480,7 @@ impl Stage for NerfField {
 
     fn run(&self, cx: &StageContext) -> Result<NerfFieldFigures, PipelineError> {
         let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
-        let (geometry, reference) = match self.own_grid {
-            // Compared on the ground-truth field's own grid, read back from its stage.
-            None => {
-                let reference = SdfGrid::load(GroundTruthField::sdf_path(cx.root))?;
-                (reference.geometry, Some(reference))
-            }
-            Some(cells_per_metre) => {
-                let bounds = nerfsv_scene::Aabb::new(nerf.config.aabb_min.into(), nerf.config.aabb_max.into());
-                let geometry = nerfsv_collision::GridGeometry::covering(&bounds, cells_per_metre)?;
-                nerfsv_collision::check_grid_memory("cells_per_metre", &geometry)?;
-                (geometry, None)
-            }
-        };
+        let (geometry, reference) = nerf_field_geometry(cx.root, self.own_grid, &nerf)?;
         build_nerf_field(
             &nerf,
             geometry,

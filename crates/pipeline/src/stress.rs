@@ -5,20 +5,22 @@ use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{EstimatorKind, Flight, SimConfig, WorldKind};
+use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, WorldKind};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
-    journal_dir, stress, Drone, OnlineSettings, Sampler, StressFigures, StressSetup, ROLLOUTS_CSV, STAGE, STRESS_JSON,
-    TABLE_CSV,
+    journal_dir, replay_csv, stress, Drone, OnlineSettings, Sampler, StressFigures, StressSetup, TransferFigures,
+    ROLLOUTS_CSV, STAGE, STRESS_JSON, TABLE_CSV,
 };
 use nerfsv_study::UqMode;
 use nerfsv_uq::{model_id, UncertaintyField, UqConfig};
-use nerfsv_validation::{Journal, Prior, ValidationConfig};
+use nerfsv_validation::{read_csv_file, Journal, Prior, RolloutRecord, ValidationConfig, SAMPLER_MC};
 use serde::Serialize;
 
+use crate::ensemble::EnsembleStage;
 use crate::flight::{drone_inputs, flight_inputs};
 use crate::stage::{stage_key, write_json, Observer, Stage, StageContext};
+use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::{PipelineError, RunConfig};
 
 /// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
@@ -26,6 +28,11 @@ use crate::{PipelineError, RunConfig};
 /// estimate of the failure probability (its first level from the MC rollouts; not replayed).
 /// Without a ground truth (a world known only by a dataset), nothing is replayed.
 pub struct StressStage<'a> {
+    /// With an ensemble (`[ensemble] members` ≥ 2), its Monte Carlo flies in NeRF-sim with both
+    /// the deployed NeRF and the ensemble as the world (the search's world is `sim.nerf_world`;
+    /// the other flies Monte Carlo only, into `nerf_{deployed,ensemble}/`), and the transfer
+    /// table compares both with GT-sim's replays.
+    pub ensemble: bool,
     pub scene: Option<&'a Scene>,
     pub sim: &'a SimConfig,
     pub validation: &'a ValidationConfig,
@@ -67,7 +74,11 @@ impl Stage for StressStage<'_> {
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        drone_inputs(self.scene.is_some())
+        match (self.scene.is_some(), self.ensemble) {
+            (_, false) => drone_inputs(self.scene.is_some()),
+            (true, true) => &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
+            (false, true) => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
+        }
     }
 
     fn config(&self) -> impl Serialize {
@@ -82,7 +93,10 @@ impl Stage for StressStage<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
-        let inputs = flight_inputs(cx.root, self.scene.is_some())?;
+        let mut inputs = flight_inputs(cx.root, self.scene.is_some())?;
+        if self.ensemble {
+            inputs.members = EnsembleStage::load_members(cx.root)?;
+        }
         let flight = inputs.plan(self.sim)?;
         let uq = UqConfig::default();
         let setup = StressSetup {
@@ -91,11 +105,70 @@ impl Stage for StressStage<'_> {
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
-        Ok(stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)?.0)
+        let (mut figures, records) = stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)?;
+        if self.ensemble && self.scene.is_some() && self.samplers().contains(&Sampler::Mc) {
+            figures.transfer = Some(self.transfer(cx, &inputs, &flight, &records)?);
+        }
+        Ok(figures)
     }
 
     fn describe(f: &StressFigures) -> String {
         f.describe()
+    }
+}
+
+impl StressStage<'_> {
+    /// The search's Monte Carlo flown again in the other NeRF world (deployed or ensemble) with
+    /// the same disturbances and seeds, and both compared with GT-sim's replays of it.
+    fn transfer(
+        &self,
+        cx: &StageContext,
+        inputs: &FlightInputs,
+        flight: &Flight,
+        records: &[RolloutRecord],
+    ) -> Result<TransferFigures, PipelineError> {
+        let other = match self.sim.nerf_world {
+            NerfWorldSource::Deployed => NerfWorldSource::Ensemble,
+            NerfWorldSource::Ensemble => NerfWorldSource::Deployed,
+        };
+        let sim = SimConfig { nerf_world: other, ..self.sim.clone() };
+        let uq = UqConfig::default();
+        let drone = Drone { sim: &sim, ..self.drone(inputs, flight) };
+        let setup = StressSetup {
+            replay: false,
+            reports_p_fail: false,
+            ..StressSetup::new(drone, self.validation, self.prior, &[Sampler::Mc], &uq)
+        };
+        let dir = cx.dir.join(format!("nerf_{}", other.name()));
+        std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
+        let (_, others) = stress(&setup, &dir, Self::NAME, cx.resume, cx.observer)?;
+        let replay_path = cx.dir.join(replay_csv(WorldKind::Gt));
+        let replays = read_csv_file(&replay_path)?;
+        // The search's Monte Carlo rollouts come first among the records and their replays.
+        let mc = |rs: &[RolloutRecord]| -> Vec<RolloutRecord> {
+            rs.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect()
+        };
+        let (ours, others, gt) = (mc(records), mc(&others), mc(&replays));
+        let paired = ours.len() == others.len()
+            && ours.len() == gt.len()
+            && ours.iter().zip(&others).zip(&gt).all(|((a, b), c)| a.seed == b.seed && a.seed == c.seed);
+        if !paired {
+            return Err(PipelineError::Internal(format!(
+                "the transfer table pairs the same Monte Carlo rollouts in three worlds, but they differ ({} in NeRF-sim \
+                 {}, {} in NeRF-sim {}, {} in GT-sim)",
+                ours.len(),
+                self.sim.nerf_world.name(),
+                others.len(),
+                other.name(),
+                gt.len()
+            )));
+        }
+        let failed = |rs: &[RolloutRecord]| rs.iter().map(|r| r.failed).collect::<Vec<bool>>();
+        let (deployed, ensemble) = match self.sim.nerf_world {
+            NerfWorldSource::Deployed => (failed(&ours), failed(&others)),
+            NerfWorldSource::Ensemble => (failed(&others), failed(&ours)),
+        };
+        Ok(TransferFigures::new(&deployed, &ensemble, &failed(&gt), self.validation.seed))
     }
 }
 

@@ -19,6 +19,9 @@ use crate::PipelineError;
 // ---------------------------------------------------------------------------------------------
 // The stage.
 
+/// The seed of the random ordering the ensemble's AUSE is compared with.
+const RANDOM_ORDER_SEED: u64 = 0;
+
 /// The offline uncertainty stage of `nerfsv run`: GA on the images of every split (at most
 /// `ga_images_per_split` each, an even stride), BLA on `bla_images_per_split` of each, and the
 /// depth AUSE of both on their test images. `RUN/uq/` holds `ga.csv` and `bla.csv` (the columns
@@ -27,6 +30,9 @@ use crate::PipelineError;
 pub struct Uncertainty<'a> {
     pub uq: &'a UqConfig,
     pub offline: &'a UqOfflineConfig,
+    /// Whether the run has an ensemble (`[ensemble] members` ≥ 2): its depth AUSE joins GA's
+    /// and BLA's.
+    pub ensemble: bool,
 }
 
 /// What the uncertainty stage reports.
@@ -41,7 +47,24 @@ pub struct UqFigures {
     /// Mean depth AUSE of BLA over its test images, and how many were scored.
     pub ause_bla: Option<f64>,
     pub ause_bla_images: usize,
+    /// With an ensemble: its mean depth AUSE (the deployed model's depth error ranked by the
+    /// members' depth spread), and a random ordering's, over GA's and over BLA's test images.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ensemble_ause: Option<EnsembleAuse>,
     pub seconds: f64,
+}
+
+/// The ensemble's depth AUSE on the images GA and BLA were scored on, with a random ordering's
+/// (the baseline any uncertainty must beat) on the same images.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnsembleAuse {
+    pub members: usize,
+    pub on_ga_images: Option<f64>,
+    pub random_on_ga_images: Option<f64>,
+    pub ga_images: usize,
+    pub on_bla_images: Option<f64>,
+    pub random_on_bla_images: Option<f64>,
+    pub bla_images: usize,
 }
 
 impl Uncertainty<'_> {
@@ -51,10 +74,10 @@ impl Uncertainty<'_> {
 }
 
 /// `ause.csv`: a row per (method, test image): its AUSE and pixels, or why it was skipped.
-fn ause_csv(rows: &[(Method, usize, String, AuseOutcome)]) -> String {
+fn ause_csv(rows: &[(&str, usize, String, AuseOutcome)]) -> String {
     let mut out = String::from("method,split,index,file_path,ause,pixels,unscored_pixels,skipped\n");
     for (method, index, file_path, outcome) in rows {
-        let _ = write!(out, "{},test,{index},{},", method.name(), csv_field(file_path));
+        let _ = write!(out, "{method},test,{index},{},", csv_field(file_path));
         let _ = match outcome {
             AuseOutcome::Scored(c) => writeln!(out, "{},{},{},", c.ause, c.pixels, c.unscored),
             AuseOutcome::Skipped(e) => writeln!(out, ",,,{}", csv_field(&e.to_string())),
@@ -140,20 +163,40 @@ impl Stage for Uncertainty<'_> {
                         note(&format!("{} depth AUSE skipped: {e}", method.name().to_uppercase()));
                     }
                     rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
-                    ause.push((method, index, frame.file_path.clone(), outcome));
+                    ause.push((method.name(), index, frame.file_path.clone(), outcome));
                     tick(&status);
                 }
             }
         }
-        let mean_of = |method: Method| {
+        let ensemble_ause = match chosen.iter().find(|(n, ..)| *n == "test") {
+            Some((_, split, ga_idx, bla_idx)) if self.ensemble => {
+                Some(self.ensemble_ause(cx, &nerf, split, ga_idx, bla_idx, &mut ause)?)
+            }
+            _ => None,
+        };
+        let mean_of = |method: &str, indices: Option<&[usize]>| {
             let scored: Vec<Sparsification> = ause
                 .iter()
-                .filter(|(m, ..)| *m == method)
+                .filter(|(m, index, ..)| *m == method && indices.is_none_or(|i| i.contains(index)))
                 .filter_map(|(.., o)| if let AuseOutcome::Scored(c) = o { Some(c.clone()) } else { None })
                 .collect();
             (mean_ause(&scored), scored.len())
         };
-        let ((ause_ga, ause_ga_images), (ause_bla, ause_bla_images)) = (mean_of(Method::Ga), mean_of(Method::Bla));
+        let ((ause_ga, ause_ga_images), (ause_bla, ause_bla_images)) = (mean_of("ga", None), mean_of("bla", None));
+        let ensemble_ause = ensemble_ause.map(|members| {
+            let (_, _, ga_idx, bla_idx) = chosen.iter().find(|(n, ..)| *n == "test").expect("the test split");
+            let (on_ga_images, ga_images) = mean_of("ensemble", Some(ga_idx));
+            let (on_bla_images, bla_images) = mean_of("ensemble", Some(bla_idx));
+            EnsembleAuse {
+                members,
+                on_ga_images,
+                random_on_ga_images: mean_of("random", Some(ga_idx)).0,
+                ga_images,
+                on_bla_images,
+                random_on_bla_images: mean_of("random", Some(bla_idx)).0,
+                bla_images,
+            }
+        });
 
         let mut files = vec![
             (Self::GA_CSV.to_string(), csv(&ga, Method::Ga).into_bytes()),
@@ -181,8 +224,17 @@ impl Stage for Uncertainty<'_> {
             ause_ga_images,
             ause_bla,
             ause_bla_images,
+            ensemble_ause,
             seconds: start.elapsed().as_secs_f64(),
         })
+    }
+
+    fn inputs(&self) -> &'static [&'static str] {
+        if self.ensemble {
+            &[Dataset::NAME, Train::NAME, crate::ensemble::EnsembleStage::NAME]
+        } else {
+            Self::INPUTS
+        }
     }
 
     fn describe(f: &UqFigures) -> String {
@@ -199,5 +251,43 @@ impl Stage for Uncertainty<'_> {
             f.ause_bla_images,
             f.seconds
         )
+    }
+}
+
+impl Uncertainty<'_> {
+    /// The ensemble's (deployed model and members) depth AUSE and a random ordering's on the
+    /// test images GA and BLA were scored on, as rows `ensemble` and `random` of `ause`;
+    /// returns the ensemble's size.
+    fn ensemble_ause(
+        &self,
+        cx: &StageContext,
+        nerf: &Nerf,
+        split: &nerfsv_dataset::Split,
+        ga_idx: &[usize],
+        bla_idx: &[usize],
+        ause: &mut Vec<(&'static str, usize, String, AuseOutcome)>,
+    ) -> Result<usize, PipelineError> {
+        let members = crate::ensemble::EnsembleStage::load_members(cx.root)?;
+        let all: Vec<&Nerf> = std::iter::once(nerf).chain(members.iter().map(|m| &m.nerf)).collect();
+        let mut indices: Vec<usize> = ga_idx.iter().chain(bla_idx).copied().collect();
+        indices.sort_unstable();
+        indices.dedup();
+        for (n, &index) in indices.iter().enumerate() {
+            cx.progress(n as u64, indices.len() as u64, "ensemble test, depth AUSE");
+            let frame = &split.frames[index];
+            let depth = frame.depth.as_ref().map(|d| &d.metres[..]);
+            let name = frame.file_path.as_str();
+            match nerfsv_uq::ensemble::depth_ause(&all, name, &frame.camera, depth, BACKGROUND, RANDOM_ORDER_SEED) {
+                Ok((ours, random)) => {
+                    ause.push(("ensemble", index, frame.file_path.clone(), AuseOutcome::Scored(ours)));
+                    ause.push(("random", index, frame.file_path.clone(), AuseOutcome::Scored(random)));
+                }
+                Err(e @ (nerfsv_uq::UqError::NoGroundTruthDepth { .. } | nerfsv_uq::UqError::TooFewPixels { .. })) => {
+                    ause.push(("ensemble", index, frame.file_path.clone(), AuseOutcome::Skipped(e)));
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        Ok(all.len())
     }
 }

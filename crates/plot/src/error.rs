@@ -20,11 +20,18 @@ pub enum PlotError {
     Draw(String),
     /// The PNG encoder failed.
     #[error("PNG encoding failed: {0}")]
-    Png(#[from] png::EncodingError),
+    Png(png::EncodingError),
 }
 
 impl<E: std::error::Error + Send + Sync> From<DrawingAreaErrorKind<E>> for PlotError {
     fn from(e: DrawingAreaErrorKind<E>) -> Self {
         PlotError::Draw(e.to_string())
+    }
+}
+
+/// The encoder's error is the message, not a source, so a report of the chain names it once.
+impl From<png::EncodingError> for PlotError {
+    fn from(e: png::EncodingError) -> Self {
+        Self::Png(e)
     }
 }

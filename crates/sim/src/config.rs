@@ -34,6 +34,28 @@ impl CameraConfig {
     }
 }
 
+/// What NeRF-sim's world is made of.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NerfWorldSource {
+    /// The deployed NeRF, the estimator's own map, renders the camera and gives the collision
+    /// field (the paper's NeRF-sim).
+    #[default]
+    Deployed,
+    /// Each rollout flies in another member of the ensemble (member `1 + seed mod (K − 1)` of
+    /// the rollout's seed) while the estimator keeps localising against the deployed NeRF.
+    Ensemble,
+}
+
+impl NerfWorldSource {
+    pub fn name(self) -> &'static str {
+        match self {
+            NerfWorldSource::Deployed => "deployed",
+            NerfWorldSource::Ensemble => "ensemble",
+        }
+    }
+}
+
 /// Everything about a flight: where, how long, the drone, its controller, planner and
 /// estimator.
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -68,6 +90,11 @@ pub struct SimConfig {
     pub camera: Option<CameraConfig>,
     /// Background colour the camera sees where nothing is (the NeRF's render background).
     pub background: [f32; 3],
+    /// NeRF-sim's world: `"deployed"` (the estimator's own NeRF renders the camera and gives the
+    /// collision field, the paper's NeRF-sim) or `"ensemble"` (each stress rollout flies in
+    /// member `1 + seed mod (K − 1)` of the `[ensemble]`, K ≥ 2, while the estimator keeps the
+    /// deployed NeRF). The nominal flights fly the deployed NeRF either way.
+    pub nerf_world: NerfWorldSource,
 }
 
 impl Default for SimConfig {
@@ -86,6 +113,7 @@ impl Default for SimConfig {
             vision: VisionConfig::default(),
             camera: None,
             background: [1.0; 3],
+            nerf_world: NerfWorldSource::Deployed,
         }
     }
 }

@@ -17,8 +17,10 @@ use crate::rollout::Simulator;
 pub enum SimError {
     #[error(transparent)]
     Invalid(#[from] InvalidValue),
+    /// The plan's error is this one's message, not its source, so a report of the whole
+    /// chain names it once.
     #[error("planning on the NeRF's signed field: {0}")]
-    Plan(#[from] PlanError),
+    Plan(PlanError),
     #[error(
         "the model's box [{:.2}, {:.2}, {:.2}]..[{:.2}, {:.2}, {:.2}] does not cover the planned path: \
          the body at ({:.3}, {:.3}, {:.3}) reaches outside it",
@@ -27,6 +29,12 @@ pub enum SimError {
     ModelBox { min: [f32; 3], max: [f32; 3], point: [f64; 3] },
     #[error(transparent)]
     Disturbances(#[from] DisturbanceFileError),
+}
+
+impl From<PlanError> for SimError {
+    fn from(e: PlanError) -> Self {
+        Self::Plan(e)
+    }
 }
 
 /// The nominal flight: the planned path, its timing, and where each step ends.

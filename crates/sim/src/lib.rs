@@ -27,7 +27,7 @@ pub mod reference;
 pub mod rollout;
 pub mod world;
 
-pub use config::{CameraConfig, SimConfig};
+pub use config::{CameraConfig, NerfWorldSource, SimConfig};
 pub use dynamics::{Disturbance, DroneParams, State};
 pub use estimator::{EstimatorKind, PosePrior, VisionConfig};
 pub use filter::{Belief, PoseMeasurement};
@@ -35,4 +35,4 @@ pub use flight::{plan_flight, Flight, SimError};
 pub use io::{check_component, read_disturbances, trajectory_csv, DisturbanceFileError, DISTURBANCE_COLUMNS};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};
 pub use rollout::{Collision, Event, ImageUpdate, Rollout, Simulator, Substep};
-pub use world::{GroundTruthWorld, NerfWorld, World, WorldKind};
+pub use world::{EnsembleWorld, GroundTruthWorld, NerfWorld, World, WorldKind};

@@ -133,6 +133,42 @@ pub fn required_clearance(half_extents: Vector3<f32>, margin: f64) -> f64 {
     half_extents.cast::<f64>().norm() + margin
 }
 
+/// Whether `p` can be a flight's start or goal (`which`) in a field whose grid spans `grid`, as
+/// far as the grid alone says: the body (of `half_extents`, in any orientation) inside the grid,
+/// the centre inside the altitude band. [`plan`] checks the same and the clearance from
+/// geometry; this check needs no field, so a config is checked before any field is built.
+pub fn check_placement(
+    which: &'static str,
+    p: &Vector3<f64>,
+    grid: &nerfsv_scene::Aabb,
+    half_extents: Vector3<f32>,
+    cfg: &PlannerConfig,
+) -> Result<(), PlanError> {
+    let (usable_min, usable_max) = usable_box(grid, half_extents.cast::<f64>().norm());
+    placement(which, p, usable_min, usable_max, cfg.altitude)
+}
+
+/// The box the body centre must stay in for a body of radius `body_radius` to stay in `grid`.
+fn usable_box(grid: &nerfsv_scene::Aabb, body_radius: f64) -> (Vector3<f64>, Vector3<f64>) {
+    (grid.min.coords.cast::<f64>().add_scalar(body_radius), grid.max.coords.cast::<f64>().add_scalar(-body_radius))
+}
+
+fn placement(
+    which: &'static str,
+    p: &Vector3<f64>,
+    usable_min: Vector3<f64>,
+    usable_max: Vector3<f64>,
+    band: [f64; 2],
+) -> Result<(), PlanError> {
+    if !(0..3).all(|a| p[a] >= usable_min[a] && p[a] <= usable_max[a]) {
+        return Err(PlanError::OutsideGrid { which, point: *p, usable_min, usable_max });
+    }
+    if !(p.z >= band[0] && p.z <= band[1]) {
+        return Err(PlanError::OutsideAltitude { which, z: p.z, band });
+    }
+    Ok(())
+}
+
 /// Why no path could be planned.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum PlanError {
@@ -230,9 +266,7 @@ struct Space<'a> {
 impl<'a> Space<'a> {
     fn new(field: &'a SdfGrid, required: f64, body_radius: f64, cfg: &PlannerConfig) -> Self {
         let g = &field.geometry;
-        let b = g.bounds();
-        let usable_min = b.min.coords.cast::<f64>().add_scalar(body_radius);
-        let usable_max = b.max.coords.cast::<f64>().add_scalar(-body_radius);
+        let (usable_min, usable_max) = usable_box(&g.bounds(), body_radius);
         let lo_v = Vector3::new(usable_min.x, usable_min.y, usable_min.z.max(cfg.altitude[0]));
         let hi_v = Vector3::new(usable_max.x, usable_max.y, usable_max.z.min(cfg.altitude[1]));
         let cell = g.cell as f64;
@@ -275,17 +309,7 @@ impl<'a> Space<'a> {
     }
 
     fn check_endpoint(&self, which: &'static str, p: &Vector3<f64>) -> Result<(), PlanError> {
-        if !self.in_box(p) {
-            return Err(PlanError::OutsideGrid {
-                which,
-                point: *p,
-                usable_min: self.usable_min,
-                usable_max: self.usable_max,
-            });
-        }
-        if !(p.z >= self.band[0] && p.z <= self.band[1]) {
-            return Err(PlanError::OutsideAltitude { which, z: p.z, band: self.band });
-        }
+        placement(which, p, self.usable_min, self.usable_max, self.band)?;
         let distance = self.distance(p).unwrap_or(f64::NEG_INFINITY);
         if distance < self.required {
             return Err(PlanError::Blocked { which, point: *p, distance, required: self.required });

@@ -40,6 +40,12 @@ pub trait World: Sync {
     /// composited on `background`, in `[0, 1]`. Only the pixels read are rendered: an image
     /// costs what the estimator looks at.
     fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]>;
+
+    /// The world the rollout of `seed` flies in when it is not this one: for an
+    /// [`EnsembleWorld`], one of its members.
+    fn for_rollout(&self, _seed: u64) -> Option<&dyn World> {
+        None
+    }
 }
 
 /// NeRF-sim: the NeRF is both the camera and the world.
@@ -92,6 +98,43 @@ impl World for GroundTruthWorld<'_> {
                 std::array::from_fn(|c| rgba[c] * rgba[3] + background[c] * (1.0 - rgba[3]))
             })
             .collect()
+    }
+}
+
+/// NeRF-sim whose world is not the estimator's map: each rollout's camera images and collision
+/// field come from one member of an ensemble of NeRFs trained like the map but with other
+/// seeds, member `seed mod members` of the rollout's seed, while the estimator keeps localising
+/// against its own NeRF. The members stand for the world's model uncertainty: the map and the
+/// world disagree where the training data leaves the scene undetermined, as the map and the
+/// real world do.
+pub struct EnsembleWorld<'a> {
+    /// At least one.
+    pub members: Vec<NerfWorld<'a>>,
+}
+
+impl EnsembleWorld<'_> {
+    /// The member that flies the rollout of `seed`.
+    pub fn member_of(&self, seed: u64) -> usize {
+        (seed % self.members.len() as u64) as usize
+    }
+}
+
+/// Read directly (not through [`World::for_rollout`]), an ensemble world is its first member.
+impl World for EnsembleWorld<'_> {
+    fn kind(&self) -> WorldKind {
+        WorldKind::Nerf
+    }
+
+    fn field(&self) -> &SdfGrid {
+        self.members[0].field
+    }
+
+    fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]> {
+        self.members[0].observe(camera, pixels, background)
+    }
+
+    fn for_rollout(&self, seed: u64) -> Option<&dyn World> {
+        Some(&self.members[self.member_of(seed)])
     }
 }
 

@@ -327,3 +327,27 @@ fn start_candidates_are_tried_only_after_a_disturbance() {
         assert_eq!(u.renders, if u.substep == 0 { 2 + 6 } else { 2 }, "{u:?}");
     }
 }
+
+#[test]
+fn an_ensemble_world_flies_each_rollout_in_the_member_of_its_seed() {
+    let nerf = tiny_nerf();
+    let sim = straight(&nerf, 6);
+    let x3 = sim.reference.at(3.0 * sim.step_duration()).position.x as f32;
+    let (free, stone) = (post_world([5.0, 5.0, 0.3], [0.1, 0.05, 0.5]), post_world([x3, 0.2, 0.3], [0.1, 0.05, 0.5]));
+    let ensemble = nerfsv_sim::EnsembleWorld {
+        members: vec![NerfWorld { nerf: &nerf, field: &free.field }, NerfWorld { nerf: &nerf, field: &stone.field }],
+    };
+    let mut ds = vec![Disturbance::ZERO; 6];
+    ds[3].0[1] = 0.12;
+    for seed in 0..6u64 {
+        let member = &ensemble.members[ensemble.member_of(seed)];
+        assert_eq!(ensemble.member_of(seed), (seed % 2) as usize);
+        for estimator in [EstimatorKind::Truth, EstimatorKind::Vision] {
+            let r = sim.fly(&ensemble, estimator, &ds, seed);
+            assert_eq!(r.substeps, sim.fly(member, estimator, &ds, seed).substeps, "seed {seed}");
+            if estimator == EstimatorKind::Truth {
+                assert_eq!(r.collided(), seed % 2 == 1, "seed {seed}: the stone is member 1's only");
+            }
+        }
+    }
+}

@@ -11,8 +11,8 @@ use nerfsv_plot::{FieldSlice, PointGroup, ScatterFigure, Track, TrackKind, Traje
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::dynamics::rotation_error;
 use nerfsv_sim::{
-    plan_flight, trajectory_csv, Disturbance, EstimatorKind, Flight, GroundTruthWorld, NerfWorld, Rollout, SimConfig,
-    World, WorldKind,
+    plan_flight, trajectory_csv, Disturbance, EnsembleWorld, EstimatorKind, Flight, GroundTruthWorld, NerfWorld,
+    NerfWorldSource, Rollout, SimConfig, World, WorldKind,
 };
 use serde::{Deserialize, Serialize};
 
@@ -295,6 +295,15 @@ pub struct FlightInputs {
     pub nerf_field: SdfGrid,
     /// The ground truth's signed field: GT-sim's; none for a world known only by a dataset.
     pub gt_field: Option<SdfGrid>,
+    /// The ensemble's members after the deployed model: NeRF-sim's world with
+    /// `sim.nerf_world = "ensemble"`; empty without an ensemble.
+    pub members: Vec<WorldMember>,
+}
+
+/// One member of an ensemble as a world: its NeRF and its signed field.
+pub struct WorldMember {
+    pub nerf: Nerf,
+    pub field: SdfGrid,
 }
 
 impl FlightInputs {
@@ -303,6 +312,7 @@ impl FlightInputs {
             nerf: Nerf::load(checkpoint)?,
             nerf_field: SdfGrid::load(nerf_field)?,
             gt_field: gt_field.map(SdfGrid::load).transpose()?,
+            members: Vec::new(),
         })
     }
 
@@ -328,11 +338,30 @@ impl FlightInputs {
                 .sdf
             }
         };
-        Ok(Self { nerf, nerf_field, gt_field: Some(gt.sdf) })
+        Ok(Self { nerf, nerf_field, gt_field: Some(gt.sdf), members: Vec::new() })
     }
 
     pub fn plan(&self, cfg: &SimConfig) -> Result<Flight, StudyError> {
         Ok(plan_flight(cfg, &self.nerf_field, (self.nerf.config.aabb_min, self.nerf.config.aabb_max))?)
+    }
+}
+
+/// The world the drone's rollouts fly in: [`world`], except that NeRF-sim with `source`
+/// [`NerfWorldSource::Ensemble`] is the ensemble's members ([`EnsembleWorld`]: each rollout in
+/// the member of its seed), refused without members.
+pub fn drone_world<'a>(
+    kind: WorldKind,
+    source: NerfWorldSource,
+    inputs: &'a FlightInputs,
+    scene: Option<&'a Scene>,
+    render: RenderSettings,
+) -> Result<Box<dyn World + 'a>, StudyError> {
+    match (kind, source) {
+        (WorldKind::Nerf, NerfWorldSource::Ensemble) if inputs.members.is_empty() => Err(StudyError::NoEnsemble),
+        (WorldKind::Nerf, NerfWorldSource::Ensemble) => Ok(Box::new(EnsembleWorld {
+            members: inputs.members.iter().map(|m| NerfWorld { nerf: &m.nerf, field: &m.field }).collect(),
+        })),
+        _ => world(kind, inputs, scene, render),
     }
 }
 

@@ -63,6 +63,11 @@ pub enum StudyError {
     Uq(#[from] nerfsv_uq::UqError),
     #[error("GT-sim needs a ground truth (a scene or mesh and its signed field), and this world has none")]
     NoGroundTruth,
+    #[error(
+        "sim.nerf_world = \"ensemble\" flies NeRF-sim in the ensemble's other members, and there are none: \
+         train them with [ensemble] members = 2 or more, or set sim.nerf_world = \"deployed\""
+    )]
+    NoEnsemble,
     #[error("{0}")]
     Internal(String),
 }

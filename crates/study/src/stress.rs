@@ -15,16 +15,16 @@ use rayon::prelude::*;
 use nerfsv_scene::Camera;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::camera::drone_camera;
-use nerfsv_sim::{EstimatorKind, Flight, SimConfig, World, WorldKind};
+use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, monte_carlo, replay_all, subset_simulation_reusing, table_row, Agreement, Confusion,
-    ImportanceEstimate, Journal, Prior, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, ValidationConfig,
-    ValidationError, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    ImportanceEstimate, Journal, Prior, Rate, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, Transfer,
+    ValidationConfig, ValidationError, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 use serde::{Deserialize, Serialize};
 
-use crate::flight::{fly_and_write, world, FlightFigures, FlightInputs};
+use crate::flight::{drone_world, fly_and_write, world, FlightFigures, FlightInputs};
 use crate::remote::RemoteRollouts;
 use crate::{
     drone_disturbances, online_pixels, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Observer,
@@ -256,6 +256,73 @@ pub struct StressFigures {
     pub seconds: f64,
     /// Rollouts flown by this invocation per second (a timing).
     pub rollouts_per_second: f64,
+    /// Whether NeRF-sim's Monte Carlo failures transfer to GT-sim, with the deployed NeRF and
+    /// with the ensemble as NeRF-sim's world (the stress stage of a run with an ensemble).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transfer: Option<TransferFigures>,
+}
+
+/// A failure rate with its Wilson 95 % interval.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RateFigure {
+    pub rate: f64,
+    pub ci95: [f64; 2],
+    pub failures: usize,
+    pub rollouts: usize,
+}
+
+impl From<Rate> for RateFigure {
+    fn from(r: Rate) -> Self {
+        Self { rate: r.rate, ci95: r.ci95, failures: r.failures, rollouts: r.n }
+    }
+}
+
+/// Whether NeRF-sim's failures transfer to the world: the same Monte Carlo rollouts (same
+/// disturbances and seeds) flown in NeRF-sim with the deployed NeRF as the world, in NeRF-sim
+/// with the ensemble's other members as the world, and in GT-sim. Each NeRF-sim world is
+/// compared with GT-sim pair by pair (GT-sim the truth, a crash the positive class); the
+/// headline numbers are flat, and `deployed` and `ensemble` hold each comparison in full, every
+/// figure with its 95 % interval.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TransferFigures {
+    pub nerf_deployed: RateFigure,
+    pub nerf_ensemble: RateFigure,
+    pub gt: RateFigure,
+    pub recall_deployed: Option<f64>,
+    pub recall_ensemble: Option<f64>,
+    pub precision_deployed: Option<f64>,
+    pub precision_ensemble: Option<f64>,
+    pub mcc_deployed: Option<f64>,
+    pub mcc_ensemble: Option<f64>,
+    pub mcnemar_p_deployed: f64,
+    pub mcnemar_p_ensemble: f64,
+    pub deployed: Transfer,
+    pub ensemble: Transfer,
+}
+
+impl TransferFigures {
+    /// The comparison of the failed-or-not outcomes of the same rollouts in the three worlds
+    /// (`deployed[i]`, `ensemble[i]` and `gt[i]` are rollout i's); `seed` seeds the bootstrap
+    /// intervals of the correlations.
+    pub fn new(deployed: &[bool], ensemble: &[bool], gt: &[bool], seed: u64) -> Self {
+        let d = Transfer::of(deployed, gt, seed);
+        let e = Transfer::of(ensemble, gt, seed);
+        Self {
+            nerf_deployed: d.nerf.into(),
+            nerf_ensemble: e.nerf.into(),
+            gt: d.gt.into(),
+            recall_deployed: d.recall.map(|x| x.value),
+            recall_ensemble: e.recall.map(|x| x.value),
+            precision_deployed: d.precision.map(|x| x.value),
+            precision_ensemble: e.precision.map(|x| x.value),
+            mcc_deployed: d.mcc.map(|x| x.value),
+            mcc_ensemble: e.mcc.map(|x| x.value),
+            mcnemar_p_deployed: d.mcnemar_p,
+            mcnemar_p_ensemble: e.mcnemar_p,
+            deployed: d,
+            ensemble: e,
+        }
+    }
 }
 
 /// The distribution of the estimator's errors after its image updates in one world.
@@ -646,12 +713,21 @@ pub fn stress(
     }
     let start = Instant::now();
     let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
-    let search_world = world(setup.world, setup.drone.inputs, setup.drone.scene, setup.drone.render)?;
+    let d = &setup.drone;
+    let nerf_world = d.sim.nerf_world;
+    if setup.remote.is_some() && nerf_world == NerfWorldSource::Ensemble {
+        return Err(StudyError::Internal(
+            "rollouts flown elsewhere fly the deployed NeRF only: set sim.nerf_world = \"deployed\" or run in one \
+             process"
+                .into(),
+        ));
+    }
+    let search_world = drone_world(setup.world, nerf_world, d.inputs, d.scene, d.render)?;
     let replay_kind = other_world(setup.world);
     // The other world: for the replays, and (as GT-sim) for exact online uncertainty.
     let exact = setup.online.is_some_and(|o| o.mode == UqMode::Exact);
     let replay_world = if setup.replay || (exact && replay_kind == WorldKind::Gt) {
-        Some(world(replay_kind, setup.drone.inputs, setup.drone.scene, setup.drone.render)?)
+        Some(drone_world(replay_kind, nerf_world, d.inputs, d.scene, d.render)?)
     } else {
         None
     };
@@ -945,6 +1021,7 @@ pub fn stress(
         rollouts: records.len() + replays.as_ref().map_or(0, Vec::len),
         seconds,
         rollouts_per_second: flown as f64 / seconds.max(1e-9),
+        transfer: None,
     };
     Ok((figures, records))
 }

@@ -49,6 +49,7 @@
 pub mod ause;
 pub mod bla;
 mod config;
+pub mod ensemble;
 mod error;
 pub mod field;
 pub mod ga;

@@ -51,6 +51,7 @@ mod subset;
 mod system;
 mod table;
 mod trajectory;
+mod transfer;
 
 pub use compare::{compare, Agreement, Confusion, Spread};
 pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, SubsetConfig, ValidationConfig};
@@ -69,3 +70,4 @@ pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusin
 pub use system::{run_here, Finished, Job, Outcome, System};
 pub use table::{table_row, TableRow};
 pub use trajectory::{RaggedRow, Trajectory};
+pub use transfer::{matthews, mcnemar_exact, Estimate, Rate, Transfer};

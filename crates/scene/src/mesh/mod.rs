@@ -150,11 +150,22 @@ impl TriangleMesh {
     }
 
     /// The edges used by exactly one triangle (boundary edges) as a fraction of all edges: 0 for
-    /// a closed mesh. An edge is an unordered vertex pair.
+    /// a closed mesh. An edge is an unordered pair of vertex positions: a seam where a reader
+    /// split one position into several vertices (by texture coordinate or normal) is not open.
     pub fn open_edge_fraction(&self) -> f64 {
+        let mut first_at = std::collections::HashMap::with_capacity(self.positions.len());
+        let canonical: Vec<u32> = (0..self.positions.len() as u32)
+            .map(|i| {
+                let p = self.positions[i as usize];
+                // +0.0 and −0.0 are one position.
+                let key = [p.x + 0.0, p.y + 0.0, p.z + 0.0].map(f32::to_bits);
+                *first_at.entry(key).or_insert(i)
+            })
+            .collect();
         let mut edges: Vec<(u32, u32)> = self
             .triangles
             .iter()
+            .map(|t| t.map(|v| canonical[v as usize]))
             .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
             .map(|(a, b)| (a.min(b), a.max(b)))
             .collect();
@@ -223,6 +234,20 @@ pub(crate) mod tests {
         }
         assert_eq!(c.open_edge_fraction(), 0.0);
         assert!((cube(0.0, 1.0, true).open_edge_fraction() - 4.0 / 17.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_closed_mesh_split_at_its_seams_is_closed() {
+        // Each triangle with vertices of its own, as a reader splits vertices by texture
+        // coordinate: every vertex index pair borders one triangle, every position pair two.
+        let c = cube(0.0, 1.0, false);
+        let positions: Vec<_> = c.triangles.iter().flat_map(|t| t.map(|v| c.positions[v as usize])).collect();
+        let triangles: Vec<[u32; 3]> = (0..c.triangles.len() as u32).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+        let split = TriangleMesh::new(positions, triangles);
+        assert_eq!(split.open_edge_fraction(), 0.0);
+        let mut open = split.clone();
+        open.triangles.pop();
+        assert!(open.open_edge_fraction() > 0.0);
     }
 
     #[test]

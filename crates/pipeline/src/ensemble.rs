@@ -1,0 +1,227 @@
+//! The ensemble stage: more NeRFs of the run's dataset, each trained as the deployed model is
+//! but with a seed of its own (and, with `bootstrap`, on a bootstrap of the training views),
+//! each with its signed field on the drone's grid. With the deployed model as member 0 they are
+//! the ensemble: the NeRFs the same data and training could as well have given, so their
+//! disagreement stands for what the data leaves undetermined about the world. NeRF-sim flies in
+//! them with `sim.nerf_world = "ensemble"`.
+
+use std::path::{Path, PathBuf};
+
+use nerfsv_collision::SdfGrid;
+use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
+use nerfsv_scene::views::{PosedImages, View};
+use nerfsv_study::flight::WorldMember;
+use rand::{RngExt, SeedableRng};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{EnsembleConfig, NerfSettings};
+use crate::stage::{write_json, Stage, StageContext};
+use crate::stages::{
+    build_nerf_field, load_dataset_split, nerf_field_geometry, train_status, Dataset, GroundTruthField,
+};
+use crate::PipelineError;
+
+/// Trains members 1..K of the ensemble into `RUN/ensemble/member_k/` (checkpoint and signed
+/// field each) and lists them in `members.json`. Resumable member by member: a killed run keeps
+/// the members it finished and continues the one it was training from its checkpoint.
+pub struct EnsembleStage<'a> {
+    pub settings: &'a NerfSettings,
+    pub ensemble: &'a EnsembleConfig,
+    /// The deployed model's training steps (the members' unless `ensemble.steps` says).
+    pub train_steps: u64,
+    /// The NeRF fields' density threshold (`None`: ln 2 / cell), as the `nerf_collision` stage's.
+    pub density_threshold: Option<f32>,
+    /// `None`: the fields on the ground truth's grid; `Some(cells per metre)`: over the model's
+    /// box, for a world without a ground truth.
+    pub own_grid: Option<f32>,
+}
+
+/// One member's training and field.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MemberFigures {
+    pub member: usize,
+    pub seed: u64,
+    /// Distinct training views it saw (all of them without bootstrap).
+    pub distinct_views: usize,
+    pub train: TrainStats,
+    /// PSNR on the first [`EnsembleStage::EVAL_VIEWS`] test views, dB.
+    pub test_psnr: f64,
+    /// Occupancy IoU of its field with the ground truth's in the flight band, when there is one.
+    pub band_iou: Option<f64>,
+    pub field_seconds: f64,
+}
+
+/// What the ensemble stage reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnsembleFigures {
+    /// Members, the deployed model included.
+    pub members: usize,
+    pub steps: u64,
+    pub bootstrap: bool,
+    /// Members 1..K.
+    pub trained: Vec<MemberFigures>,
+}
+
+impl EnsembleStage<'_> {
+    pub const MEMBERS: &'static str = "members.json";
+    pub const CHECKPOINT: &'static str = "checkpoint.safetensors";
+    pub const SDF: &'static str = "nerf_sdf.safetensors";
+    /// Test views each member is scored on.
+    pub const EVAL_VIEWS: usize = 20;
+
+    /// Member `k`'s folder in run `root`.
+    pub fn member_dir(root: &Path, k: usize) -> PathBuf {
+        root.join(<Self as Stage>::NAME).join(format!("member_{k}"))
+    }
+
+    fn steps(&self) -> u64 {
+        self.ensemble.steps.unwrap_or(self.train_steps)
+    }
+
+    /// The members 1..K the stage left in run `root` (none when it trained none).
+    pub fn load_members(root: &Path) -> Result<Vec<WorldMember>, PipelineError> {
+        let list = root.join(<Self as Stage>::NAME).join(Self::MEMBERS);
+        if !list.exists() {
+            return Ok(Vec::new());
+        }
+        let text = std::fs::read_to_string(&list).map_err(|e| PipelineError::io(&list, e))?;
+        let figures: EnsembleFigures =
+            serde_json::from_str(&text).map_err(|e| PipelineError::Internal(format!("{}: {e}", list.display())))?;
+        figures
+            .trained
+            .iter()
+            .map(|m| {
+                let dir = Self::member_dir(root, m.member);
+                Ok(WorldMember {
+                    nerf: Nerf::load(&dir.join(Self::CHECKPOINT))?,
+                    field: SdfGrid::load(dir.join(Self::SDF))?,
+                })
+            })
+            .collect()
+    }
+}
+
+/// A bootstrap of a set of views: as many views, drawn with replacement.
+struct Bootstrap<'a, P: PosedImages> {
+    views: &'a P,
+    picks: Vec<usize>,
+}
+
+impl<'a, P: PosedImages> Bootstrap<'a, P> {
+    fn new(views: &'a P, seed: u64) -> Self {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let picks = (0..views.len()).map(|_| rng.random_range(0..views.len())).collect();
+        Self { views, picks }
+    }
+
+    fn distinct(&self) -> usize {
+        let mut p = self.picks.clone();
+        p.sort_unstable();
+        p.dedup();
+        p.len()
+    }
+}
+
+impl<P: PosedImages> PosedImages for Bootstrap<'_, P> {
+    fn source(&self) -> &Path {
+        self.views.source()
+    }
+
+    fn len(&self) -> usize {
+        self.picks.len()
+    }
+
+    fn view(&self, i: usize) -> View<'_> {
+        self.views.view(self.picks[i])
+    }
+}
+
+impl Stage for EnsembleStage<'_> {
+    const NAME: &'static str = "ensemble";
+    const CODE: &'static [&'static str] = &["nerfsv-nerf", "nerfsv-collision", "ensemble.rs", "stages.rs"];
+    const OUTPUTS: &'static [&'static str] = &[Self::MEMBERS];
+    const RESUMABLE: bool = true;
+    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME];
+    type Figures = EnsembleFigures;
+
+    fn inputs(&self) -> &'static [&'static str] {
+        match self.own_grid {
+            None => Self::INPUTS,
+            Some(_) => &[Dataset::NAME],
+        }
+    }
+
+    fn config(&self) -> impl Serialize {
+        (self.settings, self.ensemble, self.steps(), self.density_threshold, self.own_grid)
+    }
+
+    fn run(&self, cx: &StageContext) -> Result<EnsembleFigures, PipelineError> {
+        let steps = self.steps();
+        let mut trained = Vec::new();
+        if self.ensemble.members > 1 {
+            let folder = Dataset::folder(cx.root)?;
+            let data = load_dataset_split(&folder, "train", 1)?;
+            let test = load_dataset_split(&folder, "test", 1)?;
+            for k in 1..self.ensemble.members {
+                trained.push(self.member(cx, k, steps, &data, &test)?);
+            }
+        }
+        let figures =
+            EnsembleFigures { members: self.ensemble.members, steps, bootstrap: self.ensemble.bootstrap, trained };
+        write_json(&cx.dir.join(Self::MEMBERS), &figures)?;
+        Ok(figures)
+    }
+
+    fn describe(f: &EnsembleFigures) -> String {
+        if f.trained.is_empty() {
+            return "one member, the deployed model: no other trained".into();
+        }
+        let psnr: Vec<String> = f.trained.iter().map(|m| format!("{:.2}", m.test_psnr)).collect();
+        format!("{} more members of {} steps (test PSNR {} dB)", f.trained.len(), f.steps, psnr.join(", "))
+    }
+}
+
+impl EnsembleStage<'_> {
+    /// Trains member `k` (or finishes it from its checkpoint) and builds its field.
+    fn member(
+        &self,
+        cx: &StageContext,
+        k: usize,
+        steps: u64,
+        data: &nerfsv_dataset::Split,
+        test: &nerfsv_dataset::Split,
+    ) -> Result<MemberFigures, PipelineError> {
+        let dir = Self::member_dir(cx.root, k);
+        let seed = EnsembleConfig::member_seed(self.settings.train.seed, k);
+        let train = nerfsv_nerf::TrainConfig { seed, ..self.settings.train.clone() };
+        let nerf_config = self.settings.nerf.clone();
+        let members = self.ensemble.members - 1;
+        let mut report = |p: &nerfsv_nerf::Progress| {
+            let done = (k as u64 - 1) * steps + p.step;
+            cx.progress(done, members as u64 * steps, &format!("member {k}: {}", train_status(p)))
+        };
+        // A member whose checkpoint is there continues from it (and one at its last step is done).
+        let resume = dir.join(Self::CHECKPOINT).exists();
+        let ((nerf, stats), distinct_views) = if self.ensemble.bootstrap {
+            let views = Bootstrap::new(data, seed);
+            let distinct = views.distinct();
+            (nerfsv_nerf::train(&views, &dir, Budget::Steps(steps), resume, nerf_config, train, &mut report)?, distinct)
+        } else {
+            (nerfsv_nerf::train(data, &dir, Budget::Steps(steps), resume, nerf_config, train, &mut report)?, data.len())
+        };
+        let options = EvalOptions { max_images: Some(Self::EVAL_VIEWS), ..EvalOptions::default() };
+        let test_psnr = nerfsv_nerf::evaluate_with_progress(&nerf, test, options, &|_, _| {})?.psnr;
+        let (geometry, reference) = nerf_field_geometry(cx.root, self.own_grid, &nerf)?;
+        let field =
+            build_nerf_field(&nerf, geometry, self.density_threshold, reference.as_ref(), &dir.join(Self::SDF), None)?;
+        Ok(MemberFigures {
+            member: k,
+            seed,
+            distinct_views,
+            train: stats,
+            test_psnr,
+            band_iou: field.agreement_with_ground_truth.map(|a| a.band_iou),
+            field_seconds: field.build_seconds,
+        })
+    }
+}

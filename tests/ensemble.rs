@@ -1,0 +1,141 @@
+//! The ensemble as NeRF-sim's world, tried as a user would: a tiny run with two members writes
+//! the transfer table into `summary.json` and the report, a killed run resumes to the same bytes
+//! (every rollout flies in the same member again), and a member is the model `nerfsv train`
+//! gives with its seed.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use common::{nerfsv, s};
+
+/// The tiny study's `[nerf]` and `[train]` tables (shared with the `nerfsv train` config).
+const MODEL: &str = "[train]\nbatch_rays = 256\ncheckpoint_every_steps = 1\n";
+
+/// A tiny run config (16×16 monolith, a few steps) with an ensemble of two members and the
+/// ensemble as NeRF-sim's world.
+fn config(dir: &Path) -> PathBuf {
+    let cfg = dir.join("run.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = 4\n[dataset]\nwidth = 16\nheight = 16\n\
+             train = 6\nval = 1\ntest = 2\nsupersample = 1\n{MODEL}\
+             [sim]\nnerf_world = \"ensemble\"\n[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
+             [validation.monte_carlo]\nrollouts = 6\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
+             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
+             [uq_offline]\nbla_images_per_split = 1\n[online]\nmethods = [\"ga\"]\nmc_rollouts = 4\n\
+             [ensemble]\nmembers = 3\nsteps = 3\n"
+        ),
+    )
+    .unwrap();
+    cfg
+}
+
+/// Every file under `root` with its bytes, but the records, the summary and the page (timings).
+fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if !["stage.json", "summary.json", "train_stats.json", "index.html", "members.json"]
+                .contains(&e.file_name().to_str().unwrap())
+            {
+                out.push((p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+fn summary(root: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(root.join("summary.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn a_tiny_run_with_an_ensemble_writes_the_transfer_table_and_resumes_to_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path());
+    let reference = dir.path().join("reference");
+    let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&reference)]);
+    assert!(ok, "{err}");
+
+    let sum = summary(&reference);
+    let members = &sum["ensemble"]["trained"];
+    assert_eq!(members.as_array().unwrap().len(), 2, "{sum:#}");
+    assert_eq!(members[1]["seed"], 2, "member k trains with seed train.seed + k");
+    let t = &sum["stress"]["transfer"];
+    for world in ["nerf_deployed", "nerf_ensemble", "gt"] {
+        let rate = t[world]["rate"].as_f64().unwrap();
+        let ci = t[world]["ci95"].as_array().unwrap();
+        assert!(ci[0].as_f64().unwrap() <= rate && rate <= ci[1].as_f64().unwrap(), "{world}: {t:#}");
+        assert_eq!(t[world]["rollouts"], 6);
+    }
+    for key in ["mcnemar_p_deployed", "mcnemar_p_ensemble"] {
+        let p = t[key].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&p), "{key}: {t:#}");
+    }
+    for key in [
+        "recall_deployed",
+        "recall_ensemble",
+        "precision_deployed",
+        "precision_ensemble",
+        "mcc_deployed",
+        "mcc_ensemble",
+    ] {
+        assert!(t.get(key).is_some(), "{key} missing: {t:#}");
+    }
+    // The search flew in the ensemble; Monte Carlo flew again in the deployed NeRF's world.
+    assert!(reference.join("stress/nerf_deployed/rollouts.csv").exists());
+    let page = std::fs::read_to_string(reference.join("report/index.html")).unwrap();
+    let answer = page.find("Do failures found in a NeRF predict failures in the world?").expect("the transfer answer");
+    assert!(answer < page.find("How likely does the drone crash").unwrap(), "the transfer table opens the answer");
+
+    // Killed during its stress stage and run again: the same rollouts in the same members.
+    let out = dir.path().join("killed");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_nerfsv"))
+        .args(["run", s(&cfg), "--out", s(&out)])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let journal = out.join("stress/journal");
+    let start = std::time::Instant::now();
+    while !journal.exists() && start.elapsed().as_secs() < 300 {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&out)]);
+    assert!(ok, "{err}");
+    assert_eq!(files(&out), files(&reference), "a killed and resumed run must end at the same bytes");
+    assert_eq!(summary(&out)["stress"]["transfer"], sum["stress"]["transfer"]);
+
+    // Member 1 is what `nerfsv train` makes of the run's dataset with seed 1.
+    let train_cfg = dir.path().join("train.toml");
+    std::fs::write(&train_cfg, format!("{MODEL}seed = 1\n")).unwrap();
+    let alone = dir.path().join("alone");
+    let (ok, _, err) = nerfsv(&[
+        "train",
+        "--data",
+        s(&reference.join("dataset")),
+        "--out",
+        s(&alone),
+        "--steps",
+        "3",
+        "--config",
+        s(&train_cfg),
+    ]);
+    assert!(ok, "{err}");
+    let member = nerfsv_nerf::Nerf::load(&reference.join("ensemble/member_1/checkpoint.safetensors")).unwrap();
+    let trained = nerfsv_nerf::Nerf::load(&alone.join("checkpoint.safetensors")).unwrap();
+    assert_eq!((member.seed, member.step), (1, 3));
+    assert!(member.params == trained.params, "member 1's weights are `nerfsv train --seed 1`'s bit for bit");
+    assert!(member.grid.density == trained.grid.density);
+}

@@ -43,7 +43,7 @@ fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
             let p = e.path();
             if p.is_dir() {
                 stack.push(p);
-            } else if !["stage.json", "summary.json", "train_stats.json", "index.html", "members.json"]
+            } else if !["stage.json", "summary.json", "train_stats.json", "index.html"]
                 .contains(&e.file_name().to_str().unwrap())
             {
                 out.push((p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
@@ -91,6 +91,18 @@ fn a_tiny_run_with_an_ensemble_writes_the_transfer_table_and_resumes_to_the_same
     ] {
         assert!(t.get(key).is_some(), "{key} missing: {t:#}");
     }
+    // The ensemble's per-step uncertainty against the steps where the worlds disagree, per sampler.
+    let samplers: Vec<&str> =
+        t["step_auroc"].as_array().unwrap().iter().map(|a| a["sampler"].as_str().unwrap()).collect();
+    assert_eq!(samplers, ["mc", "cem"], "{t:#}");
+    assert!(t["step_auroc"][0]["auroc"]["steps"].as_u64().unwrap() > 0, "{t:#}");
+    assert!(reference.join("stress/ensemble_step_uncertainty.csv").exists());
+    // The ensemble's depth AUSE beside a random ordering's, on GA's and BLA's test images.
+    let e = &sum["uq"]["ensemble_ause"];
+    assert_eq!(e["members"], 3, "{e:#}");
+    assert!(e["on_bla_images"].as_f64().is_some() && e["random_on_bla_images"].as_f64().is_some(), "{e:#}");
+    let ause = std::fs::read_to_string(reference.join("uq/ause.csv")).unwrap();
+    assert!(ause.lines().any(|l| l.starts_with("ensemble,")) && ause.lines().any(|l| l.starts_with("random,")));
     // The search flew in the ensemble; Monte Carlo flew again in the deployed NeRF's world.
     assert!(reference.join("stress/nerf_deployed/rollouts.csv").exists());
     let page = std::fs::read_to_string(reference.join("report/index.html")).unwrap();

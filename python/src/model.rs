@@ -200,7 +200,7 @@ pub(crate) fn f32_array(a: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<usize
 pub(crate) fn run_config(path: Option<&Path>) -> PyResult<RunConfig> {
     match path {
         Some(p) => RunConfig::load(p).map_err(py_err),
-        None => Ok(RunConfig::default()),
+        None => Ok(RunConfig::one_model()),
     }
 }
 

@@ -107,7 +107,7 @@ pub struct FlyArgs {
 pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
     Ok(match path {
         Some(path) => RunConfig::load(path)?,
-        None => RunConfig::default(),
+        None => RunConfig::one_model(),
     })
 }
 

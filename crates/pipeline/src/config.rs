@@ -253,7 +253,8 @@ impl Default for RunConfig {
             train: TrainConfig::default(),
             train_steps: DEFAULT_TRAIN_STEPS,
             nerf_density_threshold: None,
-            sim: nerfsv_sim::SimConfig::default(),
+            // NeRF-sim's world is the ensemble's other members: the estimator's map is not the world.
+            sim: nerfsv_sim::SimConfig { nerf_world: nerfsv_sim::NerfWorldSource::Ensemble, ..Default::default() },
             flight_seed: 0,
             validation: nerfsv_validation::ValidationConfig::default(),
             stress_subset: true,
@@ -261,12 +262,42 @@ impl Default for RunConfig {
             uq_offline: UqOfflineConfig::default(),
             online: OnlineConfig::default(),
             world: WorldConfig::default(),
-            ensemble: EnsembleConfig::default(),
+            ensemble: EnsembleConfig { members: DEFAULT_ENSEMBLE_MEMBERS, ..EnsembleConfig::default() },
         }
     }
 }
 
+/// Members of the default run's ensemble, the deployed model included.
+pub const DEFAULT_ENSEMBLE_MEMBERS: usize = 4;
+
 impl RunConfig {
+    /// The default for a study of one model (`nerfsv fly`, `nerfsv stress`, the Python package's
+    /// flights and searches without a config): [`RunConfig::default`] without an ensemble, so
+    /// NeRF-sim's world is the model itself.
+    pub fn one_model() -> Self {
+        let mut cfg = Self::default();
+        cfg.sim.nerf_world = nerfsv_sim::NerfWorldSource::Deployed;
+        cfg.ensemble = EnsembleConfig::default();
+        cfg
+    }
+
+    /// Refuses a config whose NeRF-sim world is the ensemble for a study of one model (`path`,
+    /// the config file, names it).
+    pub fn check_one_model(&self, path: &Path) -> Result<(), PipelineError> {
+        if self.sim.nerf_world != nerfsv_sim::NerfWorldSource::Ensemble {
+            return Ok(());
+        }
+        Err(PipelineError::InvalidConfig {
+            path: path.into(),
+            error: InvalidValue::new(
+                "sim.nerf_world",
+                "must be \"deployed\" for a study of one model: the ensemble's world is `nerfsv run`'s, which trains \
+                 the ensemble",
+                "\"ensemble\"",
+            ),
+        })
+    }
+
     /// Reads a TOML config (see [`load_toml`]); the `[world]` table's relative paths are read
     /// from the file's folder.
     pub fn load(path: &Path) -> Result<Self, PipelineError> {
@@ -582,7 +613,7 @@ mod tests {
             ("[uq_offline]\nga_images_per_split = 0", "uq_offline.ga_images_per_split", "0"),
             ("[online]\nmc_rollouts = 0", "online.mc_rollouts", "0"),
             ("[online]\nmethods = [\"ga\", \"ga\"]", "online.methods", "Ga"),
-            ("[sim]\nnerf_world = \"ensemble\"", "sim.nerf_world", "ensemble"),
+            ("[ensemble]\nmembers = 1", "sim.nerf_world", "ensemble"),
             ("[sim]\nnerf_world = \"ensemble\"\n[ensemble]\nmembers = 1", "sim.nerf_world", "ensemble"),
             ("[ensemble]\nmembers = 17", "ensemble.members", "17"),
             ("[ensemble]\nsteps = 0", "ensemble.steps", "0"),

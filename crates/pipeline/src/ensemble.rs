@@ -51,6 +51,14 @@ pub struct MemberFigures {
     pub field_seconds: f64,
 }
 
+/// One member as `members.json` lists it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MemberEntry {
+    pub member: usize,
+    pub seed: u64,
+    pub distinct_views: usize,
+}
+
 /// What the ensemble stage reports.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EnsembleFigures {
@@ -85,10 +93,9 @@ impl EnsembleStage<'_> {
             return Ok(Vec::new());
         }
         let text = std::fs::read_to_string(&list).map_err(|e| PipelineError::io(&list, e))?;
-        let figures: EnsembleFigures =
+        let members: Vec<MemberEntry> =
             serde_json::from_str(&text).map_err(|e| PipelineError::Internal(format!("{}: {e}", list.display())))?;
-        figures
-            .trained
+        members
             .iter()
             .map(|m| {
                 let dir = Self::member_dir(root, m.member);
@@ -166,10 +173,14 @@ impl Stage for EnsembleStage<'_> {
                 trained.push(self.member(cx, k, steps, &data, &test)?);
             }
         }
-        let figures =
-            EnsembleFigures { members: self.ensemble.members, steps, bootstrap: self.ensemble.bootstrap, trained };
-        write_json(&cx.dir.join(Self::MEMBERS), &figures)?;
-        Ok(figures)
+        // The list later stages read: what each member is, no timings (the same bytes on any
+        // machine; the figures with their timings are the stage's record).
+        let list: Vec<MemberEntry> = trained
+            .iter()
+            .map(|m| MemberEntry { member: m.member, seed: m.seed, distinct_views: m.distinct_views })
+            .collect();
+        write_json(&cx.dir.join(Self::MEMBERS), &list)?;
+        Ok(EnsembleFigures { members: self.ensemble.members, steps, bootstrap: self.ensemble.bootstrap, trained })
     }
 
     fn describe(f: &EnsembleFigures) -> String {

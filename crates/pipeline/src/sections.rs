@@ -79,7 +79,6 @@ impl Report for crate::ensemble::EnsembleStage<'_> {
                 "distinct training views",
                 "test PSNR (dB, first 20 views)",
                 "IoU with the GT field in the flight band",
-                "training (s)",
             ])
             .rows(f.trained.iter().map(|m| {
                 vec![
@@ -88,7 +87,6 @@ impl Report for crate::ensemble::EnsembleStage<'_> {
                     m.distinct_views.to_string(),
                     num(m.test_psnr, 2),
                     num(m.band_iou, 3),
-                    num(m.train.seconds, 0),
                 ]
             })),
         );
@@ -192,6 +190,32 @@ impl Report for Uncertainty<'_> {
             vec!["GA".into(), u.ause_ga_images.to_string(), num(u.ause_ga, 3)],
             vec!["BLA".into(), u.ause_bla_images.to_string(), num(u.ause_bla, 3)],
         ]));
+        if let Some(e) = &u.ensemble_ause {
+            s.paragraph(format!(
+                "The ensemble ({} NeRFs) ranks the deployed model's depth error by the members' depth standard \
+                 deviation; a random ordering of the same errors is the baseline any uncertainty must beat. On the \
+                 same test images as each method:",
+                e.members
+            ));
+            s.table(Table::new(&["images", "images scored", "method's depth AUSE", "ensemble", "random order"]).rows(
+                [
+                    vec![
+                        "GA's".into(),
+                        e.ga_images.to_string(),
+                        num(u.ause_ga, 3),
+                        num(e.on_ga_images, 3),
+                        num(e.random_on_ga_images, 3),
+                    ],
+                    vec![
+                        "BLA's".into(),
+                        e.bla_images.to_string(),
+                        num(u.ause_bla, 3),
+                        num(e.on_bla_images, 3),
+                        num(e.random_on_bla_images, 3),
+                    ],
+                ],
+            ));
+        }
         s.paragraph(
             "Depth AUSE protocol: every test pixel with a ground-truth depth counts; a pixel whose ray composites \
              no sample has no uncertainty and ranks as the most uncertain (removed first), not dropped. Bayes' Rays \
@@ -542,6 +566,37 @@ impl Report for StressStage<'_> {
             );
             s.paragraph("The transfer table: the Monte Carlo rollouts in both NeRF worlds against GT-sim.");
             s.table(table);
+            if !t.step_auroc.is_empty() {
+                s.paragraph(
+                    "How well the ensemble's uncertainty of the drone's view at each step (the mean density-aware \
+                     spread of its NeRFs' renders of the view's rays, measured at the step's recorded pose, no \
+                     ground-truth image) predicts the steps where NeRF-sim and GT-sim disagree (one touched geometry, \
+                     the other not); per sampler, the step AUROC's interval from a bootstrap over rollouts:",
+                );
+                s.table(
+                    Table::new(&[
+                        "sampler",
+                        "NeRF world",
+                        "steps",
+                        "disagreeing",
+                        "step AUROC [95 %]",
+                        "rollout AUROC",
+                    ])
+                    .rows(t.step_auroc.iter().map(|a| {
+                        vec![
+                            a.sampler.name().to_uppercase(),
+                            a.nerf_world.name().into(),
+                            a.auroc.steps.to_string(),
+                            a.auroc.disagreeing_steps.to_string(),
+                            match (a.auroc.step_auroc, a.step_auroc_ci95) {
+                                (Some(v), Some(ci)) => format!("{v:.2} [{:.2}, {:.2}]", ci[0], ci[1]),
+                                (v, _) => num(v, 2),
+                            },
+                            num(a.auroc.trajectory_auroc, 2),
+                        ]
+                    })),
+                );
+            }
         }
         let name = |x: &SamplerFigures| x.sampler.name().to_uppercase();
         s.table(

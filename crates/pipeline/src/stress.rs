@@ -9,12 +9,16 @@ use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, WorldKind};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
-    journal_dir, replay_csv, stress, Drone, OnlineSettings, Sampler, StressFigures, StressSetup, TransferFigures,
-    ROLLOUTS_CSV, STAGE, STRESS_JSON, TABLE_CSV,
+    journal_dir, measure_at_poses, replay_csv, stress, Drone, OnlineSettings, Sampler, StepAurocFigures, StressFigures,
+    StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, STRESS_JSON, TABLE_CSV,
 };
 use nerfsv_study::UqMode;
+use nerfsv_study::{online_pixels, EnsembleUncertainty};
 use nerfsv_uq::{model_id, UncertaintyField, UqConfig};
-use nerfsv_validation::{read_csv_file, Journal, Prior, RolloutRecord, ValidationConfig, SAMPLER_MC};
+use nerfsv_validation::{
+    disagreement_auroc, read_csv_file, step_auroc_interval, Journal, Prior, RolloutRecord, ValidationConfig,
+    BOOTSTRAP_RESAMPLES, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+};
 use serde::Serialize;
 
 use crate::ensemble::EnsembleStage;
@@ -118,6 +122,9 @@ impl Stage for StressStage<'_> {
 }
 
 impl StressStage<'_> {
+    /// The searched rollouts with the ensemble's uncertainty of each step's view.
+    pub const STEP_UNCERTAINTY_CSV: &'static str = "ensemble_step_uncertainty.csv";
+
     /// The search's Monte Carlo flown again in the other NeRF world (deployed or ensemble) with
     /// the same disturbances and seeds, and both compared with GT-sim's replays of it.
     fn transfer(
@@ -168,7 +175,48 @@ impl StressStage<'_> {
             NerfWorldSource::Deployed => (failed(&ours), failed(&others)),
             NerfWorldSource::Ensemble => (failed(&others), failed(&ours)),
         };
-        Ok(TransferFigures::new(&deployed, &ensemble, &failed(&gt), self.validation.seed))
+        let mut figures = TransferFigures::new(&deployed, &ensemble, &failed(&gt), self.validation.seed);
+        figures.step_auroc = self.step_auroc(cx, inputs, flight, records, &replays)?;
+        Ok(figures)
+    }
+
+    /// The ensemble's per-step uncertainty at the searched rollouts' recorded poses
+    /// ([`Self::STEP_UNCERTAINTY_CSV`]) and, per sampler, its AUROC for a step where the search's
+    /// world and GT-sim disagree.
+    fn step_auroc(
+        &self,
+        cx: &StageContext,
+        inputs: &FlightInputs,
+        flight: &Flight,
+        records: &[RolloutRecord],
+        replays: &[RolloutRecord],
+    ) -> Result<Vec<StepAurocFigures>, PipelineError> {
+        let intrinsics = flight.simulator(self.sim, &inputs.nerf, self.intrinsics).intrinsics;
+        let meter = EnsembleUncertainty {
+            members: std::iter::once(&inputs.nerf).chain(inputs.members.iter().map(|m| &m.nerf)).collect(),
+            pixels: online_pixels(&intrinsics, &UqConfig::default()),
+            background: self.sim.background,
+        };
+        let searched: Vec<RolloutRecord> =
+            records.iter().filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET).cloned().collect();
+        let (measured, _, _) = measure_at_poses(searched, intrinsics, &meter, &|d, total, status| {
+            cx.progress(d, total, &format!("ensemble uncertainty: {status}"))
+        })?;
+        let path = cx.dir.join(Self::STEP_UNCERTAINTY_CSV);
+        nerfsv_validation::write_csv_file(&path, &measured).map_err(|e| PipelineError::io(&path, e))?;
+        Ok([Sampler::Mc, Sampler::Cem]
+            .into_iter()
+            .filter(|s| self.samplers().contains(s))
+            .map(|sampler| {
+                let ours: Vec<RolloutRecord> = measured.iter().filter(|r| sampler.owns(r)).cloned().collect();
+                StepAurocFigures {
+                    sampler,
+                    nerf_world: self.sim.nerf_world,
+                    auroc: disagreement_auroc(&ours, replays),
+                    step_auroc_ci95: step_auroc_interval(&ours, replays, BOOTSTRAP_RESAMPLES, self.validation.seed),
+                }
+            })
+            .collect())
     }
 }
 

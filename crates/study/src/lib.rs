@@ -28,7 +28,9 @@ mod uncertainty;
 use std::path::PathBuf;
 
 pub use drone::{drone_disturbances, DroneSystem, EstimateLog};
-pub use uncertainty::{online_pixels, ExactUncertainty, FieldUncertainty, UncertaintyReward, UqMode, ViewUncertainty};
+pub use uncertainty::{
+    online_pixels, EnsembleUncertainty, ExactUncertainty, FieldUncertainty, UncertaintyReward, UqMode, ViewUncertainty,
+};
 
 /// Where long-running work reports: progress of a named stage and one-line notes about it.
 pub trait Observer: Sync {

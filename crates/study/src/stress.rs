@@ -19,8 +19,8 @@ use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, World, World
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, monte_carlo, replay_all, subset_simulation_reusing, table_row, Agreement, Confusion,
-    ImportanceEstimate, Journal, Prior, Rate, Recorder, Reward, RolloutRecord, SubsetEstimate, TableRow, Transfer,
-    ValidationConfig, ValidationError, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    DisagreementAuroc, ImportanceEstimate, Journal, Prior, Rate, Recorder, Reward, RolloutRecord, SubsetEstimate,
+    TableRow, Transfer, ValidationConfig, ValidationError, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 use serde::{Deserialize, Serialize};
 
@@ -298,6 +298,22 @@ pub struct TransferFigures {
     pub mcnemar_p_ensemble: f64,
     pub deployed: Transfer,
     pub ensemble: Transfer,
+    /// Per sampler, how well the ensemble's per-step uncertainty of the drone's view (measured
+    /// at each searched rollout's recorded poses, no ground-truth image) predicts the steps where
+    /// the search's NeRF world and GT-sim disagree.
+    #[serde(default)]
+    pub step_auroc: Vec<StepAurocFigures>,
+}
+
+/// One sampler's [`DisagreementAuroc`] of the ensemble's per-step uncertainty, with the step
+/// AUROC's 95 % interval from a bootstrap over rollouts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepAurocFigures {
+    pub sampler: Sampler,
+    /// The NeRF world the searched rollouts flew in (`deployed` or `ensemble`).
+    pub nerf_world: NerfWorldSource,
+    pub auroc: DisagreementAuroc,
+    pub step_auroc_ci95: Option<[f64; 2]>,
 }
 
 impl TransferFigures {
@@ -321,6 +337,7 @@ impl TransferFigures {
             mcnemar_p_ensemble: e.mcnemar_p,
             deployed: d,
             ensemble: e,
+            step_auroc: Vec::new(),
         }
     }
 }
@@ -583,7 +600,22 @@ pub fn measure_recorded(
     };
     let meter = view_meter(setup, gt_world.as_deref(), sim.background)?
         .ok_or_else(|| StudyError::Internal("measure_recorded: no uncertainty to measure".into()))?;
-    let timed = Timed { inner: meter.as_ref(), views: AtomicU64::new(0), nanos: AtomicU64::new(0) };
+    measure_at_poses(records, sim.intrinsics, meter.as_ref(), &|d, total, status| {
+        observer.progress(setup.stage, d, total, status)
+    })
+}
+
+/// Each step's uncertainty under `meter` at the pose the record keeps for the step's end, the
+/// drone's camera of `intrinsics` there (NaN for a step without a finite pose): the core of
+/// [`measure_recorded`]. Returns the records and the views measured with their wall-clock
+/// seconds; reports (done, total, status) to `progress`.
+pub fn measure_at_poses(
+    records: Vec<RolloutRecord>,
+    intrinsics: nerfsv_scene::Intrinsics,
+    meter: &dyn ViewUncertainty,
+    progress: &(dyn Fn(u64, u64, &str) + Sync),
+) -> Result<(Vec<RolloutRecord>, usize, f64), StudyError> {
+    let timed = Timed { inner: meter, views: AtomicU64::new(0), nanos: AtomicU64::new(0) };
     if let Some(r) = records
         .iter()
         .find(|r| r.step_positions.len() != r.step_scores.len() || r.step_attitudes.len() != r.step_scores.len())
@@ -606,14 +638,14 @@ pub fn measure_recorded(
                 .map(|(p, a)| {
                     if p.iter().chain(a).all(|v| v.is_finite()) {
                         let rotation = nerfsv_sim::dynamics::so3_exp(&nalgebra::Vector3::from(*a));
-                        timed.view_uncertainty(&drone_camera(sim.intrinsics, &nalgebra::Vector3::from(*p), &rotation))
+                        timed.view_uncertainty(&drone_camera(intrinsics, &nalgebra::Vector3::from(*p), &rotation))
                     } else {
                         f64::NAN
                     }
                 })
                 .collect();
             let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-            observer.progress(setup.stage, d, total, &status);
+            progress(d, total, &status);
             r
         })
         .collect();

@@ -114,6 +114,22 @@ impl ViewUncertainty for FieldUncertainty<'_> {
     }
 }
 
+/// The ensemble's measure of a view: the mean density-aware spread (colour variance plus
+/// termination variance, [`nerfsv_uq::ensemble`]) of the members' renders of the view's rays.
+/// It needs no ground-truth image.
+pub struct EnsembleUncertainty<'a> {
+    /// The deployed model and the other members.
+    pub members: Vec<&'a Nerf>,
+    pub pixels: Vec<[u32; 2]>,
+    pub background: [f32; 3],
+}
+
+impl ViewUncertainty for EnsembleUncertainty<'_> {
+    fn view_uncertainty(&self, camera: &Camera) -> f64 {
+        nerfsv_uq::ensemble::view_uncertainty(&self.members, camera, &self.pixels, self.background)
+    }
+}
+
 /// The paper's rewards for CEM's ranking: the trajectory log-likelihood less a penalty on the
 /// rollout's mean per-step uncertainty `ū` (steps without a value left out):
 /// - eq. 10 (GA): `log p − penalty · ū` (ū the mean σ_d);

@@ -58,7 +58,7 @@ pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, SubsetConfig, V
 pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};
-pub use online::{auroc, disagreement_auroc, DisagreementAuroc};
+pub use online::{auroc, disagreement_auroc, step_auroc_interval, DisagreementAuroc};
 pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
@@ -70,4 +70,4 @@ pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusin
 pub use system::{run_here, Finished, Job, Outcome, System};
 pub use table::{table_row, TableRow};
 pub use trajectory::{RaggedRow, Trajectory};
-pub use transfer::{matthews, mcnemar_exact, Estimate, Rate, Transfer};
+pub use transfer::{matthews, mcnemar_exact, Estimate, Rate, Transfer, BOOTSTRAP_RESAMPLES};

@@ -88,6 +88,67 @@ pub fn disagreement_auroc(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Disag
     }
 }
 
+/// Each paired rollout's steps as (uncertainty, disagreeing) pairs, as
+/// [`disagreement_auroc`] counts them.
+fn paired_steps(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Vec<Vec<(f64, bool)>> {
+    let replays: std::collections::HashMap<(&str, usize, usize), &RolloutRecord> =
+        gt.iter().map(|r| (r.key(), r)).collect();
+    nerf.iter()
+        .filter_map(|r| {
+            let g = replays.get(&r.key()).filter(|g| g.seed == r.seed)?;
+            Some(
+                r.step_uncertainty
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(t, &u)| {
+                        let (a, b) = (*r.step_scores.get(t)?, *g.step_scores.get(t)?);
+                        (u.is_finite() && !a.is_nan() && !b.is_nan()).then_some((u, (a <= 0.0) != (b <= 0.0)))
+                    })
+                    .collect(),
+            )
+        })
+        .collect()
+}
+
+/// The 95 % percentile interval of [`DisagreementAuroc::step_auroc`] from a bootstrap over
+/// rollouts (a rollout's steps are not independent, so whole rollouts are resampled with
+/// replacement), `resamples` times, seeded by `seed`. Resamples without both classes are left
+/// out; `None` when fewer than half of them have both.
+pub fn step_auroc_interval(
+    nerf: &[RolloutRecord],
+    gt: &[RolloutRecord],
+    resamples: usize,
+    seed: u64,
+) -> Option<[f64; 2]> {
+    use rand::{RngExt, SeedableRng};
+    let rollouts = paired_steps(nerf, gt);
+    if rollouts.is_empty() {
+        return None;
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut values = Vec::with_capacity(resamples);
+    let (mut scores, mut labels) = (Vec::new(), Vec::new());
+    for _ in 0..resamples {
+        scores.clear();
+        labels.clear();
+        for _ in 0..rollouts.len() {
+            for &(u, l) in &rollouts[rng.random_range(0..rollouts.len())] {
+                scores.push(u);
+                labels.push(l);
+            }
+        }
+        if let Some(a) = auroc(&scores, &labels) {
+            values.push(a);
+        }
+    }
+    if values.len() * 2 < resamples {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+    Some([at(0.025), at(0.975)])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -167,5 +228,27 @@ mod tests {
         let mut other = gt.clone();
         other[0].seed = 99;
         assert_eq!(disagreement_auroc(&nerf, &other).trajectories, 1);
+    }
+
+    #[test]
+    fn the_bootstrap_interval_of_the_step_auroc_is_seeded_and_degenerate_for_perfect_rankings() {
+        // Every disagreeing step scores above every agreeing one: every resample gives 1.
+        let nerf: Vec<RolloutRecord> = (0..20)
+            .map(|i| {
+                let crash = i % 4 == 0;
+                record(i, vec![0.3, if crash { -0.1 } else { 0.2 }], vec![0.1, if crash { 0.9 } else { 0.2 }])
+            })
+            .collect();
+        let gt: Vec<RolloutRecord> = (0..20).map(|i| record(i, vec![0.3, 0.2], vec![])).collect();
+        assert_eq!(disagreement_auroc(&nerf, &gt).step_auroc, Some(1.0));
+        assert_eq!(step_auroc_interval(&nerf, &gt, 200, 1), Some([1.0, 1.0]));
+        // Uninformative scores: the interval holds one half and is the same for the same seed.
+        let noisy: Vec<RolloutRecord> =
+            nerf.iter().map(|r| RolloutRecord { step_uncertainty: vec![0.5, 0.5], ..r.clone() }).collect();
+        let ci = step_auroc_interval(&noisy, &gt, 200, 7).unwrap();
+        assert!(ci[0] <= 0.5 && 0.5 <= ci[1], "{ci:?}");
+        assert_eq!(step_auroc_interval(&noisy, &gt, 200, 7), Some(ci));
+        // No disagreement at all: no interval.
+        assert_eq!(step_auroc_interval(&gt, &gt, 50, 1), None);
     }
 }

@@ -8,7 +8,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use common::{nerfsv, s};
+use common::{files, nerfsv, s};
 
 /// The tiny study's `[nerf]` and `[train]` tables (shared with the `nerfsv train` config).
 const MODEL: &str = "[train]\nbatch_rays = 256\ncheckpoint_every_steps = 1\n";
@@ -32,26 +32,6 @@ fn config(dir: &Path) -> PathBuf {
     )
     .unwrap();
     cfg
-}
-
-/// Every file under `root` with its bytes, but the records, the summary and the page (timings).
-fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for e in std::fs::read_dir(&dir).unwrap().flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else if !["stage.json", "summary.json", "train_stats.json", "index.html"]
-                .contains(&e.file_name().to_str().unwrap())
-            {
-                out.push((p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 fn summary(root: &Path) -> serde_json::Value {

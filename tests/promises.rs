@@ -7,7 +7,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use common::{nerfsv, nerfsv_with, s};
+use common::{files, nerfsv, nerfsv_with, s};
 
 /// A tiny run config: 16×16 monolith, a few training steps, a coarse field.
 fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
@@ -24,27 +24,6 @@ fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
     )
     .unwrap();
     cfg
-}
-
-/// Every file under `root` (relative path → bytes), skipping the records, the summary and the
-/// report's page, which hold timings.
-fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for e in std::fs::read_dir(&dir).unwrap().flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else if !["stage.json", "summary.json", "train_stats.json", "index.html"]
-                .contains(&e.file_name().to_str().unwrap())
-            {
-                out.push((p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 /// `summary.json` without its wall-clock figures.

@@ -79,3 +79,24 @@ pub fn tiny_model(dir: &Path, ds: &Path) -> PathBuf {
     assert!(ok, "{err}");
     nerf.join("checkpoint.safetensors")
 }
+
+/// Every file under `root` (relative path → bytes), skipping the records, the summary and the
+/// report's page, which hold timings.
+pub fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if !["stage.json", "summary.json", "train_stats.json", "index.html"]
+                .contains(&e.file_name().to_str().unwrap())
+            {
+                out.push((p.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}

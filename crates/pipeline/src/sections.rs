@@ -197,23 +197,14 @@ impl Report for Uncertainty<'_> {
                  same test images as each method:",
                 e.members
             ));
+            let rows = [
+                ("GA's", e.ga_images, u.ause_ga, e.on_ga_images, e.random_on_ga_images),
+                ("BLA's", e.bla_images, u.ause_bla, e.on_bla_images, e.random_on_bla_images),
+            ];
             s.table(Table::new(&["images", "images scored", "method's depth AUSE", "ensemble", "random order"]).rows(
-                [
-                    vec![
-                        "GA's".into(),
-                        e.ga_images.to_string(),
-                        num(u.ause_ga, 3),
-                        num(e.on_ga_images, 3),
-                        num(e.random_on_ga_images, 3),
-                    ],
-                    vec![
-                        "BLA's".into(),
-                        e.bla_images.to_string(),
-                        num(u.ause_bla, 3),
-                        num(e.on_bla_images, 3),
-                        num(e.random_on_bla_images, 3),
-                    ],
-                ],
+                rows.map(|(name, n, method, ensemble, random)| {
+                    vec![name.into(), n.to_string(), num(method, 3), num(ensemble, 3), num(random, 3)]
+                }),
             ));
         }
         s.paragraph(

@@ -105,9 +105,9 @@ impl Guard {
 
     /// The first conflict, naming both paths as the user gave them and what they are.
     pub fn check(&self) -> Result<(), PipelineError> {
+        let inputs = self.folders.iter().map(|f| (f, true)).chain(self.files.iter().map(|f| (f, false)));
         for out in &self.outputs {
-            for input in self.folders.iter().chain(&self.files) {
-                let folder = self.folders.iter().any(|f| std::ptr::eq(f, input));
+            for (input, folder) in inputs.clone() {
                 if out.real == input.real || (folder && out.real.starts_with(&input.real)) {
                     return Err(PipelineError::OutputInsideInput {
                         output: out.given.clone(),

@@ -145,7 +145,7 @@ pub fn step_auroc_interval(
         return None;
     }
     values.sort_by(f64::total_cmp);
-    let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+    let at = |q| crate::transfer::quantile_sorted(&values, q);
     Some([at(0.025), at(0.975)])
 }
 

@@ -152,7 +152,7 @@ fn bootstrap_mcc(nerf: &[bool], gt: &[bool], seed: u64) -> [f64; 2] {
 }
 
 /// The `q` quantile of sorted values, linear between order statistics (type 7).
-fn quantile_sorted(v: &[f64], q: f64) -> f64 {
+pub(crate) fn quantile_sorted(v: &[f64], q: f64) -> f64 {
     let h = (v.len() - 1) as f64 * q;
     let (lo, hi) = (h.floor() as usize, h.ceil() as usize);
     v[lo] + (h - lo as f64) * (v[hi] - v[lo])

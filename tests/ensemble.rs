@@ -83,11 +83,16 @@ fn a_tiny_run_with_an_ensemble_writes_the_transfer_table_and_resumes_to_the_same
     assert!(e["on_bla_images"].as_f64().is_some() && e["random_on_bla_images"].as_f64().is_some(), "{e:#}");
     let ause = std::fs::read_to_string(reference.join("uq/ause.csv")).unwrap();
     assert!(ause.lines().any(|l| l.starts_with("ensemble,")) && ause.lines().any(|l| l.starts_with("random,")));
+    // The ensemble's uncertainty field, its slice in the report, and its panel in the maps.
+    let field = nerfsv_uq::UncertaintyField::load(&reference.join("uq/ensemble_field.safetensors")).unwrap();
+    assert_eq!(field.method, nerfsv_uq::FieldMethod::Ensemble);
+    assert!(sum["uq"]["ensemble_field"]["mean_variance"].as_f64().is_some(), "{:#}", sum["uq"]);
     // The search flew in the ensemble; Monte Carlo flew again in the deployed NeRF's world.
     assert!(reference.join("stress/nerf_deployed/rollouts.csv").exists());
     let page = std::fs::read_to_string(reference.join("report/index.html")).unwrap();
     let answer = page.find("Do failures found in a NeRF predict failures in the world?").expect("the transfer answer");
     assert!(answer < page.find("How likely does the drone crash").unwrap(), "the transfer table opens the answer");
+    assert!(page.contains("ensemble_field_z0.30.png"), "the ensemble field's slice in the report");
 
     // Killed during its stress stage and run again: the same rollouts in the same members.
     let out = dir.path().join("killed");

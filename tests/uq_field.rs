@@ -6,7 +6,8 @@ mod common;
 use std::path::Path;
 
 use common::{nerfsv, s};
-use nerfsv_uq::{model_id, Method, UncertaintyField, UqError};
+use nerfsv_nerf::Nerf;
+use nerfsv_uq::{model_id, FieldMethod, UncertaintyField, UqError};
 
 /// A coarse grid (5 cells/m: 11³ nodes over the ±1 m box) and a low rank keep BLA quick.
 fn config(dir: &Path) -> std::path::PathBuf {
@@ -54,7 +55,7 @@ fn uq_field_writes_the_field_its_slice_and_figures_and_a_field_of_another_model_
             assert!(v["rank"].is_null());
         }
         let field = UncertaintyField::load(&out).unwrap();
-        let expected = if method == "ga" { Method::Ga } else { Method::Bla };
+        let expected = if method == "ga" { FieldMethod::Ga } else { FieldMethod::Bla };
         assert_eq!(field.method, expected);
         assert_eq!(field.geometry.dims, [11, 11, 11]);
         assert_eq!(v["checkpoint_id"], field.checkpoint_id.as_str());
@@ -82,6 +83,45 @@ fn uq_field_writes_the_field_its_slice_and_figures_and_a_field_of_another_model_
     let msg = err.to_string();
     assert!(msg.contains("field_ga.safetensors") && msg.contains(&field.checkpoint_id), "{msg}");
     assert!(msg.contains(&model_id(&nerf)) && msg.contains("checkpoint.safetensors"), "{msg}");
+
+    // The ensemble's field: the deployed model and the other checkpoint as its members; with a
+    // member identical to the deployed model, no spread anywhere. `--member` needs the method.
+    let field_of = |members: &[&Path], name: &str| {
+        let out = dir.path().join("fields").join(name);
+        let mut args = vec!["uq", "field", "--method", "ensemble", "--model", s(&model), "--data", s(&ds)];
+        for m in members {
+            args.extend(["--member", s(m)]);
+        }
+        args.extend(["--out", s(&out), "--config", s(&cfg), "--json"]);
+        let (ok, stdout, err) = nerfsv(&args);
+        assert!(ok, "{err}");
+        let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"));
+        assert_eq!(v["method"], "ensemble");
+        UncertaintyField::load(&out).unwrap()
+    };
+    let spread = field_of(&[&other], "ensemble.safetensors");
+    assert_eq!(spread.method, FieldMethod::Ensemble);
+    assert!(spread.variance.iter().all(|x| x.is_finite() && *x >= 0.0) && spread.variance.iter().any(|&x| x > 0.0));
+    spread
+        .check_checkpoint(&dir.path().join("fields/ensemble.safetensors"), &model_id(&Nerf::load(&model).unwrap()))
+        .unwrap();
+    let same = field_of(&[&model], "same.safetensors");
+    assert!(same.variance.iter().all(|&x| x == 0.0));
+    let (ok, _, err) = nerfsv(&[
+        "uq",
+        "field",
+        "--method",
+        "ga",
+        "--model",
+        s(&model),
+        "--member",
+        s(&other),
+        "--data",
+        s(&ds),
+        "--out",
+        s(&dir.path().join("y.safetensors")),
+    ]);
+    assert!(!ok && err.contains("--member"), "{err}");
 
     // Bad input: a dataset folder without a train split.
     let empty = dir.path().join("empty");

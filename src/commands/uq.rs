@@ -42,8 +42,9 @@ pub enum UqCommand {
     Ause(AuseArgs),
     /// The uncertainty field: a voxel grid of density uncertainty over the model's box from the
     /// train split (BLA: the linearised Var[σ(x)] under the posterior of all training images;
-    /// GA: per-ray σ̂² splatted by compositing weight), saved as safetensors with a PNG of its
-    /// slice at z = 0.3 m. Online `field` mode looks uncertainty up in it.
+    /// GA: per-ray σ̂² splatted by compositing weight; ensemble: the variance of its members'
+    /// densities), saved as safetensors with a PNG of its slice at z = 0.3 m. Online `field`
+    /// mode looks uncertainty up in it.
     Field(super::uq_field::FieldArgs),
 }
 

@@ -6,27 +6,34 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use clap::Args;
+use clap::{Args, ValueEnum};
 use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_uq::offline::{build_field, has_split, save_field_with_slice, Method, FIELD_SLICE_ALTITUDE};
+use nerfsv_uq::UncertaintyField;
 use serde::Serialize;
 
-use crate::commands::uq::{load_uq_config, MethodArg};
+use crate::commands::uq::load_uq_config;
 use crate::progress::Reporter;
 
 #[derive(Args)]
 pub struct FieldArgs {
     /// Which method's field: ga (each training ray's σ̂² splatted by compositing weight; about
-    /// 30 s on the default model) or bla (the linearised Var[σ(x)] under the posterior of all
-    /// training images; about 90 s).
+    /// 30 s on the default model), bla (the linearised Var[σ(x)] under the posterior of all
+    /// training images; about 90 s) or ensemble (the variance of the members' densities at
+    /// each node, `--member` the other members; seconds).
     #[arg(long, value_enum)]
-    pub method: MethodArg,
-    /// Checkpoint written by `nerfsv train`.
+    pub method: FieldMethodArg,
+    /// Checkpoint written by `nerfsv train` (with `--method ensemble`, the deployed model).
     #[arg(long)]
     pub model: PathBuf,
-    /// Blender-format dataset folder: its train split is used.
+    /// With `--method ensemble`: another member's checkpoint, trained on the same data with
+    /// another seed (repeat; `nerfsv run` keeps them in `RUN/ensemble/member_K/`).
+    #[arg(long = "member")]
+    pub members: Vec<PathBuf>,
+    /// Blender-format dataset folder: its train split is used (GA and BLA; the ensemble checks
+    /// only that its cameras see the models).
     #[arg(long)]
     pub data: PathBuf,
     /// Output file (safetensors: tensors density, variance, weight over the model's box). A PNG
@@ -40,6 +47,13 @@ pub struct FieldArgs {
     /// Print one JSON object with the field's figures.
     #[arg(long)]
     pub json: bool,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FieldMethodArg {
+    Ga,
+    Bla,
+    Ensemble,
 }
 
 #[derive(Serialize)]
@@ -71,30 +85,53 @@ struct Summary {
 
 pub fn run(args: FieldArgs) -> anyhow::Result<()> {
     let cfg = load_uq_config(args.config.as_deref())?;
-    Guard::new().dataset("--data", &args.data).input("--model", &args.model).output("--out", &args.out).check()?;
+    let mut guard = Guard::new().dataset("--data", &args.data).input("--model", &args.model);
+    for member in &args.members {
+        guard = guard.input("--member", member);
+    }
+    guard.output("--out", &args.out).check()?;
     if !has_split(&args.data, "train") {
         anyhow::bail!(
             "{}: no transforms_train.json (or transforms.json): not a Blender-format dataset",
             args.data.display()
         );
     }
-    let nerf = Nerf::load(&args.model).with_context(|| format!("loading the model {}", args.model.display()))?;
+    let load = |path: &PathBuf| Nerf::load(path).with_context(|| format!("loading the model {}", path.display()));
+    let nerf = load(&args.model)?;
     let split = load_split(&args.data, "train", LoadOptions { downscale: 1, load_depth: false })
         .with_context(|| format!("loading the train split of {}", args.data.display()))?;
     let reporter = Reporter::new(args.json);
-    let method = Method::from(args.method);
-    let stage = format!("uq field {}", method.name());
+    let method = match args.method {
+        FieldMethodArg::Ga => Some(Method::Ga),
+        FieldMethodArg::Bla => Some(Method::Bla),
+        FieldMethodArg::Ensemble => None,
+    };
+    if method.is_some() != args.members.is_empty() {
+        anyhow::bail!("--member names the other members of an ensemble: give it with --method ensemble, and only then");
+    }
+    let stage = format!("uq field {}", method.map_or("ensemble", Method::name));
     let mut progress =
         |done: usize, total: usize| reporter.progress(&stage, done as u64, total as u64, "training images");
     let checkpoint = args.model.display().to_string();
-    let field = build_field(&nerf, &checkpoint, &split, method, &cfg, &mut progress)?;
+    let field = match method {
+        Some(method) => build_field(&nerf, &checkpoint, &split, method, &cfg, &mut progress)?,
+        None => {
+            let others = args.members.iter().map(load).collect::<anyhow::Result<Vec<_>>>()?;
+            let members: Vec<&Nerf> = std::iter::once(&nerf).chain(&others).collect();
+            for (m, path) in members.iter().zip(std::iter::once(&args.model).chain(&args.members)) {
+                nerfsv_nerf::check_bounds(&m.config, &split)
+                    .with_context(|| format!("{}: the train split of {}", path.display(), args.data.display()))?;
+            }
+            UncertaintyField::build_ensemble(&members, &checkpoint, &cfg)?
+        }
+    };
     let png_path = save_field_with_slice(&field, &args.out)?;
     if png_path.is_none() {
         reporter.note(&stage, &format!("z = {FIELD_SLICE_ALTITUDE} m is outside the grid: no slice PNG"));
     }
     let f = &field.figures;
     let summary = Summary {
-        method: Method::from(args.method).name(),
+        method: field.method.name(),
         file: args.out.display().to_string(),
         png: png_path.map(|p| p.display().to_string()),
         voxels: field.geometry.len(),

@@ -27,12 +27,35 @@ pub trait Validate {
 }
 
 /// Reads a TOML file into `T`: unknown keys, malformed values and out-of-range values are
-/// errors that name the file and the key.
-pub fn load_toml<T: DeserializeOwned + Validate>(path: &Path) -> Result<T, PipelineError> {
+/// errors that name the file and the key. A key the file leaves out takes `T::default()`'s
+/// value, also inside a table the file has: `[sim]` with only `start` keeps the default run's
+/// other `[sim]` values, not those of the table's own type.
+pub fn load_toml<T: DeserializeOwned + Serialize + Default + Validate>(path: &Path) -> Result<T, PipelineError> {
     let text = std::fs::read_to_string(path).map_err(|e| PipelineError::io(path, e))?;
-    let value: T = toml::from_str(&text).map_err(|e| PipelineError::Toml { path: path.into(), error: e })?;
+    let toml_error = |error| PipelineError::Toml { path: path.into(), error };
+    // Read once as written, so that an error points at its line and column.
+    toml::from_str::<T>(&text).map_err(toml_error)?;
+    let user: toml::Table = toml::from_str(&text).map_err(toml_error)?;
+    let mut merged = match toml::Value::try_from(T::default()) {
+        Ok(toml::Value::Table(t)) => t,
+        _ => toml::Table::new(),
+    };
+    merge_tables(&mut merged, user);
+    let value: T = toml::Value::Table(merged).try_into().map_err(toml_error)?;
     value.validate().map_err(|e| PipelineError::InvalidConfig { path: path.into(), error: e })?;
     Ok(value)
+}
+
+/// `over`'s keys written onto `base`, tables merged key by key, anything else replaced.
+fn merge_tables(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_tables(b, o),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
 }
 
 /// Model and optimiser settings, the `[nerf]` and `[train]` tables of a TOML file.
@@ -596,6 +619,31 @@ mod tests {
         let text = toml::to_string(&cfg).unwrap();
         let back: RunConfig = toml::from_str(&text).unwrap();
         assert_eq!(serde_json::to_value(&back).unwrap(), serde_json::to_value(&cfg).unwrap());
+    }
+
+    /// A table the file has keeps the default run's values for the keys it leaves out, not its
+    /// own type's defaults (`SimConfig`'s NeRF world is the deployed model, the run's the ensemble).
+    #[test]
+    fn a_partial_table_keeps_the_default_runs_other_keys() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.toml");
+        std::fs::write(
+            &path,
+            "[sim]\nstart = [0.3, -0.9, 0.2]\n[ensemble]\nbootstrap = true\n[dataset]\ntrain = 200\n",
+        )
+        .unwrap();
+        let cfg = RunConfig::load(&path).unwrap();
+        let default = RunConfig::default();
+        assert_eq!(cfg.sim.start, [0.3, -0.9, 0.2]);
+        assert_eq!(cfg.sim.nerf_world, nerfsv_sim::NerfWorldSource::Ensemble);
+        assert_eq!((cfg.ensemble.members, cfg.ensemble.bootstrap), (DEFAULT_ENSEMBLE_MEMBERS, true));
+        assert_eq!(cfg.dataset.train, 200);
+        assert_eq!(cfg.dataset.close_up_fraction, default.dataset.close_up_fraction);
+        let mut expected = default;
+        expected.sim.start = cfg.sim.start;
+        expected.ensemble.bootstrap = true;
+        expected.dataset.train = 200;
+        assert_eq!(serde_json::to_value(&cfg).unwrap(), serde_json::to_value(&expected).unwrap());
     }
 
     #[test]

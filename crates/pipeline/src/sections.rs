@@ -216,7 +216,8 @@ impl Report for Uncertainty<'_> {
         for (file, caption) in [
             (
                 "uq_maps.png",
-                "Per pixel, on one test view: the NeRF's depth error and GA's and BLA's depth standard deviations",
+                "Per pixel, on one test view: the NeRF's depth error and GA's and BLA's depth standard deviations \
+                 (and the ensemble's, with one)",
             ),
             ("uq_ga_sigma_d.png", "GA: σ_d per image and split"),
             ("uq_ga_mu_sigma.png", "GA: μ_d against σ_d"),
@@ -225,6 +226,18 @@ impl Report for Uncertainty<'_> {
             ("uq_bla_trace_rmv.png", "BLA: normalised trace against rmv"),
         ] {
             s.picture(file, caption);
+        }
+        if u.ensemble_field.is_some() {
+            let slice = nerfsv_uq::offline::field_slice_path(Path::new(Uncertainty::ENSEMBLE_FIELD));
+            s.picture(
+                &slice.to_string_lossy(),
+                &format!(
+                    "The ensemble's uncertainty field at z = {:.2} m: the members' density standard deviation relative \
+                     to the deployed model's density ({}, with `nerfsv uq field --method ensemble`'s format)",
+                    nerfsv_uq::offline::FIELD_SLICE_ALTITUDE,
+                    Uncertainty::ENSEMBLE_FIELD
+                ),
+            );
         }
         s.csv(Uncertainty::AUSE_CSV, "ause.csv");
         s.csv(Uncertainty::GA_CSV, "uq_ga.csv");

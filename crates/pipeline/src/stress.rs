@@ -298,7 +298,7 @@ pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<St
     let cfg = request.config;
     let refuse = |message: String| PipelineError::World { key: "stress", message };
     match (request.online, request.field) {
-        (Some(o), Some((path, field))) if o.mode == UqMode::Field && field.method != o.method => {
+        (Some(o), Some((path, field))) if o.mode == UqMode::Field && field.method != o.method.into() => {
             return Err(refuse(format!(
                 "{}: a {} uncertainty field, but the search measures {}",
                 path.display(),

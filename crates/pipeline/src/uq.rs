@@ -51,6 +51,10 @@ pub struct UqFigures {
     /// members' depth spread), and a random ordering's, over GA's and over BLA's test images.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ensemble_ause: Option<EnsembleAuse>,
+    /// With an ensemble: its uncertainty field's figures (`ENSEMBLE_FIELD`, the variance of the
+    /// members' densities at each node).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ensemble_field: Option<nerfsv_uq::FieldFigures>,
     pub seconds: f64,
 }
 
@@ -71,6 +75,9 @@ impl Uncertainty<'_> {
     pub const GA_CSV: &'static str = "ga.csv";
     pub const BLA_CSV: &'static str = "bla.csv";
     pub const AUSE_CSV: &'static str = "ause.csv";
+    /// With an ensemble: its uncertainty field (`nerfsv uq field --method ensemble` writes the
+    /// same), with its slice at flight altitude beside it.
+    pub const ENSEMBLE_FIELD: &'static str = "ensemble_field.safetensors";
 }
 
 /// `ause.csv`: a row per (method, test image): its AUSE and pixels, or why it was skipped.
@@ -107,6 +114,23 @@ impl Stage for Uncertainty<'_> {
     const INPUTS: &'static [&'static str] = &[Dataset::NAME, Train::NAME];
     type Figures = UqFigures;
 
+    fn outputs(&self) -> &'static [&'static str] {
+        const WITH_ENSEMBLE: [&str; 14] = {
+            let mut all = [Uncertainty::ENSEMBLE_FIELD; 14];
+            let mut i = 0;
+            while i < Uncertainty::OUTPUTS.len() {
+                all[i] = Uncertainty::OUTPUTS[i];
+                i += 1;
+            }
+            all
+        };
+        if self.ensemble {
+            &WITH_ENSEMBLE
+        } else {
+            Self::OUTPUTS
+        }
+    }
+
     fn config(&self) -> impl Serialize {
         (self.uq, self.offline)
     }
@@ -114,6 +138,12 @@ impl Stage for Uncertainty<'_> {
     fn run(&self, cx: &StageContext) -> Result<UqFigures, PipelineError> {
         let start = Instant::now();
         let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
+        let members = match self.ensemble {
+            true => crate::ensemble::EnsembleStage::load_members(cx.root)?,
+            false => Vec::new(),
+        };
+        let others: Vec<&Nerf> = members.iter().map(|m| &m.nerf).collect();
+        let all: Vec<&Nerf> = std::iter::once(&nerf).chain(others.iter().copied()).collect();
         let data = Dataset::folder(cx.root)?;
         let (ga_n, bla_n) = (self.offline.ga_images_per_split, self.offline.bla_images_per_split);
         let splits = SPLITS.map(|name| load_dataset_split(&data, name, 1));
@@ -170,7 +200,7 @@ impl Stage for Uncertainty<'_> {
         }
         let ensemble_ause = match chosen.iter().find(|(n, ..)| *n == "test") {
             Some((_, split, ga_idx, bla_idx)) if self.ensemble => {
-                Some(self.ensemble_ause(cx, &nerf, split, ga_idx, bla_idx, &mut ause)?)
+                Some(self.ensemble_ause(cx, &all, split, ga_idx, bla_idx, &mut ause)?)
             }
             _ => None,
         };
@@ -209,12 +239,22 @@ impl Stage for Uncertainty<'_> {
         if let Some((_, split, ga_idx, bla_idx)) = chosen.iter().find(|(n, ..)| *n == "test") {
             if let Some(&index) = bla_idx.first().or(ga_idx.first()) {
                 cx.progress(done.get(), total, "per-pixel maps");
-                if let Some(png) = maps_figure(&nerf, &split.frames[index], !bla_idx.is_empty(), self.uq)? {
+                if let Some(png) = maps_figure(&nerf, &split.frames[index], !bla_idx.is_empty(), &others, self.uq)? {
                     files.push((MAPS_PNG.to_string(), png));
                 }
             }
         }
         write_files(&cx.dir, &files)?;
+        let ensemble_field = match others.is_empty() {
+            true => None,
+            false => {
+                cx.progress(done.get(), total, "ensemble field");
+                let checkpoint = Train::checkpoint(cx.root).display().to_string();
+                let field = nerfsv_uq::UncertaintyField::build_ensemble(&all, &checkpoint, self.uq)?;
+                save_field_with_slice(&field, &cx.dir.join(Self::ENSEMBLE_FIELD))?;
+                Some(field.figures)
+            }
+        };
         let rows: Vec<Row> = ga.into_iter().chain(bla).collect();
         Ok(UqFigures {
             train: split_figures(&rows, "train", self.uq.ga_sigma_max),
@@ -225,6 +265,7 @@ impl Stage for Uncertainty<'_> {
             ause_bla,
             ause_bla_images,
             ensemble_ause,
+            ensemble_field,
             seconds: start.elapsed().as_secs_f64(),
         })
     }
@@ -261,14 +302,12 @@ impl Uncertainty<'_> {
     fn ensemble_ause(
         &self,
         cx: &StageContext,
-        nerf: &Nerf,
+        all: &[&Nerf],
         split: &nerfsv_dataset::Split,
         ga_idx: &[usize],
         bla_idx: &[usize],
         ause: &mut Vec<(&'static str, usize, String, AuseOutcome)>,
     ) -> Result<usize, PipelineError> {
-        let members = crate::ensemble::EnsembleStage::load_members(cx.root)?;
-        let all: Vec<&Nerf> = std::iter::once(nerf).chain(members.iter().map(|m| &m.nerf)).collect();
         let mut indices: Vec<usize> = ga_idx.iter().chain(bla_idx).copied().collect();
         indices.sort_unstable();
         indices.dedup();
@@ -277,7 +316,7 @@ impl Uncertainty<'_> {
             let frame = &split.frames[index];
             let depth = frame.depth.as_ref().map(|d| &d.metres[..]);
             let name = frame.file_path.as_str();
-            match nerfsv_uq::ensemble::depth_ause(&all, name, &frame.camera, depth, BACKGROUND, RANDOM_ORDER_SEED) {
+            match nerfsv_uq::ensemble::depth_ause(all, name, &frame.camera, depth, BACKGROUND, RANDOM_ORDER_SEED) {
                 Ok((ours, random)) => {
                     ause.push(("ensemble", index, frame.file_path.clone(), AuseOutcome::Scored(ours)));
                     ause.push(("random", index, frame.file_path.clone(), AuseOutcome::Scored(random)));

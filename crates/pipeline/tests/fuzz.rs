@@ -297,7 +297,7 @@ fn mutated(original: &str, m: &Mutation) -> Vec<u8> {
 /// TOML and loads back the same.
 fn check_load<T>(bytes: &[u8]) -> Result<(), TestCaseError>
 where
-    T: DeserializeOwned + Serialize + Validate,
+    T: DeserializeOwned + Serialize + Default + Validate,
 {
     MemoryBudget::set(BUDGET);
     let dir = tempfile::tempdir().unwrap();

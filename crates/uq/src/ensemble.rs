@@ -19,6 +19,7 @@ use nerfsv_nerf::{Nerf, RayInput, RayOutputs};
 use nerfsv_scene::Camera;
 
 use crate::ause::{depth_errors, sparsification, Sparsification};
+use crate::maps::UncertaintyMaps;
 use crate::UqError;
 
 /// Per-ray spread of an ensemble's renders.
@@ -96,6 +97,20 @@ pub fn camera_spread(
     let depths: Vec<&[f32]> = views.iter().map(|v| &v.depth[..]).collect();
     let spread = EnsembleSpread::of(&outputs, &depths);
     (views, spread)
+}
+
+/// The per-pixel maps of `camera` (row-major): the members' colour standard deviation (the
+/// square root of the mean channel variance) and z-depth standard deviation; 0 where they agree,
+/// also where no member sees anything.
+pub fn maps(members: &[&Nerf], camera: &Camera, background: [f32; 3]) -> UncertaintyMaps {
+    let (_, spread) = camera_spread(members, camera, background);
+    let k = camera.intrinsics;
+    UncertaintyMaps {
+        width: k.width,
+        height: k.height,
+        colour_std: spread.colour_var.iter().map(|v| v.sqrt()).collect(),
+        depth_std: spread.depth_std,
+    }
 }
 
 /// The per-step measure of a drone's view: the mean density-aware uncertainty over the rays

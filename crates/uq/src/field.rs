@@ -54,6 +54,11 @@
 //! its small weights damp it, so nodes seen only by such rays carry large values (on the
 //! default model: mean 181, maximum 1.2e7 over the 87 069 nodes with data).
 //!
+//! **Ensemble** ([`UncertaintyField::build_ensemble`]). At every node the deployed model's
+//! density and the population variance of the K members' densities, `Var_k[σ_k(x)]` (1/m²): the
+//! members' disagreement about what is at a point, with no fit. `weight` is 1 everywhere;
+//! lookups and maps treat it as BLA's (a variance of σ in 1/m², relative to the deployed σ).
+//!
 //! **Lookups** ([`UncertaintyField::view_uncertainty`]) use only the grid: each pixel's ray is
 //! marched through the grid's box with a step of half a cell, composited with the grid's
 //! stored density (trilinear), `w_i = T_i·(1 − exp(−σ_i·Δt))`, stopping when `T < 1e-4`.
@@ -106,6 +111,38 @@ use serde::{Deserialize, Serialize};
 use crate::ga::{ga_fit_samples, GaRay};
 use crate::maps::UncertaintyMaps;
 use crate::{Method, UqConfig, UqError};
+
+/// How a field's `variance` was made: from GA's or BLA's fits of the training images, or from
+/// an ensemble's spread.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FieldMethod {
+    /// Per-ray σ̂² splatted by compositing weight (unitless).
+    Ga,
+    /// The linearised `Var[σ(x)]` under the posterior of all training images (1/m²).
+    Bla,
+    /// The population variance of the members' densities `Var_k[σ_k(x)]` (1/m²).
+    Ensemble,
+}
+
+impl FieldMethod {
+    /// `"ga"`, `"bla"` or `"ensemble"`, as stored in the file.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Ga => "ga",
+            Self::Bla => "bla",
+            Self::Ensemble => "ensemble",
+        }
+    }
+}
+
+impl From<Method> for FieldMethod {
+    fn from(m: Method) -> Self {
+        match m {
+            Method::Ga => Self::Ga,
+            Method::Bla => Self::Bla,
+        }
+    }
+}
 
 /// `format` of a field file.
 pub const FIELD_FORMAT: &str = "nerfsv-uncertainty-field";
@@ -163,8 +200,8 @@ pub struct TrainingView<'a> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct UncertaintyField {
     /// The method it was built by: GA's `variance` is the weighted mean of per-ray σ̂²
-    /// (unitless), BLA's `Var[σ(x)]` (1/m²).
-    pub method: Method,
+    /// (unitless), BLA's `Var[σ(x)]` (1/m²), the ensemble's the members' `Var_k[σ_k(x)]` (1/m²).
+    pub method: FieldMethod,
     /// Nodes over the model's box.
     pub geometry: GridGeometry,
     /// `[nodes]` σ of the NeRF at each node, 1/m.
@@ -505,7 +542,7 @@ impl UncertaintyField {
     /// the geometry's node count.
     #[allow(clippy::too_many_arguments)]
     pub fn from_parts(
-        method: Method,
+        method: FieldMethod,
         geometry: GridGeometry,
         density: Vec<f32>,
         variance: Vec<f32>,
@@ -521,8 +558,10 @@ impl UncertaintyField {
             }
         }
         let lookup = match method {
-            Method::Ga => variance.iter().zip(&weight).map(|(&v, &w)| if w > 0.0 { v } else { f32::NAN }).collect(),
-            Method::Bla => variance
+            FieldMethod::Ga => {
+                variance.iter().zip(&weight).map(|(&v, &w)| if w > 0.0 { v } else { f32::NAN }).collect()
+            }
+            FieldMethod::Bla | FieldMethod::Ensemble => variance
                 .iter()
                 .zip(&density)
                 .map(|(&v, &s)| {
@@ -643,14 +682,14 @@ impl UncertaintyField {
             num.iter().zip(&den).map(|(&n, &d)| if d > 0.0 { (n / d) as f32 } else { 0.0 }).collect();
         let weight: Vec<f32> = den.iter().map(|&d| d as f32).collect();
         let figures = FieldFigures { images, rays: n_rays, ..Default::default() };
-        Self::finish(nerf, checkpoint, Method::Ga, geometry, [density, variance, weight], figures, start)
+        Self::finish(nerf, checkpoint, FieldMethod::Ga, geometry, [density, variance, weight], figures, start)
     }
 
     /// The field of `nerf` from its arrays, with the figures summarised and timed from `start`.
     fn finish(
         nerf: &Nerf,
         checkpoint: &str,
-        method: Method,
+        method: FieldMethod,
         geometry: GridGeometry,
         [density, variance, weight]: [Vec<f32>; 3],
         mut figures: FieldFigures,
@@ -705,7 +744,47 @@ impl UncertaintyField {
             posterior_seconds: Some(posterior_seconds),
             ..Default::default()
         };
-        Self::finish(nerf, checkpoint, Method::Bla, geometry, [density, variance, weight], figures, start)
+        Self::finish(nerf, checkpoint, FieldMethod::Bla, geometry, [density, variance, weight], figures, start)
+    }
+
+    /// The ensemble's field: at every node the deployed model's (`members[0]`'s) density and the
+    /// population variance of the members' densities, `Var_k[σ_k(x)]` (1/m²), the spread of the
+    /// density at points (Sünderhauf et al.'s termination variance, before compositing). Lookups
+    /// and maps treat it as BLA's: relative to the deployed density, propagated per sample.
+    /// Errors: fewer than two members, or a member whose box is not the deployed model's.
+    pub fn build_ensemble(members: &[&Nerf], checkpoint: &str, cfg: &UqConfig) -> Result<Self, UqError> {
+        cfg.validate().map_err(|e| e.within("uq"))?;
+        let start = Instant::now();
+        let Some((&deployed, others)) = members.split_first().filter(|(_, o)| !o.is_empty()) else {
+            return Err(UqError::FieldGrid {
+                message: format!("an ensemble field needs at least two members, got {}", members.len()),
+            });
+        };
+        let aabb = |n: &Nerf| (n.config.aabb_min, n.config.aabb_max);
+        if let Some(k) = others.iter().position(|m| aabb(m) != aabb(deployed)) {
+            return Err(UqError::FieldGrid {
+                message: format!(
+                    "member {} has the box {:?}, the deployed model {:?}",
+                    k + 1,
+                    aabb(others[k]),
+                    aabb(deployed)
+                ),
+            });
+        }
+        let geometry = field_geometry(deployed, cfg.field_cells_per_metre)?;
+        let positions = node_positions(&geometry);
+        let densities: Vec<Vec<f32>> = members.par_iter().map(|m| m.density(&positions)).collect();
+        let k = members.len() as f64;
+        let variance: Vec<f32> = (0..positions.len())
+            .map(|n| {
+                let mean = densities.iter().map(|d| f64::from(d[n])).sum::<f64>() / k;
+                (densities.iter().map(|d| (f64::from(d[n]) - mean).powi(2)).sum::<f64>() / k) as f32
+            })
+            .collect();
+        let density = densities.into_iter().next().unwrap_or_default();
+        let weight = vec![1.0f32; geometry.len()];
+        let figures = FieldFigures::default();
+        Self::finish(deployed, checkpoint, FieldMethod::Ensemble, geometry, [density, variance, weight], figures, start)
     }
 
     /// The looked-up value `v` at `p` (GA σ̂², BLA relative variance), `None` outside the grid
@@ -820,7 +899,7 @@ impl UncertaintyField {
                 let opacity = samples.opacity[p];
                 let z = camera.z_depth_factor((p as u32 % k.width) as f32 + 0.5, (p as u32 / k.width) as f32 + 0.5);
                 let (var_c, var_d) = match self.method {
-                    Method::Ga => {
+                    FieldMethod::Ga => {
                         // The ray's weighted mean stands in for samples without data.
                         let (mut sv, mut sw) = (0.0f64, 0.0f64);
                         for (&wi, &t) in w.iter().zip(ts) {
@@ -844,7 +923,7 @@ impl UncertaintyField {
                         }
                         (vc, vd / (opacity as f64).powi(2))
                     }
-                    Method::Bla => {
+                    FieldMethod::Bla | FieldMethod::Ensemble => {
                         let k_end = 1.0 - opacity as f64;
                         let colour = samples.rgb[p];
                         let dist = samples.distance[p] as f64;
@@ -954,9 +1033,10 @@ impl UncertaintyField {
             return Err(bad(format!("format_version is {version:?}, expected {FIELD_FORMAT_VERSION:?}")));
         }
         let method = match field("method")?.as_str() {
-            "ga" => Method::Ga,
-            "bla" => Method::Bla,
-            other => return Err(bad(format!("method is {other:?}, expected \"ga\" or \"bla\""))),
+            "ga" => FieldMethod::Ga,
+            "bla" => FieldMethod::Bla,
+            "ensemble" => FieldMethod::Ensemble,
+            other => return Err(bad(format!("method is {other:?}, expected \"ga\", \"bla\" or \"ensemble\""))),
         };
         fn list<T: std::str::FromStr>(s: &str) -> Option<[T; 3]> {
             let v: Vec<T> = s.split(',').map(|x| x.trim().parse().ok()).collect::<Option<_>>()?;

@@ -17,7 +17,7 @@ use serde::Serialize;
 pub use crate::Method;
 use crate::{
     bla_image, bla_maps, depth_errors, ga_fit_samples, ga_image, ga_maps_from_samples, mean_ause, sparsification,
-    BlaFit, GaExclusion, GaFit, Sparsification, TrainingView, UncertaintyField, UqConfig, UqError,
+    BlaFit, FieldMethod, GaExclusion, GaFit, Sparsification, TrainingView, UncertaintyField, UqConfig, UqError,
 };
 
 /// The splits looked for, in this order.
@@ -716,7 +716,13 @@ pub fn figure_files(
 pub const MAPS_PNG: &str = "uq_maps.png";
 
 /// See [`MAPS_PNG`]; `None` when `frame` has no ground-truth depth or every ray misses.
-pub fn maps_figure(nerf: &Nerf, frame: &Frame, bla: bool, cfg: &UqConfig) -> Result<Option<Vec<u8>>, UqError> {
+pub fn maps_figure(
+    nerf: &Nerf,
+    frame: &Frame,
+    bla: bool,
+    ensemble: &[&Nerf],
+    cfg: &UqConfig,
+) -> Result<Option<Vec<u8>>, UqError> {
     let name = frame.file_path.as_str();
     let view = nerf.render_camera(&frame.camera, BACKGROUND);
     let Ok(errors) = depth_errors(name, &view.depth, frame.depth.as_ref().map(|d| &d.metres[..])) else {
@@ -746,6 +752,14 @@ pub fn maps_figure(nerf: &Nerf, frame: &Frame, bla: bool, cfg: &UqConfig) -> Res
             Err(UqError::AllRaysMiss { .. }) => return Ok(None),
             Err(e) => return Err(e),
         }
+    }
+    if !ensemble.is_empty() {
+        let members: Vec<&Nerf> = std::iter::once(nerf).chain(ensemble.iter().copied()).collect();
+        let maps = crate::ensemble::maps(&members, &frame.camera, BACKGROUND);
+        panels.push(panel(
+            format!("Ensemble depth standard deviation ({} NeRFs)", members.len()),
+            maps.depth_std.iter().map(|&v| f64::from(v)).collect(),
+        ));
     }
     let fig = nerfsv_plot::HeatmapFigure { title: format!("Per-pixel depth error and uncertainty, {name}"), panels };
     let width = 500 * fig.panels.len() as u32;
@@ -902,8 +916,9 @@ pub fn field_slice_png(field: &UncertaintyField) -> Result<Option<Vec<u8>>, UqEr
     };
     let method = field.method.name().to_uppercase();
     let quantity = match field.method {
-        Method::Ga => "σ_d (relative density std)",
-        Method::Bla => "relative density std √Var[σ]/σ",
+        FieldMethod::Ga => "σ_d (relative density std)",
+        FieldMethod::Bla => "relative density std √Var[σ]/σ",
+        FieldMethod::Ensemble => "members' relative density std √Var[σ]/σ",
     };
     let fig = nerfsv_plot::HeatmapFigure {
         title: format!("{method} uncertainty field at z = {FIELD_SLICE_ALTITUDE:.2} m"),

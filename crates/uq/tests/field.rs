@@ -13,7 +13,7 @@ use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::Nerf;
 use nerfsv_scene::{Camera, Intrinsics};
 use nerfsv_uq::{
-    data_term, density_param_count, ga_maps_from_samples, model_id, DensityPosterior, FieldFigures, Method,
+    data_term, density_param_count, ga_maps_from_samples, model_id, DensityPosterior, FieldFigures, FieldMethod,
     TrainingView, UncertaintyField, UqConfig, UqError,
 };
 
@@ -92,7 +92,7 @@ fn bla_field_variance_at_a_node_equals_the_dense_quadratic_form() {
     let cfg = cfg();
     let refs: Vec<Vec<[f32; 3]>> = cams.iter().map(|c| vec![[0.5; 3]; c.intrinsics.pixels()]).collect();
     let field = UncertaintyField::build_bla(&nerf, "tiny", &views(&cams, &refs), BG, &cfg, &mut no_progress).unwrap();
-    assert_eq!(field.method, Method::Bla);
+    assert_eq!(field.method, FieldMethod::Bla);
     assert_eq!(field.geometry.dims, [9, 9, 9]);
     assert_eq!(field.figures.rank, Some(density_param_count(&nerf)));
     assert!(field.figures.rays > 100, "{:?}", field.figures);
@@ -216,12 +216,12 @@ fn ga_splat_of_rays_with_a_constant_variance_gives_it_at_every_node_with_weight(
     assert!((u - c.sqrt()).abs() < 1e-4, "{u}");
 }
 
-fn constant_field(nerf: &Nerf, method: Method, c: f32) -> UncertaintyField {
+fn constant_field(nerf: &Nerf, method: FieldMethod, c: f32) -> UncertaintyField {
     let geometry = nerfsv_uq::field_geometry(nerf, 4.0).unwrap();
     let density: Vec<f32> = (0..geometry.len()).map(|n| 0.5 + (n % 7) as f32).collect::<Vec<_>>();
     let variance = match method {
-        Method::Ga => vec![c; geometry.len()],
-        Method::Bla => density.iter().map(|s| c * s * s).collect(),
+        FieldMethod::Ga => vec![c; geometry.len()],
+        FieldMethod::Bla | FieldMethod::Ensemble => density.iter().map(|s| c * s * s).collect(),
     };
     let weight = vec![1.0; geometry.len()];
     UncertaintyField::from_parts(
@@ -243,7 +243,7 @@ fn constant_field(nerf: &Nerf, method: Method, c: f32) -> UncertaintyField {
 fn view_uncertainty_of_a_constant_field_is_its_square_root() {
     let nerf = common::tiny_nerf();
     let pixels: Vec<[u32; 2]> = (0..8).flat_map(|j| (0..8).map(move |i| [i, j])).collect();
-    for method in [Method::Ga, Method::Bla] {
+    for method in [FieldMethod::Ga, FieldMethod::Bla] {
         let field = constant_field(&nerf, method, 0.09);
         let u = field.view_uncertainty(&cameras()[0], &pixels, BG);
         assert!((u - 0.3).abs() < 1e-5, "{method:?}: {u}");
@@ -256,9 +256,9 @@ fn view_uncertainty_of_a_constant_field_is_its_square_root() {
         assert_eq!(field.view_uncertainty(&away, &pixels, BG), 0.0);
     }
     // No data anywhere (GA, weight 0): nothing composites.
-    let mut empty = constant_field(&nerf, Method::Ga, 0.09);
+    let mut empty = constant_field(&nerf, FieldMethod::Ga, 0.09);
     empty = UncertaintyField::from_parts(
-        Method::Ga,
+        FieldMethod::Ga,
         empty.geometry,
         empty.density,
         empty.variance,
@@ -277,7 +277,7 @@ fn view_uncertainty_of_a_constant_field_is_its_square_root() {
 fn maps_of_a_constant_ga_field_are_ga_maps_with_that_sigma_d() {
     let nerf = common::tiny_nerf();
     let cam = cameras()[0];
-    let field = constant_field(&nerf, Method::Ga, 0.09);
+    let field = constant_field(&nerf, FieldMethod::Ga, 0.09);
     let close = |a: f32, b: f32| (a.is_nan() && b.is_nan()) || (a - b).abs() <= 1e-5 * b.abs().max(1e-6);
     // Over the grey background (the untrained model's colours are ≈ its grey, so the colour
     // standard deviations are small) and over black and white (they are not).
@@ -306,10 +306,10 @@ fn maps_of_a_constant_ga_field_are_ga_maps_with_that_sigma_d() {
         assert!(bg == BG || visible > 20, "{visible} pixels with a colour standard deviation over {bg:?}");
     }
 
-    let bla = constant_field(&nerf, Method::Bla, 0.09);
+    let bla = constant_field(&nerf, FieldMethod::Bla, 0.09);
     let mut bla4 = bla.clone();
     bla4 = UncertaintyField::from_parts(
-        Method::Bla,
+        FieldMethod::Bla,
         bla4.geometry,
         bla4.density,
         bla4.variance.iter().map(|v| 4.0 * v).collect(),
@@ -404,7 +404,7 @@ fn bla_maps_propagate_the_density_variance_with_the_composites_derivatives() {
     let geometry = nerfsv_uq::field_geometry(&nerf, 4.0).unwrap();
     let n = geometry.len();
     let field = UncertaintyField::from_parts(
-        Method::Bla,
+        FieldMethod::Bla,
         geometry,
         vec![1.0; n],
         vec![v; n],
@@ -479,7 +479,7 @@ fn empty_space_skipping_leaves_the_view_value_unchanged() {
         .collect();
     let variance: Vec<f32> = (0..n).map(|i| 0.01 + (i % 13) as f32 * 0.003).collect();
     let mut field = UncertaintyField::from_parts(
-        Method::Ga,
+        FieldMethod::Ga,
         geometry,
         density,
         variance,
@@ -576,4 +576,41 @@ fn a_field_over_the_memory_budget_is_refused_naming_the_key() {
     let err = nerfsv_uq::field_geometry(&nerf, 400.0).unwrap_err();
     nerfsv_scene::validate::MemoryBudget::set(u64::MAX);
     assert!(err.to_string().contains("uq.field_cells_per_metre"), "{err}");
+}
+
+/// The ensemble's field: identical members spread nothing; two members give, at every node, the
+/// population variance ((σ_a − σ_b)/2)² of their densities, the deployed model's density, and
+/// BLA's lookup (the variance relative to that density). Fewer than two members are refused.
+#[test]
+fn ensemble_field_is_the_members_density_variance_at_each_node() {
+    let a = common::tiny_nerf();
+    let mut b = a.clone();
+    for (i, w) in b.params.iter_mut().enumerate() {
+        *w += 0.05 * ((i % 5) as f32 - 2.0);
+    }
+    let cfg = cfg();
+    let same = UncertaintyField::build_ensemble(&[&a, &a, &a], "a", &cfg).unwrap();
+    assert!(same.variance.iter().all(|&v| v == 0.0));
+    let field = UncertaintyField::build_ensemble(&[&a, &b], "a", &cfg).unwrap();
+    assert_eq!(field.method, FieldMethod::Ensemble);
+    assert_eq!(field.checkpoint_id, model_id(&a));
+    let positions: Vec<Point3<f32>> = (0..field.geometry.len())
+        .map(|n| {
+            let [i, j, k] = field.geometry.coords(n);
+            field.geometry.position_of(i, j, k)
+        })
+        .collect();
+    let (sa, sb) = (a.density(&positions), b.density(&positions));
+    assert_eq!(field.density, sa);
+    let mut differ = 0;
+    for n in 0..positions.len() {
+        let expected = ((f64::from(sa[n]) - f64::from(sb[n])) / 2.0).powi(2);
+        assert!((f64::from(field.variance[n]) - expected).abs() <= 1e-5 * expected.max(1e-3), "node {n}");
+        differ += usize::from(expected > 0.0);
+    }
+    assert!(differ > positions.len() / 2, "{differ}");
+    let p = positions[positions.len() / 2];
+    let looked_up = field.value_at(p).unwrap();
+    assert!(looked_up.is_finite() && looked_up >= 0.0);
+    assert!(matches!(UncertaintyField::build_ensemble(&[&a], "a", &cfg), Err(UqError::FieldGrid { .. })));
 }

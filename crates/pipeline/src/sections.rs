@@ -232,8 +232,7 @@ impl Report for Uncertainty<'_> {
             s.picture(
                 &slice.to_string_lossy(),
                 &format!(
-                    "The ensemble's uncertainty field at z = {:.2} m: the members' density standard deviation relative \
-                     to the deployed model's density ({}, with `nerfsv uq field --method ensemble`'s format)",
+                    "The ensemble's uncertainty field at z = {:.2} m: the members' density standard deviation ({}, with `nerfsv uq field --method ensemble`'s format)",
                     nerfsv_uq::offline::FIELD_SLICE_ALTITUDE,
                     Uncertainty::ENSEMBLE_FIELD
                 ),

@@ -886,7 +886,7 @@ pub fn field_slice_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}_z{FIELD_SLICE_ALTITUDE:.2}.png"))
 }
 
-/// The slice at [`FIELD_SLICE_ALTITUDE`] as a PNG: `√v` per node (GA σ_d, BLA relative density
+/// The slice at [`FIELD_SLICE_ALTITUDE`] as a PNG: `√v` per node (the ensemble: `√Var[σ]`, 1/m; GA σ_d, BLA relative density
 /// standard deviation: the units [`UncertaintyField::view_uncertainty`] reports) on a log colour
 /// scale, clipped to its 2nd–98th percentile (a few rays that composite little give GA nodes
 /// huge values), metre axes, grey where there is no data. `None` when the altitude is outside
@@ -900,9 +900,14 @@ pub fn field_slice_png(field: &UncertaintyField) -> Result<Option<Vec<u8>>, UqEr
     let values: Vec<f64> = (0..nx * ny)
         .map(|n| {
             let p = g.position_of(n % nx, n / nx, 0);
-            field
-                .value_at(nalgebra::Point3::new(p.x, p.y, FIELD_SLICE_ALTITUDE))
-                .map_or(f64::NAN, |v| f64::from(v.max(0.0)).sqrt())
+            let p = nalgebra::Point3::new(p.x, p.y, FIELD_SLICE_ALTITUDE);
+            // The ensemble's spread in absolute terms: relative to a density near 0, in empty
+            // space, it is noise.
+            let value = match field.method {
+                FieldMethod::Ensemble => g.trilinear(&field.variance, &p).in_grid(),
+                _ => field.value_at(p),
+            };
+            value.map_or(f64::NAN, |v| f64::from(v.max(0.0)).sqrt())
         })
         .collect();
     let mut positive: Vec<f64> = values.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
@@ -918,7 +923,7 @@ pub fn field_slice_png(field: &UncertaintyField) -> Result<Option<Vec<u8>>, UqEr
     let quantity = match field.method {
         FieldMethod::Ga => "σ_d (relative density std)",
         FieldMethod::Bla => "relative density std √Var[σ]/σ",
-        FieldMethod::Ensemble => "members' relative density std √Var[σ]/σ",
+        FieldMethod::Ensemble => "members' density std √Var[σ] (1/m)",
     };
     let fig = nerfsv_plot::HeatmapFigure {
         title: format!("{method} uncertainty field at z = {FIELD_SLICE_ALTITUDE:.2} m"),

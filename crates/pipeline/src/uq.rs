@@ -249,10 +249,16 @@ impl Stage for Uncertainty<'_> {
             true => None,
             false => {
                 cx.progress(done.get(), total, "ensemble field");
-                let checkpoint = Train::checkpoint(cx.root).display().to_string();
-                let field = nerfsv_uq::UncertaintyField::build_ensemble(&all, &checkpoint, self.uq)?;
+                // Named relative to the run's folder, so that the file does not depend on where the run is.
+                let path = Train::checkpoint(cx.root);
+                let checkpoint = path.strip_prefix(cx.root).unwrap_or(&path).display().to_string();
+                let mut field = nerfsv_uq::UncertaintyField::build_ensemble(&all, &checkpoint, self.uq)?;
+                // A run's files are the same bytes on every run (resumed or not): the build's
+                // wall time stays out of the file, in the figures.
+                let figures = field.figures.clone();
+                field.figures.seconds = 0.0;
                 save_field_with_slice(&field, &cx.dir.join(Self::ENSEMBLE_FIELD))?;
-                Some(field.figures)
+                Some(figures)
             }
         };
         let rows: Vec<Row> = ga.into_iter().chain(bla).collect();

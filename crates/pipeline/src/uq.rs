@@ -115,8 +115,8 @@ impl Stage for Uncertainty<'_> {
     type Figures = UqFigures;
 
     fn outputs(&self) -> &'static [&'static str] {
-        const WITH_ENSEMBLE: [&str; 14] = {
-            let mut all = [Uncertainty::ENSEMBLE_FIELD; 14];
+        const WITH_ENSEMBLE: [&str; Uncertainty::OUTPUTS.len() + 1] = {
+            let mut all = [Uncertainty::ENSEMBLE_FIELD; Uncertainty::OUTPUTS.len() + 1];
             let mut i = 0;
             while i < Uncertainty::OUTPUTS.len() {
                 all[i] = Uncertainty::OUTPUTS[i];

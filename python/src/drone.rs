@@ -73,9 +73,6 @@ fn estimator_name(e: EstimatorKind) -> &'static str {
 /// The config with the seed override a command's `--seed` gives.
 fn config_with_seed(config: Option<&Path>, seed: Option<u64>) -> PyResult<RunConfig> {
     let mut cfg = run_config(config)?;
-    if let Some(path) = config {
-        cfg.check_one_model(path).map_err(py_err)?;
-    }
     if let Some(seed) = seed {
         cfg.validation.seed = seed;
     }
@@ -350,7 +347,9 @@ impl Worker {
         let model = write("checkpoint.safetensors", &body[..a])?;
         let nerf_field = if b > 0 { Some(write("nerf_sdf.safetensors", &body[a..a + b])?) } else { None };
         let mut cfg = match &header.config {
-            Some(text) => RunConfig::load(&write("config.toml", text.as_bytes())?).map_err(|e| e.to_string())?,
+            Some(text) => {
+                RunConfig::load_one_model(&write("config.toml", text.as_bytes())?).map_err(|e| e.to_string())?
+            }
             None => RunConfig::one_model(),
         };
         if let Some(seed) = header.seed {

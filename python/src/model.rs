@@ -196,10 +196,10 @@ pub(crate) fn f32_array(a: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<usize
     Ok((ro.shape().to_vec(), ro.as_slice()?.to_vec()))
 }
 
-/// The run config at `path`, or the embedded default.
+/// The run config at `path` over the default of a study of one model, or that default.
 pub(crate) fn run_config(path: Option<&Path>) -> PyResult<RunConfig> {
     match path {
-        Some(p) => RunConfig::load(p).map_err(py_err),
+        Some(p) => RunConfig::load_one_model(p).map_err(py_err),
         None => Ok(RunConfig::one_model()),
     }
 }

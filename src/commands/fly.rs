@@ -103,10 +103,10 @@ pub struct FlyArgs {
 }
 
 /// The run config a `--config` names (its `[sim]`, `[validation]` and `[dataset]` camera
-/// matter here), or the embedded default.
+/// matter here) over the default of a study of one model, or that default.
 pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
     Ok(match path {
-        Some(path) => RunConfig::load(path)?,
+        Some(path) => RunConfig::load_one_model(path)?,
         None => RunConfig::one_model(),
     })
 }

@@ -99,9 +99,6 @@ pub struct StressArgs {
 
 pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let mut cfg = load_config(args.config.as_deref())?;
-    if let Some(path) = &args.config {
-        cfg.check_one_model(path)?;
-    }
     if let Some(seed) = args.seed {
         cfg.validation.seed = seed;
     }

@@ -31,12 +31,18 @@ pub trait Validate {
 /// value, also inside a table the file has: `[sim]` with only `start` keeps the default run's
 /// other `[sim]` values, not those of the table's own type.
 pub fn load_toml<T: DeserializeOwned + Serialize + Default + Validate>(path: &Path) -> Result<T, PipelineError> {
+    load_toml_onto(path, T::default())
+}
+
+/// Reads a TOML file onto `base`: the keys the file names replace `base`'s, a table the file
+/// names only in part keeps `base`'s other keys; the result is validated.
+pub fn load_toml_onto<T: DeserializeOwned + Serialize + Validate>(path: &Path, base: T) -> Result<T, PipelineError> {
     let text = std::fs::read_to_string(path).map_err(|e| PipelineError::io(path, e))?;
     let toml_error = |error| PipelineError::Toml { path: path.into(), error };
     // Read once as written, so that an error points at its line and column.
     toml::from_str::<T>(&text).map_err(toml_error)?;
     let user: toml::Table = toml::from_str(&text).map_err(toml_error)?;
-    let mut merged = match toml::Value::try_from(T::default()) {
+    let mut merged = match toml::Value::try_from(base) {
         Ok(toml::Value::Table(t)) => t,
         _ => toml::Table::new(),
     };
@@ -306,7 +312,7 @@ impl RunConfig {
 
     /// Refuses a config whose NeRF-sim world is the ensemble for a study of one model (`path`,
     /// the config file, names it).
-    pub fn check_one_model(&self, path: &Path) -> Result<(), PipelineError> {
+    fn check_one_model(&self, path: &Path) -> Result<(), PipelineError> {
         if self.sim.nerf_world != nerfsv_sim::NerfWorldSource::Ensemble {
             return Ok(());
         }
@@ -324,7 +330,20 @@ impl RunConfig {
     /// Reads a TOML config (see [`load_toml`]); the `[world]` table's relative paths are read
     /// from the file's folder.
     pub fn load(path: &Path) -> Result<Self, PipelineError> {
-        let mut cfg: Self = load_toml(path)?;
+        Self::load_onto(path, Self::default())
+    }
+
+    /// Reads a TOML config for a study of one model: the keys it leaves out are
+    /// [`RunConfig::one_model`]'s, and a config that asks for the ensemble's world is refused
+    /// (`sim.nerf_world = "ensemble"`).
+    pub fn load_one_model(path: &Path) -> Result<Self, PipelineError> {
+        let cfg = Self::load_onto(path, Self::one_model())?;
+        cfg.check_one_model(path)?;
+        Ok(cfg)
+    }
+
+    fn load_onto(path: &Path, base: Self) -> Result<Self, PipelineError> {
+        let mut cfg: Self = load_toml_onto(path, base)?;
         let folder = path.parent().unwrap_or(Path::new(""));
         for p in [&mut cfg.world.mesh, &mut cfg.world.dataset].into_iter().flatten() {
             if p.is_relative() {
@@ -644,6 +663,21 @@ mod tests {
         expected.ensemble.bootstrap = true;
         expected.dataset.train = 200;
         assert_eq!(serde_json::to_value(&cfg).unwrap(), serde_json::to_value(&expected).unwrap());
+    }
+
+    #[test]
+    fn a_study_of_one_model_reads_a_partial_table_over_its_own_default_and_refuses_the_ensemble() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("study.toml");
+        std::fs::write(&path, "[sim.vision]\npixels = 16\n").unwrap();
+        let cfg = RunConfig::load_one_model(&path).unwrap();
+        assert_eq!(cfg.sim.vision.pixels, 16);
+        assert_eq!(cfg.sim.nerf_world, nerfsv_sim::NerfWorldSource::Deployed);
+        // The same file read as a run's config keeps the run's ensemble world.
+        assert_eq!(RunConfig::load(&path).unwrap().sim.nerf_world, nerfsv_sim::NerfWorldSource::Ensemble);
+        std::fs::write(&path, "[sim]\nnerf_world = \"ensemble\"\n").unwrap();
+        let error = RunConfig::load_one_model(&path).unwrap_err().to_string();
+        assert!(error.contains("sim.nerf_world") && error.contains("study.toml"), "{error}");
     }
 
     #[test]

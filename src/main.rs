@@ -69,6 +69,12 @@ fn main() -> ExitCode {
         }
         nerfsv_scene::MemoryBudget::set((gib * (1u64 << 30) as f64) as u64);
     }
+    // The NeRF's kernel width: NERFSV_KERNELS=portable|avx2|avx512|native (the widest, as when
+    // unset); every width gives the same bits, so this only changes the speed.
+    if let Err(e) = nerfsv_nerf::kernels::Kernels::from_env().and_then(nerfsv_nerf::kernels::set_active) {
+        eprintln!("error: {e}");
+        return ExitCode::FAILURE;
+    }
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
         Command::Config(a) => commands::config::run(a),

@@ -55,6 +55,10 @@ pub(crate) fn to_json(value: &impl serde::Serialize) -> PyResult<String> {
 #[pymodule]
 fn _nerfsv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // The NeRF's kernel width, as the CLI reads it (NERFSV_KERNELS; every width, the same bits).
+    nerfsv_nerf::kernels::Kernels::from_env()
+        .and_then(nerfsv_nerf::kernels::set_active)
+        .map_err(|e| value_error(e.to_string()))?;
     m.add_function(wrap_pyfunction!(data::load_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(data::write_png, m)?)?;
     m.add_function(wrap_pyfunction!(data::write_depth_png, m)?)?;

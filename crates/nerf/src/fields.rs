@@ -420,6 +420,18 @@ impl ChunkWorkspace {
         grid: &OccupancyGrid,
         march: &March,
     ) {
+        crate::kernels::dispatch(|| self.forward_body(field, params, rays, grid, march))
+    }
+
+    #[inline(always)]
+    fn forward_body(
+        &mut self,
+        field: &NgpField,
+        params: &[f32],
+        rays: &[RayInput],
+        grid: &OccupancyGrid,
+        march: &March,
+    ) {
         let March { step, max_samples, t_min, round, walk } = *march;
         let nr = rays.len();
         self.t.clear();
@@ -567,6 +579,11 @@ impl ChunkWorkspace {
     /// MSE loss against `targets: [r, 3]` (normalised by `n_total` rays) and the backward pass:
     /// fills `grad_mlp` (overwritten) and `d_enc`, and `sq_err`.
     pub fn backward(&mut self, field: &NgpField, params: &[f32], targets: &[[f32; 3]], n_total: usize) {
+        crate::kernels::dispatch(|| self.backward_body(field, params, targets, n_total))
+    }
+
+    #[inline(always)]
+    fn backward_body(&mut self, field: &NgpField, params: &[f32], targets: &[[f32; 3]], n_total: usize) {
         let n = self.n_samples();
         let m = self.act.len();
         let (e, sh, o, g, ch) = (field.enc_dim, field.sigma_hidden, 1 + field.geo, field.geo, field.color_hidden);

@@ -96,20 +96,7 @@ impl JacobianWorkspace {
     /// `min_weight` keep only their density term `∂C/∂σ_j ⊗ ∇σ(x_j)` (see
     /// [`RayRender::jacobians_above`]); `min_weight = 0` is exact.
     pub(crate) fn backward(&mut self, chunk: ChunkBackward<'_>) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: AVX-512F was detected.
-            return unsafe { self.backward_avx512(chunk) };
-        }
-        self.backward_body(chunk)
-    }
-
-    /// [`backward`](Self::backward) compiled with AVX-512 (its element-wise loops in 16-lane
-    /// vectors; no operation is fused or reordered, so the results are the same bits).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    unsafe fn backward_avx512(&mut self, chunk: ChunkBackward<'_>) {
-        self.backward_body(chunk)
+        crate::kernels::dispatch(|| self.backward_body(chunk))
     }
 
     #[inline(always)]

@@ -75,6 +75,7 @@ mod error;
 pub mod field_components;
 pub mod fields;
 pub mod jacobian;
+pub mod kernels;
 pub mod memory;
 pub mod metrics;
 pub mod model;
@@ -82,6 +83,8 @@ pub mod model_components;
 pub mod optim;
 pub mod param_jacobian;
 pub mod render;
+#[cfg(target_arch = "x86_64")]
+mod simd;
 pub mod train;
 
 pub use config::{BackgroundMode, NerfConfig, TrainConfig};

@@ -63,9 +63,11 @@ impl Adam {
                         *p -= step_size * *m / (v.sqrt() * inv_sqrt_bc2 + h.eps);
                     }
                 };
-                update(&mut p[..lo], &mut m[..lo], &mut v[..lo], &g[..lo], false);
-                update(&mut p[lo..hi], &mut m[lo..hi], &mut v[lo..hi], &g[lo..hi], true);
-                update(&mut p[hi..], &mut m[hi..], &mut v[hi..], &g[hi..], false);
+                crate::kernels::dispatch(|| {
+                    update(&mut p[..lo], &mut m[..lo], &mut v[..lo], &g[..lo], false);
+                    update(&mut p[lo..hi], &mut m[lo..hi], &mut v[lo..hi], &g[lo..hi], true);
+                    update(&mut p[hi..], &mut m[hi..], &mut v[hi..], &g[hi..], false);
+                });
             });
     }
 }

@@ -16,6 +16,10 @@
 //!             (+ for the upper corner along `d`); 0 along an axis where `x_d` is clamped (outside
 //!             `[0,1]`). Continuous inside a cell, jumps across cell faces.
 
+use crate::kernels::{self, Kernels};
+#[cfg(target_arch = "x86_64")]
+use crate::simd::{Avx2, Avx512, Lanes};
+
 /// Features per level; fixed at 2 as in instant-ngp/torch-ngp.
 pub const FEATURES: usize = 2;
 
@@ -119,10 +123,16 @@ impl HashEncoding {
     }
 
     /// [`encode`](Self::encode) of many points: pos `[n, 3]`, out `[n, n_levels · 2]`, the same
-    /// bits. On a host with AVX-512 sixteen points of a level at a time.
+    /// bits at every kernel width (a vector of points of a level at a time where the host has
+    /// one).
     pub fn encode_batch(&self, emb: &[f32], pos: &[f32], out: &mut [f32]) {
+        self.encode_batch_with(kernels::active(), emb, pos, out);
+    }
+
+    /// [`encode_batch`](Self::encode_batch) at the width `k` (which the host must have).
+    pub fn encode_batch_with(&self, k: Kernels, emb: &[f32], pos: &[f32], out: &mut [f32]) {
         let e = self.output_dim();
-        if !self.batch_on_avx512(emb, pos, out, e, Kernel::Encode) {
+        if !self.batch_on_vectors(k, emb, pos, out, e, Kernel::Encode) {
             per_point(pos, out, e, |x, row| self.encode(emb, x, row));
         }
     }
@@ -130,26 +140,46 @@ impl HashEncoding {
     /// [`position_jacobian`](Self::position_jacobian) of many points: pos `[n, 3]`, jac
     /// `[n, n_levels · 2 · 3]` (point `i`'s Jacobian in row `i`), the same bits.
     pub fn position_jacobian_batch(&self, emb: &[f32], pos: &[f32], jac: &mut [f32]) {
+        self.position_jacobian_batch_with(kernels::active(), emb, pos, jac);
+    }
+
+    /// [`position_jacobian_batch`](Self::position_jacobian_batch) at the width `k`.
+    pub fn position_jacobian_batch_with(&self, k: Kernels, emb: &[f32], pos: &[f32], jac: &mut [f32]) {
         let row = self.output_dim() * 3;
-        if !self.batch_on_avx512(emb, pos, jac, row, Kernel::PositionJacobian) {
+        if !self.batch_on_vectors(k, emb, pos, jac, row, Kernel::PositionJacobian) {
             per_point(pos, jac, row, |x, r| self.position_jacobian(emb, x, r));
         }
     }
 
-    /// Checks a batch's slices (rows of `width` floats in `out`) and runs `kernel` on them where
-    /// the host has AVX-512 (and every level a vector form); false, having done nothing, elsewhere.
-    fn batch_on_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32], width: usize, kernel: Kernel) -> bool {
+    /// Checks a batch's slices (rows of `width` floats in `out`) and runs `kernel` on them at
+    /// the width `k` where it has vectors (and every level a vector form); false, having done
+    /// nothing, elsewhere.
+    fn batch_on_vectors(
+        &self,
+        k: Kernels,
+        emb: &[f32],
+        pos: &[f32],
+        out: &mut [f32],
+        width: usize,
+        kernel: Kernel,
+    ) -> bool {
         assert!(
             emb.len() >= self.n_params() && out.len() >= pos.len() / 3 * width,
             "hash encoding batch: slices too short"
         );
+        assert!(k.available(), "{k:?} kernels on a host without them");
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") && self.levels.iter().all(has_vector_form) {
-            // SAFETY: AVX-512F was detected; the assert above bounds the table and the output.
-            unsafe { self.batch_avx512(emb, pos, out, kernel) };
+        if self.levels.iter().all(has_vector_form) {
+            // SAFETY: the host has the width's features (asserted); the assert above bounds
+            // the table and the output.
+            match k {
+                Kernels::Avx512 => unsafe { self.batch_avx512(emb, pos, out, kernel) },
+                Kernels::Avx2 => unsafe { self.batch_avx2(emb, pos, out, kernel) },
+                Kernels::Portable => return false,
+            }
             return true;
         }
-        let _ = kernel;
+        let _ = (k, kernel);
         false
     }
 
@@ -159,12 +189,18 @@ impl HashEncoding {
     /// positions: `[n, 3]` in `[0,1]`; d_out: `[n, 2]` (∂L/∂y of this level);
     /// grad_level: `[size_l, 2]`, the level's slice of the embedding gradient.
     pub fn backward_level(&self, l: usize, positions: &[f32], d_out: &[f32], grad_level: &mut [f32]) {
+        self.backward_level_with(kernels::active(), l, positions, d_out, grad_level);
+    }
+
+    /// [`backward_level`](Self::backward_level) at the width `k`.
+    pub fn backward_level_with(&self, k: Kernels, l: usize, positions: &[f32], d_out: &[f32], grad_level: &mut [f32]) {
         let lv = self.levels[l];
         let n = d_out.len() / 2;
         assert!(
             positions.len() >= 3 * n && grad_level.len() >= 2 * lv.size as usize,
             "backward_level: slices too short"
         );
+        assert!(k.available(), "{k:?} kernels on a host without them");
         let scatter = |grad_level: &mut [f32], i: usize, idx: &[u32; 8], w: &[f32; 8]| {
             let (ga, gb) = (d_out[2 * i], d_out[2 * i + 1]);
             for c in 0..8 {
@@ -175,13 +211,20 @@ impl HashEncoding {
         };
         let live = |i: usize| d_out[2 * i] != 0.0 || d_out[2 * i + 1] != 0.0;
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") && has_vector_form(&lv) {
+        if k != Kernels::Portable && has_vector_form(&lv) {
+            let lanes = if k == Kernels::Avx512 { 16 } else { 8 };
             let mut i0 = 0;
             while i0 < n {
-                let m = (n - i0).min(16);
+                let m = (n - i0).min(lanes);
                 if (i0..i0 + m).any(live) {
-                    // SAFETY: AVX-512F was detected; the level's corners are rows of the level.
-                    let (idx, w) = unsafe { block_corners_avx512(&lv, positions, i0, m) };
+                    // SAFETY: the host has the width (asserted); the level's corners are rows of
+                    // the level.
+                    let (idx, w) = unsafe {
+                        match k {
+                            Kernels::Avx512 => block_corners_avx512(&lv, positions, i0, m),
+                            _ => block_corners_avx2(&lv, positions, i0, m),
+                        }
+                    };
                     for j in (0..m).filter(|&j| live(i0 + j)) {
                         scatter(grad_level, i0 + j, &idx[j], &w[j]);
                     }
@@ -196,47 +239,66 @@ impl HashEncoding {
         }
     }
 
-    /// The AVX-512 batch kernels: sixteen points at a time, level by level, each level's
+    /// The vector batch kernels: a vector of points at a time, level by level, each level's
     /// encoding (`out` `[n, 2·levels]`) or position Jacobian (`out` `[n, 2·levels·3]`).
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    unsafe fn batch_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32], kernel: Kernel) {
-        use super::hash_avx512::{cells, encode_level, jacobian_level, load_points, store_rows, LANES};
+    #[inline(always)]
+    unsafe fn batch_lanes<L: Lanes>(&self, emb: &[f32], pos: &[f32], out: &mut [f32], kernel: Kernel) {
+        use super::hash_simd::{cells, encode_level, jacobian_level, load_points, store_rows};
         let (n, e) = (pos.len() / 3, self.output_dim());
         let mut i0 = 0;
         while i0 < n {
-            let m = (n - i0).min(LANES);
-            let x = load_points(pos, i0, m);
-            for (l, lv) in self.levels.iter().enumerate() {
-                let (idx, f) = cells(lv, &x);
-                // SAFETY: `cells` gives rows of this level, which `emb` holds (asserted by the
-                // caller).
-                match kernel {
-                    // Row of a point: (y₀, y₁) per level.
-                    Kernel::Encode => {
-                        let (a, b) = unsafe { encode_level(emb, &idx, &f) };
-                        store_rows(&[[a, b]], m, &mut out[i0 * e + 2 * l..], e);
-                    }
-                    // Row of a point: ∂y₀/∂x_d then ∂y₁/∂x_d per level.
-                    Kernel::PositionJacobian => {
-                        let [[a0, a1, a2], [b0, b1, b2]] = unsafe { jacobian_level(emb, lv.scale, &x, &idx, &f) };
-                        store_rows(&[[a0, a1], [a2, b0], [b1, b2]], m, &mut out[i0 * 3 * e + 6 * l..], 3 * e);
+            let m = (n - i0).min(L::N);
+            // SAFETY (the block): the caller runs this where the host has L's width; `cells`
+            // gives rows of this level, which `emb` holds (asserted by the caller).
+            unsafe {
+                let x = load_points::<L>(pos, i0, m);
+                for (l, lv) in self.levels.iter().enumerate() {
+                    let (idx, f) = cells::<L>(lv, &x);
+                    match kernel {
+                        // Row of a point: (y₀, y₁) per level.
+                        Kernel::Encode => {
+                            let (a, b) = encode_level::<L>(emb, &idx, &f);
+                            store_rows::<L, 1>(&[[a, b]], m, &mut out[i0 * e + 2 * l..], e);
+                        }
+                        // Row of a point: ∂y₀/∂x_d then ∂y₁/∂x_d per level.
+                        Kernel::PositionJacobian => {
+                            let [[a0, a1, a2], [b0, b1, b2]] = jacobian_level::<L>(emb, lv.scale, &x, &idx, &f);
+                            store_rows::<L, 3>(
+                                &[[a0, a1], [a2, b0], [b1, b2]],
+                                m,
+                                &mut out[i0 * 3 * e + 6 * l..],
+                                3 * e,
+                            );
+                        }
                     }
                 }
             }
             i0 += m;
         }
     }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn batch_avx512(&self, emb: &[f32], pos: &[f32], out: &mut [f32], kernel: Kernel) {
+        unsafe { self.batch_lanes::<Avx512>(emb, pos, out, kernel) }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn batch_avx2(&self, emb: &[f32], pos: &[f32], out: &mut [f32], kernel: Kernel) {
+        unsafe { self.batch_lanes::<Avx2>(emb, pos, out, kernel) }
+    }
 }
 
-/// Whether the AVX-512 kernels can compute `lv`'s corners: a dense level, or a hashed one whose
+/// Whether the vector kernels can compute `lv`'s corners: a dense level, or a hashed one whose
 /// table size is a power of two (its modulo a mask; every config makes one, but a hand-built
 /// level need not).
 fn has_vector_form(lv: &Level) -> bool {
     lv.dense || lv.size.is_power_of_two()
 }
 
-/// Which batch kernel [`HashEncoding::batch_on_avx512`] runs.
+/// Which batch kernel [`HashEncoding::batch_on_vectors`] runs.
 #[derive(Clone, Copy)]
 enum Kernel {
     Encode,
@@ -267,23 +329,14 @@ fn encode_one_level(lv: &Level, emb: &[f32], x: [f32; 3]) -> (f32, f32) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn block_corners_avx512(lv: &Level, positions: &[f32], i0: usize, m: usize) -> ([[u32; 8]; 16], [[f32; 8]; 16]) {
-    use super::hash_avx512::{cells, load_points, weights};
-    use std::arch::x86_64::*;
-    let x = load_points(positions, i0, m);
-    let (idx, f) = cells(lv, &x);
-    let w = weights(&f);
-    let (mut vi, mut vw) = ([[0u32; 16]; 8], [[0f32; 16]; 8]);
-    for c in 0..8 {
-        // SAFETY: each array holds 16 lanes.
-        unsafe {
-            _mm512_storeu_si512(vi[c].as_mut_ptr() as *mut __m512i, idx[c]);
-            _mm512_storeu_ps(vw[c].as_mut_ptr(), w[c]);
-        }
-    }
-    (
-        std::array::from_fn(|j| std::array::from_fn(|c| vi[c][j])),
-        std::array::from_fn(|j| std::array::from_fn(|c| vw[c][j])),
-    )
+    unsafe { super::hash_simd::block_corners::<Avx512>(lv, positions, i0, m) }
+}
+
+/// As [`block_corners_avx512`], `m ≤ 8`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn block_corners_avx2(lv: &Level, positions: &[f32], i0: usize, m: usize) -> ([[u32; 8]; 16], [[f32; 8]; 16]) {
+    unsafe { super::hash_simd::block_corners::<Avx2>(lv, positions, i0, m) }
 }
 
 /// The 8 corner rows (absolute, including the level offset) and trilinear weights of `x`.
@@ -475,7 +528,7 @@ mod tests {
     /// accumulated gradient, for batch lengths around multiples of sixteen, on the default
     /// config's dense and hashed levels and on a hashed level whose size is not a power of two.
     #[test]
-    fn batch_kernels_are_bit_identical_to_the_per_point_functions() {
+    fn batch_kernels_at_every_width_are_bit_identical_to_the_per_point_functions() {
         let d = crate::config::NerfConfig::default();
         let mut odd = HashEncoding::new(3, 4, 40, 9);
         let last = odd.levels[2];
@@ -497,12 +550,14 @@ mod tests {
                     e.encode(&emb, x, &mut want[i * w..(i + 1) * w]);
                     e.position_jacobian(&emb, x, &mut want_jac[i * row..(i + 1) * row]);
                 }
-                let mut got = vec![7f32; n * w];
-                e.encode_batch(&emb, &pos, &mut got);
-                assert!(same_bits(&got, &want), "encoding {t}, n {n}");
-                let mut got_jac = vec![7f32; n * row];
-                e.position_jacobian_batch(&emb, &pos, &mut got_jac);
-                assert!(same_bits(&got_jac, &want_jac), "Jacobian {t}, n {n}");
+                for k in Kernels::ALL.into_iter().filter(|k| k.available()) {
+                    let mut got = vec![7f32; n * w];
+                    e.encode_batch_with(k, &emb, &pos, &mut got);
+                    assert!(same_bits(&got, &want), "{k:?}: encoding {t}, n {n}");
+                    let mut got_jac = vec![7f32; n * row];
+                    e.position_jacobian_batch_with(k, &emb, &pos, &mut got_jac);
+                    assert!(same_bits(&got_jac, &want_jac), "{k:?}: Jacobian {t}, n {n}");
+                }
                 // Backward: some points without gradient (skipped), the rest accumulated in order.
                 let d_out: Vec<f32> =
                     (0..2 * n).map(|k| if (k / 2) % 5 == 3 { 0.0 } else { rng.random::<f32>() - 0.5 }).collect();
@@ -517,9 +572,11 @@ mod tests {
                             want_g[k + 1] += wc[c] * d[2 * i + 1];
                         }
                     }
-                    let mut got_g = vec![0f32; 2 * lv.size as usize];
-                    e.backward_level(l, &pos, &d, &mut got_g);
-                    assert!(same_bits(&got_g, &want_g), "backward {t}, n {n}, level {l}");
+                    for k in Kernels::ALL.into_iter().filter(|k| k.available()) {
+                        let mut got_g = vec![0f32; 2 * lv.size as usize];
+                        e.backward_level_with(k, l, &pos, &d, &mut got_g);
+                        assert!(same_bits(&got_g, &want_g), "{k:?}: backward {t}, n {n}, level {l}");
+                    }
                 }
             }
         }

@@ -1,16 +1,15 @@
 //! Bias-free linear layers (torch `nn.Linear(bias=False)`, weight `[out, in]` row-major) on
 //! row-major activations `[n, width]`, and their activations.
 //!
-//! The forward and input-gradient products have a short inner dimension (the layer widths, at
-//! most [`SMALL_MAX`]): on AVX-512 hosts they run in [`small_gemm`], which keeps the weights in
-//! L1 and never packs the activations (packing cost `matrixmultiply` nearly as much as its
-//! product at these sizes). Each output is the same fused multiply-add chain over the inner
-//! index in order that `matrixmultiply`'s FMA kernels compute, so the results are bit-identical
-//! to it. The weight gradients (whose inner dimension is the batch) run in a kernel of their own
-//! ([`linear_backward_weight`]) that holds a block of the gradient in registers while the samples
-//! stream through (one fused multiply-add chain per output over the samples in order;
-//! `matrixmultiply` splits that chain into blocks, so the two differ in the last bits). Other
-//! hosts and wider layers use `matrixmultiply::sgemm`.
+//! Layers up to [`SMALL_MAX`] wide (every layer of the default model) run in this module's own
+//! kernels at the host's vector width ([`crate::kernels`]): the forward and input-gradient
+//! products in [`small_gemm`], which keeps the weights in L1 and never packs the activations
+//! (packing cost `matrixmultiply` nearly as much as its product at these sizes), and the weight
+//! gradients (whose inner dimension is the batch) in a kernel that holds a block of the gradient
+//! in registers while the samples stream through. Every output is one fused multiply-add chain
+//! over its inner index in order, whatever the width (the portable kernels use
+//! [`f32::mul_add`]), so the products are the same bits on every host. Wider layers use
+//! `matrixmultiply::sgemm`, whose blocking and kernels depend on the host.
 //!
 //! Maths for `Y = X·Wᵀ` (`X: [n, in]`, `W: [out, in]`, `Y: [n, out]`):
 //!   forward          `Y = X·Wᵀ`
@@ -18,6 +17,10 @@
 //!   backward weight  `∂L/∂W = (∂L/∂Y)ᵀ · X`
 //! ReLU: `∂L/∂x = ∂L/∂y · [y > 0]`; sigmoid `s`: `∂L/∂x = ∂L/∂s · s(1 − s)`;
 //! trunc_exp (torch-ngp): forward `exp(x)`, backward `exp(min(x, 15))`.
+
+use crate::kernels::{self, Kernels};
+#[cfg(target_arch = "x86_64")]
+use crate::simd::{Avx2, Avx512, Lanes};
 
 /// `Y[n,out] = X[n,in] · W[out,in]ᵀ` (overwrites `y`).
 pub fn linear_forward(x: &[f32], w: &[f32], y: &mut [f32], n: usize, din: usize, dout: usize) {
@@ -92,32 +95,13 @@ pub fn linear_backward_weight(
     accumulate: bool,
 ) {
     assert!(dy.len() >= n * dout && x.len() >= n * din && dw.len() == dout * din);
+    if !accumulate {
+        dw.fill(0.0);
+    }
     if n == 0 {
-        if !accumulate {
-            dw.fill(0.0);
-        }
         return;
     }
-    // On AVX-512 hosts, layers up to SMALL_MAX wide: every `dW[o][i]` is the fused multiply-add
-    // chain over the samples in order, `fma(dY[n−1][o], X[n−1][i], … fma(dY[0][o], X[0][i], c₀))`
-    // with `c₀` = 0, or the old `dW[o][i]` when accumulating, whatever the tiling (test
-    // `weight_gradient_is_the_fma_chain_over_samples`). Nothing is packed: four output rows × `in`
-    // columns are held in up to 16 zmm accumulators while a tile of samples streams through, each
-    // sample's `X` row loaded once per block and its four `dY` values broadcast.
-    #[cfg(target_arch = "x86_64")]
-    if din <= SMALL_MAX && dout <= SMALL_MAX && std::arch::is_x86_feature_detected!("avx512f") {
-        if !accumulate {
-            dw.fill(0.0);
-        }
-        // SAFETY: AVX-512F was detected; the assert above bounds every index the kernel reaches.
-        unsafe {
-            match din.div_ceil(16) {
-                1 => weight_gradient_v::<1>(dy, x, dw, n, din, dout),
-                2 => weight_gradient_v::<2>(dy, x, dw, n, din, dout),
-                3 => weight_gradient_v::<3>(dy, x, dw, n, din, dout),
-                _ => weight_gradient_v::<4>(dy, x, dw, n, din, dout),
-            }
-        }
+    if weight_gradient(kernels::active(), dy, x, dw, n, din, dout) {
         return;
     }
     // SAFETY: as above.
@@ -133,7 +117,7 @@ pub fn linear_backward_weight(
             x.as_ptr(),
             din as isize,
             1,
-            if accumulate { 1.0 } else { 0.0 },
+            1.0,
             dw.as_mut_ptr(),
             din as isize,
             1,
@@ -141,7 +125,7 @@ pub fn linear_backward_weight(
     }
 }
 
-/// The widest inner and outer dimension [`small_gemm`] takes.
+/// The widest inner and outer dimension [`small_gemm`] and the weight-gradient kernel take.
 pub const SMALL_MAX: usize = 64;
 
 thread_local! {
@@ -158,201 +142,339 @@ pub enum Right<'a> {
     Transposed(&'a [f32]),
 }
 
-/// `C[n, m] = A[n, k] · B[k, m]` for `k, m ≤ SMALL_MAX` on a host with AVX-512 (others keep
-/// `matrixmultiply`, whose packing costs less there): every `C[i][j]` is `fma(A[i][k−1], B[k−1][j], … fma(A[i][0], B[0][j], 0))`, the chain
-/// `matrixmultiply`'s FMA kernels compute (one accumulator per output, the inner index in order,
-/// the product scaled by α = 1), so the two agree bit for bit. Returns false, having done
-/// nothing, where it does not apply.
+/// `C[n, m] = A[n, k] · B[k, m]` for `k, m ≤ SMALL_MAX` at [`kernels::active`]'s width: every
+/// `C[i][j]` is `fma(A[i][k−1], B[k−1][j], … fma(A[i][0], B[0][j], 0))` (one accumulator per
+/// output, the inner index in order), the chain `matrixmultiply`'s FMA kernels compute too.
+/// Returns false, having done nothing, where the sizes do not apply.
 pub fn small_gemm(a: &[f32], b: Right<'_>, c: &mut [f32], n: usize, k: usize, m: usize) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if k == 0 || m == 0 || k > SMALL_MAX || m > SMALL_MAX || !std::arch::is_x86_feature_detected!("avx512f") {
-            return false;
+    small_gemm_with(kernels::active(), a, b, c, n, k, m)
+}
+
+/// [`small_gemm`] at the width `kernels` (which the host must have).
+pub fn small_gemm_with(kernels: Kernels, a: &[f32], b: Right<'_>, c: &mut [f32], n: usize, k: usize, m: usize) -> bool {
+    if k == 0 || m == 0 || k > SMALL_MAX || m > SMALL_MAX {
+        return false;
+    }
+    assert!(kernels.available(), "{kernels:?} kernels on a host without them");
+    let src = match b {
+        Right::Rows(b) | Right::Transposed(b) => b,
+    };
+    assert!(src.len() >= k * m, "small_gemm: right-hand matrix too short");
+    assert!(a.len() >= n * k && c.len() >= n * m, "small_gemm: a or c too short");
+    PANEL.with_borrow_mut(|panel| {
+        // Every row of the panel is written whole below (columns past m zeroed), so a panel
+        // that is long enough is reused as it is.
+        if panel.len() < k * SMALL_MAX {
+            panel.resize(k * SMALL_MAX, 0.0);
         }
-        let src = match b {
-            Right::Rows(b) | Right::Transposed(b) => b,
-        };
-        assert!(src.len() >= k * m, "small_gemm: right-hand matrix too short");
-        PANEL.with_borrow_mut(|panel| {
-            // Every row of the panel is written whole below (columns past m zeroed), so a panel
-            // that is long enough is reused as it is.
-            if panel.len() < k * SMALL_MAX {
-                panel.resize(k * SMALL_MAX, 0.0);
+        let panel = &mut panel[..k * SMALL_MAX];
+        match b {
+            Right::Rows(b) => {
+                for (row, src) in panel.chunks_exact_mut(SMALL_MAX).zip(b.chunks_exact(m)) {
+                    row[..m].copy_from_slice(src);
+                    row[m..].fill(0.0);
+                }
             }
-            let panel = &mut panel[..k * SMALL_MAX];
-            match b {
-                Right::Rows(b) => {
-                    for (row, src) in panel.chunks_exact_mut(SMALL_MAX).zip(b.chunks_exact(m)) {
-                        row[..m].copy_from_slice(src);
+            Right::Transposed(w) => {
+                for (j, col) in w.chunks_exact(k).take(m).enumerate() {
+                    for (kk, &v) in col.iter().enumerate() {
+                        panel[kk * SMALL_MAX + j] = v;
+                    }
+                }
+                if m < SMALL_MAX {
+                    for row in panel.chunks_exact_mut(SMALL_MAX) {
                         row[m..].fill(0.0);
                     }
                 }
-                Right::Transposed(w) => {
-                    for (j, col) in w.chunks_exact(k).take(m).enumerate() {
-                        for (kk, &v) in col.iter().enumerate() {
-                            panel[kk * SMALL_MAX + j] = v;
-                        }
-                    }
-                    if m < SMALL_MAX {
-                        for row in panel.chunks_exact_mut(SMALL_MAX) {
-                            row[m..].fill(0.0);
-                        }
-                    }
-                }
             }
-            // SAFETY: AVX-512F was detected above; the asserts of the callers bound a and c.
-            unsafe { rows_avx512(a, panel, c, n, k, m) }
-        });
-        true
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        let _ = (a, b, c, n, k, m);
-        false
+        }
+        match kernels {
+            // SAFETY: the host has the width (asserted); the asserts above bound a, c and the
+            // panel.
+            #[cfg(target_arch = "x86_64")]
+            Kernels::Avx512 => unsafe { rows_avx512(a, panel, c, n, k, m) },
+            #[cfg(target_arch = "x86_64")]
+            Kernels::Avx2 => unsafe { rows_avx2(a, panel, c, n, k, m) },
+            _ => rows_portable(a, panel, c, n, k, m),
+        }
+    });
+    true
+}
+
+/// The portable product: each row's outputs accumulated over the inner index in order.
+fn rows_portable(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
+    for (arow, crow) in a.chunks_exact(k).zip(c.chunks_exact_mut(m)).take(n) {
+        let mut acc = [0f32; SMALL_MAX];
+        for (&av, prow) in arow.iter().zip(panel.chunks_exact(SMALL_MAX)) {
+            for (s, &bv) in acc[..m].iter_mut().zip(&prow[..m]) {
+                *s = av.mul_add(bv, *s);
+            }
+        }
+        crow.copy_from_slice(&acc[..m]);
     }
 }
 
-/// The kernel for AVX-512 hosts: `V` vectors of 16 outputs (`m ≤ 16·V`) for 4 rows at a time,
-/// `4·V` zmm accumulators, one `vfmadd` per output and inner index in order; the last rows one
-/// at a time; the outputs past `m` (the panel's zero padding) are not stored.
+/// The AVX-512 product: 4 rows × up to 64 columns (16 zmm accumulators) at a time.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn rows_avx512(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
-    match m.div_ceil(16) {
-        0 => {}
-        1 => rows_v::<1>(a, panel, c, n, k, m),
-        2 => rows_v::<2>(a, panel, c, n, k, m),
-        3 => rows_v::<3>(a, panel, c, n, k, m),
-        _ => rows_v::<4>(a, panel, c, n, k, m),
+    unsafe { rows::<Avx512, 4>(a, panel, c, n, k, m) }
+}
+
+/// The AVX2 product: 3 rows × up to 32 columns (12 ymm accumulators) at a time.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn rows_avx2(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
+    unsafe { rows::<Avx2, 3>(a, panel, c, n, k, m) }
+}
+
+/// `C = A·panel` in blocks of `R` rows × `V ≤ 4` vectors of columns, the last rows one at a
+/// time; one fused multiply-add per output and inner index, in order; outputs past `m` (the
+/// panel's zero padding) are not stored.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn rows<L: Lanes, const R: usize>(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
+    let mut j0 = 0;
+    while j0 < m {
+        // SAFETY (the block): the caller's host has L's width; a, c and the panel are bounded
+        // by small_gemm's asserts, the columns j0 + N·V ≤ 64 by the panel's width.
+        unsafe {
+            match (m - j0).div_ceil(L::N).min(4) {
+                1 => rows_v::<L, R, 1>(a, panel, c, n, k, m, j0),
+                2 => rows_v::<L, R, 2>(a, panel, c, n, k, m, j0),
+                3 => rows_v::<L, R, 3>(a, panel, c, n, k, m, j0),
+                _ => rows_v::<L, R, 4>(a, panel, c, n, k, m, j0),
+            }
+        }
+        j0 += 4 * L::N;
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[inline]
-unsafe fn rows_v<const V: usize>(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn rows_v<L: Lanes, const R: usize, const V: usize>(
+    a: &[f32],
+    panel: &[f32],
+    c: &mut [f32],
+    n: usize,
+    k: usize,
+    m: usize,
+    j0: usize,
+) {
     let mut i = 0;
-    while i + 4 <= n {
-        block_v::<4, V>(a, panel, c, i, k, m);
-        i += 4;
+    while i + R <= n {
+        unsafe { block_v::<L, R, V>(a, panel, c, i, k, m, j0) };
+        i += R;
     }
     while i < n {
-        block_v::<1, V>(a, panel, c, i, k, m);
+        unsafe { block_v::<L, 1, V>(a, panel, c, i, k, m, j0) };
         i += 1;
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[inline]
-unsafe fn block_v<const R: usize, const V: usize>(
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn block_v<L: Lanes, const R: usize, const V: usize>(
     a: &[f32],
     panel: &[f32],
     c: &mut [f32],
     i: usize,
     k: usize,
     m: usize,
+    j0: usize,
 ) {
-    use std::arch::x86_64::*;
     debug_assert!(a.len() >= (i + R) * k && c.len() >= (i + R) * m && panel.len() >= k * SMALL_MAX);
-    let mut acc = [[_mm512_setzero_ps(); V]; R];
-    let (ap, pp) = (a.as_ptr(), panel.as_ptr());
-    for kk in 0..k {
-        let mut b = [_mm512_setzero_ps(); V];
-        for (v, bv) in b.iter_mut().enumerate() {
-            *bv = _mm512_loadu_ps(pp.add(kk * SMALL_MAX + 16 * v));
-        }
-        for (r, acc_r) in acc.iter_mut().enumerate() {
-            let av = _mm512_set1_ps(*ap.add((i + r) * k + kk));
-            for (s, &bv) in acc_r.iter_mut().zip(&b) {
-                *s = _mm512_fmadd_ps(av, bv, *s);
+    debug_assert!(j0 + L::N * V <= SMALL_MAX);
+    // SAFETY (the block): see `rows`.
+    unsafe {
+        let mut acc = [[L::splat(0.0); V]; R];
+        let (ap, pp) = (a.as_ptr(), panel.as_ptr().add(j0));
+        for kk in 0..k {
+            let mut b = [L::splat(0.0); V];
+            for (v, bv) in b.iter_mut().enumerate() {
+                *bv = L::load(pp.add(kk * SMALL_MAX + L::N * v));
+            }
+            for (r, acc_r) in acc.iter_mut().enumerate() {
+                let av = L::splat(*ap.add((i + r) * k + kk));
+                for (s, &bv) in acc_r.iter_mut().zip(&b) {
+                    *s = L::fmadd(av, bv, *s);
+                }
             }
         }
-    }
-    let cp = c.as_mut_ptr();
-    for (r, acc_r) in acc.iter().enumerate() {
-        for (v, &s) in acc_r.iter().enumerate() {
-            let left = m - 16 * v;
-            let out = cp.add((i + r) * m + 16 * v);
-            if left >= 16 {
-                _mm512_storeu_ps(out, s);
-            } else {
-                _mm512_mask_storeu_ps(out, ((1u32 << left) - 1) as u16, s);
+        let cp = c.as_mut_ptr();
+        for (r, acc_r) in acc.iter().enumerate() {
+            for (v, &s) in acc_r.iter().enumerate() {
+                let left = m - j0 - L::N * v;
+                let out = cp.add((i + r) * m + j0 + L::N * v);
+                if left >= L::N {
+                    L::store(out, s);
+                } else {
+                    L::store_first(out, s, left);
+                }
             }
         }
     }
 }
 
-/// Samples per tile of [`linear_backward_weight`]'s AVX-512 kernel: a tile of the activations
-/// (`[64, ≤ 64]`, 16 KiB) stays in L1 while every block of output rows passes over it.
+/// Samples per tile of the weight-gradient kernel: a tile of the activations (`[64, ≤ 64]`,
+/// 16 KiB) stays in L1 while every block of output rows passes over it.
 const WG_TILE: usize = 64;
+
+/// `dW += dY[n,out]ᵀ · X[n,in]` at the width `kernels` for layers up to [`SMALL_MAX`] wide: every
+/// `dW[o][i]` is the fused multiply-add chain over the samples in order,
+/// `fma(dY[n−1][o], X[n−1][i], … fma(dY[0][o], X[0][i], dW[o][i]))`, whatever the tiling (test
+/// `weight_gradient_is_the_fma_chain_over_samples_at_every_width`). Nothing is packed: a block
+/// of output rows × columns is held in accumulators while a tile of samples streams through,
+/// each sample's `X` row loaded once per block and its `dY` values broadcast. Returns false,
+/// having done nothing, for wider layers.
+pub fn weight_gradient(
+    kernels: Kernels,
+    dy: &[f32],
+    x: &[f32],
+    dw: &mut [f32],
+    n: usize,
+    din: usize,
+    dout: usize,
+) -> bool {
+    if din > SMALL_MAX || dout > SMALL_MAX {
+        return false;
+    }
+    assert!(kernels.available(), "{kernels:?} kernels on a host without them");
+    assert!(dy.len() >= n * dout && x.len() >= n * din && dw.len() == dout * din);
+    match kernels {
+        // SAFETY: the host has the width (asserted); the assert above bounds every index.
+        #[cfg(target_arch = "x86_64")]
+        Kernels::Avx512 => unsafe { weight_gradient_avx512(dy, x, dw, n, din, dout) },
+        #[cfg(target_arch = "x86_64")]
+        Kernels::Avx2 => unsafe { weight_gradient_avx2(dy, x, dw, n, din, dout) },
+        _ => {
+            for (g, xs) in dy.chunks_exact(dout).zip(x.chunks_exact(din)).take(n) {
+                for (&go, row) in g.iter().zip(dw.chunks_exact_mut(din)) {
+                    for (w, &xv) in row.iter_mut().zip(xs) {
+                        *w = go.mul_add(xv, *w);
+                    }
+                }
+            }
+        }
+    }
+    true
+}
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn weight_gradient_v<const V: usize>(dy: &[f32], x: &[f32], dw: &mut [f32], n: usize, din: usize, dout: usize) {
+unsafe fn weight_gradient_avx512(dy: &[f32], x: &[f32], dw: &mut [f32], n: usize, din: usize, dout: usize) {
+    unsafe { weight_gradient_lanes::<Avx512, 4>(dy, x, dw, n, din, dout) }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn weight_gradient_avx2(dy: &[f32], x: &[f32], dw: &mut [f32], n: usize, din: usize, dout: usize) {
+    unsafe { weight_gradient_lanes::<Avx2, 3>(dy, x, dw, n, din, dout) }
+}
+
+/// Tiles of samples; in each, blocks of `R` output rows (the last 1 to `R − 1` rows in one
+/// smaller block) × up to 4 vectors of columns.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn weight_gradient_lanes<L: Lanes, const R: usize>(
+    dy: &[f32],
+    x: &[f32],
+    dw: &mut [f32],
+    n: usize,
+    din: usize,
+    dout: usize,
+) {
     let mut s0 = 0;
     while s0 < n {
         let s1 = (s0 + WG_TILE).min(n);
-        let mut o = 0;
-        while o + 4 <= dout {
-            weight_gradient_block::<4, V>(dy, x, dw, s0..s1, o, din, dout);
-            o += 4;
-        }
-        match dout - o {
-            1 => weight_gradient_block::<1, V>(dy, x, dw, s0..s1, o, din, dout),
-            2 => weight_gradient_block::<2, V>(dy, x, dw, s0..s1, o, din, dout),
-            3 => weight_gradient_block::<3, V>(dy, x, dw, s0..s1, o, din, dout),
-            _ => {}
+        let mut j0 = 0;
+        while j0 < din {
+            let v = (din - j0).div_ceil(L::N).min(4);
+            let mut o = 0;
+            while o < dout {
+                let rows = (dout - o).min(R);
+                let at = WgBlock { tile: s0..s1, o, j0, din, dout };
+                // SAFETY: the caller's host has L's width; `weight_gradient` bounds every index.
+                unsafe {
+                    match (rows, v) {
+                        (1, 1) => wg_block::<L, 1, 1>(dy, x, dw, at),
+                        (1, 2) => wg_block::<L, 1, 2>(dy, x, dw, at),
+                        (1, 3) => wg_block::<L, 1, 3>(dy, x, dw, at),
+                        (1, _) => wg_block::<L, 1, 4>(dy, x, dw, at),
+                        (2, 1) => wg_block::<L, 2, 1>(dy, x, dw, at),
+                        (2, 2) => wg_block::<L, 2, 2>(dy, x, dw, at),
+                        (2, 3) => wg_block::<L, 2, 3>(dy, x, dw, at),
+                        (2, _) => wg_block::<L, 2, 4>(dy, x, dw, at),
+                        (3, 1) => wg_block::<L, 3, 1>(dy, x, dw, at),
+                        (3, 2) => wg_block::<L, 3, 2>(dy, x, dw, at),
+                        (3, 3) => wg_block::<L, 3, 3>(dy, x, dw, at),
+                        (3, _) => wg_block::<L, 3, 4>(dy, x, dw, at),
+                        (_, 1) => wg_block::<L, 4, 1>(dy, x, dw, at),
+                        (_, 2) => wg_block::<L, 4, 2>(dy, x, dw, at),
+                        (_, 3) => wg_block::<L, 4, 3>(dy, x, dw, at),
+                        (_, _) => wg_block::<L, 4, 4>(dy, x, dw, at),
+                    }
+                }
+                o += rows;
+            }
+            j0 += 4 * L::N;
         }
         s0 = s1;
     }
 }
 
-/// Rows `o..o + R` of `dW` over the samples `tile`: loads them, adds the tile's products in
-/// sample order, stores them. Columns past `din` are neither loaded nor stored (masked).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[inline]
-unsafe fn weight_gradient_block<const R: usize, const V: usize>(
-    dy: &[f32],
-    x: &[f32],
-    dw: &mut [f32],
+/// Where a block of the weight gradient lies: its samples, first output row and first column,
+/// and the layer's widths.
+#[derive(Clone)]
+struct WgBlock {
     tile: std::ops::Range<usize>,
     o: usize,
+    j0: usize,
     din: usize,
     dout: usize,
-) {
-    use std::arch::x86_64::*;
-    let mask = |v: usize| -> u16 {
-        let left = din - 16 * v;
-        if left >= 16 {
-            u16::MAX
-        } else {
-            ((1u32 << left) - 1) as u16
-        }
-    };
+}
+
+/// Rows `o..o + R`, columns `j0..j0 + N·V` (within `din`) of `dW` over the block's samples:
+/// loads them, adds the samples' products in order, stores them.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn wg_block<L: Lanes, const R: usize, const V: usize>(dy: &[f32], x: &[f32], dw: &mut [f32], at: WgBlock) {
+    let WgBlock { tile, o, j0, din, dout } = at;
     let (xp, yp, wp) = (x.as_ptr(), dy.as_ptr(), dw.as_mut_ptr());
-    let mut acc = [[_mm512_setzero_ps(); V]; R];
-    for (r, acc_r) in acc.iter_mut().enumerate() {
-        for (v, a) in acc_r.iter_mut().enumerate() {
-            *a = _mm512_maskz_loadu_ps(mask(v), wp.add((o + r) * din + 16 * v));
-        }
-    }
-    for s in tile {
-        let mut xv = [_mm512_setzero_ps(); V];
-        for (v, xv) in xv.iter_mut().enumerate() {
-            *xv = _mm512_maskz_loadu_ps(mask(v), xp.add(s * din + 16 * v));
-        }
+    let left = |v: usize| din - j0 - L::N * v;
+    // SAFETY (the block): see `weight_gradient_lanes`; a column past `din` is neither loaded nor
+    // stored.
+    unsafe {
+        let load = |p: *const f32, v: usize| if left(v) >= L::N { L::load(p) } else { L::load_first(p, left(v)) };
+        let mut acc = [[L::splat(0.0); V]; R];
         for (r, acc_r) in acc.iter_mut().enumerate() {
-            let g = _mm512_set1_ps(*yp.add(s * dout + o + r));
-            for (a, &xv) in acc_r.iter_mut().zip(&xv) {
-                *a = _mm512_fmadd_ps(g, xv, *a);
+            for (v, a) in acc_r.iter_mut().enumerate() {
+                *a = load(wp.add((o + r) * din + j0 + L::N * v), v);
             }
         }
-    }
-    for (r, acc_r) in acc.iter().enumerate() {
-        for (v, &a) in acc_r.iter().enumerate() {
-            _mm512_mask_storeu_ps(wp.add((o + r) * din + 16 * v), mask(v), a);
+        for s in tile {
+            let mut xv = [L::splat(0.0); V];
+            for (v, xv) in xv.iter_mut().enumerate() {
+                *xv = load(xp.add(s * din + j0 + L::N * v), v);
+            }
+            for (r, acc_r) in acc.iter_mut().enumerate() {
+                let g = L::splat(*yp.add(s * dout + o + r));
+                for (a, &xv) in acc_r.iter_mut().zip(&xv) {
+                    *a = L::fmadd(g, xv, *a);
+                }
+            }
+        }
+        for (r, acc_r) in acc.iter().enumerate() {
+            for (v, &a) in acc_r.iter().enumerate() {
+                let p = wp.add((o + r) * din + j0 + L::N * v);
+                if left(v) >= L::N {
+                    L::store(p, a);
+                } else {
+                    L::store_first(p, a, left(v));
+                }
+            }
         }
     }
 }
@@ -446,53 +568,60 @@ mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
-    /// Whether this host runs the AVX-512 kernels.
-    fn avx512() -> bool {
-        #[cfg(target_arch = "x86_64")]
-        return std::arch::is_x86_feature_detected!("avx512f");
-        #[cfg(not(target_arch = "x86_64"))]
-        false
+    /// Every width this host runs.
+    fn widths() -> impl Iterator<Item = Kernels> {
+        Kernels::ALL.into_iter().filter(|k| k.available())
     }
 
-    /// On an AVX-512 host a kernel that declines every case tests nothing.
-    fn assert_applied(applied: usize) {
-        assert!(!avx512() || applied > 0, "the AVX-512 kernel was never used");
-    }
-
-    /// The small-matrix kernel gives `matrixmultiply`'s bits on every layer shape the NeRF uses
-    /// and on ragged ones (rows not a multiple of the kernel's block, widths not of the vector),
-    /// on values of mixed sign and magnitude (so that a different summation order would show).
+    /// The small-matrix kernel computes the fused multiply-add chain over the inner index in
+    /// order at every width (and so `matrixmultiply`'s bits on a host with FMA, whose kernels
+    /// compute the same chain), on every layer shape the NeRF uses and on ragged ones (rows not
+    /// a multiple of the kernel's block, widths not of the vector), on values of mixed sign and
+    /// magnitude (so that a different summation order would show).
     #[test]
-    fn small_gemm_is_bit_identical_to_matrixmultiply() {
+    fn small_gemm_is_the_fma_chain_at_every_width() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
-        let mut applied = 0;
+        let fma_host = Kernels::Avx2.available() || Kernels::Avx512.available();
         for &(k, m) in SHAPES.iter().chain(&[(3, 0)]) {
             for n in [0, 1, 2, 3, 5, 8, 37, 130] {
                 let (a, b) = (mixed(&mut rng, n * k), mixed(&mut rng, k * m));
-                let want = sgemm_reference(&a, &b, n, k, m);
+                let chain: Vec<f32> = (0..n * m)
+                    .map(|q| {
+                        let (i, j) = (q / m, q % m);
+                        (0..k).fold(0.0f32, |c, kk| a[i * k + kk].mul_add(b[kk * m + j], c))
+                    })
+                    .collect();
+                if fma_host {
+                    assert_eq!(
+                        bits(&sgemm_reference(&a, &b, n, k, m)),
+                        bits(&chain),
+                        "matrixmultiply n {n}, k {k}, m {m}"
+                    );
+                }
                 // B row-major, and the same B stored transposed (bt[j·k + kk] = b[kk·m + j]).
                 let bt: Vec<f32> = (0..m * k).map(|q| b[(q % k) * m + q / k]).collect();
-                for right in [Right::Rows(&b), Right::Transposed(&bt)] {
-                    let mut c = vec![f32::NAN; n * m];
-                    if !small_gemm(&a, right, &mut c, n, k, m) {
-                        continue;
+                for kernels in widths() {
+                    for right in [Right::Rows(&b), Right::Transposed(&bt)] {
+                        let mut c = vec![f32::NAN; n * m];
+                        let applied = small_gemm_with(kernels, &a, right, &mut c, n, k, m);
+                        assert_eq!(applied, m > 0, "{kernels:?} n {n}, k {k}, m {m}");
+                        if applied {
+                            assert_eq!(bits(&c), bits(&chain), "{kernels:?} n {n}, k {k}, m {m}, {right:?}");
+                        }
                     }
-                    applied += 1;
-                    assert_eq!(bits(&c), bits(&want), "n {n}, k {k}, m {m}, {right:?}");
                 }
             }
         }
-        assert_applied(applied);
     }
 
     /// The weight-gradient kernel computes each output as one fused multiply-add chain over the
-    /// samples in order (from 0, or from the old value when accumulating), bit for bit, on every
-    /// layer shape the NeRF uses and ragged ones (sample counts across the tile size, widths not
-    /// a multiple of the vector or of the four-row block), on values of mixed sign and magnitude.
+    /// samples in order (from 0, or from the old value when accumulating), bit for bit, at every
+    /// width, on every layer shape the NeRF uses and ragged ones (sample counts across the tile
+    /// size, widths not a multiple of the vector or of the row block), on values of mixed sign
+    /// and magnitude.
     #[test]
-    fn weight_gradient_is_the_fma_chain_over_samples() {
+    fn weight_gradient_is_the_fma_chain_over_samples_at_every_width() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
-        let (mut applied, avx512) = (0, avx512());
         for &(din, dout) in &SHAPES {
             for n in [0, 1, 3, 63, 64, 65, 130, 200] {
                 let (dy, x, old) = (mixed(&mut rng, n * dout), mixed(&mut rng, n * din), mixed(&mut rng, dout * din));
@@ -504,18 +633,21 @@ mod tests {
                             (0..n).fold(c0, |c, s| dy[s * dout + o].mul_add(x[s * din + i], c))
                         })
                         .collect();
+                    for kernels in widths() {
+                        let mut got = if accumulate { old.clone() } else { vec![0.0; dout * din] };
+                        assert!(weight_gradient(kernels, &dy, &x, &mut got, n, din, dout));
+                        assert_eq!(
+                            bits(&got),
+                            bits(&want),
+                            "{kernels:?} n {n}, in {din}, out {dout}, accumulate {accumulate}"
+                        );
+                    }
                     let mut got = if accumulate { old.clone() } else { vec![f32::NAN; dout * din] };
                     linear_backward_weight(&dy, &x, &mut got, n, din, dout, accumulate);
-                    if !avx512 {
-                        // matrixmultiply (other hosts) splits the chain at its blocks.
-                        continue;
-                    }
-                    applied += 1;
-                    assert_eq!(bits(&got), bits(&want), "n {n}, in {din}, out {dout}, accumulate {accumulate}");
+                    assert_eq!(bits(&got), bits(&want), "linear_backward_weight n {n}, in {din}, out {dout}");
                 }
             }
         }
-        assert_applied(applied);
     }
 
     /// Two layers with ReLU: L = Σ u · (relu(X W0ᵀ) W1ᵀ); checks ∂L/∂W0, ∂L/∂W1, ∂L/∂X.

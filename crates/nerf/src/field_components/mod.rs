@@ -1,7 +1,7 @@
 //! Building blocks of a field: encodings and MLP layers.
 
-#[cfg(target_arch = "x86_64")]
-mod hash_avx512;
 pub mod hash_encoding;
+#[cfg(target_arch = "x86_64")]
+mod hash_simd;
 pub mod mlp;
 pub mod sh_encoding;

@@ -1,0 +1,61 @@
+//! The NeRF's kernel widths give the same bits: a short training run's checkpoint and a render
+//! of its model are byte-identical with the portable kernels forced (`NERFSV_KERNELS=portable`)
+//! and at every vector width this host has; a width the host lacks or an unknown name is refused.
+
+mod common;
+
+use std::path::Path;
+
+use common::{nerfsv_with, s, tiny_dataset};
+use nerfsv_nerf::kernels::Kernels;
+
+/// Trains 40 small steps (two occupancy-grid updates) and renders the test view at `kernels`;
+/// returns the checkpoint's and the render's bytes.
+fn train_and_render(dir: &Path, ds: &Path, kernels: Kernels) -> (Vec<u8>, Vec<u8>) {
+    let env = [("NERFSV_KERNELS", kernels.name())];
+    let config = dir.join("small.toml");
+    std::fs::write(&config, "[train]\nbatch_rays = 256\ntarget_samples_per_step = 2048\n").unwrap();
+    let out = dir.join(kernels.name());
+    let (ok, _, err) = nerfsv_with(
+        &["train", "--data", s(ds), "--out", s(&out), "--steps", "40", "--config", s(&config), "--seed", "3"],
+        &env,
+    );
+    assert!(ok, "{kernels:?}: {err}");
+    let checkpoint = out.join("checkpoint.safetensors");
+    let renders = dir.join(format!("{}_renders", kernels.name()));
+    let (ok, _, err) = nerfsv_with(&["render", "--model", s(&checkpoint), "--data", s(ds), "--out", s(&renders)], &env);
+    assert!(ok, "{kernels:?}: {err}");
+    let mut views: Vec<_> = std::fs::read_dir(&renders).unwrap().flatten().map(|e| e.path()).collect();
+    views.sort();
+    assert!(!views.is_empty(), "{kernels:?}: no render");
+    (std::fs::read(&checkpoint).unwrap(), views.iter().flat_map(|p| std::fs::read(p).unwrap()).collect())
+}
+
+#[test]
+fn a_short_training_run_and_its_render_are_the_same_bytes_at_every_kernel_width() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = tiny_dataset(dir.path(), "6", "1");
+    let portable = train_and_render(dir.path(), &ds, Kernels::Portable);
+    let widths: Vec<_> = Kernels::ALL.into_iter().filter(|k| *k != Kernels::Portable && k.available()).collect();
+    for k in &widths {
+        let (checkpoint, render) = train_and_render(dir.path(), &ds, *k);
+        assert!(checkpoint == portable.0, "{k:?}: the checkpoint differs from the portable kernels'");
+        assert!(render == portable.1, "{k:?}: the render differs from the portable kernels'");
+    }
+    eprintln!("compared portable with {widths:?}");
+}
+
+#[test]
+fn a_width_the_host_lacks_or_an_unknown_name_is_refused_before_anything_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    for (value, says) in [("sse9", "expected one of portable, avx2, avx512, native"), ("avx512", "avx512")] {
+        if value == "avx512" && Kernels::Avx512.available() {
+            continue;
+        }
+        let out = dir.path().join("out");
+        let (ok, _, err) =
+            nerfsv_with(&["scene", "--scene", "monolith", "--out", s(&out)], &[("NERFSV_KERNELS", value)]);
+        assert!(!ok && err.contains("NERFSV_KERNELS") && err.contains(says), "{value}: {err}");
+        assert!(!out.exists(), "{value}: wrote {}", out.display());
+    }
+}

@@ -9,15 +9,18 @@ use std::path::Path;
 use common::{nerfsv_with, s, tiny_dataset};
 use nerfsv_nerf::kernels::Kernels;
 
-/// Trains 40 small steps (two occupancy-grid updates) and renders the test view at `kernels`;
-/// returns the checkpoint's and the render's bytes.
+/// Trains 20 steps of a small model (16-wide layers, a 32³ occupancy grid, 64 rays: the
+/// portable kernels call libm for each fused multiply-add) with a grid update at step 16 and
+/// renders the test view at `kernels`; returns the checkpoint's and the render's bytes.
 fn train_and_render(dir: &Path, ds: &Path, kernels: Kernels) -> (Vec<u8>, Vec<u8>) {
     let env = [("NERFSV_KERNELS", kernels.name())];
     let config = dir.join("small.toml");
-    std::fs::write(&config, "[train]\nbatch_rays = 256\ntarget_samples_per_step = 2048\n").unwrap();
+    let small = "[nerf]\ngrid_resolution = 32\nsigma_hidden = 16\ncolor_hidden = 16\n\
+                 [train]\nbatch_rays = 64\ntarget_samples_per_step = 1024\n";
+    std::fs::write(&config, small).unwrap();
     let out = dir.join(kernels.name());
     let (ok, _, err) = nerfsv_with(
-        &["train", "--data", s(ds), "--out", s(&out), "--steps", "40", "--config", s(&config), "--seed", "3"],
+        &["train", "--data", s(ds), "--out", s(&out), "--steps", "20", "--config", s(&config), "--seed", "3"],
         &env,
     );
     assert!(ok, "{kernels:?}: {err}");

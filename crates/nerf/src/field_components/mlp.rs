@@ -214,39 +214,48 @@ fn rows_portable(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m:
     }
 }
 
-/// The AVX-512 product: 4 rows × up to 64 columns (16 zmm accumulators) at a time.
+/// The AVX-512 product: 4 rows × up to 64 columns (16 of the 32 zmm registers accumulate) at a
+/// time.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn rows_avx512(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
-    unsafe { rows::<Avx512, 4>(a, panel, c, n, k, m) }
+    unsafe { rows::<Avx512, 4, 4>(a, panel, c, n, k, m) }
 }
 
-/// The AVX2 product: 3 rows × up to 32 columns (12 ymm accumulators) at a time.
+/// The AVX2 product: 6 rows × 16 columns at a time (12 of the 16 ymm registers accumulate, the
+/// shape of BLIS's Haswell kernel; wider blocks spill).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn rows_avx2(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
-    unsafe { rows::<Avx2, 3>(a, panel, c, n, k, m) }
+    unsafe { rows::<Avx2, 6, 2>(a, panel, c, n, k, m) }
 }
 
-/// `C = A·panel` in blocks of `R` rows × `V ≤ 4` vectors of columns, the last rows one at a
-/// time; one fused multiply-add per output and inner index, in order; outputs past `m` (the
-/// panel's zero padding) are not stored.
+/// `C = A·panel` in blocks of `R` rows × `V ≤ VMAX ≤ 4` vectors of columns, the last rows one
+/// at a time; one fused multiply-add per output and inner index, in order; outputs past `m`
+/// (the panel's zero padding) are not stored.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn rows<L: Lanes, const R: usize>(a: &[f32], panel: &[f32], c: &mut [f32], n: usize, k: usize, m: usize) {
+unsafe fn rows<L: Lanes, const R: usize, const VMAX: usize>(
+    a: &[f32],
+    panel: &[f32],
+    c: &mut [f32],
+    n: usize,
+    k: usize,
+    m: usize,
+) {
     let mut j0 = 0;
     while j0 < m {
         // SAFETY (the block): the caller's host has L's width; a, c and the panel are bounded
         // by small_gemm's asserts, the columns j0 + N·V ≤ 64 by the panel's width.
         unsafe {
-            match (m - j0).div_ceil(L::N).min(4) {
+            match (m - j0).div_ceil(L::N).min(VMAX) {
                 1 => rows_v::<L, R, 1>(a, panel, c, n, k, m, j0),
                 2 => rows_v::<L, R, 2>(a, panel, c, n, k, m, j0),
                 3 => rows_v::<L, R, 3>(a, panel, c, n, k, m, j0),
                 _ => rows_v::<L, R, 4>(a, panel, c, n, k, m, j0),
             }
         }
-        j0 += 4 * L::N;
+        j0 += VMAX * L::N;
     }
 }
 
@@ -365,20 +374,20 @@ pub fn weight_gradient(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn weight_gradient_avx512(dy: &[f32], x: &[f32], dw: &mut [f32], n: usize, din: usize, dout: usize) {
-    unsafe { weight_gradient_lanes::<Avx512, 4>(dy, x, dw, n, din, dout) }
+    unsafe { weight_gradient_lanes::<Avx512, 4, 4>(dy, x, dw, n, din, dout) }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn weight_gradient_avx2(dy: &[f32], x: &[f32], dw: &mut [f32], n: usize, din: usize, dout: usize) {
-    unsafe { weight_gradient_lanes::<Avx2, 3>(dy, x, dw, n, din, dout) }
+    unsafe { weight_gradient_lanes::<Avx2, 6, 2>(dy, x, dw, n, din, dout) }
 }
 
-/// Tiles of samples; in each, blocks of `R` output rows (the last 1 to `R − 1` rows in one
-/// smaller block) × up to 4 vectors of columns.
+/// Tiles of samples; in each, blocks of `R` output rows (the last rows one at a time) × up to
+/// `VMAX ≤ 4` vectors of columns.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn weight_gradient_lanes<L: Lanes, const R: usize>(
+unsafe fn weight_gradient_lanes<L: Lanes, const R: usize, const VMAX: usize>(
     dy: &[f32],
     x: &[f32],
     dw: &mut [f32],
@@ -391,35 +400,32 @@ unsafe fn weight_gradient_lanes<L: Lanes, const R: usize>(
         let s1 = (s0 + WG_TILE).min(n);
         let mut j0 = 0;
         while j0 < din {
-            let v = (din - j0).div_ceil(L::N).min(4);
+            let v = (din - j0).div_ceil(L::N).min(VMAX);
             let mut o = 0;
             while o < dout {
-                let rows = (dout - o).min(R);
                 let at = WgBlock { tile: s0..s1, o, j0, din, dout };
                 // SAFETY: the caller's host has L's width; `weight_gradient` bounds every index.
                 unsafe {
-                    match (rows, v) {
-                        (1, 1) => wg_block::<L, 1, 1>(dy, x, dw, at),
-                        (1, 2) => wg_block::<L, 1, 2>(dy, x, dw, at),
-                        (1, 3) => wg_block::<L, 1, 3>(dy, x, dw, at),
-                        (1, _) => wg_block::<L, 1, 4>(dy, x, dw, at),
-                        (2, 1) => wg_block::<L, 2, 1>(dy, x, dw, at),
-                        (2, 2) => wg_block::<L, 2, 2>(dy, x, dw, at),
-                        (2, 3) => wg_block::<L, 2, 3>(dy, x, dw, at),
-                        (2, _) => wg_block::<L, 2, 4>(dy, x, dw, at),
-                        (3, 1) => wg_block::<L, 3, 1>(dy, x, dw, at),
-                        (3, 2) => wg_block::<L, 3, 2>(dy, x, dw, at),
-                        (3, 3) => wg_block::<L, 3, 3>(dy, x, dw, at),
-                        (3, _) => wg_block::<L, 3, 4>(dy, x, dw, at),
-                        (_, 1) => wg_block::<L, 4, 1>(dy, x, dw, at),
-                        (_, 2) => wg_block::<L, 4, 2>(dy, x, dw, at),
-                        (_, 3) => wg_block::<L, 4, 3>(dy, x, dw, at),
-                        (_, _) => wg_block::<L, 4, 4>(dy, x, dw, at),
+                    if o + R <= dout {
+                        match v {
+                            1 => wg_block::<L, R, 1>(dy, x, dw, at),
+                            2 => wg_block::<L, R, 2>(dy, x, dw, at),
+                            3 => wg_block::<L, R, 3>(dy, x, dw, at),
+                            _ => wg_block::<L, R, 4>(dy, x, dw, at),
+                        }
+                        o += R;
+                    } else {
+                        match v {
+                            1 => wg_block::<L, 1, 1>(dy, x, dw, at),
+                            2 => wg_block::<L, 1, 2>(dy, x, dw, at),
+                            3 => wg_block::<L, 1, 3>(dy, x, dw, at),
+                            _ => wg_block::<L, 1, 4>(dy, x, dw, at),
+                        }
+                        o += 1;
                     }
                 }
-                o += rows;
             }
-            j0 += 4 * L::N;
+            j0 += VMAX * L::N;
         }
         s0 = s1;
     }

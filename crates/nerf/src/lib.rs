@@ -47,7 +47,11 @@
 //!
 //! # Determinism
 //! The same [`TrainConfig::seed`] gives bit-identical weights whatever the rayon thread count,
-//! and a resumed run ends at the same weights as an uninterrupted one (see [`train()`]).
+//! and a resumed run ends at the same weights as an uninterrupted one (see [`train()`]). It
+//! also gives them whatever the host: the kernels run at the host's vector width (AVX-512,
+//! AVX2 + FMA, or portable code; [`kernels`]) and every width computes the same operations in
+//! the same order, so checkpoints and renders are the same bytes on every host
+//! (`NERFSV_KERNELS=portable` forces the portable kernels to show it).
 //! The matrix products run single-threaded inside rayon's workers (`matrixmultiply` without its
 //! `threading` feature: its own threads inside rayon's cost a vision update a third of its speed).
 //!

@@ -10,6 +10,7 @@ ground-truth field.
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +111,29 @@ def test_a_python_render_equals_the_cli_render_bit_for_bit(world, tmp_path):
     nerfsv.write_depth_png(tmp_path / "py_depth.png", depth, opacity)
     assert (tmp_path / "py.png").read_bytes() == (tmp_path / "cli" / "r_0.png").read_bytes()
     assert (tmp_path / "py_depth.png").read_bytes() == (tmp_path / "cli" / "r_0_depth.png").read_bytes()
+
+
+def test_the_kernel_width_is_read_at_import_and_changes_no_bit(world, tmp_path):
+    # A render in a fresh interpreter at the portable kernels and at the host's widest: the
+    # same bytes; an unknown width is refused when the package is imported.
+    script = (
+        "import sys, nerfsv\n"
+        "d = nerfsv.load_dataset(sys.argv[1], 'test')\n"
+        "m = nerfsv.Model.load(sys.argv[2])\n"
+        "rgb, depth, opacity = m.render(d['poses'][0], 8, 8, tuple(d['intrinsics'][0]))\n"
+        "nerfsv.write_png(sys.argv[3], rgb)\n"
+    )
+    renders = {}
+    for width in ["portable", "native"]:
+        out = tmp_path / f"{width}.png"
+        env = dict(os.environ, NERFSV_KERNELS=width)
+        subprocess.run([sys.executable, "-c", script, str(world["ds"]), str(world["model"]), str(out)], env=env,
+                       cwd=tmp_path, check=True)
+        renders[width] = out.read_bytes()
+    assert renders["portable"] == renders["native"]
+    bad = subprocess.run([sys.executable, "-c", "import nerfsv"], env=dict(os.environ, NERFSV_KERNELS="sse9"),
+                         cwd=tmp_path, capture_output=True, text=True)
+    assert bad.returncode != 0 and "NERFSV_KERNELS" in bad.stderr, bad.stderr
 
 
 def test_python_stress_equals_the_cli(world, tmp_path):

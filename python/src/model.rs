@@ -148,7 +148,11 @@ impl Model {
         } else {
             values.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 1.0]).collect()
         };
-        let cfg = run_config(config.as_deref())?.uq;
+        // Only the `[uq]` table matters here: any run config is read, the ensemble's too.
+        let cfg = match config.as_deref() {
+            Some(p) => RunConfig::load(p).map_err(py_err)?.uq,
+            None => RunConfig::default().uq,
+        };
         let frame = Frame {
             file_path: "python".into(),
             image_path: PathBuf::from("python"),

@@ -55,9 +55,14 @@ impl Kernels {
         }
     }
 
+    /// The widths this host runs, narrowest (portable) first.
+    pub fn on_this_host() -> impl Iterator<Item = Kernels> {
+        Self::ALL.into_iter().filter(|k| k.available())
+    }
+
     /// The widest kernels this host runs.
     pub fn widest() -> Kernels {
-        *Self::ALL.iter().rev().find(|k| k.available()).unwrap_or(&Kernels::Portable)
+        Self::on_this_host().last().unwrap_or(Kernels::Portable)
     }
 
     /// The width `NERFSV_KERNELS` asks for: unset or `native` is [`Kernels::widest`]; a width

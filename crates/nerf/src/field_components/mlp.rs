@@ -574,11 +574,6 @@ mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
-    /// Every width this host runs.
-    fn widths() -> impl Iterator<Item = Kernels> {
-        Kernels::ALL.into_iter().filter(|k| k.available())
-    }
-
     /// The small-matrix kernel computes the fused multiply-add chain over the inner index in
     /// order at every width (and so `matrixmultiply`'s bits on a host with FMA, whose kernels
     /// compute the same chain), on every layer shape the NeRF uses and on ragged ones (rows not
@@ -606,7 +601,7 @@ mod tests {
                 }
                 // B row-major, and the same B stored transposed (bt[j·k + kk] = b[kk·m + j]).
                 let bt: Vec<f32> = (0..m * k).map(|q| b[(q % k) * m + q / k]).collect();
-                for kernels in widths() {
+                for kernels in Kernels::on_this_host() {
                     for right in [Right::Rows(&b), Right::Transposed(&bt)] {
                         let mut c = vec![f32::NAN; n * m];
                         let applied = small_gemm_with(kernels, &a, right, &mut c, n, k, m);
@@ -639,7 +634,7 @@ mod tests {
                             (0..n).fold(c0, |c, s| dy[s * dout + o].mul_add(x[s * din + i], c))
                         })
                         .collect();
-                    for kernels in widths() {
+                    for kernels in Kernels::on_this_host() {
                         let mut got = if accumulate { old.clone() } else { vec![0.0; dout * din] };
                         assert!(weight_gradient(kernels, &dy, &x, &mut got, n, din, dout));
                         assert_eq!(

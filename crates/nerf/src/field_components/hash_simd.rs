@@ -24,8 +24,10 @@ pub(crate) unsafe fn load_points<L: Lanes>(pos: &[f32], i0: usize, n: usize) -> 
             axis[j] = pos[3 * (i0 + j) + d];
         }
     }
-    // SAFETY: each array holds at least N floats.
-    soa.map(|axis| unsafe { L::load(axis.as_ptr()) })
+    // SAFETY: each array holds at least N floats. (Loops, not closures, here and below: a
+    // closure is a function of its own without the entry point's target features, and the
+    // intrinsics it calls stay out-of-line calls.)
+    unsafe { [L::load(soa[0].as_ptr()), L::load(soa[1].as_ptr()), L::load(soa[2].as_ptr())] }
 }
 
 /// One level's cells of a vector of points: the eight corner rows (absolute, with the level's
@@ -104,13 +106,25 @@ pub(crate) unsafe fn store_rows<L: Lanes, const P: usize>(
     }
 }
 
+/// Each axis's two corner factors `[1 − f, f]`.
+#[inline(always)]
+unsafe fn corner_factors<L: Lanes>(f: &[L::F; 3]) -> [[L::F; 2]; 3] {
+    unsafe {
+        let one = L::splat(1.0);
+        [[L::sub(one, f[0]), f[0]], [L::sub(one, f[1]), f[1]], [L::sub(one, f[2]), f[2]]]
+    }
+}
+
 /// The trilinear weights `(wx·wy)·wz` of the eight corners.
 #[inline(always)]
 pub(crate) unsafe fn weights<L: Lanes>(f: &[L::F; 3]) -> [L::F; 8] {
     unsafe {
-        let one = L::splat(1.0);
-        let w = f.map(|fd| [L::sub(one, fd), fd]);
-        std::array::from_fn(|c| L::mul(L::mul(w[0][c & 1], w[1][(c >> 1) & 1]), w[2][(c >> 2) & 1]))
+        let w = corner_factors::<L>(f);
+        let mut out = [L::splat(0.0); 8];
+        for (c, o) in out.iter_mut().enumerate() {
+            *o = L::mul(L::mul(w[0][c & 1], w[1][(c >> 1) & 1]), w[2][(c >> 2) & 1]);
+        }
+        out
     }
 }
 
@@ -148,25 +162,34 @@ pub(crate) unsafe fn jacobian_level<L: Lanes>(
     f: &[L::F; 3],
 ) -> [[L::F; 3]; 2] {
     unsafe {
-        let (zero, one) = (L::splat(0.0), L::splat(1.0));
-        let w = f.map(|fd| [L::sub(one, fd), fd]);
+        let zero = L::splat(0.0);
+        let w = corner_factors::<L>(f);
         let mut ja = [zero; 3];
         let mut jb = [zero; 3];
         for (c, &rows) in idx.iter().enumerate() {
             let up = [c & 1, (c >> 1) & 1, (c >> 2) & 1];
-            let wd = [0, 1, 2].map(|d| w[d][up[d]]);
+            let wd = [w[0][up[0]], w[1][up[1]], w[2][up[2]]];
             // (±1 · w_a) · w_b: the product with −1 is the sign bit flipped.
-            let signed = |d: usize, v: L::F| if up[d] == 1 { v } else { L::negate(v) };
-            let dw =
-                [L::mul(signed(0, wd[1]), wd[2]), L::mul(signed(1, wd[0]), wd[2]), L::mul(signed(2, wd[0]), wd[1])];
+            let mut a = [wd[1], wd[0], wd[0]];
+            for d in 0..3 {
+                if up[d] == 0 {
+                    a[d] = L::negate(a[d]);
+                }
+            }
+            let dw = [L::mul(a[0], wd[2]), L::mul(a[1], wd[2]), L::mul(a[2], wd[1])];
             let (ea, eb) = L::gather_pairs(emb, rows);
             for d in 0..3 {
                 ja[d] = L::add(ja[d], L::mul(dw[d], ea));
                 jb[d] = L::add(jb[d], L::mul(dw[d], eb));
             }
         }
-        let g = x.map(|xd| L::where_unit(xd, scale));
-        [ja, jb].map(|j| std::array::from_fn(|d| L::mul(g[d], j[d])))
+        let mut out = [[zero; 3]; 2];
+        for d in 0..3 {
+            let g = L::where_unit(x[d], scale);
+            out[0][d] = L::mul(g, ja[d]);
+            out[1][d] = L::mul(g, jb[d]);
+        }
+        out
     }
 }
 

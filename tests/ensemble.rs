@@ -5,34 +5,10 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 
-use common::{files, nerfsv, s};
-
-/// The tiny study's `[nerf]` and `[train]` tables (shared with the `nerfsv train` config).
-const MODEL: &str = "[train]\nbatch_rays = 256\ncheckpoint_every_steps = 1\n";
-
-/// A tiny run config (16×16 monolith, a few steps) with an ensemble of two members and the
-/// ensemble as NeRF-sim's world.
-fn config(dir: &Path) -> PathBuf {
-    let cfg = dir.join("run.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = 4\n[dataset]\nwidth = 16\nheight = 16\n\
-             train = 6\nval = 1\ntest = 2\nsupersample = 1\n{MODEL}\
-             [sim]\nnerf_world = \"ensemble\"\n[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
-             [validation.monte_carlo]\nrollouts = 6\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
-             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
-             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
-             [uq_offline]\nbla_images_per_split = 1\n[online]\nmethods = [\"ga\"]\nmc_rollouts = 4\n\
-             [ensemble]\nmembers = 3\nsteps = 3\n"
-        ),
-    )
-    .unwrap();
-    cfg
-}
+use common::{files, nerfsv, s, tiny_ensemble_run_config as config, TINY_MODEL as MODEL};
 
 fn summary(root: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(root.join("summary.json")).unwrap()).unwrap()

@@ -1,12 +1,14 @@
 //! The NeRF's kernel widths give the same bits: a short training run's checkpoint and a render
-//! of its model are byte-identical with the portable kernels forced (`NERFSV_KERNELS=portable`)
-//! and at every vector width this host has; a width the host lacks or an unknown name is refused.
+//! of its model, and a whole tiny study (every stage: checkpoints, CSVs, pictures and the
+//! figures of `summary.json`), are byte-identical with the portable kernels forced
+//! (`NERFSV_KERNELS=portable`) and at every vector width this host has; a width the host lacks or
+//! an unknown name is refused.
 
 mod common;
 
 use std::path::Path;
 
-use common::{nerfsv_with, s, tiny_dataset};
+use common::{files, nerfsv_with, s, tiny_dataset, tiny_ensemble_run_config_with};
 use nerfsv_nerf::kernels::Kernels;
 
 /// Trains 20 steps of a small model (16-wide layers, a 32³ occupancy grid, 64 rays: the
@@ -46,6 +48,54 @@ fn a_short_training_run_and_its_render_are_the_same_bytes_at_every_kernel_width(
         assert!(render == portable.1, "{k:?}: the render differs from the portable kernels'");
     }
     eprintln!("compared portable with {widths:?}");
+}
+
+/// `summary.json` without what depends on the machine or the folder: timings and rates per
+/// second, and the run's path.
+fn figures(run: &Path) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(m) => {
+                m.retain(|k, _| k != "run" && !k.contains("second"));
+                m.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let mut v = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+    strip(&mut v);
+    v
+}
+
+/// The tiny ensemble study (small layers, a 32³ grid, 3 steps a rollout: the portable kernels
+/// take about 90 s of it on two cores) with the portable kernels and with every width this host
+/// has: the same files, byte for byte, and the same figures.
+#[test]
+fn a_whole_tiny_study_is_the_same_bytes_at_every_kernel_width() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = tiny_ensemble_run_config_with(
+        dir.path(),
+        "grid_resolution = 32\nsigma_hidden = 16\ncolor_hidden = 16\n",
+        "steps = 3\n",
+    );
+    let run = |k: Kernels| {
+        let out = dir.path().join(k.name());
+        let (ok, _, err) = nerfsv_with(&["run", s(&cfg), "--out", s(&out)], &[("NERFSV_KERNELS", k.name())]);
+        assert!(ok, "{k:?}: {err}");
+        (files(&out), figures(&out))
+    };
+    let (portable, portable_figures) = run(Kernels::Portable);
+    assert!(portable.iter().any(|(n, _)| n.ends_with("rollouts.csv")), "the study flew no rollouts");
+    for k in Kernels::on_this_host().filter(|k| *k != Kernels::Portable) {
+        let (fast, fast_figures) = run(k);
+        let names = |f: &[(std::path::PathBuf, Vec<u8>)]| f.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+        assert_eq!(names(&fast), names(&portable), "{k:?}: other files than the portable kernels'");
+        for ((name, a), (_, b)) in fast.iter().zip(&portable) {
+            assert!(a == b, "{k:?}: {} differs from the portable kernels'", name.display());
+        }
+        assert!(fast_figures == portable_figures, "{k:?}: summary.json's figures differ");
+    }
 }
 
 #[test]

@@ -100,3 +100,33 @@ pub fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     out.sort();
     out
 }
+
+/// The tiny study's `[nerf]` and `[train]` tables (shared with the `nerfsv train` config).
+pub const TINY_MODEL: &str = "[train]\nbatch_rays = 256\ncheckpoint_every_steps = 1\n";
+
+/// A tiny run config (16×16 monolith, a few steps) with an ensemble of three members (two
+/// beside the deployed model) and the ensemble as NeRF-sim's world.
+pub fn tiny_ensemble_run_config(dir: &Path) -> PathBuf {
+    tiny_ensemble_run_config_with(dir, "", "")
+}
+
+/// [`tiny_ensemble_run_config`] with `nerf` as the `[nerf]` table's lines and `sim` added to the
+/// `[sim]` table's.
+pub fn tiny_ensemble_run_config_with(dir: &Path, nerf: &str, sim: &str) -> PathBuf {
+    let cfg = dir.join("run.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = 4\n[nerf]\n{nerf}[dataset]\nwidth = 16\nheight = 16\n\
+             train = 6\nval = 1\ntest = 2\nsupersample = 1\n{TINY_MODEL}\
+             [sim]\nnerf_world = \"ensemble\"\n{sim}[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
+             [validation.monte_carlo]\nrollouts = 6\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
+             [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
+             [uq_offline]\nbla_images_per_split = 1\n[online]\nmethods = [\"ga\"]\nmc_rollouts = 4\n\
+             [ensemble]\nmembers = 3\nsteps = 3\n"
+        ),
+    )
+    .unwrap();
+    cfg
+}

@@ -420,7 +420,10 @@ impl ChunkWorkspace {
         grid: &OccupancyGrid,
         march: &March,
     ) {
-        crate::kernels::dispatch(|| self.forward_body(field, params, rays, grid, march))
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || self.forward_body(field, params, rays, grid, march),
+        )
     }
 
     #[inline(always)]
@@ -579,7 +582,10 @@ impl ChunkWorkspace {
     /// MSE loss against `targets: [r, 3]` (normalised by `n_total` rays) and the backward pass:
     /// fills `grad_mlp` (overwritten) and `d_enc`, and `sq_err`.
     pub fn backward(&mut self, field: &NgpField, params: &[f32], targets: &[[f32; 3]], n_total: usize) {
-        crate::kernels::dispatch(|| self.backward_body(field, params, targets, n_total))
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || self.backward_body(field, params, targets, n_total),
+        )
     }
 
     #[inline(always)]

@@ -96,7 +96,10 @@ impl JacobianWorkspace {
     /// `min_weight` keep only their density term `∂C/∂σ_j ⊗ ∇σ(x_j)` (see
     /// [`RayRender::jacobians_above`]); `min_weight = 0` is exact.
     pub(crate) fn backward(&mut self, chunk: ChunkBackward<'_>) {
-        crate::kernels::dispatch(|| self.backward_body(chunk))
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || self.backward_body(chunk),
+        )
     }
 
     #[inline(always)]

@@ -128,8 +128,10 @@ pub fn set_active(k: Kernels) -> Result<(), KernelsError> {
 }
 
 /// Runs `body` compiled for [`active`]'s width: element-wise loops (activations, compositing,
-/// Adam) in the width's vectors. `body` should call an `#[inline(always)]` function, so that it
-/// is compiled inside the width's entry point. The compiler fuses no multiply and add that the
+/// Adam) in the width's vectors. `body` must be a closure marked `#[inline(always)]` that calls
+/// `#[inline(always)]` functions (no closures of its own around the hot loops), so that all of
+/// it is compiled inside the width's entry point: an unmarked closure is compiled once, for the
+/// baseline, and the entry point only calls it. The compiler fuses no multiply and add that the
 /// source does not and reorders no floating-point operation, so every width gives the same
 /// bits.
 #[inline(always)]

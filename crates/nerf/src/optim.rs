@@ -55,20 +55,47 @@ impl Adam {
                 } else {
                     (0, 0)
                 };
-                let update = |p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32], decayed: bool| {
-                    for (((p, m), v), &g) in p.iter_mut().zip(m).zip(v).zip(g) {
-                        let gi = if decayed { g + h.weight_decay * *p } else { g };
-                        *m = h.beta1 * *m + (1.0 - h.beta1) * gi;
-                        *v = h.beta2 * *v + (1.0 - h.beta2) * gi * gi;
-                        *p -= step_size * *m / (v.sqrt() * inv_sqrt_bc2 + h.eps);
-                    }
-                };
-                crate::kernels::dispatch(|| {
-                    update(&mut p[..lo], &mut m[..lo], &mut v[..lo], &g[..lo], false);
-                    update(&mut p[lo..hi], &mut m[lo..hi], &mut v[lo..hi], &g[lo..hi], true);
-                    update(&mut p[hi..], &mut m[hi..], &mut v[hi..], &g[hi..], false);
-                });
+                crate::kernels::dispatch(
+                    #[inline(always)]
+                    || {
+                        update(&mut p[..lo], &mut m[..lo], &mut v[..lo], &g[..lo], false, h, step_size, inv_sqrt_bc2);
+                        update(
+                            &mut p[lo..hi],
+                            &mut m[lo..hi],
+                            &mut v[lo..hi],
+                            &g[lo..hi],
+                            true,
+                            h,
+                            step_size,
+                            inv_sqrt_bc2,
+                        );
+                        update(&mut p[hi..], &mut m[hi..], &mut v[hi..], &g[hi..], false, h, step_size, inv_sqrt_bc2);
+                    },
+                );
             });
+    }
+}
+
+/// Adam's update of one run of elements (`decayed`: with weight decay), inlined into each width's
+/// entry point of [`crate::kernels::dispatch`] (a closure would be compiled once, for the
+/// baseline).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn update(
+    p: &mut [f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    g: &[f32],
+    decayed: bool,
+    h: AdamParams,
+    step_size: f32,
+    inv_sqrt_bc2: f32,
+) {
+    for (((p, m), v), &g) in p.iter_mut().zip(m).zip(v).zip(g) {
+        let gi = if decayed { g + h.weight_decay * *p } else { g };
+        *m = h.beta1 * *m + (1.0 - h.beta1) * gi;
+        *v = h.beta2 * *v + (1.0 - h.beta2) * gi * gi;
+        *p -= step_size * *m / (v.sqrt() * inv_sqrt_bc2 + h.eps);
     }
 }
 

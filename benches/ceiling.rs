@@ -7,13 +7,18 @@
 //!   per lane.
 //! - `ceiling/small_gemm_512x64x64`: the layer kernel (`mlp::small_gemm`) on a hidden layer's
 //!   shape, in the same units, for its share of the first.
-//! - `ceiling/gather_l1_*`, `ceiling/gather_levels_*`: 8-lane 64-bit gathers (the instruction the
-//!   hash encoding uses) of random rows from one 4 KiB table (L1) and from sixteen tables of the
+//! - `ceiling/gather_l1_*`, `ceiling/gather_levels_*`: 8-lane 64-bit gathers (as the hash
+//!   encoding makes them at the host's width) of random rows from one 4 KiB table (L1) and from sixteen tables of the
 //!   default model's level size (2¹⁵ rows of two f32 features, 256 KiB each, 4 MiB in all:
 //!   L2/L3), with the row arithmetic of a hash (a multiply and a mask per lane); the throughput
 //!   counts lookups.
 //!
-//! `cargo bench --bench ceiling`; AVX-512 parts are skipped on hosts without it.
+//! - `ceiling/hash_encode_4096_points_1_core`: the hash encoding (`HashEncoding::encode_batch`,
+//!   the default model's levels) at the host's widest kernels, in lookups (8 corners per level
+//!   and point), for its share of the `gather_levels` ceiling.
+//!
+//! `cargo bench --bench ceiling`; the gathers run as AVX-512 `vgatherdpd` where the host has it,
+//! else as the AVX2 hash kernel's eight 64-bit loads.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use rayon::prelude::*;
@@ -99,6 +104,49 @@ mod x86 {
         }
         _mm512_reduce_add_pd(_mm512_add_pd(_mm512_add_pd(acc[0], acc[1]), _mm512_add_pd(acc[2], acc[3])))
     }
+
+    /// The AVX2 form of [`gather_avx512`]: the same rows, read as the AVX2 hash kernel reads them,
+    /// eight 64-bit loads per eight lanes (`vgatherdpd` costs more than the loads on Zen 3).
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn gather_avx2(tables: &[Vec<f64>], mask: u32, gathers: usize, seed: u32) -> f64 {
+        let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let prime = _mm256_set1_epi32(-1_640_531_535);
+        let m = _mm256_set1_epi32(mask as i32);
+        let mut counter = _mm256_add_epi32(_mm256_set1_epi32(seed as i32), lane);
+        let step = _mm256_set1_epi32(8);
+        let mut acc = [_mm256_setzero_pd(); 4];
+        let mut rows = [0u32; 8];
+        let mut g = 0;
+        while g < gathers {
+            for (t, table) in tables.iter().enumerate() {
+                if g >= gathers {
+                    break;
+                }
+                let r = _mm256_and_si256(_mm256_mullo_epi32(counter, prime), m);
+                _mm256_storeu_si256(rows.as_mut_ptr().cast(), r);
+                let p = table.as_ptr();
+                let lo = _mm256_setr_pd(
+                    *p.add(rows[0] as usize),
+                    *p.add(rows[1] as usize),
+                    *p.add(rows[2] as usize),
+                    *p.add(rows[3] as usize),
+                );
+                let hi = _mm256_setr_pd(
+                    *p.add(rows[4] as usize),
+                    *p.add(rows[5] as usize),
+                    *p.add(rows[6] as usize),
+                    *p.add(rows[7] as usize),
+                );
+                acc[t & 3] = _mm256_add_pd(acc[t & 3], _mm256_add_pd(lo, hi));
+                counter = _mm256_add_epi32(counter, step);
+                g += 1;
+            }
+        }
+        let s = _mm256_add_pd(_mm256_add_pd(acc[0], acc[1]), _mm256_add_pd(acc[2], acc[3]));
+        let mut out = [0f64; 4];
+        _mm256_storeu_pd(out.as_mut_ptr(), s);
+        out.iter().sum()
+    }
 }
 
 fn ceiling(c: &mut Criterion) {
@@ -142,7 +190,7 @@ fn ceiling(c: &mut Criterion) {
             });
         }
 
-        if avx512 {
+        if avx512 || fma2 {
             let table =
                 |rows: usize, salt: usize| -> Vec<f64> { (0..rows).map(|i| ((i ^ salt) % 97) as f64).collect() };
             let l1 = vec![table(512, 0)];
@@ -151,7 +199,13 @@ fn ceiling(c: &mut Criterion) {
             for (name, tables, mask) in
                 [("gather_l1", &l1, 511u32), ("gather_levels", &levels, (LEVEL_ROWS - 1) as u32)]
             {
-                let one = |seed: u32| unsafe { x86::gather_avx512(tables, mask, GATHERS, seed) };
+                let one = |seed: u32| unsafe {
+                    if avx512 {
+                        x86::gather_avx512(tables, mask, GATHERS, seed)
+                    } else {
+                        x86::gather_avx2(tables, mask, GATHERS, seed)
+                    }
+                };
                 g.throughput(Throughput::Elements(lookups));
                 g.bench_function(format!("{name}_1_core"), |b| b.iter(|| one(std::hint::black_box(1))));
                 g.throughput(Throughput::Elements(lookups * threads as u64));
@@ -160,6 +214,19 @@ fn ceiling(c: &mut Criterion) {
                 });
             }
         }
+
+        // The hash encoding itself (the default model's 16 levels of at most 2¹⁵ rows), at the
+        // host's widest kernels, on points spread over the box: its lookups (8 corners a level)
+        // per second, for its share of the `gather_levels` ceiling.
+        use nerfsv_nerf::field_components::hash_encoding::HashEncoding;
+        let enc = HashEncoding::new(LEVELS, 16, 512, 15);
+        let emb: Vec<f32> = (0..enc.n_params()).map(|i| ((i % 97) as f32 - 48.0) * 1e-3).collect();
+        let points = 4096;
+        let pos: Vec<f32> =
+            (0..3 * points).map(|i| ((i as u64 * 2_654_435_761) % 1_000_003) as f32 / 1_000_003.0).collect();
+        let mut out = vec![0f32; points * enc.output_dim()];
+        g.throughput(Throughput::Elements((points * LEVELS * 8) as u64));
+        g.bench_function("hash_encode_4096_points_1_core", |b| b.iter(|| enc.encode_batch(&emb, &pos, &mut out)));
     }
     g.finish();
 }

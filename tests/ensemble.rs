@@ -8,7 +8,7 @@ mod common;
 use std::path::Path;
 use std::process::{Command, Stdio};
 
-use common::{files, nerfsv, s, tiny_ensemble_run_config as config, TINY_MODEL as MODEL};
+use common::{assert_same_files, files, nerfsv, s, tiny_ensemble_run_config as config, TINY_MODEL as MODEL};
 
 fn summary(root: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(root.join("summary.json")).unwrap()).unwrap()
@@ -87,12 +87,7 @@ fn a_tiny_run_with_an_ensemble_writes_the_transfer_table_and_resumes_to_the_same
     child.wait().unwrap();
     let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&out)]);
     assert!(ok, "{err}");
-    let (resumed, whole) = (files(&out), files(&reference));
-    let names = |f: &[(std::path::PathBuf, Vec<u8>)]| f.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
-    assert_eq!(names(&resumed), names(&whole), "a killed and resumed run must write the same files");
-    for ((name, a), (_, b)) in resumed.iter().zip(&whole) {
-        assert!(a == b, "{}: a killed and resumed run must end at the same bytes", name.display());
-    }
+    assert_same_files(&files(&out), &files(&reference), "a killed and resumed run against a whole one");
     assert_eq!(summary(&out)["stress"]["transfer"], sum["stress"]["transfer"]);
 
     // Member 1 is what `nerfsv train` makes of the run's dataset with seed 1.

@@ -8,7 +8,9 @@ mod common;
 
 use std::path::Path;
 
-use common::{files, nerfsv_with, s, tiny_dataset, tiny_ensemble_run_config_with};
+use common::{
+    assert_same_files, files, nerfsv_with, s, summary_without_timings, tiny_dataset, tiny_ensemble_run_config_with,
+};
 use nerfsv_nerf::kernels::Kernels;
 
 /// Trains 20 steps of a small model (16-wide layers, a 32³ occupancy grid, 64 rays: the
@@ -50,24 +52,6 @@ fn a_short_training_run_and_its_render_are_the_same_bytes_at_every_kernel_width(
     eprintln!("compared portable with {widths:?}");
 }
 
-/// `summary.json` without what depends on the machine or the folder: timings and rates per
-/// second, and the run's path.
-fn figures(run: &Path) -> serde_json::Value {
-    fn strip(v: &mut serde_json::Value) {
-        match v {
-            serde_json::Value::Object(m) => {
-                m.retain(|k, _| k != "run" && !k.contains("second"));
-                m.values_mut().for_each(strip);
-            }
-            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
-    let mut v = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
-    strip(&mut v);
-    v
-}
-
 /// The tiny ensemble study (small layers, a 32³ grid, 2 steps a rollout: the portable kernels
 /// take about 80 s of it on two cores) with the portable kernels and with every width this host
 /// has: the same files, byte for byte, and the same figures.
@@ -83,17 +67,13 @@ fn a_whole_tiny_study_is_the_same_bytes_at_every_kernel_width() {
         let out = dir.path().join(k.name());
         let (ok, _, err) = nerfsv_with(&["run", s(&cfg), "--out", s(&out)], &[("NERFSV_KERNELS", k.name())]);
         assert!(ok, "{k:?}: {err}");
-        (files(&out), figures(&out))
+        (files(&out), summary_without_timings(&out))
     };
     let (portable, portable_figures) = run(Kernels::Portable);
     assert!(portable.iter().any(|(n, _)| n.ends_with("rollouts.csv")), "the study flew no rollouts");
     for k in Kernels::on_this_host().filter(|k| *k != Kernels::Portable) {
         let (fast, fast_figures) = run(k);
-        let names = |f: &[(std::path::PathBuf, Vec<u8>)]| f.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
-        assert_eq!(names(&fast), names(&portable), "{k:?}: other files than the portable kernels'");
-        for ((name, a), (_, b)) in fast.iter().zip(&portable) {
-            assert!(a == b, "{k:?}: {} differs from the portable kernels'", name.display());
-        }
+        assert_same_files(&fast, &portable, &format!("{k:?} against the portable kernels"));
         assert!(fast_figures == portable_figures, "{k:?}: summary.json's figures differ");
     }
 }

@@ -7,7 +7,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use common::{files, nerfsv, nerfsv_with, s};
+use common::{assert_same_files, files, nerfsv, nerfsv_with, s, summary_without_timings};
 
 /// A tiny run config: 16×16 monolith, a few training steps, a coarse field.
 fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
@@ -24,24 +24,6 @@ fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
     )
     .unwrap();
     cfg
-}
-
-/// `summary.json` without its wall-clock figures.
-fn summary_without_timings(root: &Path) -> serde_json::Value {
-    fn strip(v: &mut serde_json::Value) {
-        match v {
-            serde_json::Value::Object(m) => {
-                m.retain(|k, _| !k.contains("seconds") && !k.contains("per_second") && k != "run");
-                m.values_mut().for_each(strip);
-            }
-            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
-    let mut v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(root.join("summary.json")).unwrap()).unwrap();
-    strip(&mut v);
-    v
 }
 
 fn temporaries(root: &Path) -> Vec<PathBuf> {
@@ -73,11 +55,7 @@ fn same_config_and_seed_give_byte_identical_files_at_one_and_two_threads() {
     assert!(fa.iter().any(|(p, _)| p.ends_with("checkpoint.safetensors")));
     assert!(fa.iter().any(|(p, _)| p.ends_with("nerf_sdf.safetensors")));
     assert!(fa.iter().any(|(p, _)| p.ends_with("uq/bla.csv")) && fa.iter().any(|(p, _)| p.ends_with("uq/ause.csv")));
-    assert_eq!(fa.len(), fb.len());
-    for ((pa, ba), (pb, bb)) in fa.iter().zip(&fb) {
-        assert_eq!(pa, pb);
-        assert!(ba == bb, "{} differs between 1 and 2 threads", pa.display());
-    }
+    assert_same_files(&fb, &fa, "2 threads against 1");
     assert_eq!(summary_without_timings(&a), summary_without_timings(&b));
 }
 

@@ -101,7 +101,36 @@ pub fn files(root: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     out
 }
 
-/// The tiny study's `[nerf]` and `[train]` tables (shared with the `nerfsv train` config).
+/// Asserts that two [`files`] listings name the same files with the same bytes; `what` says
+/// what was compared, in the messages.
+pub fn assert_same_files(got: &[(PathBuf, Vec<u8>)], expected: &[(PathBuf, Vec<u8>)], what: &str) {
+    let names = |f: &[(PathBuf, Vec<u8>)]| f.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    assert_eq!(names(got), names(expected), "{what}: other files");
+    for ((name, a), (_, b)) in got.iter().zip(expected) {
+        assert!(a == b, "{what}: {} differs", name.display());
+    }
+}
+
+/// A run's `summary.json` without what depends on the machine or the folder: timings, rates per
+/// second and the run's path.
+pub fn summary_without_timings(root: &Path) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(m) => {
+                m.retain(|k, _| !k.contains("seconds") && !k.contains("per_second") && k != "run");
+                m.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("summary.json")).unwrap()).unwrap();
+    strip(&mut v);
+    v
+}
+
+/// The tiny study's `[train]` table (shared with the `nerfsv train` config).
 pub const TINY_MODEL: &str = "[train]\nbatch_rays = 256\ncheckpoint_every_steps = 1\n";
 
 /// A tiny run config (16×16 monolith, a few steps) with an ensemble of three members (two

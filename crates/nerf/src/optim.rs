@@ -39,6 +39,7 @@ impl Adam {
         let bc2 = 1.0 - (h.beta2 as f64).powi(self.t as i32);
         let step_size = (h.lr as f64 / bc1) as f32;
         let inv_sqrt_bc2 = (1.0 / bc2.sqrt()) as f32;
+        let step = Update { h, step_size, inv_sqrt_bc2 };
         params
             .par_chunks_mut(BLOCK)
             .zip(self.m.par_chunks_mut(BLOCK))
@@ -58,44 +59,36 @@ impl Adam {
                 crate::kernels::dispatch(
                     #[inline(always)]
                     || {
-                        update(&mut p[..lo], &mut m[..lo], &mut v[..lo], &g[..lo], false, h, step_size, inv_sqrt_bc2);
-                        update(
-                            &mut p[lo..hi],
-                            &mut m[lo..hi],
-                            &mut v[lo..hi],
-                            &g[lo..hi],
-                            true,
-                            h,
-                            step_size,
-                            inv_sqrt_bc2,
-                        );
-                        update(&mut p[hi..], &mut m[hi..], &mut v[hi..], &g[hi..], false, h, step_size, inv_sqrt_bc2);
+                        step.apply(&mut p[..lo], &mut m[..lo], &mut v[..lo], &g[..lo], false);
+                        step.apply(&mut p[lo..hi], &mut m[lo..hi], &mut v[lo..hi], &g[lo..hi], true);
+                        step.apply(&mut p[hi..], &mut m[hi..], &mut v[hi..], &g[hi..], false);
                     },
                 );
             });
     }
 }
 
-/// Adam's update of one run of elements (`decayed`: with weight decay), inlined into each width's
-/// entry point of [`crate::kernels::dispatch`] (a closure would be compiled once, for the
-/// baseline).
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn update(
-    p: &mut [f32],
-    m: &mut [f32],
-    v: &mut [f32],
-    g: &[f32],
-    decayed: bool,
+/// One Adam update's constants: the hyper-parameters and the bias corrections of step `t`.
+#[derive(Clone, Copy)]
+struct Update {
     h: AdamParams,
     step_size: f32,
     inv_sqrt_bc2: f32,
-) {
-    for (((p, m), v), &g) in p.iter_mut().zip(m).zip(v).zip(g) {
-        let gi = if decayed { g + h.weight_decay * *p } else { g };
-        *m = h.beta1 * *m + (1.0 - h.beta1) * gi;
-        *v = h.beta2 * *v + (1.0 - h.beta2) * gi * gi;
-        *p -= step_size * *m / (v.sqrt() * inv_sqrt_bc2 + h.eps);
+}
+
+impl Update {
+    /// The update of one run of elements (`decayed`: with weight decay). A function, not a
+    /// closure, so that it is inlined into each width's entry point of
+    /// [`crate::kernels::dispatch`] (a closure would be compiled once, for the baseline).
+    #[inline(always)]
+    fn apply(self, p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32], decayed: bool) {
+        let Self { h, step_size, inv_sqrt_bc2 } = self;
+        for (((p, m), v), &g) in p.iter_mut().zip(m).zip(v).zip(g) {
+            let gi = if decayed { g + h.weight_decay * *p } else { g };
+            *m = h.beta1 * *m + (1.0 - h.beta1) * gi;
+            *v = h.beta2 * *v + (1.0 - h.beta2) * gi * gi;
+            *p -= step_size * *m / (v.sqrt() * inv_sqrt_bc2 + h.eps);
+        }
     }
 }
 

@@ -149,6 +149,7 @@ mod tests {
             step_log_q: vec![0.0; step_scores.len()],
             log_p: 0.0,
             log_q: 0.0,
+            defensive_fraction: None,
             score,
             step_scores: step_scores.to_vec(),
             step_positions: vec![],

@@ -311,10 +311,7 @@ impl Proposal {
         match &self.defensive {
             None => component,
             Some((prior, alpha)) => {
-                let a = alpha.ln() + prior.log_likelihood(disturbances);
-                let b = (1.0 - alpha).ln() + component;
-                let m = a.max(b);
-                m + ((a - m).exp() + (b - m).exp()).ln()
+                crate::record::log_sum_exp(alpha.ln() + prior.log_likelihood(disturbances), (1.0 - alpha).ln() + component)
             }
         }
     }

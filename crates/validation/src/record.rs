@@ -30,11 +30,16 @@ pub struct RolloutRecord {
     pub step_log_p: Vec<f64>,
     /// ln q_t(x_t) under the proposal it was drawn from, `[steps]`.
     pub step_log_q: Vec<f64>,
-    /// Trajectory log-likelihood, eq. 1: Σ_t ln p(x_t).
+    /// Trajectory log-likelihood, eq. 1: Σ_t ln p(x_t) over the steps that count
+    /// ([`RolloutRecord::counted_steps`]: up to and including a failure's crash step).
     pub log_p: f64,
-    /// ln q(x) of the whole trajectory under the proposal it was drawn from: Σ_t ln q_t(x_t),
-    /// or a defensive mixture's density (see [`crate::Proposal::defensive`]).
+    /// ln q(x) under the proposal it was drawn from, over the same steps as `log_p`:
+    /// Σ_t ln q_t(x_t), or a defensive mixture's density (see [`crate::Proposal::defensive`]).
     pub log_q: f64,
+    /// The prior's weight α when the proposal was a defensive mixture, so that `log_q` can be
+    /// recounted when the outcome (and with it the crash step) changes.
+    #[serde(default)]
+    pub defensive_fraction: Option<f64>,
     /// Minimum signed clearance along the trajectory; ≤ 0 is a failure.
     pub score: f64,
     /// Per-step minimum clearance, `[steps]` (NaN for a step not flown because the rollout
@@ -73,9 +78,40 @@ impl RolloutRecord {
             lost_step: outcome.lost_step,
             ..self
         }
+        .recounted()
     }
 
-    /// The trajectory-level importance weight p(x)/q(x) = exp(Σ_t [ln p(x_t) − ln q_t(x_t)]).
+    /// How many leading steps count toward `log_p`, `log_q`, the importance weight and every
+    /// ranking: a failure's up to and including its first collision (the failure is settled
+    /// there: the disturbances after it change nothing the estimate depends on), every step of
+    /// anything else. The first collision is a stopping time, so p/q over these steps is still
+    /// an unbiased weight: E_q[w] = 1 and E_q[1{fail}·w] = P_p(fail), with less variance than
+    /// the whole trajectory's ratio.
+    pub fn counted_steps(&self) -> usize {
+        let steps = self.step_log_p.len();
+        match (self.failed, self.collision_step) {
+            (true, Some(c)) => (c + 1).min(steps),
+            _ => steps,
+        }
+    }
+
+    /// The record with `log_p` and `log_q` summed over [`RolloutRecord::counted_steps`] from
+    /// its per-step terms (for a defensive mixture, ln(α·p + (1 − α)·Π q_t) over those steps:
+    /// the mixture's marginal on them).
+    pub fn recounted(mut self) -> Self {
+        let k = self.counted_steps();
+        let log_p: f64 = self.step_log_p[..k].iter().sum();
+        let component: f64 = self.step_log_q.iter().take(k).sum();
+        self.log_q = match self.defensive_fraction {
+            None => component,
+            Some(alpha) => log_sum_exp(alpha.ln() + log_p, (1.0 - alpha).ln() + component),
+        };
+        self.log_p = log_p;
+        self
+    }
+
+    /// The importance weight p(x)/q(x) = exp(Σ_t [ln p(x_t) − ln q_t(x_t)]) over the steps
+    /// that count ([`RolloutRecord::counted_steps`]).
     pub fn weight(&self) -> f64 {
         (self.log_p - self.log_q).exp()
     }
@@ -98,6 +134,12 @@ impl RolloutRecord {
     }
 }
 
+/// ln(eᵃ + eᵇ) without overflow.
+pub(crate) fn log_sum_exp(a: f64, b: f64) -> f64 {
+    let m = a.max(b);
+    m + ((a - m).exp() + (b - m).exp()).ln()
+}
+
 /// The mean of `values`; `None` when there are none.
 pub(crate) fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
     let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
@@ -105,7 +147,7 @@ pub(crate) fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
 }
 
 /// The columns after the disturbances.
-const TAIL: [&str; 15] = [
+const TAIL: [&str; 17] = [
     "log_p",
     "log_q",
     "uncertainty",
@@ -121,10 +163,12 @@ const TAIL: [&str; 15] = [
     "rz",
     "collided",
     "lost",
+    "counted",
+    "defensive_fraction",
 ];
 
 /// The CSV header for disturbances of dimension `dim`:
-/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,rx,ry,rz,collided,lost`.
+/// `sampler,population,index,seed,step,d0,…,d{dim-1},log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,rx,ry,rz,collided,lost,counted,defensive_fraction`.
 pub fn csv_header(dim: usize) -> String {
     let mut s = String::from("sampler,population,index,seed,step");
     for j in 0..dim {
@@ -141,14 +185,18 @@ pub fn csv_header(dim: usize) -> String {
 /// Columns: `log_p` and `log_q` are the step's own terms (a rollout's rows sum to eq. 1's
 /// trajectory log-likelihood and its proposal counterpart); `uncertainty` is the step's (empty
 /// when not measured); `reward` (empty without one), `score` (the trajectory's minimum
-/// clearance) and `trajectory_log_q` (ln q of the whole trajectory: the sum of the rows'
+/// clearance) and `trajectory_log_q` (ln q over the steps that count: the sum of those rows'
 /// `log_q`, except for a defensive mixture, which does not factor over steps) repeat on every
 /// row of the rollout; `clearance` is the step's minimum clearance;
 /// `x,y,z` the position at the step's end and `rx,ry,rz` the attitude there as a rotation vector
 /// (axis × angle, radians, body to world; both empty for systems without them); `collided` is 1 on
 /// the first step that touched geometry and 0 elsewhere (a step touched geometry where its
 /// clearance is ≤ 0); `lost` is 1 on the step at which the system was lost (its state stopped
-/// being finite or left the region where its score is defined) and 0 elsewhere. Floats are
+/// being finite or left the region where its score is defined) and 0 elsewhere; `counted` is 1
+/// on the steps that count toward the rollout's log p, weight and rankings
+/// ([`RolloutRecord::counted_steps`]: a failure's steps after its crash are kept but not
+/// counted) and 0 on the others; `defensive_fraction` is the defensive mixture's α on every row
+/// (empty for any other proposal). Floats are
 /// written with Rust's shortest round-trip formatting, so a value read back is the value written
 /// and the same records always give the same bytes. Refuses records of different dimensions.
 pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()> {
@@ -168,6 +216,7 @@ pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()
                 ),
             ));
         }
+        let counted = r.counted_steps();
         for (t, x) in r.disturbances.rows().enumerate() {
             line.clear();
             let _ = write!(line, "{},{},{},{},{t}", r.sampler, r.population, r.index, r.seed);
@@ -194,7 +243,16 @@ pub fn write_csv<W: Write>(mut w: W, records: &[RolloutRecord]) -> io::Result<()
                 line.push(',');
             }
             line.pop();
-            let _ = write!(line, ",{},{}", u8::from(r.collision_step == Some(t)), u8::from(r.lost_step == Some(t)));
+            let _ = write!(
+                line,
+                ",{},{},{},",
+                u8::from(r.collision_step == Some(t)),
+                u8::from(r.lost_step == Some(t)),
+                u8::from(t < counted)
+            );
+            if let Some(alpha) = r.defensive_fraction {
+                let _ = write!(line, "{alpha}");
+            }
             writeln!(w, "{line}")?;
         }
     }
@@ -223,6 +281,8 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         return Err((1, format!("header must be `{}`", csv_header(dim))));
     }
     let mut records: Vec<RolloutRecord> = Vec::new();
+    // Each rollout's first line and its rows' `counted` flags, checked against the rule below.
+    let mut counted_rows: Vec<(usize, Vec<bool>)> = Vec::new();
     for (n, line) in lines {
         let fields: Vec<&str> = line.split(',').collect();
         if fields.len() != columns.len() {
@@ -259,7 +319,8 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
             "1" => Ok(true),
             other => Err((n, format!("column {}: `{other}` is not 0 or 1", col(i)))),
         };
-        let (collided, lost) = (flag(tail + 13)?, flag(tail + 14)?);
+        let (collided, lost, counted) = (flag(tail + 13)?, flag(tail + 14)?, flag(tail + 15)?);
+        let defensive_fraction = optional(tail + 16)?;
         let continues = records.last().is_some_and(|r| {
             r.sampler == fields[0] && r.population == population && r.index == index && r.seed == seed
         });
@@ -274,6 +335,7 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
                 step_log_q: Vec::new(),
                 log_p: 0.0,
                 log_q: trajectory_log_q,
+                defensive_fraction,
                 score,
                 step_scores: Vec::new(),
                 step_positions: Vec::new(),
@@ -294,9 +356,18 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         if r.score.to_bits() != score.to_bits()
             || r.reward.map(f64::to_bits) != reward.map(f64::to_bits)
             || r.log_q.to_bits() != trajectory_log_q.to_bits()
+            || r.defensive_fraction.map(f64::to_bits) != defensive_fraction.map(f64::to_bits)
         {
-            return Err((n, "score, reward and trajectory_log_q must repeat on every row of a rollout".to_owned()));
+            return Err((
+                n,
+                "score, reward, trajectory_log_q and defensive_fraction must repeat on every row of a rollout"
+                    .to_owned(),
+            ));
         }
+        if step == 0 {
+            counted_rows.push((n, Vec::new()));
+        }
+        counted_rows.last_mut().expect("pushed at step 0").1.push(counted);
         r.disturbances.push(&x).map_err(|e| (n, e.to_string()))?;
         r.step_log_p.push(log_p);
         r.step_log_q.push(log_q);
@@ -328,8 +399,20 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
             r.lost_step = Some(step);
         }
     }
-    for r in &mut records {
-        r.log_p = r.step_log_p.iter().sum();
-    }
-    Ok(records)
+    records
+        .into_iter()
+        .zip(counted_rows)
+        .map(|(r, (n, flags))| {
+            let k = r.counted_steps();
+            if flags.iter().enumerate().any(|(t, &c)| c != (t < k)) {
+                return Err((n, format!("column counted must be 1 on the rollout's first {k} steps and 0 after")));
+            }
+            let log_q = r.log_q;
+            let r = r.recounted();
+            if r.log_q.to_bits() != log_q.to_bits() {
+                return Err((n, format!("trajectory_log_q {log_q} is not the counted steps' {}", r.log_q)));
+            }
+            Ok(r)
+        })
+        .collect()
 }

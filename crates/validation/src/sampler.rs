@@ -136,17 +136,13 @@ pub(crate) fn record_of(
     outcome: Outcome,
 ) -> RolloutRecord {
     let step_log_p = prior.step_log_pdfs(&disturbances);
-    let (step_log_q, log_q) = match proposal {
-        Some(q) => (q.step_log_pdfs(&disturbances), q.log_pdf(&disturbances)),
-        None => (step_log_p.clone(), step_log_p.iter().sum()),
-    };
+    let step_log_q = proposal.map_or_else(|| step_log_p.clone(), |q| q.step_log_pdfs(&disturbances));
     RolloutRecord {
         sampler: sampler.to_owned(),
         population,
         index,
         seed,
-        log_p: step_log_p.iter().sum(),
-        log_q,
+        defensive_fraction: proposal.and_then(Proposal::defensive_fraction),
         step_log_p,
         step_log_q,
         disturbances,
@@ -652,5 +648,58 @@ mod tests {
         let cfg = ValidationConfig::default();
         assert_eq!(Sampler::Cem.rollouts(&cfg), cfg.cem.m * cfg.cem.k_max + cfg.cem.is_samples);
         assert_eq!(Sampler::Subset.searched(&cfg), 0);
+    }
+
+    /// Fails at the first step whose disturbance exceeds 1 (its collision step); scores
+    /// 1 − max x.
+    struct Threshold;
+    impl System for Threshold {
+        fn steps(&self) -> usize {
+            5
+        }
+        fn dim(&self) -> usize {
+            1
+        }
+        fn run(&self, x: &Trajectory, _seed: u64) -> Outcome {
+            let step_scores: Vec<f64> = x.rows().map(|r| 1.0 - r[0]).collect();
+            let score = step_scores.iter().copied().fold(f64::INFINITY, f64::min);
+            Outcome::new(score, x.rows().position(|r| r[0] > 1.0), step_scores)
+        }
+    }
+
+    /// Two failures that crash at step 1 and differ only after it, against a third failure:
+    /// the same log p, log q and weight (plain and defensive proposals), the same
+    /// most-likely failure; the CSV keeps the later rows, marked as not counted.
+    #[test]
+    fn disturbances_after_the_crash_change_no_likelihood_weight_or_ranking() {
+        let prior = Prior::new(Gaussian::diagonal(vec![0.0], &[1.0]).unwrap(), 5);
+        let shifted = Proposal::new(vec![Gaussian::diagonal(vec![0.5], &[1.2]).unwrap(); 5]);
+        let trajectory = |v: [f64; 5]| Trajectory::from_flat(1, v.to_vec()).unwrap();
+        let (calm, wild) = (trajectory([0.1, 1.5, 0.0, 0.2, -0.1]), trajectory([0.1, 1.5, -3.0, 3.5, 2.5]));
+        // Crashes at step 3 after mild steps: less likely than `calm` over the counted steps,
+        // more likely than `wild` over all five.
+        let other = trajectory([0.6, 0.6, 0.6, 1.6, 0.0]);
+        for q in [shifted.clone(), shifted.clone().defensive(&prior, 0.2)] {
+            let record = |x: &Trajectory| {
+                record_of(&prior, Some(&q), x.clone(), SAMPLER_IS, 0, 0, 1, Threshold.run(x, 1))
+            };
+            let (a, b, c) = (record(&calm), record(&wild), record(&other));
+            assert!(a.failed && b.failed && c.failed);
+            assert_eq!((a.counted_steps(), b.counted_steps(), c.counted_steps()), (2, 2, 4));
+            assert_eq!((a.log_p.to_bits(), a.log_q.to_bits()), (b.log_p.to_bits(), b.log_q.to_bits()));
+            assert_eq!(a.weight().to_bits(), b.weight().to_bits());
+            let whole = prior.log_likelihood(&wild);
+            assert!(whole < c.log_p && c.log_p < a.log_p, "the case must tell the rules apart");
+            let beats_c = |r: &RolloutRecord| std::ptr::eq(most_likely_failure([&c, r]).unwrap(), r);
+            assert!(beats_c(&a) && beats_c(&b));
+
+            let mut csv = Vec::new();
+            crate::write_csv(&mut csv, &[b.clone()]).unwrap();
+            let text = String::from_utf8(csv).unwrap();
+            let counted: Vec<&str> =
+                text.lines().skip(1).map(|l| l.split(',').rev().nth(1).unwrap()).collect();
+            assert_eq!(counted, ["1", "1", "0", "0", "0"]);
+            assert_eq!(crate::parse_csv(&text).unwrap(), vec![b]);
+        }
     }
 }

@@ -86,6 +86,7 @@ mod tests {
             step_log_q: vec![],
             log_p,
             log_q: log_p,
+            defensive_fraction: None,
             score: if collision_step.is_some() { -0.01 } else { 0.2 },
             step_scores: vec![],
             step_positions: vec![],

@@ -41,7 +41,7 @@ fn same_seed_gives_byte_identical_csv_with_one_and_two_threads() {
     let mut lines = text.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "sampler,population,index,seed,step,d0,d1,log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,rx,ry,rz,collided,lost"
+        "sampler,population,index,seed,step,d0,d1,log_p,log_q,uncertainty,reward,score,trajectory_log_q,clearance,x,y,z,rx,ry,rz,collided,lost,counted,defensive_fraction"
     );
     // (200 MC + 3·40 CEM + 50 IS) rollouts × 6 steps.
     assert_eq!(lines.count(), (200 + 120 + 50) * 6);
@@ -117,19 +117,23 @@ fn a_csv_that_nerfsv_did_not_write_is_refused_naming_the_line() {
     let edit = |line: usize, f: &dyn Fn(&str) -> String| -> String {
         lines.iter().enumerate().map(|(i, l)| if i + 1 == line { f(l) } else { l.to_string() } + "\n").collect()
     };
+    // Sets the field `from_end` places from the end of a line (1: the last).
+    let set = |from_end: usize, value: &'static str| {
+        move |l: &str| {
+            let mut fields: Vec<&str> = l.split(',').collect();
+            let at = fields.len() - from_end;
+            fields[at] = value;
+            fields.join(",")
+        }
+    };
     let cases: Vec<(String, usize, &str)> = vec![
         (edit(1, &|l| l.replace("log_q", "logq")), 1, "header"),
         (edit(3, &|l| l.replacen(",0,", ",x,", 1)), 3, "not a count"),
         (edit(4, &|l| l.rsplit_once(',').unwrap().0.to_string()), 4, "fields"),
-        (edit(5, &|l| l.rsplit_once(',').unwrap().0.to_string() + ",2"), 5, "lost"),
-        (
-            edit(6, &|l| {
-                let (rest, lost) = l.rsplit_once(',').unwrap();
-                format!("{},2,{lost}", rest.rsplit_once(',').unwrap().0)
-            }),
-            6,
-            "collided",
-        ),
+        (edit(5, &set(3, "2")), 5, "lost"),
+        (edit(6, &set(4, "2")), 6, "collided"),
+        (edit(2, &set(2, "0")), 2, "counted"),
+        (edit(3, &set(1, "0.5")), 3, "defensive_fraction"),
         (lines[..1].iter().chain(&lines[2..]).map(|l| format!("{l}\n")).collect(), 2, "continue"),
     ];
     for (text, line, what) in cases {

@@ -17,6 +17,7 @@ fn records(scores: &[f64]) -> Vec<RolloutRecord> {
             step_log_q: vec![0.0],
             log_p: 0.0,
             log_q: 0.0,
+            defensive_fraction: None,
             score: s,
             step_scores: vec![s],
             step_positions: vec![],

@@ -46,6 +46,7 @@ fn cem_elite_weights_use_the_trajectory_ratio_not_the_mean_of_step_ratios() {
             disturbances: Trajectory::from_flat(1, vec![0.0; 3]).unwrap(),
             log_p: steps.iter().sum(),
             log_q: 0.0,
+            defensive_fraction: None,
             step_log_p: steps.to_vec(),
             step_log_q,
             score: -1.0,
@@ -194,4 +195,46 @@ fn with_the_prior_as_proposal_the_estimate_is_monte_carlo() {
     assert!(records.iter().all(|r| !r.failed));
     assert_eq!(e.interval.0, 0.0);
     approx::assert_relative_eq!(e.interval.1, wilson_interval(0, 400).1, max_relative = 1e-9);
+}
+
+/// Fails at the first step whose disturbance exceeds `A` (its collision step).
+struct FirstExceedance;
+const A: f64 = 2.0;
+impl nerfsv_validation::System for FirstExceedance {
+    fn steps(&self) -> usize {
+        6
+    }
+    fn dim(&self) -> usize {
+        1
+    }
+    fn run(&self, x: &Trajectory, _seed: u64) -> nerfsv_validation::Outcome {
+        let step_scores: Vec<f64> = x.rows().map(|r| A - r[0]).collect();
+        let score = step_scores.iter().copied().fold(f64::INFINITY, f64::min);
+        nerfsv_validation::Outcome::new(score, x.rows().position(|r| r[0] > A), step_scores)
+    }
+}
+
+/// Weights that stop at the crash are still unbiased: against the closed form
+/// P(some x_t > A) = 1 − Φ(A)⁶ of six standard normal steps, with a proposal shifted towards
+/// failure (whose later steps, after a crash, no longer enter the weight), the estimate is within
+/// 4 standard errors, and the weights' mean within 4 of theirs of E_q[w] = 1.
+#[test]
+fn weights_stopped_at_the_crash_estimate_the_closed_form_failure_probability() {
+    let prior = nerfsv_validation::Prior::new(Gaussian::diagonal(vec![0.0], &[1.0]).unwrap(), 6);
+    let q = Proposal::new(vec![Gaussian::diagonal(vec![1.0], &[1.0]).unwrap(); 6]);
+    let n = 20_000;
+    let (records, estimate) = importance_sampling(&FirstExceedance, &prior, &q, n, 11, &()).unwrap();
+    // Φ(2) = 0.977249868051821.
+    let truth = 1.0 - 0.977_249_868_051_821_f64.powi(6);
+    assert!(
+        (estimate.unnormalised - truth).abs() < 4.0 * estimate.unnormalised_standard_error,
+        "{} ± {} vs {truth}",
+        estimate.unnormalised,
+        estimate.unnormalised_standard_error
+    );
+    let w: Vec<f64> = records.iter().map(RolloutRecord::weight).collect();
+    let mean = w.iter().sum::<f64>() / n as f64;
+    let sd = (w.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
+    assert!((mean - 1.0).abs() < 4.0 * sd / (n as f64).sqrt(), "mean weight {mean} ± {}", sd / (n as f64).sqrt());
+    assert!(records.iter().any(|r| r.failed && r.counted_steps() < 6), "some failures must stop early");
 }

@@ -16,6 +16,7 @@ use common::BenchRun;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_sim::estimator::Starts;
 use nerfsv_sim::{plan_flight, Disturbance, EstimatorKind, GroundTruthWorld, SimConfig, State, World, WorldKind};
 use nerfsv_study::drone_disturbances;
 use nerfsv_validation::Prior;
@@ -79,7 +80,16 @@ fn vision_steps(c: &mut Criterion) {
                 poses
                     .iter()
                     .enumerate()
-                    .map(|(k, (t, p))| sim.observe_and_refine(world, t, &prior(p), k as u64, true).renders)
+                    .map(|(k, (t, p))| {
+                        sim.observe_and_refine(
+                            world,
+                            t,
+                            &prior(p),
+                            k as u64,
+                            Starts::one_sigma(sim.vision.start_candidates),
+                        )
+                        .renders
+                    })
                     .sum::<usize>()
             })
         });

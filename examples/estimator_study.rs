@@ -15,12 +15,12 @@
 //! The run folder is `runs/stonehenge` (`RUN=DIR` for another); settings override the default
 //! `[sim.vision]` through the environment: `IMAGES` (images per step), `ITERATIONS`, `SIGMA`
 //! (photometric σ), `STOP_MM` (stop step in mm, with 0.06° per mm), `CANDIDATES`, `PIXELS`,
-//! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both), `RECOVER`
-//! (`recover_variance_factor`), `MODEL_M` and `MODEL_DEG` (`model_error_per_rmse`), `REFUSED`
+//! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both), `RELOCALISE_AFTER`
+//! (`relocalise_after`), `MODEL_M` and `MODEL_DEG` (`model_error_per_rmse`), `REFUSED`
 //! (`max_refused`), `STOP_COST` (`stop_cost_decrease`), `JACOBIAN_MIN_WEIGHT`, `FINEST` (the
 //! finest pyramid level); `CHECKPOINT` flies another model than the run folder's, `PER_STEP`
 //! sets `scatter`'s poses per step (default 1). `DIAG=1` adds, for the vision
-//! estimator's Monte Carlo, what the gate refused and recovered and the largest accepted errors.
+//! estimator's Monte Carlo, what the gate refused, the relocalisations and the largest accepted errors.
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
 
@@ -31,6 +31,7 @@ use nerfsv_pipeline::stages::{GroundTruthField, NerfField, Train};
 use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{so3_exp, so3_log};
+use nerfsv_sim::estimator::Starts;
 use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, PosePrior, Rollout, WorldKind};
 use nerfsv_study::flight::{world, FlightInputs};
 use rayon::prelude::*;
@@ -78,7 +79,7 @@ fn main() -> anyhow::Result<()> {
     v.photometric_sigma = env("SIGMA", v.photometric_sigma);
     v.start_candidates = env("CANDIDATES", v.start_candidates);
     v.pixels = env("PIXELS", v.pixels);
-    v.recover_variance_factor = env("RECOVER", v.recover_variance_factor);
+    v.relocalise_after = env("RELOCALISE_AFTER", v.relocalise_after);
     v.max_refused = env("REFUSED", v.max_refused);
     v.jacobian_min_weight = env("JACOBIAN_MIN_WEIGHT", v.jacobian_min_weight);
     v.stop_cost_decrease = env("STOP_COST", v.stop_cost_decrease);
@@ -129,10 +130,10 @@ fn main() -> anyhow::Result<()> {
                             .filter(|u| u.accepted)
                             .map(|u| u.variance_factor)
                             .collect();
-                        let rec = rollouts.iter().flat_map(|r| &r.updates).filter(|u| u.recovered).count();
+                        let rec = rollouts.iter().flat_map(|r| &r.updates).filter(|u| u.relocalised).count();
                         if !vfa.is_empty() {
                             println!(
-                                "recovered {rec}; vf accepted median {:.3} p90 {:.3} p99 {:.3}",
+                                "relocalised {rec}; vf accepted median {:.3} p90 {:.3} p99 {:.3}",
                                 percentile(&mut vfa, 0.5),
                                 percentile(&mut vfa, 0.9),
                                 percentile(&mut vfa, 0.99)
@@ -155,10 +156,10 @@ fn main() -> anyhow::Result<()> {
                         let acc: Vec<_> = rollouts.iter().flat_map(|r| &r.updates).filter(|u| u.accepted).collect();
                         for u in acc.iter().filter(|u| u.position_error_m > 0.01).take(25) {
                             println!(
-                                "  big: step {} sub {} pred {:.1} mm -> {:.1} mm, {:.2}° -> {:.2}°, d2 {:.1}, vf {:.3}, spread {:.2} mm, rec {}, renders {}",
+                                "  big: step {} sub {} pred {:.1} mm -> {:.1} mm, {:.2}° -> {:.2}°, nis {:.1}, vf {:.3}, spread {:.2} mm, reloc {}, renders {}",
                                 u.step, u.substep, 1e3 * u.predicted_position_error_m, 1e3 * u.position_error_m,
-                                u.predicted_rotation_error_deg, u.rotation_error_deg, u.mahalanobis_sq, u.variance_factor,
-                                1e3 * u.position_spread_m, u.recovered, u.renders
+                                u.predicted_rotation_error_deg, u.rotation_error_deg, u.nis, u.variance_factor,
+                                1e3 * u.position_spread_m, u.relocalised, u.renders
                             );
                         }
                         let mut ratio: Vec<f64> =
@@ -177,16 +178,33 @@ fn main() -> anyhow::Result<()> {
                     let mut nees: Vec<f64> = updates.iter().map(|u| u.nees).collect();
                     let mean_nees = nees.iter().sum::<f64>() / images;
                     let median_nees = if nees.is_empty() { f64::NAN } else { percentile(&mut nees, 0.5) };
+                    // The images of one rollout are correlated: the interval of the mean NEES is
+                    // over the rollouts' own means (12 inside it for a consistent filter).
+                    let per_rollout: Vec<f64> = rollouts
+                        .iter()
+                        .filter(|r| !r.updates.is_empty())
+                        .map(|r| r.updates.iter().map(|u| u.nees).sum::<f64>() / r.updates.len() as f64)
+                        .collect();
+                    let m = per_rollout.len().max(2) as f64;
+                    let rollout_mean = per_rollout.iter().sum::<f64>() / m;
+                    let sd = (per_rollout.iter().map(|x| (x - rollout_mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
                     println!(
-                        "{}-sim, {}: {crashed}/{n} collided; {} images, {:.2} renders each, {} rejected; mean NEES {:.1} \
-                         (median {:.1}); mean error {:.1} mm / {:.2}°; {:.1} s",
+                        "{}-sim, {}: {crashed}/{n} collided; {} images, {:.2} renders each, {} refused ({:.2} %), {} \
+                         relocalisations; mean NEES {:.1} (median {:.1}), over rollouts {:.1} [{:.1}, {:.1}] (n {}); \
+                         mean error {:.1} mm / {:.2}°; {:.1} s",
                         kind.name(),
                         estimator.name(),
                         updates.len(),
                         updates.iter().map(|u| u.renders).sum::<usize>() as f64 / images,
                         updates.iter().filter(|u| !u.accepted).count(),
+                        100.0 * updates.iter().filter(|u| !u.accepted).count() as f64 / images,
+                        updates.iter().filter(|u| u.relocalised).count(),
                         mean_nees,
                         median_nees,
+                        rollout_mean,
+                        rollout_mean - 1.96 * sd / m.sqrt(),
+                        rollout_mean + 1.96 * sd / m.sqrt(),
+                        per_rollout.len(),
                         1e3 * updates.iter().map(|u| u.position_error_m).sum::<f64>() / images,
                         updates.iter().map(|u| u.rotation_error_deg).sum::<f64>() / images,
                         start.elapsed().as_secs_f64()
@@ -208,7 +226,7 @@ fn main() -> anyhow::Result<()> {
                     let rows: Vec<[f64; 7]> = (0..n as u64)
                         .map(|seed| {
                             let prior = PosePrior::isotropic(at.position, at.rotation, 0.05, 3.0);
-                            let f = sim.observe_and_refine(w.as_ref(), &at, &prior, 100 + seed, false);
+                            let f = sim.observe_and_refine(w.as_ref(), &at, &prior, 100 + seed, Starts::NONE);
                             let dp = r.transpose() * (f.position - at.position) * 1e3;
                             let dr = (r.transpose() * so3_log(&(f.rotation * r.transpose()))).map(f64::to_degrees);
                             [dp.x, dp.y, dp.z, dr.x, dr.y, dr.z, f.rmse]
@@ -259,14 +277,14 @@ fn main() -> anyhow::Result<()> {
                         &at,
                         &PosePrior::isotropic(at.position, at.rotation, 0.05, 3.0),
                         seed,
-                        true,
+                        Starts::one_sigma(sim.vision.start_candidates),
                     );
                     let fit = sim.observe_and_refine(
                         w.as_ref(),
                         &at,
                         &PosePrior::isotropic(start_p, start_r, 0.05, 3.0),
                         seed,
-                        true,
+                        Starts::one_sigma(sim.vision.start_candidates),
                     );
                     let angle = |a: &nalgebra::Matrix3<f64>, b: &nalgebra::Matrix3<f64>| {
                         so3_log(&(a * b.transpose())).norm().to_degrees()

@@ -13,6 +13,7 @@ use nerfsv_pipeline::stages::{Dataset, DatasetSource, GroundTruthField, NerfFiel
 use nerfsv_pipeline::{RunConfig, Runner, Silent, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{rotation_error, so3_exp};
+use nerfsv_sim::estimator::Starts;
 use nerfsv_sim::{EstimatorKind, Flight, PosePrior, Simulator, WorldKind};
 use nerfsv_study::flight::{world, FlightInputs};
 
@@ -101,7 +102,13 @@ fn vision_estimator_reduces_a_5_cm_3_degree_error_five_fold_on_nerf_images_at_mo
         predicted.position += Vector3::new(1.0, -1.0, 1.0).normalize() * 0.05;
         predicted.rotation = so3_exp(&(Vector3::new(1.0, 1.0, -1.0).normalize() * 3f64.to_radians())) * truth.rotation;
         let prior = PosePrior::isotropic(predicted.position, predicted.rotation, 0.05, 3.0);
-        let fit = sim.observe_and_refine(w.as_ref(), &truth, &prior, k as u64, true);
+        let fit = sim.observe_and_refine(
+            w.as_ref(),
+            &truth,
+            &prior,
+            k as u64,
+            Starts::one_sigma(sim.vision.start_candidates),
+        );
         let position = (fit.position - truth.position).norm();
         let rotation = rotation_error(&fit.rotation, &truth.rotation).to_degrees();
         eprintln!("step {k}: 5 cm / 3° became {:.1} mm / {rotation:.2}°", 1e3 * position);

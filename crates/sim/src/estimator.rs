@@ -104,12 +104,18 @@ pub struct VisionConfig {
     /// (30 with none), and one image from the paper's disturbance brings 95 of 100 drones
     /// within it (94); the crash rates did not change (BENCHMARKS.md).
     pub start_candidates: usize,
-    /// The innovation gate: a fit whose squared Mahalanobis distance from the prediction (under
-    /// the prediction's pose covariance) exceeds this is rejected and the prediction kept.
-    /// Default 22.46, the 99.9 % quantile of χ²(6).
+    /// The innovation gate: an image whose normalised innovation squared (its optimum's
+    /// distance from the prediction under the prediction's and the measurement's covariances
+    /// together) exceeds this is refused and the prediction kept. Default 22.46, the 99.9 %
+    /// quantile of χ²(6): a consistent filter refuses 0.1 % of its images.
     pub gate_chi2: f64,
-    /// Factor on the covariance after a rejected fit.
-    pub gate_inflation: f64,
+    /// After this many refused images in a row the estimator relocalises: it widens the
+    /// prediction's pose covariance by [`VisionConfig::relocalise_std`], searches from
+    /// [`VisionConfig::RELOCALISE_STARTS`] poses spread over it and takes the fit whatever its
+    /// innovation, as a visual-inertial system's relocalisation does. 0: never.
+    pub relocalise_after: usize,
+    /// `[metres, degrees]` per axis added to the pose's standard deviation when relocalising.
+    pub relocalise_std: [f64; 2],
     /// `[metres, degrees]` per unit of the fit's colour RMSE: the standard deviation per axis of
     /// the error of the image's optimum itself (the filter's model error, added to the fit's
     /// covariance), proportional to how badly the NeRF explains the image. A NeRF rendering its
@@ -120,12 +126,6 @@ pub struct VisionConfig {
     /// this, mean NEES ≈ 12 in GT-sim over 40 Monte Carlo rollouts, while NeRF-sim's filter is
     /// conservative (mean NEES ≈ 3) at the same crash rate (BENCHMARKS.md).
     pub model_error_per_rmse: [f64; 2],
-    /// A fit beyond the gate whose a-posteriori variance factor is at most this explains the
-    /// image as well as the noise `photometric_sigma` describes: then the prediction, not the
-    /// fit, is wrong (an estimate that drifted with a covariance too small to let the image
-    /// correct it). Its covariance is scaled up until the fit lies on the gate, and the fit is
-    /// taken. 0 leaves only fits with no residual at all to this.
-    pub recover_variance_factor: f64,
     /// `[metres, degrees]`: the search stops at the finest level when the step it proposes
     /// moves the pose less than this in both position and rotation, and leaves a coarser level
     /// at four times it; `[0, 0]` spends every render. Default `[0.001, 0.06]`: on the default
@@ -161,8 +161,8 @@ impl Default for VisionConfig {
             images_per_step: 8,
             start_candidates: 3,
             gate_chi2: 22.46,
-            gate_inflation: 2.0,
-            recover_variance_factor: 1.0,
+            relocalise_after: 3,
+            relocalise_std: [0.3, 10.0],
             model_error_per_rmse: [1.0, 30.0],
             stop_step: [1e-3, 0.06],
             jacobian_min_weight: 0.0,
@@ -187,8 +187,9 @@ impl VisionConfig {
         in_range("images_per_step", self.images_per_step, 1, 1000)?;
         in_range("start_candidates", self.start_candidates, 0, 6)?;
         positive("gate_chi2", self.gate_chi2)?;
-        in_range("gate_inflation", self.gate_inflation, 1.0, 1e6)?;
-        non_negative("recover_variance_factor", self.recover_variance_factor)?;
+        in_range("relocalise_after", self.relocalise_after, 0, 1000)?;
+        in_range("relocalise_std[0]", self.relocalise_std[0], 0.0, 10.0)?;
+        in_range("relocalise_std[1]", self.relocalise_std[1], 0.0, 180.0)?;
         non_negative("model_error_per_rmse[0]", self.model_error_per_rmse[0])?;
         non_negative("model_error_per_rmse[1]", self.model_error_per_rmse[1])?;
         non_negative("stop_step[0]", self.stop_step[0])?;
@@ -201,6 +202,38 @@ impl VisionConfig {
     pub fn model_covariance(&self, rmse: f64) -> Matrix6<f64> {
         let [p, r] = [self.model_error_per_rmse[0] * rmse, self.model_error_per_rmse[1].to_radians() * rmse];
         Matrix6::from_diagonal(&Vector6::new(p * p, p * p, p * p, r * r, r * r, r * r))
+    }
+
+    /// The relocalising search's starts: `±½σ` and `±1σ` along all six principal axes of the
+    /// widened pose covariance (24 coarse renders besides the prediction).
+    pub const RELOCALISE_STARTS: Starts = Starts { axes: 6, sigmas: &[0.5, 1.0] };
+
+    /// The most an image's information may be scaled up by its residuals' scale (the weight
+    /// `1 / variance factor`): no camera image carries more than its 8-bit quantisation allows,
+    /// a colour error of `1/(255·√12)` per channel, so `w ≤ (photometric_sigma·255·√12)²`
+    /// (312 at the default σ = 0.02). Without a bound a NeRF rendering its own image claimed up to
+    /// 10⁴ times the information.
+    pub fn max_image_weight(&self) -> f64 {
+        (self.photometric_sigma * 255.0 * 12f64.sqrt()).powi(2)
+    }
+}
+
+/// Where a pose search may start besides the prediction: `±s·σ` along the `axes` largest
+/// principal axes of the prediction's pose covariance, for each `s` of `sigmas`; the start is the
+/// cheapest of them at the coarsest level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Starts {
+    pub axes: usize,
+    pub sigmas: &'static [f64],
+}
+
+impl Starts {
+    /// Only the prediction.
+    pub const NONE: Self = Self { axes: 0, sigmas: &[] };
+
+    /// `±1σ` along `axes` principal axes ([`VisionConfig::start_candidates`]).
+    pub const fn one_sigma(axes: usize) -> Self {
+        Self { axes, sigmas: &[1.0] }
     }
 }
 
@@ -229,9 +262,10 @@ impl PosePrior {
         )
     }
 
-    /// `±√λ·v` for the `n` largest eigenpairs `(λ, v)` of the prior covariance.
-    fn principal_offsets(&self, n: usize) -> Vec<Vector6<f64>> {
-        if n == 0 {
+    /// `±s·√λ·v` for the `starts.axes` largest eigenpairs `(λ, v)` of the prior covariance and
+    /// each `s` of `starts.sigmas`.
+    fn principal_offsets(&self, starts: Starts) -> Vec<Vector6<f64>> {
+        if starts.axes == 0 || starts.sigmas.is_empty() {
             return Vec::new();
         }
         let Some(cov) = self.information.try_inverse() else { return Vec::new() };
@@ -240,10 +274,10 @@ impl PosePrior {
         order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
         order
             .into_iter()
-            .take(n)
+            .take(starts.axes)
             .flat_map(|i| {
                 let v = eig.eigenvectors.column(i) * eig.eigenvalues[i].max(0.0).sqrt();
-                [v.into_owned(), -v]
+                starts.sigmas.iter().flat_map(move |&s| [v * s, -v * s])
             })
             .collect()
     }
@@ -392,9 +426,9 @@ struct PoseRender<'a> {
 /// `observed` at `pixels` (drawn by [`stratified_pixels`] with `cfg.pixels`), by
 /// Levenberg–Marquardt with the analytic pose Jacobian of the NeRF's rendered colours, coarse to
 /// fine over `cfg.levels` (by default the first half of the renders align blocks of 4×4 strata,
-/// the rest blocks of 2×2), from the best of the prediction and `start_candidates` pairs of
-/// poses ±1σ along the prior's principal axes (the caller decides how many an image gets:
-/// [`VisionConfig::start_candidates`] after a disturbance, none otherwise).
+/// the rest blocks of 2×2), from the best of the prediction and the `starts` (the caller decides
+/// which an image gets: [`VisionConfig::start_candidates`] after a disturbance,
+/// [`VisionConfig::RELOCALISE_STARTS`] when relocalising, none otherwise).
 ///
 /// Each render is a forward pass at a trial pose; the reverse pass that gives the colours' pose
 /// Jacobians runs only at poses the search accepts and linearises at. A level ends early when
@@ -411,7 +445,7 @@ pub fn refine_pose(
     observed: &[[f32; 3]],
     background: [f32; 3],
     cfg: &VisionConfig,
-    start_candidates: usize,
+    starts: Starts,
 ) -> PoseFit {
     let prior_info = prior.information;
     let (cols, _) = strata(&intrinsics, pixels.len());
@@ -459,7 +493,7 @@ pub fn refine_pose(
     render_at(&mut current, prior.position, prior.rotation);
     let (mut renders, mut linearisations) = (1, 0);
     // The start: the cheapest of the prediction and the candidates, at the coarsest level.
-    let offsets = prior.principal_offsets(start_candidates);
+    let offsets = prior.principal_offsets(starts);
     if !offsets.is_empty() {
         let mut best = linearise(&current, None, coarsest).0.cost;
         for d in &offsets {

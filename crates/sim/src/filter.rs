@@ -21,10 +21,15 @@
 //!   is worth) and a model error added ([`PoseMeasurement`]); `S` and `Δ` are then those of the
 //!   fit that information would have given. For a linear measurement this is the Kalman
 //!   filter's update exactly (tested), and it corrects velocity and body rates only through
-//!   their correlation with the pose (no gain rule). A fit whose Mahalanobis distance
-//!   `Δᵀ·P_pp⁻¹·Δ` exceeds the gate is rejected: the prediction stands and `P` is inflated;
-//!   unless the fit explains its image, in which case the prediction was wrong: `P` is scaled
-//!   up until the fit lies on the gate, and the fit is taken.
+//!   their correlation with the pose (no gain rule).
+//!
+//! The innovation gate tests the image's own optimum `z` (the pose the image alone points at,
+//! which the prior-shrunk fit `Δ` satisfies `(P_pp⁻¹ + Λ)·Δ = Λ·z` with) by its normalised
+//! innovation squared `zᵀ·(P_pp + R)⁻¹·z`, `R = Λ⁻¹/w + M` the measurement's covariance: χ²(6)
+//! when the filter is consistent (tested on a linear-Gaussian case), so the gate's quantile is
+//! its refusal rate. A refused image leaves the belief as it was; the estimator counts the
+//! refusals in a row ([`Belief::refused_in_a_row`]) and relocalises after a few
+//! ([`Belief::widen_pose`], then a wide search).
 
 use nalgebra::{Matrix3, Matrix6, SMatrix, SVector, Vector3, Vector6};
 
@@ -96,29 +101,23 @@ pub struct PoseMeasurement {
     /// `M`: the covariance of the error of the image's optimum itself, `(δp, δθ)`, which no
     /// amount of pixels removes (a model that does not match the world is biased).
     pub model_covariance: Matrix6<f64>,
-    /// The fit explains its image as well as the noise it assumed: beyond the gate, the
-    /// prediction rather than the fit is taken to be wrong.
-    pub explains_image: bool,
 }
 
 impl PoseMeasurement {
-    /// A fit whose information is taken as it is, and which the gate may refuse.
+    /// A fit whose information is taken as it is.
     pub fn exact(position: Vector3<f64>, rotation: Matrix3<f64>, information: Matrix6<f64>) -> Self {
-        Self { position, rotation, information, weight: 1.0, model_covariance: Matrix6::zeros(), explains_image: false }
+        Self { position, rotation, information, weight: 1.0, model_covariance: Matrix6::zeros() }
     }
 }
 
 /// What a pose measurement did to the belief.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseUpdate {
-    /// `Δᵀ·P_pp⁻¹·Δ`: the fit's squared Mahalanobis distance from the prediction (before any
-    /// recovery scaled the covariance).
-    pub mahalanobis_sq: f64,
-    /// Whether the fit was taken.
+    /// The normalised innovation squared `zᵀ·(P_pp + R)⁻¹·z` of the image's optimum (χ²(6) for
+    /// a consistent filter).
+    pub nis: f64,
+    /// Whether the fit was taken (its NIS within the gate).
     pub accepted: bool,
-    /// The fit lay beyond the gate and explained its image: the covariance was scaled up until
-    /// the fit lay on the gate, and the fit taken.
-    pub recovered: bool,
 }
 
 /// The estimator's belief about the drone's state: mean and error covariance.
@@ -126,12 +125,26 @@ pub struct PoseUpdate {
 pub struct Belief {
     pub mean: State,
     pub covariance: Covariance,
+    /// Images the gate refused since the last one it took.
+    pub refused_in_a_row: usize,
 }
 
 impl Belief {
     /// `mean` with independent errors of standard deviations `std` (the error state's order).
     pub fn new(mean: State, std: &[f64; DIM]) -> Self {
-        Self { mean, covariance: Covariance::from_diagonal(&ErrorVector::from_fn(|i, _| std[i] * std[i])) }
+        Self {
+            mean,
+            covariance: Covariance::from_diagonal(&ErrorVector::from_fn(|i, _| std[i] * std[i])),
+            refused_in_a_row: 0,
+        }
+    }
+
+    /// Lost track: independent pose errors of `[metres, radians]` standard deviation per axis
+    /// added to the covariance, so that the next fit (a wide search) may move the pose that far.
+    pub fn widen_pose(&mut self, std: [f64; 2]) {
+        for (k, &i) in POSE.iter().enumerate() {
+            self.covariance[(i, i)] += std[k / 3] * std[k / 3];
+        }
     }
 
     /// An unknown disturbance with independent components of standard deviations `std`.
@@ -158,30 +171,30 @@ impl Belief {
         inverse_spd(&self.pose_covariance())
     }
 
-    /// The measurement update with a pose fit (see [`PoseMeasurement`]). A fit farther than
-    /// `gate` (squared Mahalanobis distance under the prediction's pose covariance) is rejected:
-    /// the mean stays and the covariance is multiplied by `inflation`; unless the fit explains its
-    /// image, in which case the covariance is scaled up until the fit lies on the gate and the
-    /// fit is taken.
-    pub fn update_pose(&mut self, fit: &PoseMeasurement, gate: f64, inflation: f64) -> PoseUpdate {
-        let mut p_pp = self.pose_covariance();
-        let mut p_pp_inv = inverse_spd(&p_pp);
+    /// The measurement update with a pose fit (see [`PoseMeasurement`]): taken when its
+    /// normalised innovation squared is at most `gate` (the belief and
+    /// [`Belief::refused_in_a_row`] are then updated), else refused (the belief stays and the
+    /// count of refusals grows). A NaN innovation is refused.
+    pub fn update_pose(&mut self, fit: &PoseMeasurement, gate: f64) -> PoseUpdate {
+        let p_pp = self.pose_covariance();
+        let p_pp_inv = inverse_spd(&p_pp);
         let fitted = pose_difference(&fit.position, &fit.rotation, &self.mean);
-        let mahalanobis_sq = fitted.dot(&(p_pp_inv * fitted));
-        let recovered = mahalanobis_sq > gate && fit.explains_image;
-        if recovered {
-            self.covariance *= mahalanobis_sq / gate;
-            p_pp = self.pose_covariance();
-            p_pp_inv = inverse_spd(&p_pp);
-        } else if mahalanobis_sq.is_nan() || mahalanobis_sq > gate {
-            self.covariance *= inflation;
-            return PoseUpdate { mahalanobis_sq, accepted: false, recovered };
+        let w = fit.weight.max(f64::MIN_POSITIVE);
+        // The image's optimum z from the fit's (P_pp⁻¹ + Λ)·Δ = Λ·z, and its covariance about the
+        // truth, R = Λ⁻¹/w + M; z − 0 against the prediction has covariance P_pp + R.
+        let lambda_inv = inverse_spd(&fit.information);
+        let z = fitted + lambda_inv * (p_pp_inv * fitted);
+        let r = lambda_inv / w + fit.model_covariance;
+        let nis = z.dot(&(inverse_spd(&(p_pp + r)) * z));
+        if nis.is_nan() || nis > gate {
+            self.refused_in_a_row += 1;
+            return PoseUpdate { nis, accepted: false };
         }
+        self.refused_in_a_row = 0;
         // With Λ the fit's information, w its weight and M the model error: the measurement's
         // information is Λ' = (Λ⁻¹/w + M)⁻¹ = (I/w + Λ·M)⁻¹·Λ, and since the fit satisfies
         // (P_pp⁻¹ + Λ)·Δ = Λ·z (z the image's optimum, relative to the prediction), the update a
         // fit with Λ' would give is (P_pp⁻¹ + Λ')⁻¹·Λ'·z = (P_pp⁻¹ + Λ')⁻¹·(I/w + Λ·M)⁻¹·(P_pp⁻¹ + Λ)·Δ.
-        let w = fit.weight.max(f64::MIN_POSITIVE);
         let a = Matrix6::identity() / w + fit.information * fit.model_covariance;
         let a_inv = a.try_inverse().unwrap_or_else(Matrix6::zeros);
         let effective = symmetric(&(a_inv * fit.information));
@@ -196,7 +209,7 @@ impl Belief {
         }
         self.mean = retract(&self.mean, &shift);
         self.covariance = symmetric(&(self.covariance + g * (s - p_pp) * g.transpose()));
-        PoseUpdate { mahalanobis_sq, accepted: true, recovered }
+        PoseUpdate { nis, accepted: true }
     }
 
     /// The error of the belief about `truth`, `truth ⊟ mean`.
@@ -287,13 +300,13 @@ mod tests {
             let k = p * h.transpose() * (h * p * h.transpose() + r / w + m).try_inverse().unwrap();
             let x_kf = x0 + k * (z - h * x0);
             let p_kf = (Covariance::identity() - k * h) * p;
-            let mut b = Belief { mean, covariance: p };
+            let mut b = Belief { mean, covariance: p, refused_in_a_row: 0 };
             let fit = PoseMeasurement {
                 weight: w,
                 model_covariance: m,
                 ..PoseMeasurement::exact(Vector3::new(y[0], y[1], y[2]), so3_exp(&Vector3::new(y[3], y[4], y[5])), ri)
             };
-            let u = b.update_pose(&fit, f64::INFINITY, 1.0);
+            let u = b.update_pose(&fit, f64::INFINITY);
             assert!(u.accepted);
             let got = local(&State { rotation: Matrix3::identity(), ..State::at_rest(Vector3::zeros(), 0.0) }, &b.mean);
             assert!((got - x_kf).abs().max() < 1e-12, "w {w}: mean {got} vs Kalman {x_kf}");
@@ -302,56 +315,85 @@ mod tests {
     }
 
     #[test]
-    fn the_gate_rejects_a_fit_20_cm_off_and_keeps_the_prediction() {
+    fn the_gate_refuses_a_fit_20_cm_off_and_keeps_the_prediction() {
         let mean = State::at_rest(Vector3::new(0.3, 0.1, 0.2), 0.4);
         let std = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
         let mut b = Belief::new(mean, &std);
         let before = b;
-        let info = Matrix6::identity() * 1e6;
+        // A sharp image (R ≈ 0): the NIS is the fit's Mahalanobis distance, (0.2 / 0.02)².
+        let info = Matrix6::identity() * 1e8;
         let u = b.update_pose(
             &PoseMeasurement::exact(mean.position + Vector3::new(0.2, 0.0, 0.0), mean.rotation, info),
             22.46,
-            2.0,
         );
-        assert!(!u.accepted && (u.mahalanobis_sq - 100.0).abs() < 1e-9, "{u:?}");
-        assert_eq!(b.mean, before.mean);
-        assert_eq!(b.covariance, before.covariance * 2.0);
-        // A fit 2 cm off (d² = 1) is taken.
+        assert!(!u.accepted && (u.nis - 100.0).abs() < 0.01, "{u:?}");
+        assert_eq!((b.mean, b.covariance, b.refused_in_a_row), (before.mean, before.covariance, 1));
+        // A fit 2 cm off (NIS 1) is taken and ends the run of refusals.
         let u = b.update_pose(
             &PoseMeasurement::exact(mean.position + Vector3::new(0.02, 0.0, 0.0), mean.rotation, info),
             22.46,
-            2.0,
         );
-        assert!(u.accepted && !u.recovered);
-        assert!((b.mean.position - mean.position - Vector3::new(0.02, 0.0, 0.0)).norm() < 1e-15);
+        assert!(u.accepted && b.refused_in_a_row == 0);
+        assert!((b.mean.position - mean.position - Vector3::new(0.02, 0.0, 0.0)).norm() < 1e-6);
+        // The same 20 cm with a model error of 20 cm per axis: R makes it an ordinary innovation.
+        let mut c = before;
+        let loose = PoseMeasurement {
+            model_covariance: Matrix6::identity() * 0.04,
+            ..PoseMeasurement::exact(mean.position + Vector3::new(0.2, 0.0, 0.0), mean.rotation, info)
+        };
+        assert!(c.update_pose(&loose, 22.46).accepted);
     }
 
-    /// A fit 20 cm off that explains its image: the prediction gives way. The covariance is
-    /// scaled by d²/gate (the fit then lies on the gate) before the update, and the mean moves
-    /// to the fit (the image's information far outweighs the widened prediction).
+    /// Standard normal draws by Box–Muller.
+    fn normals<const N: usize>(rng: &mut impl rand::RngExt) -> SVector<f64, N> {
+        SVector::<f64, N>::from_fn(|_, _| {
+            let (u, v): (f64, f64) = (rng.random::<f64>().max(f64::MIN_POSITIVE), rng.random());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        })
+    }
+
+    /// A consistent linear-Gaussian filter: truth ~ N(x̂, P), image optimum z = Hx + v with
+    /// v ~ N(0, Λ⁻¹/w + M), the fit the MAP pose under the prediction with information Λ. The
+    /// gate at χ²(6)'s 95 % quantile must refuse 5 % of 10⁴ seeded draws (within the binomial
+    /// 99.9 % interval); the old test of the fit's Mahalanobis distance ΔᵀP_pp⁻¹Δ at the same
+    /// threshold refuses far fewer (it shrinks with the prior and ignores R).
     #[test]
-    fn the_gate_takes_a_far_fit_that_explains_its_image_and_widens_the_prediction() {
-        let mean = State::at_rest(Vector3::new(0.3, 0.1, 0.2), 0.4);
-        let std = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
-        let before = Belief::new(mean, &std);
-        let fit = PoseMeasurement {
-            explains_image: true,
-            ..PoseMeasurement::exact(
-                mean.position + Vector3::new(0.2, 0.0, 0.0),
-                mean.rotation,
-                Matrix6::identity() * 1e6,
-            )
-        };
-        // The same update on the covariance scaled by hand, with the gate open.
-        let mut scaled = before;
-        scaled.covariance *= 100.0 / 22.46;
-        let open = scaled.update_pose(&PoseMeasurement { explains_image: false, ..fit }, f64::INFINITY, 2.0);
-        let mut b = before;
-        let u = b.update_pose(&fit, 22.46, 2.0);
-        assert!(u.accepted && u.recovered && (u.mahalanobis_sq - 100.0).abs() < 1e-9, "{u:?}");
-        assert!(open.accepted && !open.recovered);
-        assert_eq!(b, scaled);
-        assert!((b.mean.position - fit.position).norm() < 1e-3, "{}", b.mean.position);
+    fn the_nis_gate_refuses_its_nominal_fraction_of_a_consistent_filters_images() {
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(45);
+        let p = spd::<DIM>(0.7);
+        let lambda = spd::<6>(1.9) * 0.8;
+        let (w, m) = (0.5, spd::<6>(2.9) * 0.3);
+        let r = lambda.try_inverse().unwrap() / w + m;
+        let (p_chol, r_chol) = (p.cholesky().unwrap().l(), r.cholesky().unwrap().l());
+        let mean = State::at_rest(Vector3::new(0.1, -0.2, 0.3), 0.0);
+        let p_pp = Matrix6::from_fn(|i, j| p[(POSE[i], POSE[j])]);
+        let p_pp_inv = p_pp.try_inverse().unwrap();
+        const Q95: f64 = 12.591_587_243_743_977;
+        let (n, mut refused, mut old_refused) = (10_000, 0, 0);
+        for _ in 0..n {
+            let e = p_chol * normals::<DIM>(&mut rng);
+            let x = Vector6::new(e[0], e[1], e[2], e[6], e[7], e[8]);
+            let z = x + r_chol * normals::<6>(&mut rng);
+            let y = (p_pp_inv + lambda).try_inverse().unwrap() * (lambda * z);
+            let fit = PoseMeasurement {
+                weight: w,
+                model_covariance: m,
+                ..PoseMeasurement::exact(
+                    mean.position + Vector3::new(y[0], y[1], y[2]),
+                    so3_exp(&Vector3::new(y[3], y[4], y[5])) * mean.rotation,
+                    lambda,
+                )
+            };
+            let mut b = Belief { mean, covariance: p, refused_in_a_row: 0 };
+            refused += usize::from(!b.update_pose(&fit, Q95).accepted);
+            old_refused += usize::from(y.dot(&(p_pp_inv * y)) > Q95);
+        }
+        // Wilson's 99.9 % interval around 5 % of 10⁴: ±3.29·√(0.05·0.95/10⁴) ≈ ±0.72 %.
+        let half = 3.29 * (0.05f64 * 0.95 / n as f64).sqrt();
+        let rate = refused as f64 / n as f64;
+        assert!((rate - 0.05).abs() < half, "NIS gate refused {rate} of draws, nominal 0.05 ± {half}");
+        assert!((old_refused as f64 / n as f64) < 0.05 - half, "the old test refused {old_refused}");
     }
 
     /// The central-difference `F` carries a small error through one substep to first order,

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use crate::camera::drone_camera;
 use crate::controller::{control, ControllerGains};
 use crate::dynamics::{rotation_error, step, Disturbance, DroneParams, State};
-use crate::estimator::{refine_pose, stratified_pixels, EstimatorKind, PoseFit, PosePrior, VisionConfig};
+use crate::estimator::{refine_pose, stratified_pixels, EstimatorKind, PoseFit, PosePrior, Starts, VisionConfig};
 use crate::filter::{Belief, PoseMeasurement};
 use crate::reference::ReferenceTrajectory;
 use crate::world::World;
@@ -109,14 +109,13 @@ pub struct ImageUpdate {
     /// Normalised estimation error squared of the full 12-D state after the update (χ²(12) for a
     /// consistent filter).
     pub nees: f64,
-    /// The fit's squared Mahalanobis distance from the prediction (before any recovery scaled
-    /// the covariance), and whether the gate took it.
-    pub mahalanobis_sq: f64,
+    /// The image's normalised innovation squared (see [`crate::filter::PoseUpdate::nis`]), and
+    /// whether the gate took it.
+    pub nis: f64,
     pub accepted: bool,
-    /// The fit lay beyond the gate but explained the image (variance factor at most
-    /// [`VisionConfig::recover_variance_factor`]): see [`crate::filter::PoseUpdate::recovered`]
-    /// (`accepted` is then true).
-    pub recovered: bool,
+    /// The estimator relocalised at this image ([`VisionConfig::relocalise_after`] refusals in a
+    /// row before it): a wide search, taken whatever its innovation (`accepted` is then true).
+    pub relocalised: bool,
     /// The fit's a-posteriori variance factor ([`crate::estimator::PoseFit::variance_factor`]).
     pub variance_factor: f64,
     /// The filter's expected position and attitude errors after the update, m and degrees.
@@ -376,22 +375,34 @@ impl Simulator<'_> {
         time: f64,
     ) -> ImageUpdate {
         let predicted = belief.mean;
+        let relocalised = self.vision.relocalise_after > 0 && belief.refused_in_a_row >= self.vision.relocalise_after;
+        if relocalised {
+            belief.widen_pose([self.vision.relocalise_std[0], self.vision.relocalise_std[1].to_radians()]);
+        }
         let prior = PosePrior {
             position: predicted.position,
             rotation: predicted.rotation,
             information: belief.pose_information(),
         };
-        let fit = self.observe_and_refine(world, truth, &prior, seed, substep == 0);
+        let starts = if relocalised {
+            VisionConfig::RELOCALISE_STARTS
+        } else if substep == 0 {
+            Starts::one_sigma(self.vision.start_candidates)
+        } else {
+            Starts::NONE
+        };
+        let fit = self.observe_and_refine(world, truth, &prior, seed, starts);
         let measurement = PoseMeasurement {
             // The residuals' own scale: a fit that explains the image better than
             // `photometric_sigma` says is worth more (a NeRF rendering its own image), one that
-            // explains it worse, less; the model error bounds what either can claim.
-            weight: 1.0 / fit.variance_factor.max(1e-4),
+            // explains it worse, less, up to the bound an 8-bit image allows; the model error
+            // bounds what either can claim.
+            weight: (1.0 / fit.variance_factor).min(self.vision.max_image_weight()),
             model_covariance: self.vision.model_covariance(fit.rmse),
-            explains_image: fit.variance_factor <= self.vision.recover_variance_factor,
             ..PoseMeasurement::exact(fit.position, fit.rotation, fit.information)
         };
-        let u = belief.update_pose(&measurement, self.vision.gate_chi2, self.vision.gate_inflation);
+        let gate = if relocalised { f64::INFINITY } else { self.vision.gate_chi2 };
+        let u = belief.update_pose(&measurement, gate);
         let [sp, sr] = belief.pose_spread();
         ImageUpdate {
             step,
@@ -402,9 +413,9 @@ impl Simulator<'_> {
             position_error_m: (belief.mean.position - truth.position).norm(),
             rotation_error_deg: rotation_error(&belief.mean.rotation, &truth.rotation).to_degrees(),
             nees: belief.nees(truth),
-            mahalanobis_sq: u.mahalanobis_sq,
+            nis: u.nis,
             accepted: u.accepted,
-            recovered: u.recovered,
+            relocalised,
             variance_factor: fit.variance_factor,
             position_spread_m: sp,
             rotation_spread_deg: sr.to_degrees(),
@@ -414,21 +425,20 @@ impl Simulator<'_> {
     }
 
     /// The vision estimator's measurement: the camera image at the true pose, read at the
-    /// image's pixels, aligned against the NeRF from `prior`. The start candidates
-    /// ([`VisionConfig::start_candidates`]) are tried only for the image right after a step's
-    /// disturbance (`after_disturbance`), the one whose prior is as wide as the disturbance.
+    /// image's pixels, aligned against the NeRF from `prior`, the search starting from the
+    /// best of the prediction and `starts` ([`VisionConfig::start_candidates`] for the image
+    /// right after a step's disturbance, the one whose prior is as wide as the disturbance).
     pub fn observe_and_refine(
         &self,
         world: &dyn World,
         truth: &State,
         prior: &PosePrior,
         seed: u64,
-        after_disturbance: bool,
+        starts: Starts,
     ) -> PoseFit {
         let pixels = stratified_pixels(&self.intrinsics, self.vision.pixels, seed);
         let camera = drone_camera(self.intrinsics, &truth.position, &truth.rotation);
         let observed = world.observe(&camera, &pixels, self.background);
-        let candidates = if after_disturbance { self.vision.start_candidates } else { 0 };
-        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, &self.vision, candidates)
+        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, &self.vision, starts)
     }
 }

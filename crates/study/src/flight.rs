@@ -36,9 +36,12 @@ pub struct FlightFigures {
     pub goal_distance_m: f64,
     /// Steps flown.
     pub steps: usize,
-    /// Camera images the estimator used, and how many of their fits the innovation gate refused.
+    /// Camera images the estimator used, how many of their fits the innovation gate refused,
+    /// and at how many the estimator relocalised (after refusals in a row).
     pub images: usize,
     pub rejected_images: usize,
+    #[serde(default)]
+    pub relocalisations: usize,
     /// Mean normalised estimation error squared of the 12-D state after the image updates (12
     /// for a consistent filter; none without images).
     pub mean_nees: Option<f64>,
@@ -69,6 +72,7 @@ impl FlightFigures {
             steps: r.steps_flown(),
             images: n,
             rejected_images: r.updates.iter().filter(|u| !u.accepted).count(),
+            relocalisations: r.updates.iter().filter(|u| u.relocalised).count(),
             mean_nees: (n > 0).then(|| r.updates.iter().map(|u| u.nees).sum::<f64>() / n as f64),
             mean_position_error_m: r.mean_position_error_m(),
             mean_rotation_error_deg: r.mean_rotation_error_deg(),

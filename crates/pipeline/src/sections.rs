@@ -207,6 +207,21 @@ impl Report for Uncertainty<'_> {
                 }),
             ));
         }
+        if let Some(c) = &u.ause_on_common_images {
+            s.paragraph(format!(
+                "Every method on the same {} test images (those all of them scored), mean ± bootstrap standard error \
+                 over the images. A perfect ranking scores 0 (the oracle's); the oracle's own curve encloses {} on \
+                 these images, the scale to read an AUSE against; a random order of the same errors is the baseline \
+                 an uncertainty must beat.",
+                c.images,
+                num(c.oracle_area, 3)
+            ));
+            s.table(
+                Table::new(&["method", "depth AUSE", "± SE"]).rows(
+                    c.methods.iter().map(|m| vec![m.method.to_uppercase(), num(m.mean, 3), num(m.bootstrap_se, 3)]),
+                ),
+            );
+        }
         s.paragraph(
             "Depth AUSE protocol: every test pixel with a ground-truth depth counts; a pixel whose ray composites \
              no sample has no uncertainty and ranks as the most uncertain (removed first), not dropped. Bayes' Rays \
@@ -337,7 +352,7 @@ impl Report for FlightStage<'_> {
                 "reached goal",
                 "mean position error (m)",
                 "mean rotation error (°)",
-                "images / rejected by the gate",
+                "images / refused by the gate / relocalisations",
                 "mean NEES (12 if consistent)",
             ])
             .rows(f.flights.iter().map(|fl| {
@@ -348,7 +363,7 @@ impl Report for FlightStage<'_> {
                     yes_no(fl.reached_goal),
                     num(fl.mean_position_error_m, 4),
                     num(fl.mean_rotation_error_deg, 2),
-                    format!("{} / {}", fl.images, fl.rejected_images),
+                    format!("{} / {} / {}", fl.images, fl.rejected_images, fl.relocalisations),
                     num(fl.mean_nees, 1),
                 ]
             })),

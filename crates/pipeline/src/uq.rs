@@ -51,11 +51,68 @@ pub struct UqFigures {
     /// members' depth spread), and a random ordering's, over GA's and over BLA's test images.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ensemble_ause: Option<EnsembleAuse>,
+    /// Every method on the same images, with standard errors.
+    #[serde(default)]
+    pub ause_on_common_images: Option<AuseComparison>,
     /// With an ensemble: its uncertainty field's figures (`ENSEMBLE_FIELD`, the variance of the
     /// members' densities at each node).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ensemble_field: Option<nerfsv_uq::FieldFigures>,
     pub seconds: f64,
+}
+
+/// One method's depth AUSE on [`AuseComparison`]'s images.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AuseOnCommonImages {
+    /// `ga`, `bla`, `ensemble` or `random` (the same errors in a seeded random order).
+    pub method: String,
+    pub mean: f64,
+    /// The standard error of the mean from a bootstrap over the images.
+    pub bootstrap_se: f64,
+}
+
+/// Every method's depth AUSE on the same test images (those every method scored), each with a
+/// bootstrap standard error, beside a random ordering (with an ensemble) and the oracle's scale.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AuseComparison {
+    pub images: usize,
+    pub methods: Vec<AuseOnCommonImages>,
+    /// The mean area under the oracle's curve on these images: a perfect ranking's AUSE is 0,
+    /// the oracle's own; this is the scale an AUSE is read against.
+    pub oracle_area: f64,
+}
+
+/// The seed of [`AuseComparison`]'s bootstrap.
+const AUSE_BOOTSTRAP_SEED: u64 = 0xA05E;
+
+/// [`AuseComparison`] of the scored rows of `ause.csv`; `None` when no image was scored by every
+/// method present.
+fn compare_on_common_images(ause: &[(&'static str, usize, String, AuseOutcome)]) -> Option<AuseComparison> {
+    let scored = |m: &str| -> std::collections::BTreeMap<usize, &Sparsification> {
+        ause.iter()
+            .filter(|(method, ..)| *method == m)
+            .filter_map(|(_, i, _, o)| if let AuseOutcome::Scored(c) = o { Some((*i, c)) } else { None })
+            .collect()
+    };
+    let methods: Vec<&str> =
+        ["ga", "bla", "ensemble", "random"].into_iter().filter(|m| ause.iter().any(|(x, ..)| x == m)).collect();
+    let per_method: Vec<_> = methods.iter().map(|m| scored(m)).collect();
+    let common: Vec<usize> =
+        per_method.first()?.keys().copied().filter(|i| per_method.iter().all(|s| s.contains_key(i))).collect();
+    if common.is_empty() {
+        return None;
+    }
+    let rows = methods
+        .iter()
+        .zip(&per_method)
+        .map(|(m, s)| {
+            let values: Vec<f64> = common.iter().map(|i| s[i].ause).collect();
+            let (mean, bootstrap_se) = nerfsv_uq::ause::bootstrap_mean(&values, AUSE_BOOTSTRAP_SEED)?;
+            Some(AuseOnCommonImages { method: m.to_string(), mean, bootstrap_se })
+        })
+        .collect::<Option<Vec<_>>>()?;
+    let oracle_area = common.iter().map(|i| per_method[0][i].oracle_area()).sum::<f64>() / common.len() as f64;
+    Some(AuseComparison { images: common.len(), methods: rows, oracle_area })
 }
 
 /// The ensemble's depth AUSE on the images GA and BLA were scored on, with a random ordering's
@@ -228,6 +285,8 @@ impl Stage for Uncertainty<'_> {
             }
         });
 
+        let ause_on_common_images = compare_on_common_images(&ause);
+
         let mut files = vec![
             (Self::GA_CSV.to_string(), csv(&ga, Method::Ga).into_bytes()),
             (Self::BLA_CSV.to_string(), csv(&bla, Method::Bla).into_bytes()),
@@ -271,6 +330,7 @@ impl Stage for Uncertainty<'_> {
             ause_bla,
             ause_bla_images,
             ensemble_ause,
+            ause_on_common_images,
             ensemble_field,
             seconds: start.elapsed().as_secs_f64(),
         })

@@ -158,6 +158,37 @@ pub fn depth_ause(
     sparsification(image, &errors, depth_uncertainty)
 }
 
+impl Sparsification {
+    /// The area under the oracle's normalised curve: the scale an AUSE is read against (a
+    /// perfect ranking's AUSE is 0, one as bad as never removing the largest errors first is
+    /// about this).
+    pub fn oracle_area(&self) -> f64 {
+        trapezoid(&self.fractions, &self.oracle)
+    }
+}
+
+/// Bootstrap resamples of [`bootstrap_mean`]'s standard error.
+pub const BOOTSTRAP_RESAMPLES: usize = 2000;
+
+/// The mean of `values` (one per image) and its standard error from a bootstrap over them:
+/// the standard deviation of the means of [`BOOTSTRAP_RESAMPLES`] resamples with replacement,
+/// seeded by `seed`. `None` for no values.
+pub fn bootstrap_mean(values: &[f64], seed: u64) -> Option<(f64, f64)> {
+    use rand::{RngExt, SeedableRng};
+    let n = values.len();
+    if n == 0 {
+        return None;
+    }
+    let mean = values.iter().sum::<f64>() / n as f64;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let means: Vec<f64> = (0..BOOTSTRAP_RESAMPLES)
+        .map(|_| (0..n).map(|_| values[rng.random_range(0..n)]).sum::<f64>() / n as f64)
+        .collect();
+    let centre = means.iter().sum::<f64>() / means.len() as f64;
+    let var = means.iter().map(|m| (m - centre).powi(2)).sum::<f64>() / (means.len() - 1) as f64;
+    Some((mean, var.sqrt()))
+}
+
 /// The mean AUSE over images (`None` for none).
 pub fn mean_ause(per_image: &[Sparsification]) -> Option<f64> {
     if per_image.is_empty() {

@@ -100,3 +100,17 @@ fn depth_ause_refuses_an_image_without_ground_truth_depth() {
     assert_eq!(mean_ause(&[a.clone(), a.clone()]), Some(a.ause));
     assert_eq!(mean_ause(&[]), None);
 }
+
+/// The bootstrap standard error of a mean converges to the population standard deviation over
+/// √n: for 1, 2, …, 100 that is √((n² − 1)/12)/√n = 2.8866; 2000 resamples get within a few %.
+/// Seeded: the same seed, the same figure.
+#[test]
+fn the_bootstrap_standard_error_of_a_mean_matches_the_closed_form() {
+    let values: Vec<f64> = (1..=100).map(f64::from).collect();
+    let (mean, se) = nerfsv_uq::ause::bootstrap_mean(&values, 7).unwrap();
+    assert_eq!(mean, 50.5);
+    let closed = ((100.0f64 * 100.0 - 1.0) / 12.0).sqrt() / 10.0;
+    assert!((se / closed - 1.0).abs() < 0.06, "bootstrap {se} vs {closed}");
+    assert_eq!(nerfsv_uq::ause::bootstrap_mean(&values, 7).unwrap().1.to_bits(), se.to_bits());
+    assert!(nerfsv_uq::ause::bootstrap_mean(&[], 7).is_none());
+}

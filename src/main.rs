@@ -34,6 +34,9 @@ struct Cli {
 enum Command {
     /// Run the whole pipeline into a run folder (default config: the embedded Stonehenge scene).
     Run(commands::run::RunArgs),
+    /// Run the study with several training seeds (dataset, ground truth and disturbances shared)
+    /// and write each headline's mean ± standard deviation beside every seed's value.
+    Replicate(commands::replicate::ReplicateArgs),
     /// Print the default run config as TOML, every key with its documentation
     /// (`nerfsv config --default > my.toml`, then `nerfsv run my.toml`).
     Config(commands::config::ConfigArgs),
@@ -77,6 +80,7 @@ fn main() -> ExitCode {
     }
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
+        Command::Replicate(a) => commands::replicate::run(a),
         Command::Config(a) => commands::config::run(a),
         Command::Report(a) => commands::report_page::run(a),
         Command::Scene(a) => commands::scene::run(a),

@@ -2,6 +2,7 @@ pub mod collision;
 pub mod config;
 pub mod fly;
 pub mod nerf;
+pub mod replicate;
 pub mod report_page;
 pub mod run;
 pub mod scene;

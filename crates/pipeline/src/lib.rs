@@ -72,6 +72,7 @@ pub mod flight;
 pub mod guard;
 pub mod layout;
 pub mod online;
+pub mod replicate;
 pub mod report;
 mod sections;
 pub mod stage;

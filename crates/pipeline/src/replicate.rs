@@ -1,0 +1,259 @@
+//! The study replicated over training seeds: the same config run `N` times, each time with
+//! another seed for the NeRF's training (and so for its ensemble), into `OUT/seed_S/`, and the
+//! headline figures of every run side by side with their mean and standard deviation
+//! (`OUT/replicate.csv`, `OUT/replicate.json`, `OUT/index.html`).
+//!
+//! What stays fixed: the dataset, the ground truth and everything seeded apart from training
+//! (the disturbances of the stress tests, the flight's pixels), so the spread is the training
+//! seed's alone, and the runs' rollouts are paired. Runs after the first share its dataset and
+//! ground-truth field: their folders are copied in before the run, and the runner takes them
+//! only if their keys match (else it computes them again).
+//!
+//! Seed `i` trains with `train.seed + i·MAX_MEMBERS`, so that no two runs share an ensemble
+//! member (member `k` of a run trains with its seed + `k`).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::MAX_MEMBERS;
+use crate::{Observer, PipelineError, RunConfig, Stage, Validate};
+
+/// The run folder of training seed `seed` below `out`.
+pub fn seed_folder(out: &Path, seed: u64) -> PathBuf {
+    out.join(format!("seed_{seed}"))
+}
+
+/// The stages every replicate shares with the first (they do not depend on training).
+const SHARED_STAGES: [&str; 2] = [crate::stages::Dataset::NAME, crate::stages::GroundTruthField::NAME];
+
+/// The headline figures, as (label, how to read it from a run's `summary.json`). A figure a run
+/// does not have (a stage skipped, a world without a ground truth) is left empty in its row.
+const HEADLINES: [(&str, Headline); 11] = [
+    ("test PSNR (dB)", |s| s.pointer("/eval/psnr")?.as_f64()),
+    ("NeRF-sim MC failure rate, deployed model", |s| s.pointer("/stress/transfer/nerf_deployed/rate")?.as_f64()),
+    ("NeRF-sim MC failure rate, ensemble world", |s| s.pointer("/stress/transfer/nerf_ensemble/rate")?.as_f64()),
+    ("GT-sim failure rate (same disturbances)", |s| s.pointer("/stress/transfer/gt/rate")?.as_f64()),
+    ("NeRF-sim / GT-sim rate ratio (ensemble world, else deployed)", |s| {
+        let gt = s.pointer("/stress/transfer/gt/rate")?.as_f64()?;
+        let nerf = s
+            .pointer("/stress/transfer/nerf_ensemble/rate")
+            .or_else(|| s.pointer("/stress/transfer/nerf_deployed/rate"))?
+            .as_f64()?;
+        (gt > 0.0).then(|| nerf / gt)
+    }),
+    ("recall of GT-sim failures, ensemble world", |s| s.pointer("/stress/transfer/recall_ensemble")?.as_f64()),
+    ("precision, ensemble world", |s| s.pointer("/stress/transfer/precision_ensemble")?.as_f64()),
+    ("Matthews correlation, ensemble world", |s| s.pointer("/stress/transfer/mcc_ensemble")?.as_f64()),
+    ("CEM P(fail), NeRF-sim", |s| sampler(s, "cem")?.get("p_fail")?.as_f64()),
+    ("step AUROC of the ensemble's spread, MC", |s| {
+        s.pointer("/stress/transfer/step_auroc")?
+            .as_array()?
+            .iter()
+            .find(|a| a["sampler"] == "mc")?
+            .pointer("/auroc/step_auroc")?
+            .as_f64()
+    }),
+    ("depth AUSE, ensemble (GA's images)", |s| s.pointer("/uq/ensemble_ause/on_ga_images")?.as_f64()),
+];
+
+type Headline = fn(&serde_json::Value) -> Option<f64>;
+
+/// The NeRF-sim figures of `name` among the stress stage's samplers.
+fn sampler<'a>(summary: &'a serde_json::Value, name: &str) -> Option<&'a serde_json::Value> {
+    summary.pointer("/stress/samplers")?.as_array()?.iter().find(|s| s["sampler"] == name && s["world"] == "nerf")
+}
+
+/// One run's headline figures.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SeedRow {
+    pub train_seed: u64,
+    pub folder: PathBuf,
+    /// In [`Replication::headlines`]' order; `None` where the run has no such figure.
+    pub values: Vec<Option<f64>>,
+}
+
+/// One headline over the runs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Spread {
+    pub headline: String,
+    /// Runs that have the figure.
+    pub n: usize,
+    pub mean: Option<f64>,
+    /// Sample standard deviation over the runs (`None` below two).
+    pub sd: Option<f64>,
+}
+
+/// The replicated study's figures.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Replication {
+    pub headlines: Vec<Spread>,
+    pub seeds: Vec<SeedRow>,
+}
+
+/// The training seed of replicate `i` of a config whose training seed is `base`.
+pub fn replicate_seed(base: u64, i: usize) -> u64 {
+    base.wrapping_add((i * MAX_MEMBERS) as u64)
+}
+
+/// Runs `cfg` with `seeds` training seeds into `seed_S/` folders below `cfg.out` (sharing the
+/// first's dataset and ground truth), then writes the figures side by side.
+pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Result<Replication, PipelineError> {
+    nerfsv_scene::validate::in_range("--seeds", seeds, 1, 1000)?;
+    cfg.validate()?;
+    let (scene, warnings) = cfg.ground_truth()?;
+    for w in &warnings {
+        observer.note("world", &format!("warning: {w}"));
+    }
+    let mut rows = Vec::with_capacity(seeds);
+    let mut first: Option<PathBuf> = None;
+    for i in 0..seeds {
+        let seed = replicate_seed(cfg.train.seed, i);
+        let mut run = cfg.clone();
+        run.train.seed = seed;
+        run.out = seed_folder(&cfg.out, seed);
+        observer.note("replicate", &format!("training seed {seed} ({} of {seeds}) into {}", i + 1, run.out.display()));
+        if let Some(first) = &first {
+            for stage in SHARED_STAGES {
+                share_stage(&first.join(stage), &run.out.join(stage))?;
+            }
+        }
+        let summary = crate::run_in(&run, scene.as_ref(), observer)?;
+        let value = serde_json::to_value(&summary).map_err(|e| PipelineError::Internal(e.to_string()))?;
+        rows.push(SeedRow {
+            train_seed: seed,
+            folder: run.out.clone(),
+            values: HEADLINES.iter().map(|(_, read)| read(&value)).collect(),
+        });
+        first.get_or_insert(run.out);
+    }
+    let replication = Replication { headlines: spreads(&rows), seeds: rows };
+    write(&cfg.out, &replication)?;
+    Ok(replication)
+}
+
+/// Each headline's mean and standard deviation over the rows that have it.
+fn spreads(rows: &[SeedRow]) -> Vec<Spread> {
+    HEADLINES
+        .iter()
+        .enumerate()
+        .map(|(h, (label, _))| {
+            let values: Vec<f64> = rows.iter().filter_map(|r| r.values[h]).collect();
+            let n = values.len();
+            let mean = (n > 0).then(|| values.iter().sum::<f64>() / n as f64);
+            let sd = mean
+                .filter(|_| n > 1)
+                .map(|m| (values.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt());
+            Spread { headline: label.to_string(), n, mean, sd }
+        })
+        .collect()
+}
+
+/// `OUT/replicate.csv`: a row per seed, then the mean and the standard deviation;
+/// `OUT/replicate.json`: the same figures; `OUT/index.html`: the table.
+pub const CSV: &str = "replicate.csv";
+pub const JSON: &str = "replicate.json";
+pub const PAGE: &str = "index.html";
+
+fn write(out: &Path, r: &Replication) -> Result<(), PipelineError> {
+    let cell = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    let quote = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
+    let mut csv = String::from("row,train_seed");
+    for s in &r.headlines {
+        csv.push(',');
+        csv.push_str(&quote(&s.headline));
+    }
+    csv.push('\n');
+    for row in &r.seeds {
+        csv.push_str(&format!("seed,{}", row.train_seed));
+        for v in &row.values {
+            csv.push(',');
+            csv.push_str(&cell(*v));
+        }
+        csv.push('\n');
+    }
+    for (name, pick) in [("mean", 0), ("sd", 1)] {
+        csv.push_str(name);
+        csv.push(',');
+        for s in &r.headlines {
+            csv.push(',');
+            csv.push_str(&cell(if pick == 0 { s.mean } else { s.sd }));
+        }
+        csv.push('\n');
+    }
+    let json = serde_json::to_string_pretty(r).map_err(|e| PipelineError::Internal(e.to_string()))?;
+    let mut header = vec!["figure", "mean ± sd", "runs"];
+    let seed_labels: Vec<String> = r.seeds.iter().map(|s| format!("seed {}", s.train_seed)).collect();
+    header.extend(seed_labels.iter().map(String::as_str));
+    let short = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.3}"));
+    let table = crate::report::Table::new(&header).rows(r.headlines.iter().enumerate().map(|(h, s)| {
+        let mut cells = vec![s.headline.clone(), format!("{} ± {}", short(s.mean), short(s.sd)), s.n.to_string()];
+        cells.extend(r.seeds.iter().map(|row| short(row.values[h])));
+        cells
+    }));
+    let page = format!(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>nerfsv: the study over {n} training seeds</title>\
+         <style>body{{font-family:sans-serif;max-width:70em;margin:2em auto}}table{{border-collapse:collapse}}\
+         td,th{{border:1px solid #ccc;padding:.3em .6em;text-align:right}}td:first-child{{text-align:left}}</style>\
+         </head><body><h1>The study over {n} training seeds</h1><p>The same config and disturbances, the NeRF (and \
+         its ensemble) trained with another seed each time: each headline's mean ± standard deviation over the runs, \
+         then each run's value. Each run's own report is in its folder (<code>seed_S/report/index.html</code>); the \
+         figures are in <code>{CSV}</code> and <code>{JSON}</code>.</p>{}</body></html>\n",
+        table.html(),
+        n = r.seeds.len()
+    );
+    for (name, bytes) in [(CSV, csv.into_bytes()), (JSON, json.into_bytes()), (PAGE, page.into_bytes())] {
+        let path = out.join(name);
+        nerfsv_scene::io::atomic_write_bytes(&path, &bytes).map_err(|e| PipelineError::io(&path, e))?;
+    }
+    Ok(())
+}
+
+/// Copies the stage folder `from` to `to` unless `to` exists (through a temporary sibling
+/// renamed into place, so an interrupted copy leaves nothing the runner could take).
+fn share_stage(from: &Path, to: &Path) -> Result<(), PipelineError> {
+    if to.exists() || !from.is_dir() {
+        return Ok(());
+    }
+    let parent = to.parent().ok_or_else(|| PipelineError::Internal(format!("{}: no parent", to.display())))?;
+    std::fs::create_dir_all(parent).map_err(|e| PipelineError::io(parent, e))?;
+    let name = to.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let tmp = parent.join(format!(".{name}.copy"));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| PipelineError::io(&tmp, e))?;
+    }
+    copy_dir(from, &tmp)?;
+    std::fs::rename(&tmp, to).map_err(|e| PipelineError::io(to, e))
+}
+
+fn copy_dir(from: &Path, to: &Path) -> Result<(), PipelineError> {
+    std::fs::create_dir_all(to).map_err(|e| PipelineError::io(to, e))?;
+    for entry in std::fs::read_dir(from).map_err(|e| PipelineError::io(from, e))? {
+        let entry = entry.map_err(|e| PipelineError::io(from, e))?;
+        let (src, dst) = (entry.path(), to.join(entry.file_name()));
+        if src.is_dir() {
+            copy_dir(&src, &dst)?;
+        } else {
+            std::fs::copy(&src, &dst).map_err(|e| PipelineError::io(&src, e))?;
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spreads_are_the_mean_and_sample_sd_of_the_runs_that_have_the_figure() {
+        let row = |seed: u64, v: Option<f64>| SeedRow {
+            train_seed: seed,
+            folder: PathBuf::new(),
+            values: (0..HEADLINES.len()).map(|h| if h == 0 { v } else { None }).collect(),
+        };
+        let s = spreads(&[row(0, Some(1.0)), row(16, Some(3.0)), row(32, None)]);
+        assert_eq!((s[0].n, s[0].mean, s[0].sd), (2, Some(2.0), Some(2f64.sqrt())));
+        assert_eq!((s[1].n, s[1].mean, s[1].sd), (0, None, None));
+        assert_eq!(replicate_seed(5, 2), 5 + 2 * MAX_MEMBERS as u64);
+    }
+}

@@ -1,0 +1,46 @@
+//! `nerfsv replicate`, tried as a user would: the tiny study with two training seeds writes both
+//! runs, their headline rows and each headline's mean and standard deviation; the second run
+//! takes the first's dataset and ground truth instead of computing them again.
+
+mod common;
+
+use common::{nerfsv, s, tiny_ensemble_run_config as config};
+
+#[test]
+fn replicate_with_two_seeds_writes_both_rows_and_the_spread() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path());
+    let out = dir.path().join("replicate");
+    let (ok, _, err) = nerfsv(&["replicate", s(&cfg), "--seeds", "2", "--out", s(&out)]);
+    assert!(ok, "{err}");
+    // The config's training seed (the default 0), then 16 later: no ensemble member shared.
+    for seed in [0, 16] {
+        let summary = out.join(format!("seed_{seed}/summary.json"));
+        assert!(summary.exists(), "{}", summary.display());
+        assert!(out.join(format!("seed_{seed}/report/index.html")).exists());
+    }
+    let second = std::fs::read_to_string(out.join("seed_16/summary.json")).unwrap();
+    let second: serde_json::Value = serde_json::from_str(&second).unwrap();
+    assert_eq!(second["ensemble"]["trained"][0]["seed"], 17, "{second:#}");
+    assert!(err.contains("dataset: up to date"), "the second run must take the first's dataset: {err}");
+
+    let csv = std::fs::read_to_string(out.join("replicate.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows.len(), 1 + 2 + 2, "{csv}");
+    assert!(rows[0].starts_with("row,train_seed,\"test PSNR (dB)\""), "{csv}");
+    assert!(rows[1].starts_with("seed,0,") && rows[2].starts_with("seed,16,"), "{csv}");
+    assert!(rows[3].starts_with("mean,,") && rows[4].starts_with("sd,,"), "{csv}");
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("replicate.json")).unwrap()).unwrap();
+    let psnr = &json["headlines"][0];
+    let values: Vec<f64> = json["seeds"].as_array().unwrap().iter().map(|r| r["values"][0].as_f64().unwrap()).collect();
+    assert_eq!(psnr["n"], 2);
+    let mean = (values[0] + values[1]) / 2.0;
+    assert!((psnr["mean"].as_f64().unwrap() - mean).abs() < 1e-12, "{json:#}");
+    let sd = (values[0] - values[1]).abs() / 2f64.sqrt();
+    assert!((psnr["sd"].as_f64().unwrap() - sd).abs() < 1e-9, "{json:#}");
+    assert!(values[0] != values[1], "different training seeds must train different models");
+    let page = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(page.contains("test PSNR (dB)") && page.contains("seed 16"), "{page}");
+}

@@ -310,9 +310,10 @@ impl Proposal {
         let component: f64 = self.step_log_pdfs(disturbances).iter().sum();
         match &self.defensive {
             None => component,
-            Some((prior, alpha)) => {
-                crate::record::log_sum_exp(alpha.ln() + prior.log_likelihood(disturbances), (1.0 - alpha).ln() + component)
-            }
+            Some((prior, alpha)) => crate::record::log_sum_exp(
+                alpha.ln() + prior.log_likelihood(disturbances),
+                (1.0 - alpha).ln() + component,
+            ),
         }
     }
 }

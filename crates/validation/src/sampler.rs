@@ -680,9 +680,8 @@ mod tests {
         // more likely than `wild` over all five.
         let other = trajectory([0.6, 0.6, 0.6, 1.6, 0.0]);
         for q in [shifted.clone(), shifted.clone().defensive(&prior, 0.2)] {
-            let record = |x: &Trajectory| {
-                record_of(&prior, Some(&q), x.clone(), SAMPLER_IS, 0, 0, 1, Threshold.run(x, 1))
-            };
+            let record =
+                |x: &Trajectory| record_of(&prior, Some(&q), x.clone(), SAMPLER_IS, 0, 0, 1, Threshold.run(x, 1));
             let (a, b, c) = (record(&calm), record(&wild), record(&other));
             assert!(a.failed && b.failed && c.failed);
             assert_eq!((a.counted_steps(), b.counted_steps(), c.counted_steps()), (2, 2, 4));
@@ -696,8 +695,7 @@ mod tests {
             let mut csv = Vec::new();
             crate::write_csv(&mut csv, &[b.clone()]).unwrap();
             let text = String::from_utf8(csv).unwrap();
-            let counted: Vec<&str> =
-                text.lines().skip(1).map(|l| l.split(',').rev().nth(1).unwrap()).collect();
+            let counted: Vec<&str> = text.lines().skip(1).map(|l| l.split(',').rev().nth(1).unwrap()).collect();
             assert_eq!(counted, ["1", "1", "0", "0", "0"]);
             assert_eq!(crate::parse_csv(&text).unwrap(), vec![b]);
         }

@@ -450,6 +450,15 @@ fn rate_ci(value: f64, ci: [f64; 2]) -> String {
     format!("{} [{:.1}, {:.1}]", pct(value), 100.0 * ci[0], 100.0 * ci[1])
 }
 
+/// `k / n` with its Wilson 95 % interval, or "–" for `n = 0`.
+fn proportion(k: usize, n: usize) -> String {
+    if n == 0 {
+        return "–".into();
+    }
+    let (lo, hi) = nerfsv_validation::wilson_interval(k, n);
+    format!("{:.2} [{lo:.2}, {hi:.2}]", k as f64 / n as f64)
+}
+
 /// A proportion or coefficient with its interval, or "–".
 fn estimate(e: Option<nerfsv_validation::Estimate>) -> String {
     e.map_or("–".into(), |e| format!("{:.2} [{:.2}, {:.2}]", e.value, e.ci95[0], e.ci95[1]))
@@ -530,12 +539,15 @@ fn stress_answer(s: &mut Section, f: &StressFigures) {
             20,
             format!(
                 "<b>Do NeRF-sim's failures hold in GT-sim?</b> Of the Monte Carlo rollouts, {} crashed in NeRF-sim and {} in \
-                 GT-sim with the same disturbances; {tp} crashed in both (precision {}, recall {}), {fp} only in NeRF-sim, \
-                 {fneg} only in GT-sim, {tn} in neither.",
+                 GT-sim with the same disturbances; {tp} crashed in both (precision {}, recall {}, Wilson 95 % \
+                 intervals), {fp} only in NeRF-sim, {fneg} only in GT-sim, {tn} in neither (accuracy {} against {} for \
+                 always predicting GT-sim's commoner outcome).",
                 tp + fp,
                 tp + fneg,
-                num(c.precision, 2),
-                num(c.recall, 2),
+                proportion(tp, tp + fp),
+                proportion(tp, tp + fneg),
+                proportion(tp + tn, tp + fp + fneg + tn),
+                num(((tp + fneg).max(fp + tn)) as f64 / (tp + fp + fneg + tn).max(1) as f64, 2),
             ),
         );
     }
@@ -673,7 +685,10 @@ impl Report for StressStage<'_> {
              driven towards failure, so their collision rate is not a rate of anything.",
         );
         s.paragraph(
-            "Confusion of NeRF-sim (prediction) against GT-sim (truth) over each search's rollouts, failure positive:",
+            "Confusion of NeRF-sim (prediction) against GT-sim (truth) over each search's rollouts, failure positive, \
+             each proportion with its Wilson 95 % interval; the majority baseline is the accuracy of always predicting \
+             GT-sim's commoner outcome. The CEM's rollouts are driven towards failure: its rows describe those \
+             rollouts, not the prior's.",
         );
         s.table(
             Table::new(&[
@@ -683,22 +698,31 @@ impl Report for StressStage<'_> {
                 "FN",
                 "TN",
                 "accuracy",
+                "majority baseline",
                 "precision",
                 "recall",
+                "MCC",
                 "|Δclearance| median / p90 / max (m)",
             ])
             .rows(f.samplers.iter().filter_map(|x| {
                 let c = x.confusion.as_ref()?;
                 let (t, d) = (&c.trajectories, &c.clearance_difference_m);
+                let n = t.true_positive + t.false_positive + t.false_negative + t.true_negative;
                 Some(vec![
                     name(x),
                     t.true_positive.to_string(),
                     t.false_positive.to_string(),
                     t.false_negative.to_string(),
                     t.true_negative.to_string(),
-                    num(c.accuracy, 3),
-                    num(c.precision, 3),
-                    num(c.recall, 3),
+                    proportion(t.true_positive + t.true_negative, n),
+                    num(
+                        (t.true_positive + t.false_negative).max(t.false_positive + t.true_negative) as f64
+                            / n.max(1) as f64,
+                        2,
+                    ),
+                    proportion(t.true_positive, t.true_positive + t.false_positive),
+                    proportion(t.true_positive, t.true_positive + t.false_negative),
+                    num(nerfsv_validation::matthews(t), 2),
                     format!("{} / {} / {}", num(d.median, 4), num(d.p90, 4), num(d.max, 4)),
                 ])
             })),

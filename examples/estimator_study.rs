@@ -9,6 +9,7 @@
 //! cargo run --release --example estimator_study -- floor 36        # updates started at the truth
 //! cargo run --release --example estimator_study -- basin 36        # fits from 5 cm / 3° off vs from the truth
 //! cargo run --release --example estimator_study -- scatter 6       # fits from the truth, N pixel draws per pose
+//! cargo run --release --example estimator_study -- relocalise 50   # recovery from 30 cm / 10° off, hovering
 //! cargo run --release --example estimator_study -- nominal         # the undisturbed flights
 //! ```
 //!
@@ -20,7 +21,10 @@
 //! (`max_refused`), `STOP_COST` (`stop_cost_decrease`), `JACOBIAN_MIN_WEIGHT`, `FINEST` (the
 //! finest pyramid level); `CHECKPOINT` flies another model than the run folder's, `PER_STEP`
 //! sets `scatter`'s poses per step (default 1). `DIAG=1` adds, for the vision
-//! estimator's Monte Carlo, what the gate refused, the relocalisations and the largest accepted errors.
+//! estimator's Monte Carlo, what the gate refused, the relocalisations and the largest accepted errors;
+//! for `relocalise`, `DIAG=N` prints its first N cases image by image, `IMAGES_MAX` sets the
+//! images per case (default 24) and `OFFSET_M` / `OFFSET_DEG` the start's offset (0.3 m, 10°);
+//! `VF_GATE=X` tries, outside the library, counting a fit with a variance factor above X as refused.
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
 
@@ -32,7 +36,7 @@ use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{so3_exp, so3_log};
 use nerfsv_sim::estimator::Starts;
-use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, PosePrior, Rollout, WorldKind};
+use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, ImageUpdate, PosePrior, Rollout, WorldKind};
 use nerfsv_study::flight::{world, FlightInputs};
 use rayon::prelude::*;
 
@@ -337,6 +341,161 @@ fn main() -> anyhow::Result<()> {
                     ms / n as f64
                 );
             }
+            "relocalise" => {
+                // A lost, confident filter: the truth at rest on the nominal path, the belief
+                // exactly 30 cm / 10° off it (random direction and axis) under the prior and
+                // disturbance covariance of a step's first image; the truth hovers while up to
+                // `IMAGES_MAX` images (3 steps × 8 by default) come in.
+                let images: usize = env("IMAGES_MAX", 24);
+                let per_step = cfg.sim.vision.images_per_step.max(1);
+                let (tol_m, tol_deg) = (0.02, 1.0);
+                let (off_m, off_deg) = (env("OFFSET_M", 0.3), env("OFFSET_DEG", 10.0));
+                let vf_gate: f64 = env("VF_GATE", f64::INFINITY);
+                let start = Instant::now();
+                let cases: Vec<Vec<ImageUpdate>> = (0..n)
+                    .into_par_iter()
+                    .map(|k| {
+                        let mut rng = Normal(k as u64);
+                        let unit = |rng: &mut Normal| {
+                            let v = nalgebra::Vector3::new(rng.sample(), rng.sample(), rng.sample());
+                            v / v.norm()
+                        };
+                        // Poses spread along the flight (not its end points twice).
+                        let t = sim.step_duration() * cfg.sim.steps as f64 * (k as f64 + 0.5) / n as f64;
+                        let truth = flight.reference.at_rest(t);
+                        let mut mean = truth;
+                        mean.position += unit(&mut rng) * off_m;
+                        mean.rotation = so3_exp(&(unit(&mut rng) * f64::to_radians(off_deg))) * truth.rotation;
+                        let mut belief = Belief::new(mean, &sim.vision.initial_std);
+                        belief.disturb(&sim.vision.disturbance_std);
+                        (0..images)
+                            .map(|j| {
+                                let (step, substep) = (j / per_step, j % per_step);
+                                let seed = nerfsv_scene::seed::mix(k as u64, step as u64 + 1, substep as u64);
+                                let before = belief;
+                                let mut u = sim.image_update(w.as_ref(), &truth, &mut belief, seed, step, substep, t);
+                                // `VF_GATE`: a what-if outside the library, a fit whose variance
+                                // factor exceeds it counts as refused (relocalised ones too).
+                                if u.accepted && u.variance_factor > vf_gate {
+                                    belief = before;
+                                    belief.refused_in_a_row = before.refused_in_a_row + 1;
+                                    u.accepted = false;
+                                    u.position_error_m = u.predicted_position_error_m;
+                                    u.rotation_error_deg = u.predicted_rotation_error_deg;
+                                }
+                                u
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let within = |u: &ImageUpdate| u.position_error_m <= tol_m && u.rotation_error_deg <= tol_deg;
+                let ok = cases.iter().filter(|c| c.last().is_some_and(within)).count();
+                let (lo, hi) = nerfsv_validation::wilson_interval(ok, n);
+                let mut to_recover: Vec<f64> =
+                    cases.iter().map(|c| c.iter().position(within).map_or(f64::INFINITY, |i| (i + 1) as f64)).collect();
+                let recovered = to_recover.iter().filter(|x| x.is_finite()).count();
+                let relocs: Vec<usize> = cases.iter().map(|c| c.iter().filter(|u| u.relocalised).count()).collect();
+                let mut fp: Vec<f64> =
+                    cases.iter().filter_map(|c| c.last()).map(|u| 1e3 * u.position_error_m).collect();
+                let mut fr: Vec<f64> = cases.iter().filter_map(|c| c.last()).map(|u| u.rotation_error_deg).collect();
+                let median_images = percentile(&mut to_recover, 0.5);
+                println!(
+                    "{}-sim, relocalise from {:.0} cm / {off_deg}° off: {ok}/{n} within 2 cm / 1° after {images} images \
+                     (Wilson 95 % [{:.1}, {:.1}] %); {recovered}/{n} ever within, median images to recover {}; \
+                     relocalisations per case mean {:.2} (max {}); final error median {:.1} mm / {:.2}°, p90 {:.1} mm / \
+                     {:.2}°; {:.1} s",
+                    kind.name(),
+                    off_m * 1e2,
+                    1e2 * lo,
+                    1e2 * hi,
+                    if median_images.is_finite() { format!("{median_images:.0}") } else { "never".to_string() },
+                    relocs.iter().sum::<usize>() as f64 / n.max(1) as f64,
+                    relocs.iter().max().copied().unwrap_or(0),
+                    percentile(&mut fp, 0.5),
+                    percentile(&mut fr, 0.5),
+                    percentile(&mut fp, 0.9),
+                    percentile(&mut fr, 0.9),
+                    start.elapsed().as_secs_f64()
+                );
+                if std::env::var("DIAG").is_ok() {
+                    // Where the gate goes wrong: fits taken while lost, fits taken while on track,
+                    // the refused ones, and what each relocalisation gave.
+                    let all: Vec<&ImageUpdate> = cases.iter().flatten().collect();
+                    let summary = |label: &str, set: Vec<&&ImageUpdate>| {
+                        if set.is_empty() {
+                            println!("  {label}: none");
+                            return;
+                        }
+                        let mut vf: Vec<f64> = set.iter().map(|u| u.variance_factor).collect();
+                        let mut rm: Vec<f64> = set.iter().map(|u| u.photometric_rmse).collect();
+                        let mut nis: Vec<f64> = set.iter().map(|u| u.nis).collect();
+                        println!(
+                            "  {label}: {} images; variance factor p10 {:.3} median {:.3} p90 {:.3}; rmse p10 {:.4} median \
+                             {:.4} p90 {:.4}; nis median {:.1} p90 {:.1}",
+                            set.len(),
+                            percentile(&mut vf, 0.1),
+                            percentile(&mut vf, 0.5),
+                            percentile(&mut vf, 0.9),
+                            percentile(&mut rm, 0.1),
+                            percentile(&mut rm, 0.5),
+                            percentile(&mut rm, 0.9),
+                            percentile(&mut nis, 0.5),
+                            percentile(&mut nis, 0.9)
+                        );
+                    };
+                    summary(
+                        "taken while lost (> 5 cm after, no relocalisation)",
+                        all.iter().filter(|u| u.accepted && !u.relocalised && u.position_error_m > 0.05).collect(),
+                    );
+                    summary(
+                        "taken on track (≤ 2 cm / 1° before and after)",
+                        all.iter()
+                            .filter(|u| {
+                                u.accepted
+                                    && !u.relocalised
+                                    && within(u)
+                                    && u.predicted_position_error_m <= tol_m
+                                    && u.predicted_rotation_error_deg <= tol_deg
+                            })
+                            .collect(),
+                    );
+                    summary("refused", all.iter().filter(|u| !u.accepted).collect());
+                    let refused_cases = cases.iter().filter(|c| c.iter().any(|u| !u.accepted)).count();
+                    let reloc_cases = cases.iter().filter(|c| c.iter().any(|u| u.relocalised)).count();
+                    let relocs: Vec<&&ImageUpdate> = all.iter().filter(|u| u.relocalised).collect();
+                    println!(
+                        "  {refused_cases}/{n} cases had a refusal, {reloc_cases}/{n} relocalised; {} relocalisations, {} \
+                         of them within 2 cm / 1° after",
+                        relocs.len(),
+                        relocs.iter().filter(|u| within(u)).count()
+                    );
+                    summary("relocalisations", relocs);
+                }
+                // `DIAG=N`: the first N cases image by image.
+                for (k, c) in cases.iter().enumerate().take(env("DIAG", 0)) {
+                    println!("  case {k}:");
+                    for (j, u) in c.iter().enumerate() {
+                        println!(
+                            "    image {j:2} (step {} sub {}): {:7.1} mm / {:5.2}° -> {:7.1} mm / {:5.2}°, nis {:9.1}, \
+                             accepted {}, relocalised {}, vf {:.3}, rmse {:.4}, spread {:.1} mm / {:.2}°, renders {}",
+                            u.step,
+                            u.substep,
+                            1e3 * u.predicted_position_error_m,
+                            u.predicted_rotation_error_deg,
+                            1e3 * u.position_error_m,
+                            u.rotation_error_deg,
+                            u.nis,
+                            u.accepted,
+                            u.relocalised,
+                            u.variance_factor,
+                            u.photometric_rmse,
+                            1e3 * u.position_spread_m,
+                            u.rotation_spread_deg,
+                            u.renders
+                        );
+                    }
+                }
+            }
             _ => {
                 for estimator in [EstimatorKind::Vision, EstimatorKind::Truth] {
                     let t = Instant::now();
@@ -352,6 +511,25 @@ fn main() -> anyhow::Result<()> {
                         r.updates.len(),
                         1e3 * t.elapsed().as_secs_f64() / r.updates.len().max(1) as f64
                     );
+                    if let (EstimatorKind::Vision, Some(last)) = (estimator, r.updates.last()) {
+                        let max_p = r.updates.iter().map(|u| u.position_error_m).fold(0.0, f64::max);
+                        let max_r = r.updates.iter().map(|u| u.rotation_error_deg).fold(0.0, f64::max);
+                        println!(
+                            "{}-sim, {}, undisturbed estimate: final error {:.1} mm / {:.2}° (step {} substep {}), max \
+                             {:.1} mm / {:.2}° over the flight; {} refused images, {} relocalisations; final error {} 5 cm",
+                            kind.name(),
+                            estimator.name(),
+                            1e3 * last.position_error_m,
+                            last.rotation_error_deg,
+                            last.step,
+                            last.substep,
+                            1e3 * max_p,
+                            max_r,
+                            r.updates.iter().filter(|u| !u.accepted).count(),
+                            r.updates.iter().filter(|u| u.relocalised).count(),
+                            if last.position_error_m > 0.05 { "ABOVE" } else { "within" }
+                        );
+                    }
                 }
             }
         }

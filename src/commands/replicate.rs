@@ -1,7 +1,6 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use nerfsv_pipeline::RunConfig;
 
 use crate::progress::Reporter;
 
@@ -22,13 +21,7 @@ pub struct ReplicateArgs {
 }
 
 pub fn run(args: ReplicateArgs) -> anyhow::Result<()> {
-    let mut cfg = match &args.config {
-        Some(p) => RunConfig::load(p)?,
-        None => RunConfig::default(),
-    };
-    if let Some(out) = args.out {
-        cfg.out = out;
-    }
+    let cfg = crate::commands::run::load_config(args.config.as_deref(), args.out)?;
     let reporter = Reporter::new(args.json);
     let r = nerfsv_pipeline::replicate::replicate(&cfg, args.seeds, &reporter)?;
     crate::commands::report(args.json, &r, || {

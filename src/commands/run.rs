@@ -21,14 +21,21 @@ pub struct RunArgs {
     pub check: bool,
 }
 
-pub fn run(args: RunArgs) -> anyhow::Result<()> {
-    let mut cfg = match &args.config {
+/// The run config at `config` (the embedded default without one), its run folder replaced by
+/// `out` if given.
+pub fn load_config(config: Option<&std::path::Path>, out: Option<PathBuf>) -> anyhow::Result<RunConfig> {
+    let mut cfg = match config {
         Some(p) => RunConfig::load(p)?,
         None => RunConfig::default(),
     };
-    if let Some(out) = args.out {
+    if let Some(out) = out {
         cfg.out = out;
     }
+    Ok(cfg)
+}
+
+pub fn run(args: RunArgs) -> anyhow::Result<()> {
+    let cfg = load_config(args.config.as_deref(), args.out)?;
     let reporter = Reporter::new(args.json);
     let named = |e: nerfsv_pipeline::PipelineError| match (&args.config, e) {
         (Some(path), nerfsv_pipeline::PipelineError::Invalid(error)) => {

@@ -85,7 +85,7 @@ impl RolloutRecord {
     /// ranking: a failure's up to and including its first collision (the failure is settled
     /// there: the disturbances after it change nothing the estimate depends on), every step of
     /// anything else. The first collision is a stopping time, so p/q over these steps is still
-    /// an unbiased weight: E_q[w] = 1 and E_q[1{fail}·w] = P_p(fail), with less variance than
+    /// an unbiased weight: E_q(w) = 1 and E_q(1{fail}·w) = P_p(fail), with less variance than
     /// the whole trajectory's ratio.
     pub fn counted_steps(&self) -> usize {
         let steps = self.step_log_p.len();

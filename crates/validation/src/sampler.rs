@@ -693,7 +693,7 @@ mod tests {
             assert!(beats_c(&a) && beats_c(&b));
 
             let mut csv = Vec::new();
-            crate::write_csv(&mut csv, &[b.clone()]).unwrap();
+            crate::write_csv(&mut csv, std::slice::from_ref(&b)).unwrap();
             let text = String::from_utf8(csv).unwrap();
             let counted: Vec<&str> = text.lines().skip(1).map(|l| l.split(',').rev().nth(1).unwrap()).collect();
             assert_eq!(counted, ["1", "1", "0", "0", "0"]);

@@ -29,8 +29,8 @@ use nerfsv_sim::WorldKind;
 use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
-    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, ValidationConfig,
-    SAMPLER_CEM, SAMPLER_MC,
+    disagreement_auroc, read_csv_file, step_auroc_interval, table_row, DisagreementAuroc, RolloutRecord, TableRow,
+    ValidationConfig, BOOTSTRAP_RESAMPLES, SAMPLER_CEM, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -42,7 +42,7 @@ use crate::stress::StressStage;
 use crate::PipelineError;
 use nerfsv_study::stress::{
     measure_recorded, replay_csv, stress, write_table as write_stress_table, Flown, OnlineSettings, Sampler,
-    StressSetup, ROLLOUTS_CSV, TABLE_CSV,
+    StepAurocFigures, StressSetup, ROLLOUTS_CSV, TABLE_CSV,
 };
 
 /// The stage's combined table.
@@ -69,8 +69,13 @@ pub struct MethodStudy {
     /// reproduces; `None` without a view).
     pub views: usize,
     pub milliseconds_per_view: Option<f64>,
-    /// The per-step uncertainty of the plain rollouts against the stress stage's replays.
+    /// The per-step uncertainty of the plain rollouts against the stress stage's replays, MC's
+    /// and CEM's together.
     pub disagreement: DisagreementAuroc,
+    /// The same per sampler (never pooled), each step AUROC with its 95 % interval from a
+    /// bootstrap over rollouts.
+    #[serde(default)]
+    pub per_sampler: Vec<StepAurocFigures>,
 }
 
 /// What the online stage reports.
@@ -239,6 +244,19 @@ impl Stage for OnlineStage<'_> {
                 views,
                 milliseconds_per_view: (views > 0).then(|| 1e3 * seconds / views as f64),
                 disagreement: disagreement_auroc(&plain_records, &replays),
+                per_sampler: [Sampler::Mc, Sampler::Cem]
+                    .into_iter()
+                    .map(|sampler| {
+                        let ours: Vec<RolloutRecord> =
+                            plain_records.iter().filter(|r| sampler.owns(r)).cloned().collect();
+                        StepAurocFigures {
+                            sampler,
+                            nerf_world: s.sim.nerf_world,
+                            auroc: disagreement_auroc(&ours, &replays),
+                            step_auroc_ci95: step_auroc_interval(&ours, &replays, BOOTSTRAP_RESAMPLES, validation.seed),
+                        }
+                    })
+                    .collect(),
             });
         }
         let figures = OnlineFigures {

@@ -450,6 +450,18 @@ fn rate_ci(value: f64, ci: [f64; 2]) -> String {
     format!("{} [{:.1}, {:.1}]", pct(value), 100.0 * ci[0], 100.0 * ci[1])
 }
 
+/// "MC 0.61 [0.51, 0.71] (18 of 548 steps disagree)": a sampler's step AUROC with its interval.
+fn step_auroc_with_interval(a: &nerfsv_study::stress::StepAurocFigures) -> String {
+    let ci = a.step_auroc_ci95.map_or(String::new(), |[lo, hi]| format!(" [{lo:.2}, {hi:.2}]"));
+    format!(
+        "{} {}{ci} ({} of {} steps disagree)",
+        a.sampler.name().to_uppercase(),
+        num(a.auroc.step_auroc, 2),
+        a.auroc.disagreeing_steps,
+        a.auroc.steps
+    )
+}
+
 /// `k / n` with its Wilson 95 % interval, or "–" for `n = 0`.
 fn proportion(k: usize, n: usize) -> String {
     if n == 0 {
@@ -773,13 +785,17 @@ impl Report for OnlineStage<'_> {
                 .iter()
                 .map(|m| {
                     let d = &m.disagreement;
-                    format!(
-                        "{} {} ({} of {} steps disagree)",
-                        esc(&m.method.name().to_uppercase()),
-                        num(d.step_auroc, 2),
-                        d.disagreeing_steps,
-                        d.steps
-                    )
+                    let per: Vec<String> = m.per_sampler.iter().map(step_auroc_with_interval).collect();
+                    match per.is_empty() {
+                        true => format!(
+                            "{} {} ({} of {} steps disagree)",
+                            esc(&m.method.name().to_uppercase()),
+                            num(d.step_auroc, 2),
+                            d.disagreeing_steps,
+                            d.steps
+                        ),
+                        false => format!("{} {}", esc(&m.method.name().to_uppercase()), per.join(", ")),
+                    }
                 })
                 .collect();
             s.answer(
@@ -800,12 +816,14 @@ impl Report for OnlineStage<'_> {
             let d = &m.disagreement;
             s.html(format!(
                 "<h3>{} ({} mode)</h3><p>AUROC of the step's uncertainty for a NeRF-sim/GT-sim disagreement: {} ({} of {} \
-                 steps disagree); of a rollout's mean: {} ({} of {}).</p>\n",
+                 steps disagree, MC and CEM together; per sampler, 95 % by a bootstrap over rollouts: {}); of a \
+                 rollout's mean: {} ({} of {}).</p>\n",
                 esc(&m.method.name().to_uppercase()),
                 esc(f.mode.name()),
                 num(d.step_auroc, 3),
                 d.disagreeing_steps,
                 d.steps,
+                m.per_sampler.iter().map(step_auroc_with_interval).collect::<Vec<_>>().join(", "),
                 num(d.trajectory_auroc, 3),
                 d.disagreeing_trajectories,
                 d.trajectories,

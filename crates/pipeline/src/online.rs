@@ -29,8 +29,8 @@ use nerfsv_sim::WorldKind;
 use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
-    disagreement_auroc, read_csv_file, step_auroc_interval, table_row, DisagreementAuroc, RolloutRecord, TableRow,
-    ValidationConfig, BOOTSTRAP_RESAMPLES, SAMPLER_CEM, SAMPLER_MC,
+    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, ValidationConfig,
+    SAMPLER_CEM, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -247,14 +247,7 @@ impl Stage for OnlineStage<'_> {
                 per_sampler: [Sampler::Mc, Sampler::Cem]
                     .into_iter()
                     .map(|sampler| {
-                        let ours: Vec<RolloutRecord> =
-                            plain_records.iter().filter(|r| sampler.owns(r)).cloned().collect();
-                        StepAurocFigures {
-                            sampler,
-                            nerf_world: s.sim.nerf_world,
-                            auroc: disagreement_auroc(&ours, &replays),
-                            step_auroc_ci95: step_auroc_interval(&ours, &replays, BOOTSTRAP_RESAMPLES, validation.seed),
-                        }
+                        StepAurocFigures::of(sampler, s.sim.nerf_world, &plain_records, &replays, validation.seed)
                     })
                     .collect(),
             });

@@ -558,8 +558,8 @@ fn stress_answer(s: &mut Section, f: &StressFigures) {
                 tp + fneg,
                 proportion(tp, tp + fp),
                 proportion(tp, tp + fneg),
-                proportion(tp + tn, tp + fp + fneg + tn),
-                num(((tp + fneg).max(fp + tn)) as f64 / (tp + fp + fneg + tn).max(1) as f64, 2),
+                proportion(tp + tn, t.total()),
+                num(t.majority_accuracy(), 2),
             ),
         );
     }
@@ -719,19 +719,14 @@ impl Report for StressStage<'_> {
             .rows(f.samplers.iter().filter_map(|x| {
                 let c = x.confusion.as_ref()?;
                 let (t, d) = (&c.trajectories, &c.clearance_difference_m);
-                let n = t.true_positive + t.false_positive + t.false_negative + t.true_negative;
                 Some(vec![
                     name(x),
                     t.true_positive.to_string(),
                     t.false_positive.to_string(),
                     t.false_negative.to_string(),
                     t.true_negative.to_string(),
-                    proportion(t.true_positive + t.true_negative, n),
-                    num(
-                        (t.true_positive + t.false_negative).max(t.false_positive + t.true_negative) as f64
-                            / n.max(1) as f64,
-                        2,
-                    ),
+                    proportion(t.true_positive + t.true_negative, t.total()),
+                    num(t.majority_accuracy(), 2),
                     proportion(t.true_positive, t.true_positive + t.false_positive),
                     proportion(t.true_positive, t.true_positive + t.false_negative),
                     num(nerfsv_validation::matthews(t), 2),

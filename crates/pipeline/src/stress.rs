@@ -16,8 +16,7 @@ use nerfsv_study::UqMode;
 use nerfsv_study::{online_pixels, EnsembleUncertainty};
 use nerfsv_uq::{model_id, UncertaintyField, UqConfig};
 use nerfsv_validation::{
-    disagreement_auroc, read_csv_file, step_auroc_interval, Journal, Prior, RolloutRecord, ValidationConfig,
-    BOOTSTRAP_RESAMPLES, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    read_csv_file, Journal, Prior, RolloutRecord, ValidationConfig, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 use serde::Serialize;
 
@@ -207,15 +206,7 @@ impl StressStage<'_> {
         Ok([Sampler::Mc, Sampler::Cem]
             .into_iter()
             .filter(|s| self.samplers().contains(s))
-            .map(|sampler| {
-                let ours: Vec<RolloutRecord> = measured.iter().filter(|r| sampler.owns(r)).cloned().collect();
-                StepAurocFigures {
-                    sampler,
-                    nerf_world: self.sim.nerf_world,
-                    auroc: disagreement_auroc(&ours, replays),
-                    step_auroc_ci95: step_auroc_interval(&ours, replays, BOOTSTRAP_RESAMPLES, self.validation.seed),
-                }
-            })
+            .map(|sampler| StepAurocFigures::of(sampler, self.sim.nerf_world, &measured, replays, self.validation.seed))
             .collect())
     }
 }

@@ -77,8 +77,9 @@ pub struct AuseOnCommonImages {
 pub struct AuseComparison {
     pub images: usize,
     pub methods: Vec<AuseOnCommonImages>,
-    /// The mean area under the oracle's curve on these images: a perfect ranking's AUSE is 0,
-    /// the oracle's own; this is the scale an AUSE is read against.
+    /// The mean area under the oracle's curve on these images (as normalised for the first
+    /// method listed: each method's curves share their own maximum): a perfect ranking's AUSE
+    /// is 0, the oracle's own; this is the scale an AUSE is read against.
     pub oracle_area: f64,
 }
 

@@ -316,6 +316,31 @@ pub struct StepAurocFigures {
     pub step_auroc_ci95: Option<[f64; 2]>,
 }
 
+impl StepAurocFigures {
+    /// `sampler`'s rollouts among `measured` (NeRF-sim rollouts with per-step uncertainty, flown
+    /// in `nerf_world`) against their GT-sim `replays`; `seed` seeds the bootstrap.
+    pub fn of(
+        sampler: Sampler,
+        nerf_world: NerfWorldSource,
+        measured: &[RolloutRecord],
+        replays: &[RolloutRecord],
+        seed: u64,
+    ) -> Self {
+        let ours: Vec<RolloutRecord> = measured.iter().filter(|r| sampler.owns(r)).cloned().collect();
+        Self {
+            sampler,
+            nerf_world,
+            auroc: nerfsv_validation::disagreement_auroc(&ours, replays),
+            step_auroc_ci95: nerfsv_validation::step_auroc_interval(
+                &ours,
+                replays,
+                nerfsv_validation::BOOTSTRAP_RESAMPLES,
+                seed,
+            ),
+        }
+    }
+}
+
 impl TransferFigures {
     /// The comparison of the failed-or-not outcomes of the same rollouts in the three worlds
     /// (`deployed[i]`, `ensemble[i]` and `gt[i]` are rollout i's); `seed` seeds the bootstrap

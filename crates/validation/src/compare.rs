@@ -40,6 +40,13 @@ impl Confusion {
         ratio(self.true_positive + self.true_negative, self.total())
     }
 
+    /// The accuracy of always predicting the truth's commoner outcome, the baseline
+    /// [`Confusion::accuracy`] is read against; `None` when empty.
+    pub fn majority_accuracy(&self) -> Option<f64> {
+        let positives = self.true_positive + self.false_negative;
+        ratio(positives.max(self.total() - positives), self.total())
+    }
+
     /// TP / (TP + FP): the share of NeRF-sim's failures that are real; `None` without any.
     pub fn precision(&self) -> Option<f64> {
         ratio(self.true_positive, self.true_positive + self.false_positive)

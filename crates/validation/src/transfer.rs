@@ -90,7 +90,7 @@ impl Transfer {
             recall: with_wilson(c.true_positive, gt_failures),
             mcc: matthews(c).map(|value| Estimate { value, ci95: bootstrap_mcc(nerf, gt, seed) }),
             accuracy: with_wilson(c.true_positive + c.true_negative, n),
-            majority_accuracy: (n > 0).then(|| gt_failures.max(n - gt_failures) as f64 / n as f64),
+            majority_accuracy: c.majority_accuracy(),
         }
     }
 }

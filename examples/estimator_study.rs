@@ -24,7 +24,7 @@
 //! estimator's Monte Carlo, what the gate refused, the relocalisations and the largest accepted errors;
 //! for `relocalise`, `DIAG=N` prints its first N cases image by image, `IMAGES_MAX` sets the
 //! images per case (default 24) and `OFFSET_M` / `OFFSET_DEG` the start's offset (0.3 m, 10°);
-//! `VF_GATE=X` tries, outside the library, counting a fit with a variance factor above X as refused.
+//! `LOST_VF` sets `lost_variance_factor` (`inf`: never refuse a fit for its variance factor).
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
 
@@ -84,6 +84,7 @@ fn main() -> anyhow::Result<()> {
     v.start_candidates = env("CANDIDATES", v.start_candidates);
     v.pixels = env("PIXELS", v.pixels);
     v.relocalise_after = env("RELOCALISE_AFTER", v.relocalise_after);
+    v.lost_variance_factor = env("LOST_VF", v.lost_variance_factor);
     v.max_refused = env("REFUSED", v.max_refused);
     v.jacobian_min_weight = env("JACOBIAN_MIN_WEIGHT", v.jacobian_min_weight);
     v.stop_cost_decrease = env("STOP_COST", v.stop_cost_decrease);
@@ -350,7 +351,6 @@ fn main() -> anyhow::Result<()> {
                 let per_step = cfg.sim.vision.images_per_step.max(1);
                 let (tol_m, tol_deg) = (0.02, 1.0);
                 let (off_m, off_deg) = (env("OFFSET_M", 0.3), env("OFFSET_DEG", 10.0));
-                let vf_gate: f64 = env("VF_GATE", f64::INFINITY);
                 let start = Instant::now();
                 let cases: Vec<Vec<ImageUpdate>> = (0..n)
                     .into_par_iter()
@@ -372,18 +372,7 @@ fn main() -> anyhow::Result<()> {
                             .map(|j| {
                                 let (step, substep) = (j / per_step, j % per_step);
                                 let seed = nerfsv_scene::seed::mix(k as u64, step as u64 + 1, substep as u64);
-                                let before = belief;
-                                let mut u = sim.image_update(w.as_ref(), &truth, &mut belief, seed, step, substep, t);
-                                // `VF_GATE`: a what-if outside the library, a fit whose variance
-                                // factor exceeds it counts as refused (relocalised ones too).
-                                if u.accepted && u.variance_factor > vf_gate {
-                                    belief = before;
-                                    belief.refused_in_a_row = before.refused_in_a_row + 1;
-                                    u.accepted = false;
-                                    u.position_error_m = u.predicted_position_error_m;
-                                    u.rotation_error_deg = u.predicted_rotation_error_deg;
-                                }
-                                u
+                                sim.image_update(w.as_ref(), &truth, &mut belief, seed, step, substep, t)
                             })
                             .collect()
                     })

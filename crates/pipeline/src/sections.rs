@@ -572,7 +572,7 @@ fn stress_answer(s: &mut Section, f: &StressFigures) {
         s.answer(
             30,
             format!(
-                "<b>The most likely failure</b> found ({} {}/{}): log-likelihood {}, collision at step {}; {replay}.",
+                "<b>The most likely failure</b> found ({} {}/{}): log-likelihood {} (the steps after the crash at the prior's mode), collision at step {}; {replay}.",
                 esc(&m.sampler.to_uppercase()),
                 m.population,
                 m.index,

@@ -114,8 +114,11 @@ pub struct ImageUpdate {
     pub nis: f64,
     pub accepted: bool,
     /// The estimator relocalised at this image ([`VisionConfig::relocalise_after`] refusals in a
-    /// row before it): a wide search, taken whatever its innovation (`accepted` is then true).
+    /// row before it): a wide search, taken whatever its innovation unless it is `lost`.
     pub relocalised: bool,
+    /// The fit explained too little of its image ([`VisionConfig::lost_variance_factor`]): the
+    /// image was refused whatever its innovation.
+    pub lost: bool,
     /// The fit's a-posteriori variance factor ([`crate::estimator::PoseFit::variance_factor`]).
     pub variance_factor: f64,
     /// The filter's expected position and attitude errors after the update, m and degrees.
@@ -374,7 +377,7 @@ impl Simulator<'_> {
         substep: usize,
         time: f64,
     ) -> ImageUpdate {
-        let predicted = belief.mean;
+        let (predicted, before) = (belief.mean, *belief);
         let relocalised = self.vision.relocalise_after > 0 && belief.refused_in_a_row >= self.vision.relocalise_after;
         if relocalised {
             belief.widen_pose([self.vision.relocalise_std[0], self.vision.relocalise_std[1].to_radians()]);
@@ -385,7 +388,8 @@ impl Simulator<'_> {
             information: belief.pose_information(),
         };
         let starts = if relocalised {
-            VisionConfig::RELOCALISE_STARTS
+            // Its own stream: the pixels are drawn from `seed`'s.
+            VisionConfig::relocalise_starts(nerfsv_scene::seed::mix(seed, 0x5e10ca1, 0))
         } else if substep == 0 {
             Starts::one_sigma(self.vision.start_candidates)
         } else {
@@ -402,7 +406,13 @@ impl Simulator<'_> {
             ..PoseMeasurement::exact(fit.position, fit.rotation, fit.information)
         };
         let gate = if relocalised { f64::INFINITY } else { self.vision.gate_chi2 };
-        let u = belief.update_pose(&measurement, gate);
+        let mut u = belief.update_pose(&measurement, gate);
+        let lost = fit.variance_factor > self.vision.lost_variance_factor;
+        if lost {
+            // Refused: the belief is the prediction's, not widened, one more refusal in a row.
+            *belief = Belief { refused_in_a_row: before.refused_in_a_row + 1, ..before };
+            u.accepted = false;
+        }
         let [sp, sr] = belief.pose_spread();
         ImageUpdate {
             step,
@@ -416,6 +426,7 @@ impl Simulator<'_> {
             nis: u.nis,
             accepted: u.accepted,
             relocalised,
+            lost,
             variance_factor: fit.variance_factor,
             position_spread_m: sp,
             rotation_spread_deg: sr.to_degrees(),

@@ -11,6 +11,7 @@ use nerfsv_nerf::Nerf;
 use nerfsv_scene::{Aabb, Camera, Intrinsics};
 use nerfsv_sim::config::SimConfig;
 use nerfsv_sim::dynamics::so3_exp;
+use nerfsv_sim::estimator::VisionConfig;
 use nerfsv_sim::planner::PlannedPath;
 use nerfsv_sim::{Collision, Disturbance, EstimatorKind, Flight, NerfWorld, Rollout, Simulator, World, WorldKind};
 
@@ -311,7 +312,7 @@ fn images_are_spread_over_the_step_the_first_right_after_the_disturbance() {
 
 /// The start candidates are tried at the image right after each step's disturbance only: with
 /// two images a step, the second image of every step spends the search's renders alone; an image
-/// at which the estimator relocalises (this tiny model loses the drone) tries the 24 starts of
+/// at which the estimator relocalises (this tiny model loses the drone) tries the 48 starts of
 /// the wide search instead.
 #[test]
 fn start_candidates_are_tried_only_after_a_disturbance() {
@@ -327,13 +328,45 @@ fn start_candidates_are_tried_only_after_a_disturbance() {
     assert_eq!(r.updates.len(), 6);
     for u in &r.updates {
         let starts = match (u.relocalised, u.substep) {
-            (true, _) => 24,
+            (true, _) => VisionConfig::relocalise_starts(0).count(),
             (false, 0) => 6,
             (false, _) => 0,
         };
         assert_eq!(u.renders, 2 + starts, "{u:?}");
     }
     assert!(r.updates.iter().any(|u| u.relocalised), "the case must relocalise");
+}
+
+/// A fit whose variance factor is above `lost_variance_factor` is refused whatever its
+/// innovation, leaves the prediction as it was (not widened by a relocalisation) and counts as a
+/// refusal: with the threshold at the median factor of a flight that never refuses one, about
+/// half the images are refused and the estimator relocalises after three in a row.
+#[test]
+fn a_fit_that_explains_too_little_of_its_image_is_refused() {
+    let nerf = tiny_nerf();
+    let mut sim = straight(&nerf, 3);
+    sim.vision.images_per_step = 4;
+    let field = post_world([0.6, 0.4, 0.3], [0.02, 0.02, 0.5]).field;
+    let world = NerfWorld { nerf: &nerf, field: &field };
+    let ds = vec![Disturbance(std::array::from_fn(|i| Disturbance::PAPER_STD[i])); 3];
+    sim.vision.lost_variance_factor = f64::INFINITY;
+    let free = sim.fly(&world, EstimatorKind::Vision, &ds, 3);
+    assert!(free.updates.iter().all(|u| !u.lost));
+    let mut vf: Vec<f64> = free.updates.iter().map(|u| u.variance_factor).collect();
+    vf.sort_by(f64::total_cmp);
+    sim.vision.lost_variance_factor = vf[vf.len() / 2];
+    let r = sim.fly(&world, EstimatorKind::Vision, &ds, 3);
+    let mut in_a_row = 0;
+    for u in &r.updates {
+        assert_eq!(u.lost, u.variance_factor > sim.vision.lost_variance_factor, "{u:?}");
+        assert_eq!(u.relocalised, in_a_row >= sim.vision.relocalise_after, "{u:?}");
+        if u.lost {
+            assert!(!u.accepted);
+            assert_eq!(u.position_error_m.to_bits(), u.predicted_position_error_m.to_bits());
+        }
+        in_a_row = if u.accepted { 0 } else { in_a_row + 1 };
+    }
+    assert!(r.updates.iter().any(|u| u.lost), "the case must refuse a lost fit");
 }
 
 #[test]

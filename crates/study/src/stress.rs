@@ -49,7 +49,8 @@ pub struct FailureFigures {
     pub index: usize,
     /// Replays it: `nerfsv fly --disturbances <its CSV> --seed <seed>`.
     pub seed: u64,
-    /// Trajectory log-likelihood, eq. 1.
+    /// Trajectory log-likelihood, eq. 1, over every step with those after the crash at the
+    /// prior's mode: what the ranking compares ([`RolloutRecord::completed_log_p`]).
     pub log_likelihood: f64,
     /// First step that touched geometry, counted from 1 as in the paper's tables.
     pub collision_step: Option<usize>,
@@ -1008,7 +1009,7 @@ pub fn stress(
             }
             _ => None,
         };
-        let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)));
+        let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)), setup.prior);
         let most_likely_failure = match mlf {
             Some(f) => {
                 let replayed = write_failure(setup, out, sampler, f, search_world.as_ref(), replay_world.as_deref())?;
@@ -1017,7 +1018,7 @@ pub fn stress(
                     population: f.population,
                     index: f.index,
                     seed: f.seed,
-                    log_likelihood: f.log_p,
+                    log_likelihood: f.completed_log_p(setup.prior.mode_step_log_pdf()),
                     collision_step: f.collision_step.map(|s| s + 1),
                     min_clearance_m: f.score,
                     replay_collided: replayed.as_ref().map(|r| r.collided),

@@ -213,6 +213,11 @@ impl Prior {
         disturbances.rows().map(|x| self.step.log_pdf(x)).collect()
     }
 
+    /// ln p at the mode of one step (its mean): the most a step's disturbance can add to eq. 1.
+    pub fn mode_step_log_pdf(&self) -> f64 {
+        self.step.log_pdf(self.step.mean().as_slice())
+    }
+
     /// Trajectory log-likelihood, eq. 1: Σ_t ln p(x_t).
     pub fn log_likelihood(&self, disturbances: &Trajectory) -> f64 {
         self.step_log_pdfs(disturbances).iter().sum()

@@ -110,6 +110,17 @@ impl RolloutRecord {
         self
     }
 
+    /// The log-likelihood (eq. 1, over every step) of the most likely trajectory that fails as
+    /// this one does: its counted steps ([`RolloutRecord::counted_steps`]) as drawn, the steps
+    /// after its crash at the prior's mode, whose per-step log density is `mode_log_p`
+    /// ([`crate::Prior::mode_step_log_pdf`]). Rollouts compare fairly by it whatever their
+    /// crash step: `log_p` alone sums fewer steps for an earlier crash, and each step's log
+    /// density is positive for the drone's small disturbances, so `log_p` favours late crashes.
+    /// For a rollout that did not fail it is `log_p`.
+    pub fn completed_log_p(&self, mode_log_p: f64) -> f64 {
+        self.log_p + (self.step_log_p.len() - self.counted_steps()) as f64 * mode_log_p
+    }
+
     /// The importance weight p(x)/q(x) = exp(Σ_t [ln p(x_t) − ln q_t(x_t)]) over the steps
     /// that count ([`RolloutRecord::counted_steps`]).
     pub fn weight(&self) -> f64 {

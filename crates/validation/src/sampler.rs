@@ -282,11 +282,16 @@ pub(crate) fn wilson(p: f64, n: f64) -> (f64, f64) {
     ((centre - half).max(0.0), (centre + half).min(1.0))
 }
 
-/// The failure with the highest trajectory log-likelihood (eq. 1) among `records`; ties go to
-/// the earlier record.
-pub fn most_likely_failure<'a>(records: impl IntoIterator<Item = &'a RolloutRecord>) -> Option<&'a RolloutRecord> {
+/// The failure with the highest trajectory log-likelihood (eq. 1) among `records`, each
+/// completed at the mode of `prior` after its crash ([`RolloutRecord::completed_log_p`]); ties
+/// go to the earlier record.
+pub fn most_likely_failure<'a>(
+    records: impl IntoIterator<Item = &'a RolloutRecord>,
+    prior: &Prior,
+) -> Option<&'a RolloutRecord> {
+    let mode = prior.mode_step_log_pdf();
     records.into_iter().filter(|r| r.failed).fold(None, |best: Option<&RolloutRecord>, r| match best {
-        Some(b) if b.log_p >= r.log_p => Some(b),
+        Some(b) if b.completed_log_p(mode) >= r.completed_log_p(mode) => Some(b),
         _ => Some(r),
     })
 }
@@ -323,7 +328,7 @@ pub fn monte_carlo<S: System + ?Sized>(
         failures,
         probability: failures as f64 / records.len() as f64,
         interval: wilson_interval(failures, records.len()),
-        most_likely_failure: most_likely_failure(&records).cloned(),
+        most_likely_failure: most_likely_failure(&records, prior).cloned(),
         records,
     })
 }
@@ -624,7 +629,7 @@ pub fn cross_entropy<S: System + ?Sized>(
     let last = proposals.last().expect("k_max ≥ 1");
     let (batch, estimate) = importance_sampling(system, prior, last, config.is_samples, run_seed, recorder)?;
     records.extend(batch);
-    Ok(CemResult { most_likely_failure: most_likely_failure(&records).cloned(), records, proposals, estimate })
+    Ok(CemResult { most_likely_failure: most_likely_failure(&records, prior).cloned(), records, proposals, estimate })
 }
 
 #[cfg(test)]
@@ -689,7 +694,7 @@ mod tests {
             assert_eq!(a.weight().to_bits(), b.weight().to_bits());
             let whole = prior.log_likelihood(&wild);
             assert!(whole < c.log_p && c.log_p < a.log_p, "the case must tell the rules apart");
-            let beats_c = |r: &RolloutRecord| std::ptr::eq(most_likely_failure([&c, r]).unwrap(), r);
+            let beats_c = |r: &RolloutRecord| std::ptr::eq(most_likely_failure([&c, r], &prior).unwrap(), r);
             assert!(beats_c(&a) && beats_c(&b));
 
             let mut csv = Vec::new();
@@ -699,5 +704,29 @@ mod tests {
             assert_eq!(counted, ["1", "1", "0", "0", "0"]);
             assert_eq!(crate::parse_csv(&text).unwrap(), vec![b]);
         }
+    }
+
+    /// With the drone's small disturbances a step's log density is positive, so a log p that
+    /// stops at the crash grows with the crash step: of two failures with the same single
+    /// excursion, the later crash would rank first even with a slightly larger excursion. The
+    /// ranking completes each failure at the prior's mode and picks the smaller excursion.
+    #[test]
+    fn the_most_likely_failure_does_not_favour_a_later_crash() {
+        let prior = Prior::new(Gaussian::diagonal(vec![0.0], &[0.3]).unwrap(), 5);
+        assert!(prior.mode_step_log_pdf() > 0.0, "the case needs a positive log density at the mode");
+        let record = |v: [f64; 5]| {
+            let x = Trajectory::from_flat(1, v.to_vec()).unwrap();
+            record_of(&prior, None, x.clone(), SAMPLER_MC, 0, 0, 1, Threshold.run(&x, 1))
+        };
+        let (early, late) = (record([0.0, 1.04, 0.0, 0.0, 0.0]), record([0.0, 0.0, 0.0, 0.0, 1.05]));
+        assert_eq!((early.collision_step, late.collision_step), (Some(1), Some(4)));
+        assert!(late.log_p > early.log_p, "the counted log p alone must prefer the later crash");
+        let mode = prior.mode_step_log_pdf();
+        approx::assert_relative_eq!(
+            early.completed_log_p(mode),
+            prior.log_likelihood(&early.disturbances),
+            max_relative = 1e-12
+        );
+        assert!(std::ptr::eq(most_likely_failure([&late, &early], &prior).unwrap(), &early));
     }
 }

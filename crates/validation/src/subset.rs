@@ -305,7 +305,7 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
                 effective_failures: count as f64 / (1.0 + gamma),
             };
             return Ok(SubsetResult {
-                most_likely_failure: most_likely_failure(&records).cloned(),
+                most_likely_failure: most_likely_failure(&records, prior).cloned(),
                 records,
                 thresholds,
                 acceptance,

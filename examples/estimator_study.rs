@@ -194,8 +194,8 @@ fn main() -> anyhow::Result<()> {
                     let rollout_mean = per_rollout.iter().sum::<f64>() / m;
                     let sd = (per_rollout.iter().map(|x| (x - rollout_mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
                     println!(
-                        "{}-sim, {}: {crashed}/{n} collided; {} images, {:.2} renders each, {} refused ({:.2} %), {} \
-                         relocalisations; mean NEES {:.1} (median {:.1}), over rollouts {:.1} [{:.1}, {:.1}] (n {}); \
+                        "{}-sim, {}: {crashed}/{n} collided; {} images, {:.2} renders each, {} refused ({:.2} %; by the \
+                         gate {}, lost fits {}), {} relocalisations; mean NEES {:.1} (median {:.1}), over rollouts {:.1} [{:.1}, {:.1}] (n {}); \
                          mean error {:.1} mm / {:.2}°; {:.1} s",
                         kind.name(),
                         estimator.name(),
@@ -203,6 +203,8 @@ fn main() -> anyhow::Result<()> {
                         updates.iter().map(|u| u.renders).sum::<usize>() as f64 / images,
                         updates.iter().filter(|u| !u.accepted).count(),
                         100.0 * updates.iter().filter(|u| !u.accepted).count() as f64 / images,
+                        updates.iter().filter(|u| !u.accepted && !u.lost).count(),
+                        updates.iter().filter(|u| u.lost).count(),
                         updates.iter().filter(|u| u.relocalised).count(),
                         mean_nees,
                         median_nees,

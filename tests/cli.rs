@@ -347,6 +347,18 @@ fn assert_online_stage(run: &std::path::Path, online: &serde_json::Value) {
             m["views"].as_u64().unwrap() > 0 && m["milliseconds_per_view"].as_f64().is_some_and(|t| t > 0.0),
             "{m}"
         );
+        // Both CEMs' populations (8 rollouts each) are replayed in GT-sim.
+        let t = &m["transfer"];
+        for key in ["without_reward", "with_reward"] {
+            let total: u64 = ["true_positive", "false_positive", "false_negative", "true_negative"]
+                .iter()
+                .map(|c| t[key][c].as_u64().unwrap_or_else(|| panic!("transfer.{key}.{c}: {t}")))
+                .sum();
+            assert_eq!(total, 8, "{t}");
+        }
+        let method = m["method"].as_str().unwrap();
+        let replays = std::fs::read_to_string(run.join(format!("online/{method}/reward/replay_gt.csv"))).unwrap();
+        assert!(replays.lines().count() > 8, "{method}: the rewarded CEM's replays are written");
     }
     let table = std::fs::read_to_string(run.join("online/table.csv")).unwrap();
     assert!(table.starts_with("method,mode,reward,sampler,rollouts,collision_rate"), "{table}");

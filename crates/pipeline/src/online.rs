@@ -14,6 +14,9 @@
 //!   second flight of the same rollouts.
 //! - The per-step uncertainty of `plain/` against the stress stage's GT-sim replay of the same
 //!   rollouts: the AUROC of a disagreeing step (and trajectory).
+//! - The CEM ranked by the reward is replayed in GT-sim (`reward/replay_gt.csv`): its
+//!   failures' precision there beside the stress stage's CEM's (no reward), each with its Wilson
+//!   interval: whether the failures the reward leads to transfer.
 //! - The CEM ranked by the reward ends with an importance-sampling batch (`[online]
 //!   is_samples`, default 1); the study reports no failure probability (the stress stage
 //!   estimates it), so its rows are CEM's populations only, as the paper's tables. The batch's
@@ -29,8 +32,8 @@ use nerfsv_sim::WorldKind;
 use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
-    disagreement_auroc, read_csv_file, table_row, DisagreementAuroc, RolloutRecord, TableRow, ValidationConfig,
-    SAMPLER_CEM, SAMPLER_MC,
+    compare, disagreement_auroc, read_csv_file, table_row, Confusion, DisagreementAuroc, RolloutRecord, TableRow,
+    ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
 };
 use serde::{Deserialize, Serialize};
 
@@ -76,6 +79,22 @@ pub struct MethodStudy {
     /// bootstrap over rollouts.
     #[serde(default)]
     pub per_sampler: Vec<StepAurocFigures>,
+    /// CEM's populations replayed in GT-sim, without and with the reward.
+    #[serde(default)]
+    pub transfer: Option<RewardTransfer>,
+}
+
+/// Whether the failures a search finds in NeRF-sim also crash the drone in GT-sim, for CEM's
+/// populations (the importance batch left out) ranked without and with the method's reward: the
+/// NeRF-sim/GT-sim confusion of each, whose precision is the share of NeRF-sim failures that
+/// transfer. The two searches fly different rollouts (after the shared first population), so
+/// the comparison is unpaired: a paired one needs several seeds (BENCHMARKS.md).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RewardTransfer {
+    /// The stress stage's CEM, ranked by score.
+    pub without_reward: Confusion,
+    /// The CEM ranked by the reward.
+    pub with_reward: Confusion,
 }
 
 /// What the online stage reports.
@@ -117,6 +136,17 @@ impl OnlineFigures {
                     r.avg_log_likelihood,
                     opt(r.avg_uncertainty, 4),
                     opt(r.avg_reward, 2),
+                ));
+            }
+            if let Some(t) = &m.transfer {
+                let precision = |c: &Confusion| {
+                    let found = c.true_positive + c.false_positive;
+                    format!("{}/{found} ({})", c.true_positive, opt(c.precision(), 2))
+                };
+                s.push_str(&format!(
+                    "\n      CEM's NeRF-sim failures that crash in GT-sim too: {} without reward, {} with",
+                    precision(&t.without_reward),
+                    precision(&t.with_reward)
                 ));
             }
             s.push_str("\n    ");
@@ -179,11 +209,23 @@ impl Stage for OnlineStage<'_> {
         let stress_dir = cx.input_dir(nerfsv_study::stress::STAGE);
         let replays = read_records(&stress_dir.join(replay_csv(WorldKind::Gt)))?;
         let stress_records = read_records(&stress_dir.join(ROLLOUTS_CSV))?;
+        // The stress stage's replays follow its searched rollouts (every sampler's but the
+        // importance batch's and subset simulation's) one for one.
+        let (cem, cem_replays): (Vec<RolloutRecord>, Vec<RolloutRecord>) = stress_records
+            .iter()
+            .filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET)
+            .zip(&replays)
+            .filter(|(r, _)| r.sampler == SAMPLER_CEM)
+            .map(|(r, g)| (r.clone(), g.clone()))
+            .unzip();
+        let cem_confusion = compare(&cem, &cem_replays).map_err(PipelineError::Internal)?.trajectories;
         let mut studies = Vec::new();
         for &method in &self.online.methods {
             let dir = cx.dir.join(method.name());
             let setup = |samplers: &'static [Sampler], reward: bool| StressSetup {
-                replay: false,
+                // The rewarded CEM's failures are replayed in GT-sim; the plain rollouts were
+                // replayed by the stress stage.
+                replay: reward,
                 online: Some(OnlineSettings { method, mode: UqMode::Exact, reward }),
                 stage: Self::NAME,
                 reports_p_fail: false,
@@ -236,6 +278,11 @@ impl Stage for OnlineStage<'_> {
                     rows.push(OnlineRow { method, reward, row });
                 }
             }
+            let transfer = rewarded
+                .samplers
+                .first()
+                .and_then(|f| f.confusion.as_ref())
+                .map(|c| RewardTransfer { without_reward: cem_confusion, with_reward: c.trajectories });
             let views = plain_views + rewarded.uncertainty_views;
             let seconds = plain_seconds + rewarded.uncertainty_seconds;
             studies.push(MethodStudy {
@@ -250,6 +297,7 @@ impl Stage for OnlineStage<'_> {
                         StepAurocFigures::of(sampler, s.sim.nerf_world, &plain_records, &replays, validation.seed)
                     })
                     .collect(),
+                transfer,
             });
         }
         let figures = OnlineFigures {

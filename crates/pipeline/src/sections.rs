@@ -823,6 +823,25 @@ impl Report for OnlineStage<'_> {
                 d.disagreeing_trajectories,
                 d.trajectories,
             ));
+            if let Some(t) = &m.transfer {
+                let precision = |c: &nerfsv_validation::Confusion| {
+                    format!(
+                        "{} ({} of {} NeRF-sim failures)",
+                        proportion(c.true_positive, c.true_positive + c.false_positive),
+                        c.true_positive,
+                        c.true_positive + c.false_positive
+                    )
+                };
+                s.paragraph(format!(
+                    "CEM's populations replayed in GT-sim: the share of its NeRF-sim failures that crash there too                      (precision, Wilson 95 %) is {} without the reward (the stress stage's CEM) and {} with it;                      GT-sim failures among the replays: {} and {} of {} and {}. Different rollouts after the shared                      first population: unpaired.",
+                    precision(&t.without_reward),
+                    precision(&t.with_reward),
+                    t.without_reward.true_positive + t.without_reward.false_negative,
+                    t.with_reward.true_positive + t.with_reward.false_negative,
+                    t.without_reward.total(),
+                    t.with_reward.total(),
+                ));
+            }
             s.table(
                 Table::new(&[
                     "sampler",

@@ -833,7 +833,10 @@ impl Report for OnlineStage<'_> {
                     )
                 };
                 s.paragraph(format!(
-                    "CEM's populations replayed in GT-sim: the share of its NeRF-sim failures that crash there too                      (precision, Wilson 95 %) is {} without the reward (the stress stage's CEM) and {} with it;                      GT-sim failures among the replays: {} and {} of {} and {}. Different rollouts after the shared                      first population: unpaired.",
+                    "CEM's populations replayed in GT-sim: the share of its NeRF-sim failures that crash there too \
+                     (precision, Wilson 95 %) is {} without the reward (the stress stage's CEM) and {} with it; \
+                     GT-sim failures among the replays: {} and {} of {} and {}. Different rollouts after the shared \
+                     first population: unpaired.",
                     precision(&t.without_reward),
                     precision(&t.with_reward),
                     t.without_reward.true_positive + t.without_reward.false_negative,

@@ -33,7 +33,7 @@ use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
     compare, disagreement_auroc, read_csv_file, table_row, Confusion, DisagreementAuroc, RolloutRecord, TableRow,
-    ValidationConfig, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    ValidationConfig, SAMPLER_CEM, SAMPLER_MC,
 };
 use serde::{Deserialize, Serialize};
 
@@ -44,7 +44,7 @@ use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::stress::StressStage;
 use crate::PipelineError;
 use nerfsv_study::stress::{
-    measure_recorded, replay_csv, stress, write_table as write_stress_table, Flown, OnlineSettings, Sampler,
+    measure_recorded, replay_csv, searched, stress, write_table as write_stress_table, Flown, OnlineSettings, Sampler,
     StepAurocFigures, StressSetup, ROLLOUTS_CSV, TABLE_CSV,
 };
 
@@ -139,10 +139,8 @@ impl OnlineFigures {
                 ));
             }
             if let Some(t) = &m.transfer {
-                let precision = |c: &Confusion| {
-                    let found = c.true_positive + c.false_positive;
-                    format!("{}/{found} ({})", c.true_positive, opt(c.precision(), 2))
-                };
+                let precision =
+                    |c: &Confusion| format!("{}/{} ({})", c.true_positive, c.nerf_failures(), opt(c.precision(), 2));
                 s.push_str(&format!(
                     "\n      CEM's NeRF-sim failures that crash in GT-sim too: {} without reward, {} with",
                     precision(&t.without_reward),
@@ -209,11 +207,8 @@ impl Stage for OnlineStage<'_> {
         let stress_dir = cx.input_dir(nerfsv_study::stress::STAGE);
         let replays = read_records(&stress_dir.join(replay_csv(WorldKind::Gt)))?;
         let stress_records = read_records(&stress_dir.join(ROLLOUTS_CSV))?;
-        // The stress stage's replays follow its searched rollouts (every sampler's but the
-        // importance batch's and subset simulation's) one for one.
-        let (cem, cem_replays): (Vec<RolloutRecord>, Vec<RolloutRecord>) = stress_records
-            .iter()
-            .filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET)
+        // The stress stage's replays follow its searched rollouts one for one.
+        let (cem, cem_replays): (Vec<RolloutRecord>, Vec<RolloutRecord>) = searched(&stress_records)
             .zip(&replays)
             .filter(|(r, _)| r.sampler == SAMPLER_CEM)
             .map(|(r, g)| (r.clone(), g.clone()))

@@ -554,10 +554,10 @@ fn stress_answer(s: &mut Section, f: &StressFigures) {
                  GT-sim with the same disturbances; {tp} crashed in both (precision {}, recall {}, Wilson 95 % \
                  intervals), {fp} only in NeRF-sim, {fneg} only in GT-sim, {tn} in neither (accuracy {} against {} for \
                  always predicting GT-sim's commoner outcome).",
-                tp + fp,
-                tp + fneg,
-                proportion(tp, tp + fp),
-                proportion(tp, tp + fneg),
+                t.nerf_failures(),
+                t.gt_failures(),
+                proportion(tp, t.nerf_failures()),
+                proportion(tp, t.gt_failures()),
                 proportion(tp + tn, t.total()),
                 num(t.majority_accuracy(), 2),
             ),
@@ -727,8 +727,8 @@ impl Report for StressStage<'_> {
                     t.true_negative.to_string(),
                     proportion(t.true_positive + t.true_negative, t.total()),
                     num(t.majority_accuracy(), 2),
-                    proportion(t.true_positive, t.true_positive + t.false_positive),
-                    proportion(t.true_positive, t.true_positive + t.false_negative),
+                    proportion(t.true_positive, t.nerf_failures()),
+                    proportion(t.true_positive, t.gt_failures()),
                     num(nerfsv_validation::matthews(t), 2),
                     format!("{} / {} / {}", num(d.median, 4), num(d.p90, 4), num(d.max, 4)),
                 ])
@@ -827,9 +827,9 @@ impl Report for OnlineStage<'_> {
                 let precision = |c: &nerfsv_validation::Confusion| {
                     format!(
                         "{} ({} of {} NeRF-sim failures)",
-                        proportion(c.true_positive, c.true_positive + c.false_positive),
+                        proportion(c.true_positive, c.nerf_failures()),
                         c.true_positive,
-                        c.true_positive + c.false_positive
+                        c.nerf_failures()
                     )
                 };
                 s.paragraph(format!(
@@ -839,8 +839,8 @@ impl Report for OnlineStage<'_> {
                      first population: unpaired.",
                     precision(&t.without_reward),
                     precision(&t.with_reward),
-                    t.without_reward.true_positive + t.without_reward.false_negative,
-                    t.with_reward.true_positive + t.with_reward.false_negative,
+                    t.without_reward.gt_failures(),
+                    t.with_reward.gt_failures(),
                     t.without_reward.total(),
                     t.with_reward.total(),
                 ));

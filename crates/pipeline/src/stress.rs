@@ -9,15 +9,13 @@ use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, WorldKind};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
-    journal_dir, measure_at_poses, replay_csv, stress, Drone, OnlineSettings, Sampler, StepAurocFigures, StressFigures,
-    StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, STRESS_JSON, TABLE_CSV,
+    journal_dir, measure_at_poses, replay_csv, searched, stress, Drone, OnlineSettings, Sampler, StepAurocFigures,
+    StressFigures, StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, STRESS_JSON, TABLE_CSV,
 };
 use nerfsv_study::UqMode;
 use nerfsv_study::{online_pixels, EnsembleUncertainty};
 use nerfsv_uq::{model_id, UncertaintyField, UqConfig};
-use nerfsv_validation::{
-    read_csv_file, Journal, Prior, RolloutRecord, ValidationConfig, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
-};
+use nerfsv_validation::{read_csv_file, Journal, Prior, RolloutRecord, ValidationConfig, SAMPLER_MC};
 use serde::Serialize;
 
 use crate::ensemble::EnsembleStage;
@@ -196,11 +194,10 @@ impl StressStage<'_> {
             pixels: online_pixels(&intrinsics, &UqConfig::default()),
             background: self.sim.background,
         };
-        let searched: Vec<RolloutRecord> =
-            records.iter().filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET).cloned().collect();
-        let (measured, _, _) = measure_at_poses(searched, intrinsics, &meter, &|d, total, status| {
-            cx.progress(d, total, &format!("ensemble uncertainty: {status}"))
-        })?;
+        let (measured, _, _) =
+            measure_at_poses(searched(records).cloned().collect(), intrinsics, &meter, &|d, total, status| {
+                cx.progress(d, total, &format!("ensemble uncertainty: {status}"))
+            })?;
         let path = cx.dir.join(Self::STEP_UNCERTAINTY_CSV);
         nerfsv_validation::write_csv_file(&path, &measured).map_err(|e| PipelineError::io(&path, e))?;
         Ok([Sampler::Mc, Sampler::Cem]

@@ -120,9 +120,9 @@ pub struct VisionConfig {
     /// place the drone (the search sits in a basin far from the truth): the image is refused
     /// like one the gate refuses, and counts towards relocalising. Its weight `1/vf` would make it
     /// a near-empty measurement that passes any gate and keeps a lost filter from relocalising.
-    /// Default 5: on the default scene's NeRF-sim flights the factor of a fit on track is ≈ 0, on
-    /// GT-sim's at most ≈ 2.4 at its 90th percentile, and a search started 30 cm / 10° away ends
-    /// above 9 in nine of ten images. `f64::INFINITY`: never.
+    /// Default 5: on the default scene's flights an accepted fit's factor is ≈ 0 in NeRF-sim and
+    /// 2.9 at GT-sim's 90th percentile (4.2 at its 99th), while fits from a search started
+    /// 30 cm / 10° away end above 6.6 in nine of ten refusals. `f64::INFINITY`: never.
     pub lost_variance_factor: f64,
     /// `[metres, degrees]` per unit of the fit's colour RMSE: the standard deviation per axis of
     /// the error of the image's optimum itself (the filter's model error, added to the fit's

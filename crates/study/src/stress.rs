@@ -557,7 +557,7 @@ pub fn replay_csv(world: WorldKind) -> String {
 /// The searches' own rollouts, in order: not the importance batch nor subset simulation's
 /// chains, which estimate a probability (the paper's confusion matrices are over MC's and CEM's
 /// own rollouts).
-fn searched(records: &[RolloutRecord]) -> impl Iterator<Item = &RolloutRecord> {
+pub fn searched(records: &[RolloutRecord]) -> impl Iterator<Item = &RolloutRecord> {
     records.iter().filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET)
 }
 

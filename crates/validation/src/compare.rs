@@ -30,6 +30,16 @@ impl Confusion {
         }
     }
 
+    /// Pairs that failed in NeRF-sim (the prediction): TP + FP.
+    pub fn nerf_failures(&self) -> usize {
+        self.true_positive + self.false_positive
+    }
+
+    /// Pairs that failed in GT-sim (the truth): TP + FN.
+    pub fn gt_failures(&self) -> usize {
+        self.true_positive + self.false_negative
+    }
+
     /// Pairs counted.
     pub fn total(&self) -> usize {
         self.true_positive + self.false_positive + self.false_negative + self.true_negative
@@ -43,18 +53,18 @@ impl Confusion {
     /// The accuracy of always predicting the truth's commoner outcome, the baseline
     /// [`Confusion::accuracy`] is read against; `None` when empty.
     pub fn majority_accuracy(&self) -> Option<f64> {
-        let positives = self.true_positive + self.false_negative;
+        let positives = self.gt_failures();
         ratio(positives.max(self.total() - positives), self.total())
     }
 
     /// TP / (TP + FP): the share of NeRF-sim's failures that are real; `None` without any.
     pub fn precision(&self) -> Option<f64> {
-        ratio(self.true_positive, self.true_positive + self.false_positive)
+        ratio(self.true_positive, self.nerf_failures())
     }
 
     /// TP / (TP + FN): the share of real failures NeRF-sim finds; `None` without any.
     pub fn recall(&self) -> Option<f64> {
-        ratio(self.true_positive, self.true_positive + self.false_negative)
+        ratio(self.true_positive, self.gt_failures())
     }
 }
 

@@ -79,15 +79,14 @@ impl Transfer {
                 Estimate { value: k as f64 / m as f64, ci95: [lo, hi] }
             })
         };
-        let gt_failures = c.true_positive + c.false_negative;
         Self {
             n,
-            nerf: Rate::new(c.true_positive + c.false_positive, n),
-            gt: Rate::new(gt_failures, n),
+            nerf: Rate::new(c.nerf_failures(), n),
+            gt: Rate::new(c.gt_failures(), n),
             confusion,
             mcnemar_p: mcnemar_exact(c.false_positive, c.false_negative),
-            precision: with_wilson(c.true_positive, c.true_positive + c.false_positive),
-            recall: with_wilson(c.true_positive, gt_failures),
+            precision: with_wilson(c.true_positive, c.nerf_failures()),
+            recall: with_wilson(c.true_positive, c.gt_failures()),
             mcc: matthews(c).map(|value| Estimate { value, ci95: bootstrap_mcc(nerf, gt, seed) }),
             accuracy: with_wilson(c.true_positive + c.true_negative, n),
             majority_accuracy: c.majority_accuracy(),

@@ -3,6 +3,7 @@
 //! The binary only parses arguments, reads configuration and calls the stage crates.
 
 mod commands;
+mod config_file;
 mod progress;
 
 use std::process::ExitCode;

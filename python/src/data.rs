@@ -9,7 +9,7 @@ use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::model::f32_array;
+use crate::inputs::{f32_array, io_at};
 use crate::{py_err, value_error};
 
 /// A split of a Blender-format dataset: `images` `[n, h, w, 4]` float32 RGBA in `[0, 1]`,
@@ -90,9 +90,4 @@ fn view(w: usize, h: usize, rgb: Vec<f32>, depth: Vec<f32>, opacity: Vec<f32>) -
         return Err(value_error(format!("an image of {w}×{h} pixels is too large")));
     };
     Ok(RenderedView { width, height, rgb, distance: depth.clone(), depth, opacity, samples: 0 })
-}
-
-/// An I/O error naming its file.
-pub(crate) fn io_at(path: &std::path::Path, e: std::io::Error) -> std::io::Error {
-    std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))
 }

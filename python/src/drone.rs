@@ -29,16 +29,8 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
-use crate::model::run_config;
+use crate::inputs::{io_at, run_config, scene_of};
 use crate::{py_err, to_json, value_error};
-
-/// The ground truth: a built-in scene by name, or a mesh file (metres, z up).
-pub(crate) fn scene_of(name: &str, mesh: Option<&Path>) -> PyResult<Scene> {
-    match mesh {
-        Some(path) => Scene::load_mesh(path, MeshOptions::default()).map(|(s, _)| s).map_err(py_err),
-        None => Scene::builtin(name).map_err(py_err),
-    }
-}
 
 /// The drone's input files exist (else `FileNotFoundError` naming the argument).
 fn inputs_exist(model: &Path, nerf_field: Option<&Path>, mesh: Option<&Path>) -> PyResult<()> {
@@ -294,11 +286,8 @@ pub fn stress_context<'py>(
     // Checked here as the driver checks it, so that a bad config fails before anything ships.
     inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
     config_with_seed(config.as_deref(), seed)?;
-    let read = |p: &Path| std::fs::read(p).map_err(|e| py_err(crate::data::io_at(p, e)));
-    let text = config
-        .as_deref()
-        .map(|p| std::fs::read_to_string(p).map_err(|e| py_err(crate::data::io_at(p, e))))
-        .transpose()?;
+    let read = |p: &Path| std::fs::read(p).map_err(|e| py_err(io_at(p, e)));
+    let text = config.as_deref().map(|p| std::fs::read_to_string(p).map_err(|e| py_err(io_at(p, e)))).transpose()?;
     let blobs = [
         read(&model)?,
         nerf_field.as_deref().map(read).transpose()?.unwrap_or_default(),

@@ -10,6 +10,7 @@ use pyo3::prelude::*;
 
 mod data;
 mod drone;
+mod inputs;
 mod model;
 
 /// An error of the Rust side as a Python exception: `OSError` when the chain holds an I/O

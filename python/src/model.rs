@@ -1,7 +1,7 @@
 //! A trained NeRF from Python: training, rendering, density, its uncertainty for an image, and
 //! the collision fields on a ground truth's grid.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use nalgebra::{Matrix4, Point3};
@@ -15,11 +15,11 @@ use nerfsv_scene::{Camera, Image, Intrinsics};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_uq::offline::{fit_frame, Fit};
 use nerfsv_uq::Method;
-use numpy::{PyArray1, PyArray2, PyArray3, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::drone::scene_of;
+use crate::inputs::{f32_array, scene_of};
 use crate::{must_exist, py_err, to_json, value_error};
 
 /// A trained NeRF and the checkpoint it was read from.
@@ -185,26 +185,6 @@ impl Model {
         let inputs =
             py.detach(move || FlightInputs::from_files(&path, None, &world, cells_per_metre)).map_err(py_err)?;
         field_dict(py, inputs.nerf_field)
-    }
-}
-
-/// `a` as a C-ordered float32 array (numpy converts lists and other dtypes): its shape and
-/// values; what numpy cannot convert is a `ValueError` naming the argument.
-pub(crate) fn f32_array(a: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<usize>, Vec<f32>)> {
-    let np = a.py().import("numpy")?;
-    let arr = np
-        .call_method1("ascontiguousarray", (a, "float32"))
-        .and_then(|x| x.cast_into::<PyArrayDyn<f32>>().map_err(PyErr::from))
-        .map_err(|e| value_error(format!("{name}: not an array of numbers ({e})")))?;
-    let ro = arr.readonly();
-    Ok((ro.shape().to_vec(), ro.as_slice()?.to_vec()))
-}
-
-/// The run config at `path` over the default of a study of one model, or that default.
-pub(crate) fn run_config(path: Option<&Path>) -> PyResult<RunConfig> {
-    match path {
-        Some(p) => RunConfig::load_one_model(p).map_err(py_err),
-        None => Ok(RunConfig::one_model()),
     }
 }
 

@@ -2,7 +2,7 @@
 //! train, val and test splits, with its CSV and figures; `nerfsv uq ause`: how well a method's
 //! per-pixel depth uncertainty ranks the NeRF's true depth errors.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -14,9 +14,9 @@ use nerfsv_scene::validate::in_range;
 use nerfsv_uq::offline::{
     ause_frames, csv, figure_files, has_split, offline_split, write_files, ImageAuse, Method, OfflineSummary, SPLITS,
 };
-use nerfsv_uq::UqConfig;
 use serde::Serialize;
 
+use crate::config_file::load_uq_config;
 use crate::progress::Reporter;
 
 #[derive(Args)]
@@ -193,15 +193,6 @@ fn ause(args: AuseArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-/// The uq settings of `--config` (top-level keys), validated, naming the file and the key.
-pub(crate) fn load_uq_config(path: Option<&Path>) -> anyhow::Result<UqConfig> {
-    let Some(path) = path else { return Ok(UqConfig::default()) };
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let cfg: UqConfig = toml::from_str(&text).with_context(|| format!("{}: not a uq config", path.display()))?;
-    cfg.validate().map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(cfg)
 }
 
 fn offline(args: OfflineArgs) -> anyhow::Result<()> {

@@ -14,7 +14,7 @@ use nerfsv_uq::offline::{build_field, has_split, save_field_with_slice, Method, 
 use nerfsv_uq::UncertaintyField;
 use serde::Serialize;
 
-use crate::commands::uq::load_uq_config;
+use crate::config_file::load_uq_config;
 use crate::progress::Reporter;
 
 #[derive(Args)]

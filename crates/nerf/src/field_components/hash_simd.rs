@@ -7,12 +7,12 @@
 //! gathers. Every floating-point operation is the scalar code's, in its order and without
 //! contraction (a multiply and an add stay two roundings), so the results are the scalar
 //! functions' bit for bit; the tests in `hash_encoding.rs` check that at every width the host
-//! has, on every level kind, on the edge cases of [`super::hash_encoding::corners_frac`] and on
+//! has, on every level kind, on the edge cases of [`super::hash_level::corners_frac`] and on
 //! batches whose length is not a multiple of the lanes.
 
 use crate::simd::{Lanes, MAX_LANES};
 
-use super::hash_encoding::Level;
+use super::hash_level::Level;
 
 /// A vector of points' box coordinates, one vector per axis; lanes past `n` repeat 0.5 (a point
 /// inside every level's grid, so its gathers stay inside the table) and are never stored.
@@ -32,7 +32,7 @@ pub(crate) unsafe fn load_points<L: Lanes>(pos: &[f32], i0: usize, n: usize) -> 
 
 /// One level's cells of a vector of points: the eight corner rows (absolute, with the level's
 /// offset; corner `c` is `+ (c & 1, c >> 1 & 1, c >> 2 & 1)`) and the fractions per axis, as
-/// [`super::hash_encoding::corners_frac`] computes them lane by lane. A hashed level's size must
+/// [`super::hash_level::corners_frac`] computes them lane by lane. A hashed level's size must
 /// be a power of two (its modulo is a mask here; the callers check).
 #[inline(always)]
 pub(crate) unsafe fn cells<L: Lanes>(lv: &Level, x: &[L::F; 3]) -> ([L::I; 8], [L::F; 3]) {

@@ -11,7 +11,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::TriangleMesh;
+use super::triangle::TriangleMesh;
 use crate::{Aabb, Ray};
 
 /// Triangles per leaf at most.

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix4, Point3};
 
-use super::{MeshError, TriangleMesh, DEFAULT_COLOUR};
+use super::triangle::{MeshError, TriangleMesh, DEFAULT_COLOUR};
 use crate::image::Image;
 
 /// Which axis of the file points up.

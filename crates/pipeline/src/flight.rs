@@ -6,7 +6,7 @@ use std::path::Path;
 
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, SimConfig, WorldKind};
-use nerfsv_study::flight::{fly_and_write, world, FlightFigures, FlightInputs};
+use nerfsv_study::flight::{fly_and_write, world, Drone, FlightFigures, FlightInputs, Sortie};
 use serde::{Deserialize, Serialize};
 
 use crate::stage::{Stage, StageContext};
@@ -119,6 +119,14 @@ impl Stage for FlightStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<FlightStageFigures, PipelineError> {
         let inputs = flight_inputs(cx.root, self.scene.is_some())?;
         let flight = inputs.plan(self.sim)?;
+        let drone = Drone {
+            inputs: &inputs,
+            flight: &flight,
+            scene: self.scene,
+            sim: self.sim,
+            intrinsics: self.intrinsics,
+            render: self.render,
+        };
         let mut flights = Vec::new();
         let runs = self.flights();
         for (i, &(kind, estimator)) in runs.iter().enumerate() {
@@ -128,15 +136,10 @@ impl Stage for FlightStage<'_> {
                 &format!("flying {}-sim with the {} estimator", kind.name(), estimator.name()),
             );
             let w = world(kind, &inputs, self.scene, self.render)?;
+            let sortie = Sortie { world: w.as_ref(), estimator, disturbances: &[], seed: self.seed };
             let (f, _) = fly_and_write(
-                &flight,
-                self.sim,
-                &inputs.nerf,
-                self.intrinsics,
-                w.as_ref(),
-                estimator,
-                &[],
-                self.seed,
+                &drone,
+                &sortie,
                 &cx.dir.join(Self::output(kind, estimator, "csv")),
                 &cx.dir.join(Self::output(kind, estimator, "png")),
             )?;

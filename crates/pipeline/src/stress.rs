@@ -6,10 +6,10 @@ use std::path::Path;
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, WorldKind};
-use nerfsv_study::flight::FlightInputs;
+use nerfsv_study::flight::{Drone, FlightInputs};
 use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
-    journal_dir, measure_at_poses, replay_csv, searched, stress, Drone, OnlineSettings, Sampler, StepAurocFigures,
+    journal_dir, measure_at_poses, replay_csv, searched, stress, OnlineSettings, Sampler, StepAurocFigures,
     StressFigures, StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, STRESS_JSON, TABLE_CSV,
 };
 use nerfsv_study::UqMode;

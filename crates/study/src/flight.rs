@@ -182,22 +182,34 @@ pub fn estimate_figures(world: WorldKind, r: &Rollout) -> [ScatterFigure; 2] {
     [figure("position", "mm", position), figure("attitude", "°", attitude)]
 }
 
+/// The drone flying its planned path, and the worlds it can fly in: what every search over its
+/// disturbances shares.
+#[derive(Clone, Copy)]
+pub struct Drone<'a> {
+    pub inputs: &'a FlightInputs,
+    pub flight: &'a Flight,
+    /// The ground truth GT-sim renders; none for a world known only by a dataset.
+    pub scene: Option<&'a Scene>,
+    pub sim: &'a SimConfig,
+    pub intrinsics: Intrinsics,
+    pub render: RenderSettings,
+}
+
+/// One rollout of a [`Drone`]: the world it flies in, its estimator, disturbances and seed.
+#[derive(Clone, Copy)]
+pub struct Sortie<'a> {
+    pub world: &'a dyn World,
+    pub estimator: EstimatorKind,
+    pub disturbances: &'a [Disturbance],
+    pub seed: u64,
+}
+
 /// Flies one rollout and times it: its figures and the rollout.
-#[allow(clippy::too_many_arguments)]
-fn fly_timed(
-    flight: &Flight,
-    cfg: &SimConfig,
-    nerf: &Nerf,
-    intrinsics: Intrinsics,
-    world: &dyn World,
-    estimator: EstimatorKind,
-    disturbances: &[Disturbance],
-    seed: u64,
-) -> (FlightFigures, Rollout) {
-    let sim = flight.simulator(cfg, nerf, intrinsics);
+fn fly_timed(drone: &Drone, sortie: &Sortie) -> (FlightFigures, Rollout) {
+    let sim = drone.flight.simulator(drone.sim, &drone.inputs.nerf, drone.intrinsics);
     let start = Instant::now();
-    let rollout = sim.fly(world, estimator, disturbances, seed);
-    (FlightFigures::new(world.kind(), estimator, &rollout, start.elapsed().as_secs_f64()), rollout)
+    let rollout = sim.fly(sortie.world, sortie.estimator, sortie.disturbances, sortie.seed);
+    (FlightFigures::new(sortie.world.kind(), sortie.estimator, &rollout, start.elapsed().as_secs_f64()), rollout)
 }
 
 /// One flight to plan and fly: what it is planned and flown on, the world it is flown in, its
@@ -221,37 +233,45 @@ impl FlightRequest<'_> {
     fn planned(&self) -> Result<(Flight, Box<dyn World + '_>), StudyError> {
         Ok((self.inputs.plan(self.sim)?, world(self.kind, self.inputs, self.scene, self.render)?))
     }
+
+    /// The drone of this request flying `flight`, and its rollout in `world`.
+    fn drone<'b>(&'b self, flight: &'b Flight, world: &'b dyn World) -> (Drone<'b>, Sortie<'b>) {
+        let drone = Drone {
+            inputs: self.inputs,
+            flight,
+            scene: self.scene,
+            sim: self.sim,
+            intrinsics: self.intrinsics,
+            render: self.render,
+        };
+        (drone, Sortie { world, estimator: self.estimator, disturbances: self.disturbances, seed: self.seed })
+    }
 }
 
 /// One flight planned and flown, without writing anything: its figures (those of
 /// `flight.json`) and the rollout (every substep).
 pub fn fly(req: &FlightRequest) -> Result<(FlightFigures, Rollout), StudyError> {
     let (flight, w) = req.planned()?;
-    let (nerf, sim) = (&req.inputs.nerf, req.sim);
-    Ok(fly_timed(&flight, sim, nerf, req.intrinsics, w.as_ref(), req.estimator, req.disturbances, req.seed))
+    let (drone, sortie) = req.drone(&flight, w.as_ref());
+    Ok(fly_timed(&drone, &sortie))
 }
 
 /// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths; for
 /// the vision estimator also its error figures beside the PNG (`…_position_error.png`,
 /// `…_attitude_error.png`).
-#[allow(clippy::too_many_arguments)]
 pub fn fly_and_write(
-    flight: &Flight,
-    cfg: &SimConfig,
-    nerf: &Nerf,
-    intrinsics: Intrinsics,
-    world: &dyn World,
-    estimator: EstimatorKind,
-    disturbances: &[Disturbance],
-    seed: u64,
+    drone: &Drone,
+    sortie: &Sortie,
     csv_path: &Path,
     png_path: &Path,
 ) -> Result<(FlightFigures, Rollout), StudyError> {
-    let (figures, rollout) = fly_timed(flight, cfg, nerf, intrinsics, world, estimator, disturbances, seed);
+    let (figures, rollout) = fly_timed(drone, sortie);
+    let (world, estimator) = (sortie.world, sortie.estimator);
     let csv = trajectory_csv(&rollout);
     nerfsv_scene::io::atomic_write_bytes(csv_path, csv.as_bytes()).map_err(|e| StudyError::io(csv_path, e))?;
-    let png = nerfsv_plot::trajectory_png(&flight_figure(flight, cfg, world, estimator, &rollout), 1200, 640)
-        .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", png_path.display())))?;
+    let png =
+        nerfsv_plot::trajectory_png(&flight_figure(drone.flight, drone.sim, world, estimator, &rollout), 1200, 640)
+            .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", png_path.display())))?;
     nerfsv_scene::io::atomic_write_bytes(png_path, &png).map_err(|e| StudyError::io(png_path, e))?;
     if estimator == EstimatorKind::Vision {
         let stem = png_path.with_extension("");
@@ -272,18 +292,8 @@ pub fn fly_and_write(
 pub fn fly_into(out: &Path, req: &FlightRequest) -> Result<FlightFigures, StudyError> {
     let (flight, w) = req.planned()?;
     std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
-    let (figures, _) = fly_and_write(
-        &flight,
-        req.sim,
-        &req.inputs.nerf,
-        req.intrinsics,
-        w.as_ref(),
-        req.estimator,
-        req.disturbances,
-        req.seed,
-        &out.join("trajectory.csv"),
-        &out.join("trajectory.png"),
-    )?;
+    let (drone, sortie) = req.drone(&flight, w.as_ref());
+    let (figures, _) = fly_and_write(&drone, &sortie, &out.join("trajectory.csv"), &out.join("trajectory.png"))?;
     let path = out.join("disturbances.csv");
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(req.disturbances).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;

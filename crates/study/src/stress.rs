@@ -13,9 +13,8 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use nerfsv_scene::Camera;
-use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::camera::drone_camera;
-use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, World, WorldKind};
+use nerfsv_sim::{EstimatorKind, NerfWorldSource, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, monte_carlo, replay_all, subset_simulation_reusing, table_row, Agreement, Confusion,
@@ -24,7 +23,7 @@ use nerfsv_validation::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::flight::{drone_world, fly_and_write, world, FlightFigures, FlightInputs};
+use crate::flight::{drone_world, fly_and_write, world, Drone, FlightFigures, Sortie};
 use crate::remote::RemoteRollouts;
 use crate::{
     drone_disturbances, online_pixels, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Observer,
@@ -450,19 +449,6 @@ impl StressFigures {
     }
 }
 
-/// The drone flying its planned path, and the worlds it can fly in: what every search over its
-/// disturbances shares.
-#[derive(Clone, Copy)]
-pub struct Drone<'a> {
-    pub inputs: &'a FlightInputs,
-    pub flight: &'a Flight,
-    /// The ground truth GT-sim renders; none for a world known only by a dataset.
-    pub scene: Option<&'a Scene>,
-    pub sim: &'a SimConfig,
-    pub intrinsics: Intrinsics,
-    pub render: RenderSettings,
-}
-
 /// What a stress run needs. [`StressSetup::new`] is the stress stage's search; a caller
 /// changes what differs with struct update syntax.
 pub struct StressSetup<'a> {
@@ -763,23 +749,11 @@ pub fn stress(
     resume: bool,
     observer: &dyn Observer,
 ) -> Result<(StressFigures, Vec<RolloutRecord>), StudyError> {
-    let progress = |done: u64, total: u64, status: &str| observer.progress(setup.stage, done, total, status);
-    if setup.remote.is_some() && setup.online.is_some() {
-        return Err(StudyError::Internal(
-            "a search whose rollouts fly elsewhere cannot measure their uncertainty: run it in one process".into(),
-        ));
-    }
+    check_setup(setup)?;
     let start = Instant::now();
     let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
     let d = &setup.drone;
     let nerf_world = d.sim.nerf_world;
-    if setup.remote.is_some() && nerf_world == NerfWorldSource::Ensemble {
-        return Err(StudyError::Internal(
-            "rollouts flown elsewhere fly the deployed NeRF only: set sim.nerf_world = \"deployed\" or run in one \
-             process"
-                .into(),
-        ));
-    }
     let search_world = drone_world(setup.world, nerf_world, d.inputs, d.scene, d.render)?;
     let replay_kind = other_world(setup.world);
     // The other world: for the replays, and (as GT-sim) for exact online uncertainty.
@@ -789,16 +763,7 @@ pub fn stress(
     } else {
         None
     };
-    let journal_dir = out.join(JOURNAL);
-    let mut planned: usize = setup.samplers.iter().map(|s| s.rollouts(setup.validation)).sum();
-    // Subset simulation starts from the Monte Carlo rollouts when they fly before it.
-    let at = |s: Sampler| setup.samplers.iter().position(|&x| x == s);
-    if matches!((at(Sampler::Mc), at(Sampler::Subset)), (Some(mc), Some(subset)) if mc < subset) {
-        planned -= setup.validation.monte_carlo.rollouts.min(setup.validation.subset.samples);
-    }
-    let to_replay: usize = setup.samplers.iter().map(|s| s.searched(setup.validation)).sum();
-    let total = (planned + if setup.replay { to_replay } else { 0 }) as u64;
-
+    let (planned, total) = planned_rollouts(setup);
     let journal = Journal::open(&self::journal_dir(out, setup.world), key, resume)?;
     let (search_log, replay_log) = (EstimateLog::default(), EstimateLog::default());
     let mut counting = Counting {
@@ -816,16 +781,8 @@ pub fn stress(
     let gt_world = if setup.world == WorldKind::Gt { Some(search_world.as_ref()) } else { replay_world.as_deref() };
     let meter = view_meter(setup, gt_world, sim.background)?;
     let timed = meter.as_deref().map(|inner| Timed { inner, views: AtomicU64::new(0), nanos: AtomicU64::new(0) });
-    let scorer = setup.online.filter(|o| o.reward).map(|o| {
-        let s = UncertaintyReward::new(o.method, setup.uq);
-        if o.mode == UqMode::Field {
-            s.for_field()
-        } else {
-            s
-        }
-    });
+    let scorer = reward_scorer(setup);
     let score = scorer.map(|s| move |r: &RolloutRecord| s.reward(r));
-    let reward: Option<Reward> = score.as_ref().map(|f| f as Reward);
     let system = DroneSystem {
         sim: &sim,
         world: search_world.as_ref(),
@@ -834,10 +791,10 @@ pub fn stress(
         estimate_log: Some(&search_log),
         remote: setup.remote,
     };
-    let v = setup.validation;
     if resume {
         observer.note(setup.stage, &format!("{} of {planned} rollouts were already flown", journal.len()));
     }
+    let search = Search { setup, system: &system, scorer, reward: score.as_ref().map(|f| f as Reward), observer };
     let mut records = Vec::with_capacity(planned);
     let mut estimates: Vec<Estimate> = Vec::new();
     for &sampler in setup.samplers {
@@ -845,134 +802,19 @@ pub fn stress(
         if let Some(o) = &setup.online {
             counting.status.push_str(&format!(", {}", o.describe()));
         }
-        progress(counting.done.load(Ordering::Relaxed), total, &counting.status);
-        match sampler {
-            Sampler::Mc => {
-                let mut r = monte_carlo(&system, setup.prior, &v.monte_carlo, v.seed, &counting)?;
-                // Monte Carlo never ranks: the reward is only recorded.
-                if let Some(s) = scorer {
-                    r.records.iter_mut().for_each(|rec| rec.reward = Some(s.reward(rec)));
-                }
-                let n = r.records.len() as f64;
-                let se = (r.probability * (1.0 - r.probability) / n).sqrt();
-                estimates.push(Estimate {
-                    p: r.probability,
-                    se,
-                    interval: r.interval,
-                    estimator: "Monte Carlo: failure fraction, Wilson interval".into(),
-                    unnormalised: None,
-                    ess: n,
-                    effective_failures: r.probability * n,
-                });
-                records.extend(r.records);
-            }
-            Sampler::Cem => {
-                let r = cross_entropy(&system, setup.prior, &v.cem, v.seed, reward, &counting)?;
-                let e = r.estimate;
-                if setup.reports_p_fail && e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
-                    observer.note(
-                        setup.stage,
-                        &format!(
-                            "warning: the CEM's P(fail) rests on {:.1} effective failures (of {} in its importance \
-                             batch): read it as an order of magnitude",
-                            e.effective_failures, e.failures
-                        ),
-                    );
-                }
-                estimates.push(Estimate {
-                    p: e.probability,
-                    se: e.standard_error,
-                    interval: e.interval,
-                    estimator: ImportanceEstimate::ESTIMATOR.into(),
-                    unnormalised: Some(e.unnormalised),
-                    ess: e.effective_sample_size,
-                    effective_failures: e.effective_failures,
-                });
-                records.extend(r.records);
-            }
-            Sampler::Subset => {
-                // Monte Carlo's rollouts, flown before in this run, are independent draws from
-                // the prior: the first of level 0.
-                let drawn: Vec<RolloutRecord> = records.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect();
-                let r = subset_simulation_reusing(&system, setup.prior, &v.subset, v.seed, &drawn, &counting)?;
-                let e = r.estimate;
-                if setup.reports_p_fail && e.effective_failures < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
-                    observer.note(
-                        setup.stage,
-                        &format!(
-                            "warning: subset simulation's P(fail) rests on {:.1} effective failures (of {} on its \
-                             last level): read it as an order of magnitude",
-                            e.effective_failures, e.failures
-                        ),
-                    );
-                }
-                estimates.push(Estimate {
-                    p: e.probability,
-                    se: e.standard_error,
-                    interval: e.interval,
-                    estimator: format!(
-                        "{}: {} levels{}, thresholds {:?} m, moves accepted {:?}",
-                        SubsetEstimate::ESTIMATOR,
-                        e.levels,
-                        if e.reused > 0 {
-                            format!(
-                                " (level 0: {} Monte Carlo rollouts and {} more)",
-                                e.reused,
-                                v.subset.samples - e.reused
-                            )
-                        } else {
-                            String::new()
-                        },
-                        r.thresholds.iter().map(|b| (b * 1e4).round() / 1e4).collect::<Vec<_>>(),
-                        r.acceptance.iter().map(|a| (a * 100.0).round() / 100.0).collect::<Vec<_>>()
-                    ),
-                    unnormalised: None,
-                    ess: e.equivalent_rollouts,
-                    effective_failures: e.effective_failures,
-                });
-                records.extend(r.records);
-            }
-        }
+        observer.progress(setup.stage, counting.done.load(Ordering::Relaxed), total, &counting.status);
+        let (estimate, flown) = search.run(sampler, &records, &counting)?;
+        estimates.push(estimate);
+        records.extend(flown);
     }
-
-    let replays = if let (true, Some(replay_world)) = (setup.replay, replay_world.as_deref()) {
-        let replay_journal = Journal::open(&journal_dir.join(format!("replay_{}", replay_kind.name())), key, resume)?;
-        let replaying = Counting {
-            journal: &replay_journal,
-            estimates: &replay_log,
-            done: AtomicU64::new(counting.done.load(Ordering::Relaxed)),
-            fresh: AtomicU64::new(0),
-            total,
-            observer,
-            stage: setup.stage,
-            status: format!("replaying in {}-sim", replay_kind.name()),
-            // Replays fly in the other world: nothing flown before stands for them.
-            flown: None,
-        };
-        progress(replaying.done.load(Ordering::Relaxed), total, &replaying.status);
-        let system = DroneSystem {
-            sim: &sim,
-            world: replay_world,
-            estimator: setup.estimator,
-            uncertainty: None,
-            estimate_log: Some(&replay_log),
-            remote: setup.remote,
-        };
-        let originals: Vec<RolloutRecord> = searched(&records).cloned().collect();
-        let replays = replay_all(&system, &originals, &replaying)?;
-        if resume {
-            observer.note(
-                setup.stage,
-                &format!("{} of {} replays were already flown", replay_journal.len(), originals.len()),
-            );
+    let replays = match (setup.replay, replay_world.as_deref()) {
+        (true, Some(world)) => {
+            let replay = Replay { setup, sim: &sim, world, log: &replay_log, key, resume, total };
+            Some(replay.fly(out, &records, &counting)?)
         }
-        counting.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
-        Some(replays)
-    } else {
-        None
+        _ => None,
     };
 
-    // Outputs.
     let csv = |name: &str, rs: &[RolloutRecord]| -> Result<(), StudyError> {
         let path = out.join(name);
         nerfsv_validation::write_csv_file(&path, rs).map_err(|e| StudyError::io(&path, e))
@@ -981,90 +823,16 @@ pub fn stress(
     if let Some(rs) = &replays {
         csv(&replay_csv(replay_kind), rs)?;
     }
+    let worlds = (search_world.as_ref(), replay_world.as_deref());
     let mut samplers = Vec::new();
     let mut table = Vec::new();
     for (&sampler, estimate) in setup.samplers.iter().zip(estimates) {
-        let rows: Vec<TableRow> = match sampler {
-            Sampler::Mc => vec![table_row(SAMPLER_MC, &records)],
-            Sampler::Cem => vec![table_row(SAMPLER_CEM, &records), table_row(SAMPLER_IS, &records)],
-            Sampler::Subset => vec![table_row(SAMPLER_SUBSET, &records)],
-        }
-        .into_iter()
-        .flatten()
-        .collect();
-        let headline = rows
-            .first()
-            .cloned()
-            .ok_or_else(|| StudyError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
-        // The replays follow the searched records one for one, in order.
-        let confusion = match &replays {
-            Some(rs) if sampler.searched(v) > 0 => {
-                let (ours, theirs): (Vec<RolloutRecord>, Vec<RolloutRecord>) = searched(&records)
-                    .zip(rs)
-                    .filter(|(r, _)| sampler.owns(r))
-                    .map(|(r, g)| (r.clone(), g.clone()))
-                    .unzip();
-                let (nerf, gt) = if setup.world == WorldKind::Nerf { (&ours, &theirs) } else { (&theirs, &ours) };
-                Some(ConfusionFigures::new(&compare(nerf, gt).map_err(StudyError::Internal)?))
-            }
-            _ => None,
-        };
-        let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)), setup.prior);
-        let most_likely_failure = match mlf {
-            Some(f) => {
-                let replayed = write_failure(setup, out, sampler, f, search_world.as_ref(), replay_world.as_deref())?;
-                Some(FailureFigures {
-                    sampler: f.sampler.clone(),
-                    population: f.population,
-                    index: f.index,
-                    seed: f.seed,
-                    log_likelihood: f.completed_log_p(setup.prior.mode_step_log_pdf()),
-                    collision_step: f.collision_step.map(|s| s + 1),
-                    min_clearance_m: f.score,
-                    replay_collided: replayed.as_ref().map(|r| r.collided),
-                    replay_min_clearance_m: replayed
-                        .as_ref()
-                        .map(|r| r.min_clearance_m.map_or(f64::INFINITY, f64::from)),
-                })
-            }
-            None => None,
-        };
-        table.extend(rows.iter().cloned());
-        samplers.push(SamplerFigures {
-            sampler,
-            world: setup.world,
-            estimator: setup.estimator,
-            rollouts: records.iter().filter(|r| sampler.owns(r)).count(),
-            collision_rate: headline.collision_rate,
-            lost_rate: headline.lost_rate,
-            avg_collision_step: headline.avg_collision_step,
-            avg_log_likelihood: headline.avg_log_likelihood,
-            avg_uncertainty: headline.avg_uncertainty,
-            p_fail: estimate.p,
-            p_fail_se: estimate.se,
-            p_fail_interval: estimate.interval,
-            p_fail_estimator: estimate.estimator,
-            p_fail_unnormalised: estimate.unnormalised,
-            effective_sample_size: estimate.ess,
-            effective_failures: estimate.effective_failures,
-            most_likely_failure,
-            confusion,
-            table: rows,
-        });
+        let figures = sampler_figures(setup, out, sampler, estimate, &records, replays.as_deref(), worlds)?;
+        table.extend(figures.table.iter().cloned());
+        samplers.push(figures);
     }
     write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
-    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> =
-        [(setup.world, search_log.sorted()), (replay_kind, replay_log.sorted())]
-            .into_iter()
-            .filter(|(_, e)| !e.is_empty())
-            .collect();
-    let estimate_errors: Vec<EstimateErrorFigures> =
-        logs.iter().filter_map(|(w, e)| EstimateErrorFigures::new(*w, e)).collect();
-    if !logs.is_empty() {
-        let path = out.join(ESTIMATE_ERRORS_PNG);
-        nerfsv_scene::io::atomic_write_bytes(&path, &estimate_error_png(&logs)?)
-            .map_err(|e| StudyError::io(&path, e))?;
-    }
+    let estimate_errors = write_estimate_errors(out, [(setup.world, &search_log), (replay_kind, &replay_log)])?;
     let seconds = start.elapsed().as_secs_f64();
     let flown = counting.fresh.load(Ordering::Relaxed);
     let figures = StressFigures {
@@ -1082,6 +850,294 @@ pub fn stress(
         transfer: None,
     };
     Ok((figures, records))
+}
+
+/// Refuses what a stress run cannot do: rollouts flown elsewhere with per-step uncertainty, or
+/// in an ensemble's world.
+fn check_setup(setup: &StressSetup) -> Result<(), StudyError> {
+    if setup.remote.is_some() && setup.online.is_some() {
+        return Err(StudyError::Internal(
+            "a search whose rollouts fly elsewhere cannot measure their uncertainty: run it in one process".into(),
+        ));
+    }
+    if setup.remote.is_some() && setup.drone.sim.nerf_world == NerfWorldSource::Ensemble {
+        return Err(StudyError::Internal(
+            "rollouts flown elsewhere fly the deployed NeRF only: set sim.nerf_world = \"deployed\" or run in one \
+             process"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The rollouts the searches plan to fly, and with the replays, the progress total.
+fn planned_rollouts(setup: &StressSetup) -> (usize, u64) {
+    let v = setup.validation;
+    let mut planned: usize = setup.samplers.iter().map(|s| s.rollouts(v)).sum();
+    // Subset simulation starts from the Monte Carlo rollouts when they fly before it.
+    let at = |s: Sampler| setup.samplers.iter().position(|&x| x == s);
+    if matches!((at(Sampler::Mc), at(Sampler::Subset)), (Some(mc), Some(subset)) if mc < subset) {
+        planned -= v.monte_carlo.rollouts.min(v.subset.samples);
+    }
+    let to_replay: usize = setup.samplers.iter().map(|s| s.searched(v)).sum();
+    (planned, (planned + if setup.replay { to_replay } else { 0 }) as u64)
+}
+
+/// The reward CEM ranks by under `setup.online` (none without, or when it only records).
+fn reward_scorer(setup: &StressSetup) -> Option<UncertaintyReward> {
+    setup.online.filter(|o| o.reward).map(|o| {
+        let s = UncertaintyReward::new(o.method, setup.uq);
+        if o.mode == UqMode::Field {
+            s.for_field()
+        } else {
+            s
+        }
+    })
+}
+
+/// What every sampler's search shares: the drone in the search's world and the reward.
+struct Search<'a> {
+    setup: &'a StressSetup<'a>,
+    system: &'a DroneSystem<'a>,
+    scorer: Option<UncertaintyReward>,
+    reward: Option<Reward<'a>>,
+    observer: &'a dyn Observer,
+}
+
+impl Search<'_> {
+    /// `sampler`'s search, after the searches that flew `before`: its estimate and rollouts.
+    fn run(
+        &self,
+        sampler: Sampler,
+        before: &[RolloutRecord],
+        recorder: &Counting,
+    ) -> Result<(Estimate, Vec<RolloutRecord>), StudyError> {
+        let (setup, v) = (self.setup, self.setup.validation);
+        Ok(match sampler {
+            Sampler::Mc => {
+                let mut r = monte_carlo(self.system, setup.prior, &v.monte_carlo, v.seed, recorder)?;
+                // Monte Carlo never ranks: the reward is only recorded.
+                if let Some(s) = self.scorer {
+                    r.records.iter_mut().for_each(|rec| rec.reward = Some(s.reward(rec)));
+                }
+                let n = r.records.len() as f64;
+                let estimate = Estimate {
+                    p: r.probability,
+                    se: (r.probability * (1.0 - r.probability) / n).sqrt(),
+                    interval: r.interval,
+                    estimator: "Monte Carlo: failure fraction, Wilson interval".into(),
+                    unnormalised: None,
+                    ess: n,
+                    effective_failures: r.probability * n,
+                };
+                (estimate, r.records)
+            }
+            Sampler::Cem => {
+                let r = cross_entropy(self.system, setup.prior, &v.cem, v.seed, self.reward, recorder)?;
+                let e = r.estimate;
+                self.warn_few_failures("the CEM's", e.effective_failures, e.failures, "in its importance batch");
+                let estimate = Estimate {
+                    p: e.probability,
+                    se: e.standard_error,
+                    interval: e.interval,
+                    estimator: ImportanceEstimate::ESTIMATOR.into(),
+                    unnormalised: Some(e.unnormalised),
+                    ess: e.effective_sample_size,
+                    effective_failures: e.effective_failures,
+                };
+                (estimate, r.records)
+            }
+            Sampler::Subset => {
+                // Monte Carlo's rollouts, flown before in this run, are independent draws from
+                // the prior: the first of level 0.
+                let drawn: Vec<RolloutRecord> = before.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect();
+                let r = subset_simulation_reusing(self.system, setup.prior, &v.subset, v.seed, &drawn, recorder)?;
+                let e = r.estimate;
+                self.warn_few_failures("subset simulation's", e.effective_failures, e.failures, "on its last level");
+                let reused = if e.reused > 0 {
+                    format!(" (level 0: {} Monte Carlo rollouts and {} more)", e.reused, v.subset.samples - e.reused)
+                } else {
+                    String::new()
+                };
+                let estimate = Estimate {
+                    p: e.probability,
+                    se: e.standard_error,
+                    interval: e.interval,
+                    estimator: format!(
+                        "{}: {} levels{reused}, thresholds {:?} m, moves accepted {:?}",
+                        SubsetEstimate::ESTIMATOR,
+                        e.levels,
+                        r.thresholds.iter().map(|b| (b * 1e4).round() / 1e4).collect::<Vec<_>>(),
+                        r.acceptance.iter().map(|a| (a * 100.0).round() / 100.0).collect::<Vec<_>>()
+                    ),
+                    unnormalised: None,
+                    ess: e.equivalent_rollouts,
+                    effective_failures: e.effective_failures,
+                };
+                (estimate, r.records)
+            }
+        })
+    }
+
+    /// Notes that `whose` P(fail) rests on few effective failures (of `failures` `where_`),
+    /// when the caller reports it.
+    fn warn_few_failures(&self, whose: &str, effective: f64, failures: usize, where_: &str) {
+        if self.setup.reports_p_fail && effective < ImportanceEstimate::FEW_EFFECTIVE_FAILURES {
+            self.observer.note(
+                self.setup.stage,
+                &format!(
+                    "warning: {whose} P(fail) rests on {effective:.1} effective failures (of {failures} {where_}): \
+                     read it as an order of magnitude"
+                ),
+            );
+        }
+    }
+}
+
+/// The searched rollouts flown again in the other world.
+struct Replay<'a> {
+    setup: &'a StressSetup<'a>,
+    sim: &'a nerfsv_sim::Simulator<'a>,
+    world: &'a dyn World,
+    log: &'a EstimateLog,
+    key: &'a str,
+    resume: bool,
+    total: u64,
+}
+
+impl Replay<'_> {
+    /// Flies the searched rollouts among `records` in the other world, journalled under `out`;
+    /// `searching` is the searches' progress, which the replays continue (and add their fresh
+    /// rollouts to).
+    fn fly(
+        &self,
+        out: &Path,
+        records: &[RolloutRecord],
+        searching: &Counting,
+    ) -> Result<Vec<RolloutRecord>, StudyError> {
+        let (setup, kind) = (self.setup, self.world.kind());
+        let journal = Journal::open(&out.join(JOURNAL).join(format!("replay_{}", kind.name())), self.key, self.resume)?;
+        let replaying = Counting {
+            journal: &journal,
+            estimates: self.log,
+            done: AtomicU64::new(searching.done.load(Ordering::Relaxed)),
+            fresh: AtomicU64::new(0),
+            total: self.total,
+            observer: searching.observer,
+            stage: setup.stage,
+            status: format!("replaying in {}-sim", kind.name()),
+            // Replays fly in the other world: nothing flown before stands for them.
+            flown: None,
+        };
+        searching.observer.progress(setup.stage, replaying.done.load(Ordering::Relaxed), self.total, &replaying.status);
+        let system = DroneSystem {
+            sim: self.sim,
+            world: self.world,
+            estimator: setup.estimator,
+            uncertainty: None,
+            estimate_log: Some(self.log),
+            remote: setup.remote,
+        };
+        let originals: Vec<RolloutRecord> = searched(records).cloned().collect();
+        let replays = replay_all(&system, &originals, &replaying)?;
+        if self.resume {
+            searching
+                .observer
+                .note(setup.stage, &format!("{} of {} replays were already flown", journal.len(), originals.len()));
+        }
+        searching.fresh.fetch_add(replaying.fresh.load(Ordering::Relaxed), Ordering::Relaxed);
+        Ok(replays)
+    }
+}
+
+/// One sampler's figures from the searches' `records` and their `replays` (one for one with the
+/// searched records, in order); writes its most likely failure's files. `worlds` are the
+/// search's world and the other one.
+fn sampler_figures(
+    setup: &StressSetup,
+    out: &Path,
+    sampler: Sampler,
+    estimate: Estimate,
+    records: &[RolloutRecord],
+    replays: Option<&[RolloutRecord]>,
+    worlds: (&dyn World, Option<&dyn World>),
+) -> Result<SamplerFigures, StudyError> {
+    let rows: Vec<TableRow> = match sampler {
+        Sampler::Mc => vec![table_row(SAMPLER_MC, records)],
+        Sampler::Cem => vec![table_row(SAMPLER_CEM, records), table_row(SAMPLER_IS, records)],
+        Sampler::Subset => vec![table_row(SAMPLER_SUBSET, records)],
+    }
+    .into_iter()
+    .flatten()
+    .collect();
+    let headline = rows
+        .first()
+        .cloned()
+        .ok_or_else(|| StudyError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
+    let confusion = match replays {
+        Some(rs) if sampler.searched(setup.validation) > 0 => {
+            let (ours, theirs): (Vec<RolloutRecord>, Vec<RolloutRecord>) =
+                searched(records).zip(rs).filter(|(r, _)| sampler.owns(r)).map(|(r, g)| (r.clone(), g.clone())).unzip();
+            let (nerf, gt) = if setup.world == WorldKind::Nerf { (&ours, &theirs) } else { (&theirs, &ours) };
+            Some(ConfusionFigures::new(&compare(nerf, gt).map_err(StudyError::Internal)?))
+        }
+        _ => None,
+    };
+    let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)), setup.prior);
+    let most_likely_failure = match mlf {
+        Some(f) => {
+            let replayed = write_failure(setup, out, sampler, f, worlds.0, worlds.1)?;
+            Some(FailureFigures {
+                sampler: f.sampler.clone(),
+                population: f.population,
+                index: f.index,
+                seed: f.seed,
+                log_likelihood: f.completed_log_p(setup.prior.mode_step_log_pdf()),
+                collision_step: f.collision_step.map(|s| s + 1),
+                min_clearance_m: f.score,
+                replay_collided: replayed.as_ref().map(|r| r.collided),
+                replay_min_clearance_m: replayed.as_ref().map(|r| r.min_clearance_m.map_or(f64::INFINITY, f64::from)),
+            })
+        }
+        None => None,
+    };
+    Ok(SamplerFigures {
+        sampler,
+        world: setup.world,
+        estimator: setup.estimator,
+        rollouts: records.iter().filter(|r| sampler.owns(r)).count(),
+        collision_rate: headline.collision_rate,
+        lost_rate: headline.lost_rate,
+        avg_collision_step: headline.avg_collision_step,
+        avg_log_likelihood: headline.avg_log_likelihood,
+        avg_uncertainty: headline.avg_uncertainty,
+        p_fail: estimate.p,
+        p_fail_se: estimate.se,
+        p_fail_interval: estimate.interval,
+        p_fail_estimator: estimate.estimator,
+        p_fail_unnormalised: estimate.unnormalised,
+        effective_sample_size: estimate.ess,
+        effective_failures: estimate.effective_failures,
+        most_likely_failure,
+        confusion,
+        table: rows,
+    })
+}
+
+/// The estimator's errors of each world's log (worlds without any left out): their figures,
+/// and their histograms in [`ESTIMATE_ERRORS_PNG`] under `out` when there are any.
+fn write_estimate_errors(
+    out: &Path,
+    logs: [(WorldKind, &EstimateLog); 2],
+) -> Result<Vec<EstimateErrorFigures>, StudyError> {
+    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> =
+        logs.into_iter().map(|(w, log)| (w, log.sorted())).filter(|(_, e)| !e.is_empty()).collect();
+    if !logs.is_empty() {
+        let path = out.join(ESTIMATE_ERRORS_PNG);
+        nerfsv_scene::io::atomic_write_bytes(&path, &estimate_error_png(&logs)?)
+            .map_err(|e| StudyError::io(&path, e))?;
+    }
+    Ok(logs.iter().filter_map(|(w, e)| EstimateErrorFigures::new(*w, e)).collect())
 }
 
 /// The most likely failure's disturbances, and its flight in the search's world (and, when
@@ -1102,18 +1158,9 @@ fn write_failure(
     let mut replayed = None;
     for w in std::iter::once(search).chain(other.filter(|_| setup.replay)) {
         let stem = format!("{name}_{}", w.kind().name());
-        let (figures, _) = fly_and_write(
-            setup.drone.flight,
-            setup.drone.sim,
-            &setup.drone.inputs.nerf,
-            setup.drone.intrinsics,
-            w,
-            setup.estimator,
-            &ds,
-            f.seed,
-            &out.join(format!("{stem}.csv")),
-            &out.join(format!("{stem}.png")),
-        )?;
+        let sortie = Sortie { world: w, estimator: setup.estimator, disturbances: &ds, seed: f.seed };
+        let (figures, _) =
+            fly_and_write(&setup.drone, &sortie, &out.join(format!("{stem}.csv")), &out.join(format!("{stem}.png")))?;
         if w.kind() != setup.world {
             replayed = Some(figures);
         }

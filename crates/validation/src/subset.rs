@@ -19,6 +19,8 @@
 //! level, rollouts of a level's chains in chain order), seeded by [`rollout_seed`], so the run is
 //! deterministic, resumes from a [`Recorder`] and replays on another system.
 
+use std::ops::Range;
+
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -196,48 +198,18 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
     check_shapes(system, prior)?;
     let n = config.samples;
     let reused = drawn.len().min(n);
-    let reused_states: Vec<State> = drawn[..reused]
-        .iter()
-        .map(|r| {
-            let name = || format!("reused rollout {}/{}/{}", r.sampler, r.population, r.index);
-            if r.disturbances.steps() != prior.steps() || r.disturbances.dim() != prior.dim() {
-                return Err(InvalidValue::new(
-                    name(),
-                    format!("must have {} steps of {} components", prior.steps(), prior.dim()),
-                    format!("{} steps of {}", r.disturbances.steps(), r.disturbances.dim()),
-                ));
-            }
-            let from_prior = (r.log_q - r.log_p).abs() <= 1e-9 * r.log_p.abs().max(1.0);
-            if !from_prior {
-                return Err(InvalidValue::new(
-                    name(),
-                    "must be drawn from the prior (log q = log p)",
-                    format!("log p {}, log q {}", r.log_p, r.log_q),
-                ));
-            }
-            let z = r.disturbances.rows().flat_map(|x| prior.step().to_standard(x)).collect();
-            Ok(State { z, score: rank_score(r) })
-        })
-        .collect::<Result<_, InvalidValue>>()?;
-    let dim = prior.steps() * prior.dim();
+    let reused_states = reused_states(prior, &drawn[..reused])?;
     let seeds = config.seeds();
-    let chain_len = n / seeds;
-    let (rho, spread) = (config.correlation, (1.0 - config.correlation * config.correlation).sqrt());
-    let normals = |seed: u64| -> Vec<f64> {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        (0..dim).map(|_| StandardNormal.sample(&mut rng)).collect()
+    let chains = Chains {
+        system,
+        prior,
+        recorder,
+        run_seed,
+        chain_len: n / seeds,
+        rho: config.correlation,
+        spread: (1.0 - config.correlation * config.correlation).sqrt(),
     };
-
-    let first: Vec<(State, RolloutRecord)> = (reused..n)
-        .into_par_iter()
-        .map(|i| {
-            let seed = rollout_seed(run_seed, SAMPLER_SUBSET, 0, i);
-            let z = normals(seed);
-            let record = fly(system, prior, 0, i, &z, seed, recorder)?;
-            Ok((State { z, score: rank_score(&record) }, record))
-        })
-        .collect::<Result<_, ValidationError>>()?;
-    let (drawn_states, mut records): (Vec<State>, Vec<RolloutRecord>) = first.into_iter().unzip();
+    let (drawn_states, mut records) = chains.level_zero(reused..n)?;
     let mut level: Vec<State> = reused_states.into_iter().chain(drawn_states).collect();
     // The current level's samples as chains (level 0: independent draws, no chains).
     let mut chained = false;
@@ -267,7 +239,7 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
         let count = inside.iter().filter(|&&v| v).count();
         let p = count as f64 / n as f64;
         let gamma = if chained {
-            correlation_factor(&inside.chunks(chain_len).map(<[bool]>::to_vec).collect::<Vec<_>>(), p)
+            correlation_factor(&inside.chunks(chains.chain_len).map(<[bool]>::to_vec).collect::<Vec<_>>(), p)
         } else {
             0.0
         };
@@ -275,49 +247,154 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
             cov += ((1.0 - p) / (n as f64 * p) * (1.0 + gamma)).sqrt();
         }
         if last {
-            let probability = (scale * p).clamp(0.0, 1.0);
-            let (cov, standard_error) = if count == 0 { (f64::INFINITY, 0.0) } else { (cov, probability * cov) };
-            let few = ImportanceEstimate::FEW_EVENTS;
-            let wide = wilson(p, n as f64 / (1.0 + gamma));
-            let mut lo = (probability - Z95 * standard_error).max(0.0);
-            let mut hi = (probability + Z95 * standard_error).min(1.0);
-            if count < few {
-                hi = hi.max(scale * wide.1);
-            }
-            if n - count < few {
-                lo = lo.min(scale * wide.0);
-            }
-            let equivalent_rollouts = if standard_error > 0.0 {
-                probability * (1.0 - probability) / (standard_error * standard_error)
-            } else {
-                (records.len() + reused) as f64
-            };
-            let estimate = SubsetEstimate {
-                probability,
-                standard_error,
-                cov,
-                interval: (lo.min(probability), hi.max(probability)),
-                levels: depth + 1,
-                failures: count,
-                equivalent_rollouts,
-                rollouts: records.len(),
-                reused,
-                effective_failures: count as f64 / (1.0 + gamma),
-            };
+            let tally = LastLevel { n, count, gamma, scale, cov, levels: depth + 1, rollouts: records.len(), reused };
             return Ok(SubsetResult {
                 most_likely_failure: most_likely_failure(&records, prior).cloned(),
                 records,
                 thresholds,
                 acceptance,
-                estimate,
+                estimate: tally.estimate(),
             });
         }
         // The share below the threshold: p0, or more when samples tie at it (a chain that refused
         // its moves repeats its state, scores included).
         scale *= p;
         thresholds.push(event);
-        let next = depth + 1;
         let starts: Vec<State> = order[..seeds].iter().map(|&i| level[i].clone()).collect();
+        let (next, flown, accepted) = chains.next_level(depth + 1, starts, event)?;
+        level = next;
+        records.extend(flown);
+        acceptance.push(accepted);
+        chained = true;
+    }
+}
+
+/// The states of rollouts flown before from the prior (level 0's first samples).
+///
+/// Errors: a record of the wrong shape or not drawn from the prior, naming it.
+fn reused_states(prior: &Prior, drawn: &[RolloutRecord]) -> Result<Vec<State>, InvalidValue> {
+    drawn
+        .iter()
+        .map(|r| {
+            let name = || format!("reused rollout {}/{}/{}", r.sampler, r.population, r.index);
+            if r.disturbances.steps() != prior.steps() || r.disturbances.dim() != prior.dim() {
+                return Err(InvalidValue::new(
+                    name(),
+                    format!("must have {} steps of {} components", prior.steps(), prior.dim()),
+                    format!("{} steps of {}", r.disturbances.steps(), r.disturbances.dim()),
+                ));
+            }
+            let from_prior = (r.log_q - r.log_p).abs() <= 1e-9 * r.log_p.abs().max(1.0);
+            if !from_prior {
+                return Err(InvalidValue::new(
+                    name(),
+                    "must be drawn from the prior (log q = log p)",
+                    format!("log p {}, log q {}", r.log_p, r.log_q),
+                ));
+            }
+            let z = r.disturbances.rows().flat_map(|x| prior.step().to_standard(x)).collect();
+            Ok(State { z, score: rank_score(r) })
+        })
+        .collect()
+}
+
+/// What the last level's estimate is made of.
+struct LastLevel {
+    /// Samples per level, and those inside the failure event on the last one.
+    n: usize,
+    count: usize,
+    /// The last level's chain correlation factor.
+    gamma: f64,
+    /// The product of the earlier levels' conditional probabilities.
+    scale: f64,
+    /// Σ δ_j over the levels.
+    cov: f64,
+    levels: usize,
+    /// Rollouts flown, and those reused.
+    rollouts: usize,
+    reused: usize,
+}
+
+impl LastLevel {
+    fn estimate(&self) -> SubsetEstimate {
+        let Self { n, count, gamma, scale, cov, levels, rollouts, reused } = *self;
+        let p = count as f64 / n as f64;
+        let probability = (scale * p).clamp(0.0, 1.0);
+        let (cov, standard_error) = if count == 0 { (f64::INFINITY, 0.0) } else { (cov, probability * cov) };
+        let few = ImportanceEstimate::FEW_EVENTS;
+        let wide = wilson(p, n as f64 / (1.0 + gamma));
+        let mut lo = (probability - Z95 * standard_error).max(0.0);
+        let mut hi = (probability + Z95 * standard_error).min(1.0);
+        if count < few {
+            hi = hi.max(scale * wide.1);
+        }
+        if n - count < few {
+            lo = lo.min(scale * wide.0);
+        }
+        let equivalent_rollouts = if standard_error > 0.0 {
+            probability * (1.0 - probability) / (standard_error * standard_error)
+        } else {
+            (rollouts + reused) as f64
+        };
+        SubsetEstimate {
+            probability,
+            standard_error,
+            cov,
+            interval: (lo.min(probability), hi.max(probability)),
+            levels,
+            failures: count,
+            equivalent_rollouts,
+            rollouts,
+            reused,
+            effective_failures: count as f64 / (1.0 + gamma),
+        }
+    }
+}
+
+/// The drone, its prior and the pCN moves: what every level's draws share.
+struct Chains<'a, S: ?Sized> {
+    system: &'a S,
+    prior: &'a Prior,
+    recorder: &'a dyn Recorder,
+    run_seed: u64,
+    /// Samples per chain (its seed included).
+    chain_len: usize,
+    /// The pCN move `ρ·z + √(1 − ρ²)·ξ`.
+    rho: f64,
+    spread: f64,
+}
+
+impl<S: System + ?Sized> Chains<'_, S> {
+    /// The standard normals of a rollout's seed, one per whitened coordinate.
+    fn normals(&self, seed: u64) -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        (0..self.prior.steps() * self.prior.dim()).map(|_| StandardNormal.sample(&mut rng)).collect()
+    }
+
+    /// Level 0's draws `indices` from the prior, in parallel: their states and records.
+    fn level_zero(&self, indices: Range<usize>) -> Result<(Vec<State>, Vec<RolloutRecord>), ValidationError> {
+        let first: Vec<(State, RolloutRecord)> = indices
+            .into_par_iter()
+            .map(|i| {
+                let seed = rollout_seed(self.run_seed, SAMPLER_SUBSET, 0, i);
+                let z = self.normals(seed);
+                let record = fly(self.system, self.prior, 0, i, &z, seed, self.recorder)?;
+                Ok((State { z, score: rank_score(&record) }, record))
+            })
+            .collect::<Result<_, ValidationError>>()?;
+        Ok(first.into_iter().unzip())
+    }
+
+    /// Level `next`: a chain from each of `starts`, its moves kept while they stay inside
+    /// `event`, the chains in parallel. Returns the level's states (chain by chain), the
+    /// rollouts flown and the share of moves accepted.
+    fn next_level(
+        &self,
+        next: usize,
+        starts: Vec<State>,
+        event: f64,
+    ) -> Result<(Vec<State>, Vec<RolloutRecord>, f64), ValidationError> {
+        let (seeds, chain_len) = (starts.len(), self.chain_len);
         let chains: Vec<(Vec<State>, Vec<RolloutRecord>, usize)> = starts
             .into_par_iter()
             .enumerate()
@@ -328,11 +405,15 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
                 let mut accepted = 0;
                 for l in 1..chain_len {
                     let index = c * (chain_len - 1) + l - 1;
-                    let seed = rollout_seed(run_seed, SAMPLER_SUBSET, next, index);
+                    let seed = rollout_seed(self.run_seed, SAMPLER_SUBSET, next, index);
                     let current = chain.last().expect("a chain starts with its seed");
-                    let z: Vec<f64> =
-                        current.z.iter().zip(normals(seed)).map(|(z, xi)| rho * z + spread * xi).collect();
-                    let record = fly(system, prior, next, index, &z, seed, recorder)?;
+                    let z: Vec<f64> = current
+                        .z
+                        .iter()
+                        .zip(self.normals(seed))
+                        .map(|(z, xi)| self.rho * z + self.spread * xi)
+                        .collect();
+                    let record = fly(self.system, self.prior, next, index, &z, seed, self.recorder)?;
                     let score = rank_score(&record);
                     flown.push(record);
                     let state = if score <= event {
@@ -347,14 +428,14 @@ pub fn subset_simulation_reusing<S: System + ?Sized>(
             })
             .collect::<Result<_, ValidationError>>()?;
         let moves = seeds * (chain_len - 1);
-        level = Vec::with_capacity(n);
+        let mut level = Vec::with_capacity(seeds * chain_len);
+        let mut records = Vec::new();
         let mut accepted_total = 0;
         for (chain, flown, accepted) in chains {
             level.extend(chain);
             records.extend(flown);
             accepted_total += accepted;
         }
-        acceptance.push(if moves > 0 { accepted_total as f64 / moves as f64 } else { 0.0 });
-        chained = true;
+        Ok((level, records, if moves > 0 { accepted_total as f64 / moves as f64 } else { 0.0 }))
     }
 }

@@ -11,7 +11,7 @@ use nerfsv_study::flight::{Drone, FlightInputs};
 use nerfsv_study::stress::{journal_dir, measure_recorded, stress, Flown, OnlineSettings, Sampler, StressSetup};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
-use nerfsv_validation::{parse_csv, write_csv, SAMPLER_CEM};
+use nerfsv_validation::{parse_csv, write_csv, Label};
 
 /// The drone of the tests' runs: the tiny model's flight over the monolith scene.
 fn drone<'a>(inputs: &'a FlightInputs, flight: &'a Flight, scene: &'a Scene, cfg: &'a RunConfig) -> Drone<'a> {
@@ -116,7 +116,7 @@ fn a_rewarded_cem_takes_its_first_population_from_rollouts_flown_before() {
     // The plain search flies the first population; the rewarded one, alone and with it given.
     let (plain, _, _, plain_journal) = run("plain", &setup(false));
     let (_, alone, flown_alone, _) = run("alone", &setup(true));
-    let first: Vec<_> = plain.iter().filter(|r| r.sampler == SAMPLER_CEM && r.population == 0).cloned().collect();
+    let first: Vec<_> = plain.iter().filter(|r| r.sampler == Label::Cem && r.population == 0).cloned().collect();
     assert_eq!(first.len(), 4);
     let given = StressSetup { flown: Some(Flown { records: &first, journal: &plain_journal }), ..setup(true) };
     let (_, reused, flown_reused, _) = run("reused", &given);

@@ -32,8 +32,8 @@ use nerfsv_sim::WorldKind;
 use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
-    compare, disagreement_auroc, read_csv_file, table_row, Confusion, DisagreementAuroc, RolloutRecord, TableRow,
-    ValidationConfig, SAMPLER_CEM, SAMPLER_MC,
+    compare, disagreement_auroc, read_csv_file, table_row, Confusion, DisagreementAuroc, Label, RolloutRecord,
+    TableRow, ValidationConfig,
 };
 use serde::{Deserialize, Serialize};
 
@@ -210,7 +210,7 @@ impl Stage for OnlineStage<'_> {
         // The stress stage's replays follow its searched rollouts one for one.
         let (cem, cem_replays): (Vec<RolloutRecord>, Vec<RolloutRecord>) = searched(&stress_records)
             .zip(&replays)
-            .filter(|(r, _)| r.sampler == SAMPLER_CEM)
+            .filter(|(r, _)| r.sampler == Label::Cem)
             .map(|(r, g)| (r.clone(), g.clone()))
             .unzip();
         let cem_confusion = compare(&cem, &cem_replays).map_err(PipelineError::Internal)?.trajectories;
@@ -231,8 +231,7 @@ impl Stage for OnlineStage<'_> {
                 let flown: Vec<RolloutRecord> = stress_records
                     .iter()
                     .filter(|r| {
-                        (r.sampler == SAMPLER_MC && r.index < validation.monte_carlo.rollouts)
-                            || r.sampler == SAMPLER_CEM
+                        (r.sampler == Label::Mc && r.index < validation.monte_carlo.rollouts) || r.sampler == Label::Cem
                     })
                     .cloned()
                     .collect();
@@ -242,7 +241,7 @@ impl Stage for OnlineStage<'_> {
                 let path = out.join(ROLLOUTS_CSV);
                 nerfsv_validation::write_csv_file(&path, &records).map_err(|e| PipelineError::io(&path, e))?;
                 let rows: Vec<TableRow> =
-                    [SAMPLER_MC, SAMPLER_CEM].into_iter().filter_map(|sampler| table_row(sampler, &records)).collect();
+                    [Label::Mc, Label::Cem].into_iter().filter_map(|sampler| table_row(sampler, &records)).collect();
                 write_stress_table(&out.join(TABLE_CSV), WorldKind::Nerf, setup.online, &rows)?;
                 (records, views, seconds)
             };
@@ -253,7 +252,7 @@ impl Stage for OnlineStage<'_> {
                 // Its first population is the stress stage's CEM's (drawn from the prior with
                 // the same seeds), measured above: not flown again.
                 let first: Vec<RolloutRecord> =
-                    plain_records.iter().filter(|r| r.sampler == SAMPLER_CEM && r.population == 0).cloned().collect();
+                    plain_records.iter().filter(|r| r.sampler == Label::Cem && r.population == 0).cloned().collect();
                 let stress_journal = nerfsv_study::stress::journal_dir(&stress_dir, WorldKind::Nerf);
                 let flown = Flown { records: &first, journal: &stress_journal };
                 let setup = StressSetup { flown: Some(flown), ..setup(&[Sampler::Cem], true) };
@@ -264,10 +263,10 @@ impl Stage for OnlineStage<'_> {
                 plain_records.iter().map(|r| RolloutRecord { reward: Some(scorer.reward(r)), ..r.clone() }).collect();
             let mut rows = Vec::new();
             for (records, sampler, reward) in [
-                (&scored, SAMPLER_MC, false),
-                (&scored, SAMPLER_MC, true),
-                (&scored, SAMPLER_CEM, false),
-                (&reward_records, SAMPLER_CEM, true),
+                (&scored, Label::Mc, false),
+                (&scored, Label::Mc, true),
+                (&scored, Label::Cem, false),
+                (&reward_records, Label::Cem, true),
             ] {
                 if let Some(row) = table_row(sampler, records) {
                     rows.push(OnlineRow { method, reward, row });

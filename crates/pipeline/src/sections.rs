@@ -413,12 +413,12 @@ fn clearance_figure(dir: &Path) -> Option<Vec<u8>> {
     let records = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::ROLLOUTS_CSV)).ok()?;
     let replays = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::replay_csv(WorldKind::Gt))).ok()?;
     let mut groups = Vec::new();
-    for sampler in [nerfsv_validation::SAMPLER_MC, nerfsv_validation::SAMPLER_CEM] {
+    for sampler in [nerfsv_validation::Label::Mc, nerfsv_validation::Label::Cem] {
         let ours: Vec<_> = records.iter().filter(|r| r.sampler == sampler).cloned().collect();
         let theirs: Vec<_> = replays.iter().filter(|r| r.sampler == sampler).cloned().collect();
         let Ok(a) = nerfsv_validation::compare(&ours, &theirs) else { continue };
         let mm = |v: &[f64]| v.iter().map(|x| 1e3 * x).collect::<Vec<f64>>();
-        let name = sampler.to_uppercase();
+        let name = sampler.name().to_uppercase();
         groups.push(nerfsv_plot::Group {
             label: format!("{name}, per trajectory"),
             values: mm(&a.clearance_difference.values),
@@ -573,7 +573,7 @@ fn stress_answer(s: &mut Section, f: &StressFigures) {
             30,
             format!(
                 "<b>The most likely failure</b> found ({} {}/{}): log-likelihood {} (the steps after the crash at the prior's mode), collision at step {}; {replay}.",
-                esc(&m.sampler.to_uppercase()),
+                esc(&m.sampler.name().to_uppercase()),
                 m.population,
                 m.index,
                 num(m.log_likelihood, 2),
@@ -859,7 +859,7 @@ impl Report for OnlineStage<'_> {
                 ])
                 .rows(m.rows.iter().map(|r| {
                     vec![
-                        r.row.sampler.to_uppercase(),
+                        r.row.sampler.name().to_uppercase(),
                         yes_no(r.reward),
                         r.row.rollouts.to_string(),
                         pct(r.row.collision_rate),

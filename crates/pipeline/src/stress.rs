@@ -15,7 +15,7 @@ use nerfsv_study::stress::{
 use nerfsv_study::UqMode;
 use nerfsv_study::{online_pixels, EnsembleUncertainty};
 use nerfsv_uq::{model_id, UncertaintyField, UqConfig};
-use nerfsv_validation::{read_csv_file, Journal, Prior, RolloutRecord, ValidationConfig, SAMPLER_MC};
+use nerfsv_validation::{read_csv_file, Journal, Label, Prior, RolloutRecord, ValidationConfig};
 use serde::Serialize;
 
 use crate::ensemble::EnsembleStage;
@@ -150,7 +150,7 @@ impl StressStage<'_> {
         let replays = read_csv_file(&replay_path)?;
         // The search's Monte Carlo rollouts come first among the records and their replays.
         let mc = |rs: &[RolloutRecord]| -> Vec<RolloutRecord> {
-            rs.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect()
+            rs.iter().filter(|r| r.sampler == Label::Mc).cloned().collect()
         };
         let (ours, others, gt) = (mc(records), mc(&others), mc(&replays));
         let paired = ours.len() == others.len()

@@ -18,8 +18,8 @@ use nerfsv_sim::{EstimatorKind, NerfWorldSource, World, WorldKind};
 use nerfsv_uq::{Method, UncertaintyField, UqConfig};
 use nerfsv_validation::{
     compare, cross_entropy, monte_carlo, replay_all, subset_simulation_reusing, table_row, Agreement, Confusion,
-    DisagreementAuroc, ImportanceEstimate, Journal, Prior, Rate, Recorder, Reward, RolloutRecord, SubsetEstimate,
-    TableRow, Transfer, ValidationConfig, ValidationError, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    DisagreementAuroc, ImportanceEstimate, Journal, Label, Prior, Rate, Recorder, Reward, RolloutRecord,
+    SubsetEstimate, TableRow, Transfer, ValidationConfig, ValidationError,
 };
 use serde::{Deserialize, Serialize};
 
@@ -43,7 +43,7 @@ pub fn other_world(kind: WorldKind) -> WorldKind {
 /// The failure of highest trajectory log-likelihood a sampler found.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FailureFigures {
-    pub sampler: String,
+    pub sampler: Label,
     pub population: usize,
     pub index: usize,
     /// Replays it: `nerfsv fly --disturbances <its CSV> --seed <seed>`.
@@ -544,7 +544,7 @@ pub fn replay_csv(world: WorldKind) -> String {
 /// chains, which estimate a probability (the paper's confusion matrices are over MC's and CEM's
 /// own rollouts).
 pub fn searched(records: &[RolloutRecord]) -> impl Iterator<Item = &RolloutRecord> {
-    records.iter().filter(|r| r.sampler != SAMPLER_IS && r.sampler != SAMPLER_SUBSET)
+    records.iter().filter(|r| r.sampler.is_searched())
 }
 
 /// Times a [`ViewUncertainty`]'s views.
@@ -695,7 +695,7 @@ struct Counting<'a> {
 
 impl Counting<'_> {
     /// The rollout `(s, p, i)` among those flown before, with its estimator errors read back.
-    fn flown_before(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
+    fn flown_before(&self, s: Label, p: usize, i: usize) -> Option<RolloutRecord> {
         let flown = self.flown?;
         let r = flown.records.iter().find(|r| r.sampler == s && r.population == p && r.index == i)?;
         let beside = Journal::beside_in(flown.journal, s, p, i, ESTIMATES_EXTENSION);
@@ -704,7 +704,7 @@ impl Counting<'_> {
 }
 
 impl Recorder for Counting<'_> {
-    fn recall(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
+    fn recall(&self, s: Label, p: usize, i: usize) -> Option<RolloutRecord> {
         // A rollout whose estimator errors cannot be read back is flown again (to the same
         // result), so the errors cover every rollout as in an uninterrupted run. The caller
         // compares the seed (a rollout flown before with another seed is flown).
@@ -720,7 +720,7 @@ impl Recorder for Counting<'_> {
     }
 
     fn record(&self, r: &RolloutRecord) -> Result<(), ValidationError> {
-        let beside = self.journal.beside(&r.sampler, r.population, r.index, ESTIMATES_EXTENSION);
+        let beside = self.journal.beside(r.sampler, r.population, r.index, ESTIMATES_EXTENSION);
         self.estimates.save(r.seed, &beside)?;
         self.journal.record(r)?;
         self.fresh.fetch_add(1, Ordering::Relaxed);
@@ -950,7 +950,7 @@ impl Search<'_> {
             Sampler::Subset => {
                 // Monte Carlo's rollouts, flown before in this run, are independent draws from
                 // the prior: the first of level 0.
-                let drawn: Vec<RolloutRecord> = before.iter().filter(|r| r.sampler == SAMPLER_MC).cloned().collect();
+                let drawn: Vec<RolloutRecord> = before.iter().filter(|r| r.sampler == Label::Mc).cloned().collect();
                 let r = subset_simulation_reusing(self.system, setup.prior, &v.subset, v.seed, &drawn, recorder)?;
                 let e = r.estimate;
                 self.warn_few_failures("subset simulation's", e.effective_failures, e.failures, "on its last level");
@@ -1063,9 +1063,9 @@ fn sampler_figures(
     worlds: (&dyn World, Option<&dyn World>),
 ) -> Result<SamplerFigures, StudyError> {
     let rows: Vec<TableRow> = match sampler {
-        Sampler::Mc => vec![table_row(SAMPLER_MC, records)],
-        Sampler::Cem => vec![table_row(SAMPLER_CEM, records), table_row(SAMPLER_IS, records)],
-        Sampler::Subset => vec![table_row(SAMPLER_SUBSET, records)],
+        Sampler::Mc => vec![table_row(Label::Mc, records)],
+        Sampler::Cem => vec![table_row(Label::Cem, records), table_row(Label::CemIs, records)],
+        Sampler::Subset => vec![table_row(Label::Subset, records)],
     }
     .into_iter()
     .flatten()
@@ -1088,7 +1088,7 @@ fn sampler_figures(
         Some(f) => {
             let replayed = write_failure(setup, out, sampler, f, worlds.0, worlds.1)?;
             Some(FailureFigures {
-                sampler: f.sampler.clone(),
+                sampler: f.sampler,
                 population: f.population,
                 index: f.index,
                 seed: f.seed,

@@ -153,11 +153,12 @@ pub fn compare(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Result<Agreement
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Label;
 
     fn record(index: usize, step_scores: &[f64]) -> RolloutRecord {
         let score = step_scores.iter().copied().fold(f64::INFINITY, f64::min);
         RolloutRecord {
-            sampler: "mc".into(),
+            sampler: Label::Mc,
             population: 0,
             index,
             seed: index as u64,

@@ -8,13 +8,14 @@ use std::sync::Mutex;
 
 use crate::error::ValidationError;
 use crate::record::{read_csv_file, write_csv_file, RolloutRecord};
+use crate::sampler::Label;
 use crate::system::{Job, Outcome, System};
 use crate::Trajectory;
 
 /// Where the samplers look up and keep finished rollouts.
 pub trait Recorder: Sync {
     /// The rollout (sampler, population, index) finished earlier, if any.
-    fn recall(&self, sampler: &str, population: usize, index: usize) -> Option<RolloutRecord>;
+    fn recall(&self, sampler: Label, population: usize, index: usize) -> Option<RolloutRecord>;
     /// Keeps a rollout that just finished.
     fn record(&self, record: &RolloutRecord) -> Result<(), ValidationError>;
 }
@@ -24,7 +25,7 @@ pub trait Recorder: Sync {
 /// and the replays go through here, so a resumed run flies exactly what it had not finished.
 pub(crate) fn recall_or_run(
     recorder: &dyn Recorder,
-    (sampler, population, index): (&str, usize, usize),
+    (sampler, population, index): (Label, usize, usize),
     seed: u64,
     run: impl FnOnce() -> RolloutRecord,
 ) -> Result<(RolloutRecord, bool), ValidationError> {
@@ -37,8 +38,8 @@ pub(crate) fn recall_or_run(
 }
 
 /// One rollout a sampler asks for: its key in the journal, its seed, its disturbances.
-pub(crate) struct Planned<'a> {
-    pub sampler: &'a str,
+pub(crate) struct Planned {
+    pub sampler: Label,
     pub population: usize,
     pub index: usize,
     pub seed: u64,
@@ -52,7 +53,7 @@ pub(crate) struct Planned<'a> {
 pub(crate) fn recall_or_run_all<S: System + ?Sized>(
     system: &S,
     recorder: &dyn Recorder,
-    planned: Vec<Planned<'_>>,
+    planned: Vec<Planned>,
     make: &(dyn Fn(usize, Trajectory, Outcome) -> RolloutRecord + Sync),
 ) -> Result<Vec<(RolloutRecord, bool)>, ValidationError> {
     let mut out: Vec<Option<(RolloutRecord, bool)>> = planned
@@ -83,7 +84,7 @@ pub(crate) fn recall_or_run_all<S: System + ?Sized>(
 
 /// Keeps nothing: every rollout runs.
 impl Recorder for () {
-    fn recall(&self, _: &str, _: usize, _: usize) -> Option<RolloutRecord> {
+    fn recall(&self, _: Label, _: usize, _: usize) -> Option<RolloutRecord> {
         None
     }
     fn record(&self, _: &RolloutRecord) -> Result<(), ValidationError> {
@@ -102,7 +103,7 @@ const KEY_FILE: &str = "key";
 /// is bit-identical to the one written, so a resumed run equals an uninterrupted one.
 pub struct Journal {
     dir: PathBuf,
-    done: HashMap<(String, usize, usize), RolloutRecord>,
+    done: HashMap<(Label, usize, usize), RolloutRecord>,
 }
 
 impl Journal {
@@ -148,7 +149,7 @@ impl Journal {
                     message: format!("holds rollout {}-{}-{}", r.sampler, r.population, r.index),
                 });
             }
-            done.insert((r.sampler.clone(), r.population, r.index), r);
+            done.insert((r.sampler, r.population, r.index), r);
         }
         Ok(Self { dir: dir.to_owned(), done })
     }
@@ -165,12 +166,12 @@ impl Journal {
 
     /// Where a file kept beside the rollout (sampler, population, index) goes: its journal
     /// file's name with `extension` (anything but `csv`, which is the journal's own).
-    pub fn beside(&self, sampler: &str, population: usize, index: usize, extension: &str) -> PathBuf {
+    pub fn beside(&self, sampler: Label, population: usize, index: usize, extension: &str) -> PathBuf {
         Self::beside_in(&self.dir, sampler, population, index, extension)
     }
 
     /// [`Journal::beside`] for the journal in `dir`, without opening it.
-    pub fn beside_in(dir: &Path, sampler: &str, population: usize, index: usize, extension: &str) -> PathBuf {
+    pub fn beside_in(dir: &Path, sampler: Label, population: usize, index: usize, extension: &str) -> PathBuf {
         dir.join(format!("{sampler}-{population}-{index}.{extension}"))
     }
 
@@ -195,8 +196,8 @@ fn file_name(r: &RolloutRecord) -> String {
 }
 
 impl Recorder for Journal {
-    fn recall(&self, sampler: &str, population: usize, index: usize) -> Option<RolloutRecord> {
-        self.done.get(&(sampler.to_owned(), population, index)).cloned()
+    fn recall(&self, sampler: Label, population: usize, index: usize) -> Option<RolloutRecord> {
+        self.done.get(&(sampler, population, index)).cloned()
     }
 
     fn record(&self, record: &RolloutRecord) -> Result<(), ValidationError> {

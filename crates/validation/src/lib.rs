@@ -62,8 +62,8 @@ pub use online::{auroc, disagreement_auroc, step_auroc_interval, DisagreementAur
 pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
-    replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate,
-    MonteCarloResult, Reward, Sampler, SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC, SAMPLER_SUBSET,
+    replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate, Label,
+    MonteCarloResult, Reward, Sampler,
 };
 pub use seed::rollout_seed;
 pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult};

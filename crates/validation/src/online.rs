@@ -6,6 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::record::RolloutRecord;
+use crate::sampler::Label;
 
 /// The area under the ROC curve of `scores` as a predictor of `labels` (higher score, more
 /// likely positive): the probability that a random positive outscores a random negative, ties
@@ -59,7 +60,7 @@ pub struct DisagreementAuroc {
 /// replay are left out. A step counts when both worlds flew it (a finite step score) and its
 /// uncertainty is finite.
 pub fn disagreement_auroc(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> DisagreementAuroc {
-    let replays: std::collections::HashMap<(&str, usize, usize), &RolloutRecord> =
+    let replays: std::collections::HashMap<(Label, usize, usize), &RolloutRecord> =
         gt.iter().map(|r| (r.key(), r)).collect();
     let (mut step_scores, mut step_labels) = (Vec::new(), Vec::new());
     let (mut traj_scores, mut traj_labels) = (Vec::new(), Vec::new());
@@ -91,7 +92,7 @@ pub fn disagreement_auroc(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Disag
 /// Each paired rollout's steps as (uncertainty, disagreeing) pairs, as
 /// [`disagreement_auroc`] counts them.
 fn paired_steps(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Vec<Vec<(f64, bool)>> {
-    let replays: std::collections::HashMap<(&str, usize, usize), &RolloutRecord> =
+    let replays: std::collections::HashMap<(Label, usize, usize), &RolloutRecord> =
         gt.iter().map(|r| (r.key(), r)).collect();
     nerf.iter()
         .filter_map(|r| {
@@ -197,7 +198,7 @@ mod tests {
     fn record(index: usize, step_scores: Vec<f64>, step_uncertainty: Vec<f64>) -> RolloutRecord {
         let score = step_scores.iter().copied().filter(|s| !s.is_nan()).fold(f64::INFINITY, f64::min);
         RolloutRecord {
-            sampler: "mc".into(),
+            sampler: Label::Mc,
             index,
             seed: index as u64,
             failed: score <= 0.0,

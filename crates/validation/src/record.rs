@@ -9,14 +9,15 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::ValidationError;
+use crate::sampler::Label;
 use crate::Trajectory;
 
 /// Everything about one rollout: where it came from, what it flew, how likely it was, what
 /// happened.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RolloutRecord {
-    /// Sampler label: [`crate::SAMPLER_MC`], [`crate::SAMPLER_CEM`] or [`crate::SAMPLER_IS`].
-    pub sampler: String,
+    /// Which draw it is: a sampler's search or estimate batch.
+    pub sampler: Label,
     /// Population (CEM iteration; 0 for Monte Carlo and the importance-sampling batch).
     pub population: usize,
     /// Index within the population.
@@ -140,8 +141,8 @@ impl RolloutRecord {
     }
 
     /// The key that identifies a rollout within a run: (sampler, population, index).
-    pub fn key(&self) -> (&str, usize, usize) {
-        (&self.sampler, self.population, self.index)
+    pub fn key(&self) -> (Label, usize, usize) {
+        (self.sampler, self.population, self.index)
     }
 }
 
@@ -332,12 +333,13 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
         };
         let (collided, lost, counted) = (flag(tail + 13)?, flag(tail + 14)?, flag(tail + 15)?);
         let defensive_fraction = optional(tail + 16)?;
-        let continues = records.last().is_some_and(|r| {
-            r.sampler == fields[0] && r.population == population && r.index == index && r.seed == seed
-        });
+        let sampler: Label = fields[0].parse().map_err(|e| (n, format!("column {}: {e}", col(0))))?;
+        let continues = records
+            .last()
+            .is_some_and(|r| r.sampler == sampler && r.population == population && r.index == index && r.seed == seed);
         if step == 0 {
             records.push(RolloutRecord {
-                sampler: fields[0].to_owned(),
+                sampler,
                 population,
                 index,
                 seed,

@@ -18,14 +18,71 @@ use crate::seed::rollout_seed;
 use crate::system::{Outcome, System};
 use crate::Trajectory;
 
-/// Sampler label of Monte Carlo rollouts.
-pub const SAMPLER_MC: &str = "mc";
-/// Sampler label of CEM's populations.
-pub const SAMPLER_CEM: &str = "cem";
-/// Sampler label of the importance-sampling batch drawn from CEM's final proposal.
-pub const SAMPLER_IS: &str = "cem-is";
-/// Sampler label of subset simulation's rollouts.
-pub const SAMPLER_SUBSET: &str = "subset";
+/// Which draw a rollout is: a sampler's search or estimate batch. Its label ([`Label::name`])
+/// is what the CSVs, the journal's file names and the rollout seeds carry.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub enum Label {
+    /// Monte Carlo's rollouts (`mc`).
+    #[serde(rename = "mc")]
+    #[default]
+    Mc,
+    /// CEM's populations (`cem`).
+    #[serde(rename = "cem")]
+    Cem,
+    /// The importance-sampling batch drawn from CEM's final proposal (`cem-is`).
+    #[serde(rename = "cem-is")]
+    CemIs,
+    /// Subset simulation's rollouts (`subset`).
+    #[serde(rename = "subset")]
+    Subset,
+}
+
+impl Label {
+    /// Every label, in the order the stress run flies them.
+    pub const ALL: [Label; 4] = [Label::Mc, Label::Cem, Label::CemIs, Label::Subset];
+
+    /// The label as the files write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Label::Mc => "mc",
+            Label::Cem => "cem",
+            Label::CemIs => "cem-is",
+            Label::Subset => "subset",
+        }
+    }
+
+    /// The sampler whose run drew it.
+    pub fn sampler(self) -> Sampler {
+        match self {
+            Label::Mc => Sampler::Mc,
+            Label::Cem | Label::CemIs => Sampler::Cem,
+            Label::Subset => Sampler::Subset,
+        }
+    }
+
+    /// Whether it is a search's own rollout (MC's, CEM's populations), one a replay flies again,
+    /// and not a batch that estimates a probability (the importance batch, subset simulation).
+    pub fn is_searched(self) -> bool {
+        matches!(self, Label::Mc | Label::Cem)
+    }
+}
+
+impl std::fmt::Display for Label {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Label {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        Label::ALL.into_iter().find(|l| l.name() == s).ok_or_else(|| {
+            let names: Vec<&str> = Label::ALL.iter().map(|l| l.name()).collect();
+            format!("unknown sampler label {s:?}: one of {}", names.join(", "))
+        })
+    }
+}
 
 /// A search over the disturbances.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -44,9 +101,9 @@ pub enum Sampler {
 impl Sampler {
     pub fn name(self) -> &'static str {
         match self {
-            Sampler::Mc => SAMPLER_MC,
-            Sampler::Cem => SAMPLER_CEM,
-            Sampler::Subset => SAMPLER_SUBSET,
+            Sampler::Mc => Label::Mc.name(),
+            Sampler::Cem => Label::Cem.name(),
+            Sampler::Subset => Label::Subset.name(),
         }
     }
 
@@ -75,11 +132,7 @@ impl Sampler {
 
     /// Whether `record` belongs to this sampler's run.
     pub fn owns(self, record: &RolloutRecord) -> bool {
-        match self {
-            Sampler::Mc => record.sampler == SAMPLER_MC,
-            Sampler::Cem => record.sampler == SAMPLER_CEM || record.sampler == SAMPLER_IS,
-            Sampler::Subset => record.sampler == SAMPLER_SUBSET,
-        }
+        record.sampler.sampler() == self
     }
 }
 
@@ -109,7 +162,7 @@ pub fn rollout<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
     proposal: &Proposal,
-    sampler: &str,
+    sampler: Label,
     population: usize,
     index: usize,
     seed: u64,
@@ -129,7 +182,7 @@ pub(crate) fn record_of(
     prior: &Prior,
     proposal: Option<&Proposal>,
     disturbances: Trajectory,
-    sampler: &str,
+    sampler: Label,
     population: usize,
     index: usize,
     seed: u64,
@@ -138,7 +191,7 @@ pub(crate) fn record_of(
     let step_log_p = prior.step_log_pdfs(&disturbances);
     let step_log_q = proposal.map_or_else(|| step_log_p.clone(), |q| q.step_log_pdfs(&disturbances));
     RolloutRecord {
-        sampler: sampler.to_owned(),
+        sampler,
         population,
         index,
         seed,
@@ -162,7 +215,7 @@ pub fn replay<S: System + ?Sized>(
     record: &RolloutRecord,
     reward: Option<Reward<'_>>,
 ) -> RolloutRecord {
-    rollout(system, prior, proposal, &record.sampler, record.population, record.index, record.seed, reward)
+    rollout(system, prior, proposal, record.sampler, record.population, record.index, record.seed, reward)
 }
 
 /// Flies the same disturbances with the same seed in another `system` (GT-sim for a rollout
@@ -183,7 +236,7 @@ pub fn replay_all<S: System + ?Sized>(
     let planned = records
         .iter()
         .map(|r| Planned {
-            sampler: &r.sampler,
+            sampler: r.sampler,
             population: r.population,
             index: r.index,
             seed: r.seed,
@@ -203,7 +256,7 @@ fn population<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
     proposal: &Proposal,
-    sampler: &str,
+    sampler: Label,
     population: usize,
     n: usize,
     run_seed: u64,
@@ -212,12 +265,12 @@ fn population<S: System + ?Sized>(
 ) -> Result<Vec<RolloutRecord>, ValidationError> {
     let planned = (0..n)
         .map(|index| {
-            let seed = rollout_seed(run_seed, sampler, population, index);
+            let seed = rollout_seed(run_seed, sampler.name(), population, index);
             Planned { sampler, population, index, seed, disturbances: proposal.draw(seed) }
         })
         .collect();
     let make = |i: usize, x: Trajectory, outcome: Outcome| {
-        let seed = rollout_seed(run_seed, sampler, population, i);
+        let seed = rollout_seed(run_seed, sampler.name(), population, i);
         let mut record = record_of(prior, Some(proposal), x, sampler, population, i, seed, outcome);
         record.reward = reward.map(|r| r(&record));
         record
@@ -311,7 +364,7 @@ pub struct MonteCarloResult {
     pub most_likely_failure: Option<RolloutRecord>,
 }
 
-/// `config.rollouts` rollouts from the prior (sampler [`SAMPLER_MC`], population 0).
+/// `config.rollouts` rollouts from the prior (sampler [`Label::Mc`], population 0).
 pub fn monte_carlo<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
@@ -322,7 +375,7 @@ pub fn monte_carlo<S: System + ?Sized>(
     config.validate()?;
     check_shapes(system, prior)?;
     let proposal = prior.to_proposal();
-    let records = population(system, prior, &proposal, SAMPLER_MC, 0, config.rollouts, run_seed, None, recorder)?;
+    let records = population(system, prior, &proposal, Label::Mc, 0, config.rollouts, run_seed, None, recorder)?;
     let failures = records.iter().filter(|r| r.failed).count();
     Ok(MonteCarloResult {
         failures,
@@ -449,7 +502,7 @@ pub fn importance_estimate(records: &[RolloutRecord]) -> ImportanceEstimate {
     }
 }
 
-/// `n` rollouts from `proposal` (sampler [`SAMPLER_IS`], population 0) and their
+/// `n` rollouts from `proposal` (sampler [`Label::CemIs`], population 0) and their
 /// importance-sampling estimate.
 pub fn importance_sampling<S: System + ?Sized>(
     system: &S,
@@ -468,7 +521,7 @@ pub fn importance_sampling<S: System + ?Sized>(
             format!("{} steps", proposal.len()),
         )));
     }
-    let records = population(system, prior, proposal, SAMPLER_IS, 0, n, run_seed, None, recorder)?;
+    let records = population(system, prior, proposal, Label::CemIs, 0, n, run_seed, None, recorder)?;
     let estimate = importance_estimate(&records);
     Ok((records, estimate))
 }
@@ -568,8 +621,8 @@ pub fn refit(
 /// The Cross-Entropy Method's run: every rollout, the proposals, the estimate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CemResult {
-    /// The `k_max` populations (sampler [`SAMPLER_CEM`], population k), then the importance
-    /// batch (sampler [`SAMPLER_IS`]).
+    /// The `k_max` populations (sampler [`Label::Cem`], population k), then the importance
+    /// batch (sampler [`Label::CemIs`]).
     pub records: Vec<RolloutRecord>,
     /// `[k_max + 1]`: `proposals[k]` drew population k (`proposals[0]` is the prior);
     /// `proposals[k_max]`, the final one, drew the importance batch.
@@ -583,7 +636,7 @@ pub struct CemResult {
 impl CemResult {
     /// The proposal a record of this run was drawn from, for [`replay`].
     pub fn proposal_of(&self, record: &RolloutRecord) -> &Proposal {
-        if record.sampler == SAMPLER_IS {
+        if record.sampler == Label::CemIs {
             self.proposals.last().expect("k_max + 1 ≥ 1 proposals")
         } else {
             &self.proposals[record.population]
@@ -609,7 +662,7 @@ pub fn cross_entropy<S: System + ?Sized>(
     let mut records = Vec::with_capacity(config.m * config.k_max + config.is_samples);
     for k in 0..config.k_max {
         let q = &proposals[k];
-        let pop = population(system, prior, q, SAMPLER_CEM, k, config.m, run_seed, reward, recorder)?;
+        let pop = population(system, prior, q, Label::Cem, k, config.m, run_seed, reward, recorder)?;
         let rewards: Option<Vec<f64>> =
             reward.map(|_| pop.iter().map(|r| r.reward.unwrap_or(f64::NEG_INFINITY)).collect());
         let elite = select_elites(&pop, config.m_elite, rewards.as_deref());
@@ -640,16 +693,23 @@ mod tests {
     /// batch too.
     #[test]
     fn a_samplers_name_is_its_label_and_it_owns_exactly_its_records() {
-        let record = |label: &str| RolloutRecord { sampler: label.into(), ..RolloutRecord::default() };
-        for (sampler, label) in
-            [(Sampler::Mc, SAMPLER_MC), (Sampler::Cem, SAMPLER_CEM), (Sampler::Subset, SAMPLER_SUBSET)]
+        let record = |label: Label| RolloutRecord { sampler: label, ..RolloutRecord::default() };
+        for (sampler, label) in [(Sampler::Mc, Label::Mc), (Sampler::Cem, Label::Cem), (Sampler::Subset, Label::Subset)]
         {
-            assert_eq!(sampler.name(), label);
+            assert_eq!(sampler.name(), label.name());
             assert_eq!(serde_json::to_string(&sampler).unwrap(), format!("\"{label}\""));
+            assert_eq!(serde_json::to_string(&label).unwrap(), format!("\"{label}\""));
             assert!(sampler.owns(&record(label)));
         }
-        assert!(Sampler::Cem.owns(&record(SAMPLER_IS)));
-        assert!(!Sampler::Mc.owns(&record(SAMPLER_IS)) && !Sampler::Subset.owns(&record(SAMPLER_MC)));
+        assert!(Sampler::Cem.owns(&record(Label::CemIs)));
+        assert!(!Sampler::Mc.owns(&record(Label::CemIs)) && !Sampler::Subset.owns(&record(Label::Mc)));
+        assert_eq!(serde_json::to_string(&Label::CemIs).unwrap(), "\"cem-is\"");
+        for label in Label::ALL {
+            assert_eq!(label.name().parse::<Label>(), Ok(label));
+            assert_eq!(label.is_searched(), matches!(label, Label::Mc | Label::Cem));
+        }
+        let refused = "is".parse::<Label>().unwrap_err();
+        assert!(refused.contains("\"is\"") && refused.contains("cem-is"), "{refused}");
         let cfg = ValidationConfig::default();
         assert_eq!(Sampler::Cem.rollouts(&cfg), cfg.cem.m * cfg.cem.k_max + cfg.cem.is_samples);
         assert_eq!(Sampler::Subset.searched(&cfg), 0);
@@ -686,7 +746,7 @@ mod tests {
         let other = trajectory([0.6, 0.6, 0.6, 1.6, 0.0]);
         for q in [shifted.clone(), shifted.clone().defensive(&prior, 0.2)] {
             let record =
-                |x: &Trajectory| record_of(&prior, Some(&q), x.clone(), SAMPLER_IS, 0, 0, 1, Threshold.run(x, 1));
+                |x: &Trajectory| record_of(&prior, Some(&q), x.clone(), Label::CemIs, 0, 0, 1, Threshold.run(x, 1));
             let (a, b, c) = (record(&calm), record(&wild), record(&other));
             assert!(a.failed && b.failed && c.failed);
             assert_eq!((a.counted_steps(), b.counted_steps(), c.counted_steps()), (2, 2, 4));
@@ -716,7 +776,7 @@ mod tests {
         assert!(prior.mode_step_log_pdf() > 0.0, "the case needs a positive log density at the mode");
         let record = |v: [f64; 5]| {
             let x = Trajectory::from_flat(1, v.to_vec()).unwrap();
-            record_of(&prior, None, x.clone(), SAMPLER_MC, 0, 0, 1, Threshold.run(&x, 1))
+            record_of(&prior, None, x.clone(), Label::Mc, 0, 0, 1, Threshold.run(&x, 1))
         };
         let (early, late) = (record([0.0, 1.04, 0.0, 0.0, 0.0]), record([0.0, 0.0, 0.0, 0.0, 1.05]));
         assert_eq!((early.collision_step, late.collision_step), (Some(1), Some(4)));

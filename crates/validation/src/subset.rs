@@ -15,7 +15,7 @@
 //! acceptance falls with it; the CEM's importance weights degrade with it: see the calibration
 //! in BENCHMARKS.md).
 //!
-//! Every flown trajectory is a [`RolloutRecord`] (sampler [`SAMPLER_SUBSET`], population =
+//! Every flown trajectory is a [`RolloutRecord`] (sampler [`Label::Subset`](crate::Label::Subset), population =
 //! level, rollouts of a level's chains in chain order), seeded by [`rollout_seed`], so the run is
 //! deterministic, resumes from a [`Recorder`] and replays on another system.
 
@@ -33,7 +33,7 @@ use crate::error::ValidationError;
 use crate::gaussian::Prior;
 use crate::journal::{recall_or_run, Recorder};
 use crate::record::RolloutRecord;
-use crate::sampler::{check_shapes, most_likely_failure, record_of, wilson, ImportanceEstimate, SAMPLER_SUBSET};
+use crate::sampler::{check_shapes, most_likely_failure, record_of, wilson, ImportanceEstimate, Label};
 use crate::seed::rollout_seed;
 use crate::system::System;
 use crate::Trajectory;
@@ -133,9 +133,9 @@ fn fly<S: System + ?Sized>(
     let run = || {
         let x = trajectory(prior, z);
         let outcome = system.run(&x, seed);
-        record_of(prior, None, x, SAMPLER_SUBSET, level, index, seed, outcome)
+        record_of(prior, None, x, Label::Subset, level, index, seed, outcome)
     };
-    Ok(recall_or_run(recorder, (SAMPLER_SUBSET, level, index), seed, run)?.0)
+    Ok(recall_or_run(recorder, (Label::Subset, level, index), seed, run)?.0)
 }
 
 /// The correlation factor γ of a level's indicator chains (Au & Beck 2001, eq. 27–29):
@@ -376,7 +376,7 @@ impl<S: System + ?Sized> Chains<'_, S> {
         let first: Vec<(State, RolloutRecord)> = indices
             .into_par_iter()
             .map(|i| {
-                let seed = rollout_seed(self.run_seed, SAMPLER_SUBSET, 0, i);
+                let seed = rollout_seed(self.run_seed, Label::Subset.name(), 0, i);
                 let z = self.normals(seed);
                 let record = fly(self.system, self.prior, 0, i, &z, seed, self.recorder)?;
                 Ok((State { z, score: rank_score(&record) }, record))
@@ -405,7 +405,7 @@ impl<S: System + ?Sized> Chains<'_, S> {
                 let mut accepted = 0;
                 for l in 1..chain_len {
                     let index = c * (chain_len - 1) + l - 1;
-                    let seed = rollout_seed(self.run_seed, SAMPLER_SUBSET, next, index);
+                    let seed = rollout_seed(self.run_seed, Label::Subset.name(), next, index);
                     let current = chain.last().expect("a chain starts with its seed");
                     let z: Vec<f64> = current
                         .z

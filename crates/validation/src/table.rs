@@ -3,11 +3,12 @@
 use serde::{Deserialize, Serialize};
 
 use crate::record::{mean, RolloutRecord};
+use crate::sampler::Label;
 
 /// One row of the paper's Tables 1–2 over a set of rollouts.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TableRow {
-    pub sampler: String,
+    pub sampler: Label,
     pub rollouts: usize,
     /// Fraction of rollouts that collided.
     pub collision_rate: f64,
@@ -52,7 +53,7 @@ impl TableRow {
 
 /// The row of `sampler` over `records` (only the records of that sampler count); `None` when
 /// there are none.
-pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
+pub fn table_row(sampler: Label, records: &[RolloutRecord]) -> Option<TableRow> {
     let rows: Vec<&RolloutRecord> = records.iter().filter(|r| r.sampler == sampler).collect();
     if rows.is_empty() {
         return None;
@@ -60,7 +61,7 @@ pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
     let n = rows.len() as f64;
     let steps: Vec<f64> = rows.iter().filter_map(|r| r.collision_step).map(|s| (s + 1) as f64).collect();
     Some(TableRow {
-        sampler: sampler.to_owned(),
+        sampler,
         rollouts: rows.len(),
         collision_rate: rows.iter().filter(|r| r.failed).count() as f64 / n,
         lost_rate: rows.iter().filter(|r| r.lost_without_failing()).count() as f64 / n,
@@ -75,9 +76,9 @@ pub fn table_row(sampler: &str, records: &[RolloutRecord]) -> Option<TableRow> {
 mod tests {
     use super::*;
 
-    fn record(sampler: &str, log_p: f64, collision_step: Option<usize>) -> RolloutRecord {
+    fn record(sampler: Label, log_p: f64, collision_step: Option<usize>) -> RolloutRecord {
         RolloutRecord {
-            sampler: sampler.into(),
+            sampler,
             population: 0,
             index: 0,
             seed: 0,
@@ -102,13 +103,13 @@ mod tests {
     #[test]
     fn a_row_counts_only_its_sampler_and_averages_collision_steps_from_one() {
         let records = vec![
-            record("mc", -10.0, Some(2)),
-            record("mc", -20.0, None),
-            record("mc", -30.0, Some(5)),
-            record("mc", -40.0, None),
-            record("cem", 0.0, Some(0)),
+            record(Label::Mc, -10.0, Some(2)),
+            record(Label::Mc, -20.0, None),
+            record(Label::Mc, -30.0, Some(5)),
+            record(Label::Mc, -40.0, None),
+            record(Label::Cem, 0.0, Some(0)),
         ];
-        let row = table_row("mc", &records).unwrap();
+        let row = table_row(Label::Mc, &records).unwrap();
         assert_eq!(row.rollouts, 4);
         assert_eq!(row.collision_rate, 0.5);
         assert_eq!(row.avg_collision_step, Some(4.5)); // steps 3 and 6, counted from 1
@@ -117,22 +118,22 @@ mod tests {
         let mut measured = records.clone();
         measured[0].step_uncertainty = vec![1.0, 3.0];
         measured[2].step_uncertainty = vec![4.0];
-        assert_eq!(table_row("mc", &measured).unwrap().avg_uncertainty, Some(3.0));
+        assert_eq!(table_row(Label::Mc, &measured).unwrap().avg_uncertainty, Some(3.0));
         // Steps without a value (NaN) are left out of a rollout's mean.
         measured[2].step_uncertainty = vec![4.0, f64::NAN];
-        assert_eq!(table_row("mc", &measured).unwrap().avg_uncertainty, Some(3.0));
-        assert_eq!(table_row("mc", &measured).unwrap().avg_reward, None);
+        assert_eq!(table_row(Label::Mc, &measured).unwrap().avg_uncertainty, Some(3.0));
+        assert_eq!(table_row(Label::Mc, &measured).unwrap().avg_reward, None);
         measured[1].reward = Some(-4.0);
         measured[3].reward = Some(-6.0);
-        assert_eq!(table_row("mc", &measured).unwrap().avg_reward, Some(-5.0));
-        assert_eq!(table_row("mc", &measured).unwrap().lost_rate, 0.0);
+        assert_eq!(table_row(Label::Mc, &measured).unwrap().avg_reward, Some(-5.0));
+        assert_eq!(table_row(Label::Mc, &measured).unwrap().lost_rate, 0.0);
         // A lost rollout that also crashed is a crash.
         measured[1].lost_step = Some(3);
         measured[2].lost_step = Some(5);
         measured[0].lost_step = Some(1);
-        assert_eq!(table_row("mc", &measured).unwrap().lost_rate, 0.25);
-        let none = table_row("mc", &records[1..2]).unwrap();
+        assert_eq!(table_row(Label::Mc, &measured).unwrap().lost_rate, 0.25);
+        let none = table_row(Label::Mc, &records[1..2]).unwrap();
         assert_eq!((none.collision_rate, none.avg_collision_step), (0.0, None));
-        assert!(table_row("cem-is", &records).is_none());
+        assert!(table_row(Label::CemIs, &records).is_none());
     }
 }

@@ -4,8 +4,7 @@ mod common;
 
 use common::{LinearToy, Z_1E3};
 use nerfsv_validation::{
-    cross_entropy, monte_carlo, replay, rollout_seed, write_csv, CemConfig, MonteCarloConfig, RolloutRecord,
-    SAMPLER_CEM, SAMPLER_IS, SAMPLER_MC,
+    cross_entropy, monte_carlo, replay, rollout_seed, write_csv, CemConfig, Label, MonteCarloConfig, RolloutRecord,
 };
 
 /// A reward in the shape of the paper's eq. 10 (log-likelihood minus a penalty), depending on
@@ -46,7 +45,7 @@ fn same_seed_gives_byte_identical_csv_with_one_and_two_threads() {
     // (200 MC + 3·40 CEM + 50 IS) rollouts × 6 steps.
     assert_eq!(lines.count(), (200 + 120 + 50) * 6);
     let first: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
-    assert_eq!(first[..5], ["mc", "0", "0", &rollout_seed(42, SAMPLER_MC, 0, 0).to_string(), "0"]);
+    assert_eq!(first[..5], ["mc", "0", "0", &rollout_seed(42, "mc", 0, 0).to_string(), "0"]);
 }
 
 #[test]
@@ -57,17 +56,17 @@ fn a_recorded_rollout_replays_from_its_seed() {
     let cem = cross_entropy(&toy, &prior, &cfg, 7, Some(&reward), &()).unwrap();
     let mc = monte_carlo(&toy, &prior, &MonteCarloConfig { rollouts: 30 }, 7, &()).unwrap();
     let picks = [
-        cem.records.iter().find(|r| r.sampler == SAMPLER_CEM && r.population == 2 && r.index == 13).unwrap(),
-        cem.records.iter().find(|r| r.sampler == SAMPLER_IS && r.index == 31).unwrap(),
+        cem.records.iter().find(|r| r.sampler == Label::Cem && r.population == 2 && r.index == 13).unwrap(),
+        cem.records.iter().find(|r| r.sampler == Label::CemIs && r.index == 31).unwrap(),
     ];
     for rec in picks {
-        assert_eq!(rec.seed, rollout_seed(7, &rec.sampler, rec.population, rec.index));
+        assert_eq!(rec.seed, rollout_seed(7, rec.sampler.name(), rec.population, rec.index));
         let again = replay(
             &toy,
             &prior,
             cem.proposal_of(rec),
             rec,
-            if rec.sampler == SAMPLER_CEM { Some(&reward) } else { None },
+            if rec.sampler == Label::Cem { Some(&reward) } else { None },
         );
         assert_eq!(&again, rec, "{} {}/{} did not replay", rec.sampler, rec.population, rec.index);
         // The system's own randomness follows the seed too: another seed, other step scores.
@@ -134,6 +133,7 @@ fn a_csv_that_nerfsv_did_not_write_is_refused_naming_the_line() {
         (edit(6, &set(4, "2")), 6, "collided"),
         (edit(2, &set(2, "0")), 2, "counted"),
         (edit(3, &set(1, "0.5")), 3, "defensive_fraction"),
+        (edit(4, &|l| l.replacen("mc,", "is,", 1)), 4, "unknown sampler label \"is\""),
         (lines[..1].iter().chain(&lines[2..]).map(|l| format!("{l}\n")).collect(), 2, "continue"),
     ];
     for (text, line, what) in cases {

@@ -1,14 +1,14 @@
 //! Elite selection: γ = max(0, m_elite-th smallest score) without a reward; failures first, then
 //! reward, with one.
 
-use nerfsv_validation::{select_elites, RolloutRecord, Trajectory};
+use nerfsv_validation::{select_elites, Label, RolloutRecord, Trajectory};
 
 fn records(scores: &[f64]) -> Vec<RolloutRecord> {
     scores
         .iter()
         .enumerate()
         .map(|(i, &s)| RolloutRecord {
-            sampler: "cem".into(),
+            sampler: Label::Cem,
             population: 0,
             index: i,
             seed: i as u64,

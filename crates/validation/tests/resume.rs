@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use common::{Counting, LinearToy};
 use nerfsv_validation::{
-    cross_entropy, monte_carlo, replay_all, CemConfig, Journal, MonteCarloConfig, Recorder, RolloutRecord,
+    cross_entropy, monte_carlo, replay_all, CemConfig, Journal, Label, MonteCarloConfig, Recorder, RolloutRecord,
     ValidationError,
 };
 
@@ -20,7 +20,7 @@ struct Dying<'a> {
 }
 
 impl Recorder for Dying<'_> {
-    fn recall(&self, s: &str, p: usize, i: usize) -> Option<RolloutRecord> {
+    fn recall(&self, s: Label, p: usize, i: usize) -> Option<RolloutRecord> {
         self.journal.recall(s, p, i)
     }
     fn record(&self, r: &RolloutRecord) -> Result<(), ValidationError> {

@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering;
 use common::{erfc, Counting, Linear72, LinearToy};
 use nerfsv_validation::{
     correlation_factor, cross_entropy, monte_carlo, subset_simulation, subset_simulation_reusing, CemConfig, Journal,
-    MonteCarloConfig, SubsetConfig, Trajectory, SAMPLER_SUBSET,
+    Label, MonteCarloConfig, SubsetConfig, Trajectory,
 };
 
 /// Q(z) of the toy's threshold: its exact failure probability.
@@ -106,7 +106,7 @@ fn subset_simulation_is_unbiased_on_a_closed_form_and_is_monte_carlo_where_failu
     let failures = r.records.iter().filter(|r| r.failed).count();
     assert_eq!((r.estimate.levels, r.records.len()), (1, 200));
     assert_eq!(r.estimate.probability, failures as f64 / 200.0);
-    assert!(r.records.iter().all(|r| r.sampler == SAMPLER_SUBSET && r.population == 0 && r.weight() == 1.0));
+    assert!(r.records.iter().all(|r| r.sampler == Label::Subset && r.population == 0 && r.weight() == 1.0));
 }
 
 #[test]

@@ -5,8 +5,8 @@ mod common;
 
 use common::{LinearToy, STD, Z_1E3};
 use nerfsv_validation::{
-    cross_entropy, elite_weights, importance_sampling, wilson_interval, CemConfig, Gaussian, Proposal, RolloutRecord,
-    Trajectory,
+    cross_entropy, elite_weights, importance_sampling, wilson_interval, CemConfig, Gaussian, Label, Proposal,
+    RolloutRecord, Trajectory,
 };
 
 /// The prior shifted to the design point: a good, fixed proposal for the toy.
@@ -39,7 +39,7 @@ fn cem_elite_weights_use_the_trajectory_ratio_not_the_mean_of_step_ratios() {
     let rec = |steps: [f64; 3]| {
         let step_log_q = vec![0.0; 3];
         RolloutRecord {
-            sampler: "cem".into(),
+            sampler: Label::Cem,
             population: 1,
             index: 0,
             seed: 0,

@@ -16,7 +16,7 @@ use nalgebra::Point3;
 use rayon::prelude::*;
 
 use crate::field_components::mlp::trunc_exp_exact_grad;
-use crate::fields::DensityWorkspace;
+use crate::fields::{DensityWorkspace, Tensor};
 use crate::model::{Nerf, Pool};
 
 /// Points per parallel task of [`Nerf::density_param_gradients`] (the output is `P` floats per
@@ -56,7 +56,7 @@ impl Nerf {
         let (e, sh, o) = (f.enc_dim, f.sigma_hidden, 1 + f.geo);
         let p0 = sh * e;
         let p = p0 + o * sh;
-        let w1 = f.w(&self.params, 2);
+        let w1 = f.w(&self.params, Tensor::Sigma1);
         for (i, row) in grads.chunks_exact_mut(p).enumerate() {
             row.fill(0.0);
             if sigma[i] == 0.0 {

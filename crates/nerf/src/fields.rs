@@ -33,6 +33,39 @@ use crate::model_components::occupancy_grid::OccupancyGrid;
 use crate::model_components::ray_samplers::{march_segment, ray_aabb, Lattice};
 use crate::model_components::renderer::{active_count, composite_backward, composite_forward};
 
+/// The parameter tensors, in flat-vector order (see the module docs for their shapes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Tensor {
+    /// `encoder.embeddings`: the hash tables of all levels.
+    Embeddings,
+    /// `sigma_net.0.weight`.
+    Sigma0,
+    /// `sigma_net.1.weight`.
+    Sigma1,
+    /// `color_net.0.weight`.
+    Color0,
+    /// `color_net.1.weight`.
+    Color1,
+    /// `color_net.2.weight`.
+    Color2,
+}
+
+impl Tensor {
+    /// Every tensor, in flat-vector order.
+    pub const ALL: [Tensor; 6] =
+        [Tensor::Embeddings, Tensor::Sigma0, Tensor::Sigma1, Tensor::Color0, Tensor::Color1, Tensor::Color2];
+
+    /// Its place in the flat vector's order (and in [`NgpField::tensors`]).
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// Its torch-ngp name (the checkpoint's tensor name).
+    pub fn name(self) -> &'static str {
+        TENSOR_NAMES[self.index()]
+    }
+}
+
 /// Names of the parameter tensors, in flat-vector order.
 pub const TENSOR_NAMES: [&str; 6] = [
     "encoder.embeddings",
@@ -52,7 +85,8 @@ pub struct NgpField {
     pub sigma_hidden: usize,
     pub geo: usize,
     pub color_hidden: usize,
-    /// Shape and flat range of each tensor of [`TENSOR_NAMES`].
+    /// Shape and flat range of each tensor of [`TENSOR_NAMES`] (index them by [`Tensor::index`],
+    /// or take the range with [`NgpField::range`]).
     pub tensors: Vec<(Vec<usize>, Range<usize>)>,
     pub n_params: usize,
     pub aabb_min: [f32; 3],
@@ -105,19 +139,24 @@ impl NgpField {
         (forward + backward) as u64
     }
 
+    /// Flat range of tensor `t`.
+    pub fn range(&self, t: Tensor) -> Range<usize> {
+        self.tensors[t.index()].1.clone()
+    }
+
     /// Flat range of the hash table.
     pub fn embeddings_range(&self) -> Range<usize> {
-        self.tensors[0].1.clone()
+        self.range(Tensor::Embeddings)
     }
 
     /// Flat range of the `sigma_net` weights (`sigma_net.0.weight` then `sigma_net.1.weight`).
     pub fn sigma_net_range(&self) -> Range<usize> {
-        self.tensors[1].1.start..self.tensors[2].1.end
+        self.range(Tensor::Sigma0).start..self.range(Tensor::Sigma1).end
     }
 
     /// Flat range of every MLP weight (everything after the embeddings).
     pub fn mlp_range(&self) -> Range<usize> {
-        self.tensors[1].1.start..self.n_params
+        self.range(Tensor::Sigma0).start..self.n_params
     }
 
     /// Initial parameters: embeddings `U(−1e-4, 1e-4)` (instant-ngp), weights `U(±1/√fan_in)`
@@ -140,8 +179,9 @@ impl NgpField {
         [0, 1, 2].map(|d| (p[d] - self.aabb_min[d]) / (self.aabb_max[d] - self.aabb_min[d]))
     }
 
-    pub(crate) fn w<'a>(&self, params: &'a [f32], t: usize) -> &'a [f32] {
-        &params[self.tensors[t].1.clone()]
+    /// Tensor `t` of the flat parameters `params`.
+    pub(crate) fn w<'a>(&self, params: &'a [f32], t: Tensor) -> &'a [f32] {
+        &params[self.range(t)]
     }
 
     /// Density σ (1/m) at points. pos01: `[n, 3]` box coordinates in `[0,1]`; out: `[n]`.
@@ -152,10 +192,10 @@ impl NgpField {
         ws.enc.resize(n * e, 0.0);
         ws.h.resize(n * sh, 0.0);
         ws.out.resize(n * o, 0.0);
-        self.encoding.encode_batch(self.w(params, 0), &pos01[..3 * n], &mut ws.enc);
-        linear_forward(&ws.enc, self.w(params, 1), &mut ws.h, n, e, sh);
+        self.encoding.encode_batch(self.w(params, Tensor::Embeddings), &pos01[..3 * n], &mut ws.enc);
+        linear_forward(&ws.enc, self.w(params, Tensor::Sigma0), &mut ws.h, n, e, sh);
         relu(&mut ws.h);
-        linear_forward(&ws.h, self.w(params, 2), &mut ws.out, n, sh, o);
+        linear_forward(&ws.h, self.w(params, Tensor::Sigma1), &mut ws.out, n, sh, o);
         for i in 0..n {
             let inside = (0..3).all(|d| (0.0..=1.0).contains(&pos01[3 * i + d]));
             out[i] = if inside { trunc_exp(ws.out[i * o]) } else { 0.0 };
@@ -180,7 +220,7 @@ impl NgpField {
         let n = sigma.len();
         let (e, sh, o) = (self.enc_dim, self.sigma_hidden, 1 + self.geo);
         self.density_batch(params, pos01, ws, sigma);
-        let w1 = self.w(params, 2);
+        let w1 = self.w(params, Tensor::Sigma1);
         ws.d_h.resize(n * sh, 0.0);
         ws.d_enc.resize(n * e, 0.0);
         ws.jac.resize(n * e * 3, 0.0);
@@ -191,8 +231,8 @@ impl NgpField {
                 *d = if hk > 0.0 { ds * wk } else { 0.0 };
             }
         }
-        linear_backward_input(&ws.d_h, self.w(params, 1), &mut ws.d_enc, n, e, sh);
-        self.encoding.position_jacobian_batch(self.w(params, 0), &pos01[..3 * n], &mut ws.jac);
+        linear_backward_input(&ws.d_h, self.w(params, Tensor::Sigma0), &mut ws.d_enc, n, e, sh);
+        self.encoding.position_jacobian_batch(self.w(params, Tensor::Embeddings), &pos01[..3 * n], &mut ws.jac);
         let inv_ext = [0, 1, 2].map(|d| 1.0 / (self.aabb_max[d] - self.aabb_min[d]));
         for i in 0..n {
             if sigma[i] == 0.0 {
@@ -394,11 +434,15 @@ impl ChunkWorkspace {
         grow(&mut self.h0, n1 * sh);
         grow(&mut self.out0, n1 * o);
         grow(&mut self.sigma, n1);
-        field.encoding.encode_batch(field.w(params, 0), &self.pos[3 * n0..3 * n1], &mut self.enc[n0 * e..n1 * e]);
+        field.encoding.encode_batch(
+            field.w(params, Tensor::Embeddings),
+            &self.pos[3 * n0..3 * n1],
+            &mut self.enc[n0 * e..n1 * e],
+        );
         let n = n1 - n0;
-        linear_forward(&self.enc[n0 * e..], field.w(params, 1), &mut self.h0[n0 * sh..], n, e, sh);
+        linear_forward(&self.enc[n0 * e..], field.w(params, Tensor::Sigma0), &mut self.h0[n0 * sh..], n, e, sh);
         relu(&mut self.h0[n0 * sh..n1 * sh]);
-        linear_forward(&self.h0[n0 * sh..], field.w(params, 2), &mut self.out0[n0 * o..], n, sh, o);
+        linear_forward(&self.h0[n0 * sh..], field.w(params, Tensor::Sigma1), &mut self.out0[n0 * o..], n, sh, o);
         for s in n0..n1 {
             self.sigma[s] = trunc_exp(self.out0[s * o]);
         }
@@ -549,11 +593,11 @@ impl ChunkWorkspace {
         grow(&mut self.h1, m * ch);
         grow(&mut self.h2, m * ch);
         grow(&mut self.rgb, m * 3);
-        linear_forward(&self.cin, field.w(params, 3), &mut self.h1, m, ci, ch);
+        linear_forward(&self.cin, field.w(params, Tensor::Color0), &mut self.h1, m, ci, ch);
         relu(&mut self.h1[..m * ch]);
-        linear_forward(&self.h1, field.w(params, 4), &mut self.h2, m, ch, ch);
+        linear_forward(&self.h1, field.w(params, Tensor::Color1), &mut self.h2, m, ch, ch);
         relu(&mut self.h2[..m * ch]);
-        linear_forward(&self.h2, field.w(params, 5), &mut self.rgb, m, ch, 3);
+        linear_forward(&self.h2, field.w(params, Tensor::Color2), &mut self.rgb, m, ch, 3);
         for v in &mut self.rgb[..m * 3] {
             *v = sigmoid(*v);
         }
@@ -622,19 +666,19 @@ impl ChunkWorkspace {
         let gm = &mut self.grad_mlp;
         gm.resize(field.n_params - field.mlp_range().start, 0.0);
         let base = field.mlp_range().start;
-        let gr = |t: usize| field.tensors[t].1.start - base..field.tensors[t].1.end - base;
+        let gr = |t: Tensor| field.range(t).start - base..field.range(t).end - base;
         // color_net backward.
         self.d_h2.resize(m * ch, 0.0);
         self.d_h1.resize(m * ch, 0.0);
         self.d_cin.resize(m * ci, 0.0);
-        linear_backward_weight(&self.d_rgb, &self.h2, &mut gm[gr(5)], m, ch, 3, false);
-        linear_backward_input(&self.d_rgb, field.w(params, 5), &mut self.d_h2, m, ch, 3);
+        linear_backward_weight(&self.d_rgb, &self.h2, &mut gm[gr(Tensor::Color2)], m, ch, 3, false);
+        linear_backward_input(&self.d_rgb, field.w(params, Tensor::Color2), &mut self.d_h2, m, ch, 3);
         relu_backward(&self.h2[..m * ch], &mut self.d_h2[..m * ch]);
-        linear_backward_weight(&self.d_h2, &self.h1, &mut gm[gr(4)], m, ch, ch, false);
-        linear_backward_input(&self.d_h2, field.w(params, 4), &mut self.d_h1, m, ch, ch);
+        linear_backward_weight(&self.d_h2, &self.h1, &mut gm[gr(Tensor::Color1)], m, ch, ch, false);
+        linear_backward_input(&self.d_h2, field.w(params, Tensor::Color1), &mut self.d_h1, m, ch, ch);
         relu_backward(&self.h1[..m * ch], &mut self.d_h1[..m * ch]);
-        linear_backward_weight(&self.d_h1, &self.cin, &mut gm[gr(3)], m, ci, ch, false);
-        linear_backward_input(&self.d_h1, field.w(params, 3), &mut self.d_cin, m, ci, ch);
+        linear_backward_weight(&self.d_h1, &self.cin, &mut gm[gr(Tensor::Color0)], m, ci, ch, false);
+        linear_backward_input(&self.d_h1, field.w(params, Tensor::Color0), &mut self.d_cin, m, ci, ch);
         // Scatter to the sigma_net output: [dσ·trunc_exp', d geo] for active samples, 0 otherwise.
         self.d_out0.clear();
         self.d_out0.resize(n * o, 0.0);
@@ -646,11 +690,11 @@ impl ChunkWorkspace {
         // sigma_net backward.
         self.d_h0.resize(n * sh, 0.0);
         self.d_enc.resize(n * e, 0.0);
-        linear_backward_weight(&self.d_out0, &self.h0, &mut gm[gr(2)], n, sh, o, false);
-        linear_backward_input(&self.d_out0, field.w(params, 2), &mut self.d_h0, n, sh, o);
+        linear_backward_weight(&self.d_out0, &self.h0, &mut gm[gr(Tensor::Sigma1)], n, sh, o, false);
+        linear_backward_input(&self.d_out0, field.w(params, Tensor::Sigma1), &mut self.d_h0, n, sh, o);
         relu_backward(&self.h0[..n * sh], &mut self.d_h0[..n * sh]);
-        linear_backward_weight(&self.d_h0, &self.enc, &mut gm[gr(1)], n, e, sh, false);
-        linear_backward_input(&self.d_h0, field.w(params, 1), &mut self.d_enc, n, e, sh);
+        linear_backward_weight(&self.d_h0, &self.enc, &mut gm[gr(Tensor::Sigma0)], n, e, sh, false);
+        linear_backward_input(&self.d_h0, field.w(params, Tensor::Sigma0), &mut self.d_enc, n, e, sh);
     }
 
     /// Adds this chunk's embedding gradient to `grad_emb` (`[n_entries, 2]`), sample by sample.
@@ -720,8 +764,8 @@ mod tests {
         grad[base..].copy_from_slice(&ws.grad_mlp);
         let mut picks: Vec<usize> =
             (0..field.embeddings_range().end).filter(|&k| grad[k].abs() > 1e-5).step_by(7).take(8).collect();
-        for t in 1..6 {
-            let r = field.tensors[t].1.clone();
+        for t in &Tensor::ALL[1..] {
+            let r = field.range(*t);
             picks.extend(r.clone().filter(|&k| grad[k].abs() > 1e-5).step_by(13).take(4));
         }
         assert!(picks.len() >= 20, "{}", picks.len());

@@ -24,7 +24,7 @@ use crate::field_components::mlp::{
     linear_backward_input, linear_forward, relu, relu_backward, sigmoid, trunc_exp, trunc_exp_exact_grad,
 };
 use crate::field_components::sh_encoding::{sh_encode, sh_jacobian, SH_DIM};
-use crate::fields::{grow, ChunkWorkspace, NgpField, RayInput};
+use crate::fields::{grow, ChunkWorkspace, NgpField, RayInput, Tensor};
 use crate::model::Nerf;
 use crate::model_components::renderer::composite_forward;
 
@@ -143,9 +143,10 @@ impl JacobianWorkspace {
         d_direction[..nr].fill([[0.0; 3]; 3]);
         self.view.clear();
         self.view.resize(nr * 3 * SH_DIM, 0.0);
-        let (w_c0, w_c1, w_c2) = (field.w(params, 3), field.w(params, 4), field.w(params, 5));
-        let (w_s0, w_s1) = (field.w(params, 1), field.w(params, 2));
-        let emb = field.w(params, 0);
+        let (w_c0, w_c1, w_c2) =
+            (field.w(params, Tensor::Color0), field.w(params, Tensor::Color1), field.w(params, Tensor::Color2));
+        let (w_s0, w_s1) = (field.w(params, Tensor::Sigma0), field.w(params, Tensor::Sigma1));
+        let emb = field.w(params, Tensor::Embeddings);
         let inv_ext = [0, 1, 2].map(|d| 1.0 / (field.aabb_max[d] - field.aabb_min[d]));
         self.full.clear();
         self.thin.clear();
@@ -316,7 +317,8 @@ impl JacobianWorkspace {
         d_direction: &mut [[[f32; 3]; 3]],
     ) {
         let (e, sh) = (field.enc_dim, field.sigma_hidden);
-        let (w_s0, w_s1, emb) = (field.w(params, 1), field.w(params, 2), field.w(params, 0));
+        let (w_s0, w_s1, emb) =
+            (field.w(params, Tensor::Sigma0), field.w(params, Tensor::Sigma1), field.w(params, Tensor::Embeddings));
         let d_o0 = &w_s1[..sh];
         let thin = std::mem::take(&mut self.thin);
         for block in thin.chunks(3 * BLOCK) {
@@ -519,12 +521,12 @@ impl Nerf {
                 let mut enc = vec![0.0; n * e];
                 for (i, &t) in ts.iter().enumerate() {
                     let x = f.normalize([0, 1, 2].map(|d| r.origin[d] + t * r.direction[d]));
-                    f.encoding.encode(f.w(&self.params, 0), x, &mut enc[i * e..(i + 1) * e]);
+                    f.encoding.encode(f.w(&self.params, Tensor::Embeddings), x, &mut enc[i * e..(i + 1) * e]);
                 }
                 let (mut h0, mut out0) = (vec![0.0; n * sh], vec![0.0; n * o]);
-                linear_forward(&enc, f.w(&self.params, 1), &mut h0, n, e, sh);
+                linear_forward(&enc, f.w(&self.params, Tensor::Sigma0), &mut h0, n, e, sh);
                 relu(&mut h0);
-                linear_forward(&h0, f.w(&self.params, 2), &mut out0, n, sh, o);
+                linear_forward(&h0, f.w(&self.params, Tensor::Sigma1), &mut out0, n, sh, o);
                 let d = r.d();
                 let nrm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 let mut cin = vec![0.0; n * ci];
@@ -533,11 +535,11 @@ impl Nerf {
                     cin[i * ci + SH_DIM..(i + 1) * ci].copy_from_slice(&out0[i * o + 1..(i + 1) * o]);
                 }
                 let (mut h1, mut h2, mut rgb) = (vec![0.0; n * ch], vec![0.0; n * ch], vec![0.0; n * 3]);
-                linear_forward(&cin, f.w(&self.params, 3), &mut h1, n, ci, ch);
+                linear_forward(&cin, f.w(&self.params, Tensor::Color0), &mut h1, n, ci, ch);
                 relu(&mut h1);
-                linear_forward(&h1, f.w(&self.params, 4), &mut h2, n, ch, ch);
+                linear_forward(&h1, f.w(&self.params, Tensor::Color1), &mut h2, n, ch, ch);
                 relu(&mut h2);
-                linear_forward(&h2, f.w(&self.params, 5), &mut rgb, n, ch, 3);
+                linear_forward(&h2, f.w(&self.params, Tensor::Color2), &mut rgb, n, ch, 3);
                 rgb.iter_mut().for_each(|v| *v = sigmoid(*v));
                 let sigma: Vec<f32> = (0..n).map(|i| trunc_exp(out0[i * o])).collect();
                 let dt = vec![self.config.step_size; n];

@@ -29,7 +29,7 @@ use crate::field_components::mlp::{
     linear_backward_input, linear_backward_weight, relu_backward, trunc_exp_exact_grad,
 };
 use crate::field_components::sh_encoding::SH_DIM;
-use crate::fields::{ChunkWorkspace, RayInput};
+use crate::fields::{ChunkWorkspace, RayInput, Tensor};
 use crate::model::Nerf;
 
 /// Rays per parallel task of [`Nerf::render_rays_sigma_jacobian`] (the output is `4·P` floats
@@ -222,7 +222,8 @@ impl ParamJacobianWorkspace {
         }
         // Colour-net backward of C_c (one channel per row block): pre-sigmoid adjoint
         // w_i·s(1 − s) on channel c only, so d h2 = that · W2[c, :] masked by the ReLU.
-        let (w_c0, w_c1, w_c2) = (field.w(params, 3), field.w(params, 4), field.w(params, 5));
+        let (w_c0, w_c1, w_c2) =
+            (field.w(params, Tensor::Color0), field.w(params, Tensor::Color1), field.w(params, Tensor::Color2));
         let rows = 3 * k;
         self.d_h2.resize(rows * ch, 0.0);
         for c in 0..3 {
@@ -262,7 +263,7 @@ impl ParamJacobianWorkspace {
         }
         let rows = outputs * k;
         self.d_h0.resize(rows * sh, 0.0);
-        linear_backward_input(&self.d_out0, field.w(params, 2), &mut self.d_h0, rows, sh, o);
+        linear_backward_input(&self.d_out0, field.w(params, Tensor::Sigma1), &mut self.d_h0, rows, sh, o);
         for q in 0..outputs {
             for i in 0..k {
                 let h = &self.h0[i * sh..(i + 1) * sh];

@@ -7,6 +7,7 @@ mod common;
 use std::sync::OnceLock;
 
 use common::{tiny_config, tiny_split, tiny_train_config};
+use nerfsv_nerf::fields::Tensor;
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, RayInput, Trainer};
 
@@ -38,6 +39,7 @@ fn frob(m: &[[f32; 3]; 3]) -> f64 {
 /// rounding noise forces h ≳ 1e-5 m, where the dense kinks of a trained model spoil a few
 /// percent of the difference quotients.
 mod reference {
+    use nerfsv_nerf::fields::Tensor;
     use nerfsv_nerf::{Nerf, RayInput};
 
     fn encode(nerf: &Nerf, x: [f64; 3]) -> Vec<f64> {
@@ -67,8 +69,8 @@ mod reference {
     }
 
     /// `y = W·x` for torch `[out, in]` weights, optionally ReLU'd.
-    fn linear(nerf: &Nerf, tensor: usize, x: &[f64], relu: bool) -> Vec<f64> {
-        let (shape, range) = &nerf.field.tensors[tensor];
+    fn linear(nerf: &Nerf, tensor: Tensor, x: &[f64], relu: bool) -> Vec<f64> {
+        let (shape, range) = &nerf.field.tensors[tensor.index()];
         let w = &nerf.params[range.clone()];
         (0..shape[0])
             .map(|o| {
@@ -86,8 +88,8 @@ mod reference {
     fn sigma_net(nerf: &Nerf, p: [f64; 3]) -> Vec<f64> {
         let f = &nerf.field;
         let x = [0, 1, 2].map(|d| (p[d] - f.aabb_min[d] as f64) / (f.aabb_max[d] as f64 - f.aabb_min[d] as f64));
-        let h = linear(nerf, 1, &encode(nerf, x), true);
-        linear(nerf, 2, &h, false)
+        let h = linear(nerf, Tensor::Sigma0, &encode(nerf, x), true);
+        linear(nerf, Tensor::Sigma1, &h, false)
     }
 
     /// σ (1/m) at a world point inside the box.
@@ -127,9 +129,9 @@ mod reference {
         for &t in ts {
             let out = sigma_net(nerf, [0, 1, 2].map(|a| o[a] + t as f64 * d[a]));
             let cin: Vec<f64> = view.iter().chain(&out[1..]).copied().collect();
-            let h1 = linear(nerf, 3, &cin, true);
-            let h2 = linear(nerf, 4, &h1, true);
-            let rgb = linear(nerf, 5, &h2, false);
+            let h1 = linear(nerf, Tensor::Color0, &cin, true);
+            let h2 = linear(nerf, Tensor::Color1, &h1, true);
+            let rgb = linear(nerf, Tensor::Color2, &h2, false);
             let alpha = 1.0 - (-out[0].min(80.0).exp() * dt).exp();
             for ch in 0..3 {
                 c[ch] += trans * alpha / (1.0 + (-rgb[ch]).exp());
@@ -309,7 +311,8 @@ fn a_reused_ray_render_gives_the_one_call_jacobians_of_its_last_rays() {
 #[test]
 fn the_density_only_path_is_exact_when_colours_do_not_depend_on_position() {
     let mut nerf = model().clone();
-    let (shape, range) = nerf.field.tensors[3].clone(); // color_net.0.weight [hidden, 16 + geo]
+    // color_net.0.weight [hidden, 16 + geo]
+    let (shape, range) = nerf.field.tensors[Tensor::Color0.index()].clone();
     for row in nerf.params[range].chunks_exact_mut(shape[1]) {
         row[16..].fill(0.0);
     }

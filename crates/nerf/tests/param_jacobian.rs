@@ -18,7 +18,7 @@ fn model() -> Nerf {
         *v = 2.0 * rng.random::<f32>() - 1.0;
     }
     // Colour-net weights 3× torch's init: colours that depend visibly on the geometry features.
-    let c = nerf.field.tensors[3].1.start..nerf.field.n_params;
+    let c = nerf.field.range(nerfsv_nerf::fields::Tensor::Color0).start..nerf.field.n_params;
     for v in &mut nerf.params[c] {
         *v *= 3.0;
     }

@@ -5,6 +5,11 @@
 //! A crate's digest covers its `Cargo.toml` and every file under its `src/`, in sorted path
 //! order, and folds in the digests of the workspace crates it depends on, so that a change to
 //! `nerfsv-nerf` also changes `nerfsv-sim`'s. A pipeline module's digest covers that one file.
+//!
+//! What does not change a computation is left out: a Rust file is digested without its comments
+//! (doc comments included) and with every run of whitespace as one space ([`code_text`]), and a
+//! crate whose manifest marks it as presentation (`[package.metadata.nerfsv] presentation =
+//! true`: pictures and their styling) is left out of its dependents' digests.
 
 use std::collections::BTreeMap;
 use std::io;
@@ -40,18 +45,125 @@ fn files(dir: &Path) -> io::Result<Vec<String>> {
     Ok(out)
 }
 
-/// The digest of one file's bytes.
-pub fn file_digest(path: &Path) -> io::Result<u64> {
-    Ok(fnv1a_from(BASIS, &std::fs::read(path)?))
+/// Rust source without what cannot change what it computes: comments (`//…`, `/*…*/` nested,
+/// doc comments included) and the amount of whitespace (each run of whitespace and comments
+/// becomes one space). String, raw-string and character literals are kept as written.
+pub fn code_text(source: &str) -> String {
+    let chars: Vec<char> = source.chars().collect();
+    let mut out = String::with_capacity(source.len());
+    let mut space = false;
+    let mut i = 0;
+    let ident = |c: char| c.is_alphanumeric() || c == '_';
+    while i < chars.len() {
+        let c = chars[i];
+        let next = chars.get(i + 1).copied();
+        // Whitespace and comments: one space.
+        if c.is_whitespace() || (c == '/' && (next == Some('/') || next == Some('*'))) {
+            if c == '/' && next == Some('/') {
+                while i < chars.len() && chars[i] != '\n' {
+                    i += 1;
+                }
+            } else if c == '/' {
+                let mut depth = 0;
+                while i < chars.len() {
+                    if chars[i] == '/' && chars.get(i + 1) == Some(&'*') {
+                        depth += 1;
+                        i += 2;
+                    } else if chars[i] == '*' && chars.get(i + 1) == Some(&'/') {
+                        depth -= 1;
+                        i += 2;
+                        if depth == 0 {
+                            break;
+                        }
+                    } else {
+                        i += 1;
+                    }
+                }
+            } else {
+                i += 1;
+            }
+            space = true;
+            continue;
+        }
+        if space && !out.is_empty() {
+            out.push(' ');
+        }
+        space = false;
+        let start = i;
+        let after_ident = start > 0 && ident(chars[start - 1]);
+        // A raw string: r"…", r#"…"#, br#"…"# (not the tail of an identifier such as `for`).
+        let raw_at = match (c, next) {
+            ('r', Some('"' | '#')) if !after_ident => Some(i + 1),
+            ('b', Some('r')) if !after_ident && matches!(chars.get(i + 2), Some('"' | '#')) => Some(i + 2),
+            _ => None,
+        };
+        if let Some(mut j) = raw_at {
+            let hashes = chars[j..].iter().take_while(|&&h| h == '#').count();
+            j += hashes;
+            if chars.get(j) == Some(&'"') {
+                j += 1;
+                while j < chars.len()
+                    && !(chars[j] == '"' && chars[j + 1..].iter().take(hashes).filter(|&&h| h == '#').count() == hashes)
+                {
+                    j += 1;
+                }
+                i = (j + 1 + hashes).min(chars.len());
+                out.extend(&chars[start..i]);
+                continue;
+            }
+        }
+        if c == '"' {
+            i += 1;
+            while i < chars.len() && chars[i] != '"' {
+                i += if chars[i] == '\\' { 2 } else { 1 };
+            }
+            i = (i + 1).min(chars.len());
+            out.extend(&chars[start..i]);
+            continue;
+        }
+        // A character literal ('a', '\n', '\''), not a lifetime ('a).
+        if c == '\'' {
+            let end = if next == Some('\\') {
+                chars.get(i + 3..).and_then(|rest| rest.iter().position(|&q| q == '\'')).map(|k| i + 3 + k + 1)
+            } else if chars.get(i + 2) == Some(&'\'') {
+                Some(i + 3)
+            } else {
+                None
+            };
+            i = end.unwrap_or(i + 1).min(chars.len());
+            out.extend(&chars[start..i]);
+            continue;
+        }
+        out.push(c);
+        i += 1;
+    }
+    out
 }
 
-/// The digest of every file under `dir` (relative names and bytes, in sorted path order).
+/// The bytes of a file as digested: a Rust file's [`code_text`], any other file's bytes.
+fn digested_bytes(path: &Path) -> io::Result<Vec<u8>> {
+    let bytes = std::fs::read(path)?;
+    if path.extension().is_some_and(|e| e == "rs") {
+        if let Ok(text) = std::str::from_utf8(&bytes) {
+            return Ok(code_text(text).into_bytes());
+        }
+    }
+    Ok(bytes)
+}
+
+/// The digest of one file (see [`digested_bytes`]).
+pub fn file_digest(path: &Path) -> io::Result<u64> {
+    Ok(fnv1a_from(BASIS, &digested_bytes(path)?))
+}
+
+/// The digest of every file under `dir` (relative names and digested bytes, in sorted path
+/// order).
 pub fn folder_digest(dir: &Path) -> io::Result<u64> {
     let mut hash = BASIS;
     for rel in files(dir)? {
         hash = fnv1a_from(hash, rel.as_bytes());
         hash = fnv1a_from(hash, &[0]);
-        hash = fnv1a_from(hash, &std::fs::read(dir.join(&rel))?);
+        hash = fnv1a_from(hash, &digested_bytes(&dir.join(&rel))?);
         hash = fnv1a_from(hash, &[0xff]);
     }
     Ok(hash)
@@ -84,11 +196,27 @@ pub fn workspace_dependencies(manifest: &str) -> Vec<String> {
     deps
 }
 
+/// Whether a manifest marks its crate as presentation (`presentation = true` under
+/// `[package.metadata.nerfsv]`).
+pub fn is_presentation(manifest: &str) -> bool {
+    let mut section = "";
+    for line in manifest.lines().map(str::trim) {
+        if line.starts_with('[') {
+            section = line;
+        } else if section == "[package.metadata.nerfsv]" && line.replace(' ', "") == "presentation=true" {
+            return true;
+        }
+    }
+    false
+}
+
 /// Per workspace crate under `crates_dir` (package name → digest): its own code folded with its
-/// workspace dependencies' digests, transitively. A folder without a `Cargo.toml` is skipped.
+/// workspace dependencies' digests, transitively, presentation crates ([`is_presentation`]) left
+/// out of every other crate's. A folder without a `Cargo.toml` is skipped.
 pub fn workspace_digests(crates_dir: &Path) -> io::Result<BTreeMap<String, u64>> {
     let mut own = BTreeMap::new();
     let mut deps = BTreeMap::new();
+    let mut presentation = Vec::new();
     for entry in std::fs::read_dir(crates_dir)? {
         let dir = entry?.path();
         let Ok(manifest) = std::fs::read_to_string(dir.join("Cargo.toml")) else { continue };
@@ -97,6 +225,9 @@ pub fn workspace_digests(crates_dir: &Path) -> io::Result<BTreeMap<String, u64>>
         else {
             continue;
         };
+        if is_presentation(&manifest) {
+            presentation.push(name.clone());
+        }
         own.insert(name.clone(), crate_digest(&dir)?);
         deps.insert(name, workspace_dependencies(&manifest));
     }
@@ -106,6 +237,9 @@ pub fn workspace_digests(crates_dir: &Path) -> io::Result<BTreeMap<String, u64>>
         let mut closure = BTreeMap::new();
         let mut stack = vec![name.clone()];
         while let Some(n) = stack.pop() {
+            if n != *name && presentation.contains(&n) {
+                continue;
+            }
             if let Some(&d) = own.get(&n) {
                 if closure.insert(n.clone(), d).is_none() {
                     stack.extend(deps.get(&n).into_iter().flatten().cloned());

@@ -153,7 +153,7 @@ fn ause_csv(rows: &[(&str, usize, String, AuseOutcome)]) -> String {
 
 impl Stage for Uncertainty<'_> {
     const NAME: &'static str = "uq";
-    const CODE: &'static [&'static str] = &["nerfsv-uq", "nerfsv-plot", "uq.rs", "stages.rs", "config.rs"];
+    const CODE: &'static [&'static str] = &["nerfsv-uq", "uq.rs", "stages.rs", "config.rs"];
     const OUTPUTS: &'static [&'static str] = &[
         Self::GA_CSV,
         Self::BLA_CSV,

@@ -130,8 +130,10 @@ fn copy_sources(from: &Path, to: &Path) {
     }
 }
 
-#[test]
-fn a_line_changed_in_the_simulator_redoes_the_flight_stress_and_online_stages_and_nothing_upstream() {
+/// The stages whose code digest changes when `edit` changes a copy of this workspace's
+/// sources (every crate's manifest and `src/`), in the run's order.
+fn redone_by(edit: impl FnOnce(&Path)) -> Vec<&'static str> {
+    use nerfsv_pipeline::ensemble::EnsembleStage;
     use nerfsv_pipeline::flight::FlightStage;
     use nerfsv_pipeline::online::OnlineStage;
     use nerfsv_pipeline::stages::{Dataset, Eval, GroundTruthField, NerfField, Train};
@@ -139,13 +141,14 @@ fn a_line_changed_in_the_simulator_redoes_the_flight_stress_and_online_stages_an
     use nerfsv_pipeline::uq::Uncertainty;
     use nerfsv_pipeline::Stage;
 
-    let stages: [(&str, &[&str]); 9] = [
+    let stages: [(&'static str, &[&str]); 10] = [
         (Dataset::NAME, Dataset::CODE),
         (GroundTruthField::NAME, GroundTruthField::CODE),
         (Train::NAME, Train::CODE),
         (Eval::NAME, Eval::CODE),
-        (NerfField::NAME, NerfField::CODE),
+        (EnsembleStage::NAME, EnsembleStage::CODE),
         (Uncertainty::NAME, Uncertainty::CODE),
+        (NerfField::NAME, NerfField::CODE),
         (FlightStage::NAME, FlightStage::CODE),
         (StressStage::NAME, StressStage::CODE),
         (OnlineStage::NAME, OnlineStage::CODE),
@@ -153,25 +156,100 @@ fn a_line_changed_in_the_simulator_redoes_the_flight_stress_and_online_stages_an
     let dir = tempfile::tempdir().unwrap();
     let crates_dir = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
     copy_sources(crates_dir, dir.path());
-    let modules: Vec<(String, u64)> = std::fs::read_dir(dir.path().join("pipeline/src"))
-        .unwrap()
-        .flatten()
-        .map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            (name, nerfsv_pipeline::digest::file_digest(&e.path()).unwrap())
-        })
-        .collect();
     let keys = || {
+        let modules: Vec<(String, u64)> = std::fs::read_dir(dir.path().join("pipeline/src"))
+            .unwrap()
+            .flatten()
+            .filter(|e| e.path().is_file())
+            .map(|e| {
+                let name = e.file_name().to_string_lossy().into_owned();
+                (name, nerfsv_pipeline::digest::file_digest(&e.path()).unwrap())
+            })
+            .collect();
         let digests = workspace_digests(dir.path()).unwrap();
         let crates: Vec<(&str, u64)> = digests.iter().map(|(n, &d)| (n.as_str(), d)).collect();
         let modules: Vec<(&str, u64)> = modules.iter().map(|(n, d)| (n.as_str(), *d)).collect();
         stages.map(|(name, code)| (name, code_digest_in(code, &crates, &modules).unwrap()))
     };
     let before = keys();
-    let lib = dir.path().join("sim/src/lib.rs");
-    let text = std::fs::read_to_string(&lib).unwrap();
-    std::fs::write(&lib, format!("{text}\n// one more line\n")).unwrap();
+    edit(dir.path());
     let after = keys();
-    let redone: Vec<&str> = before.iter().zip(&after).filter(|(b, a)| b.1 != a.1).map(|(b, _)| b.0).collect();
+    before.iter().zip(&after).filter(|(b, a)| b.1 != a.1).map(|(b, _)| b.0).collect()
+}
+
+/// `f(text)` replaces the file `rel` under `root`.
+fn rewrite(root: &Path, rel: &str, f: impl FnOnce(&str) -> String) {
+    let path = root.join(rel);
+    let text = std::fs::read_to_string(&path).unwrap();
+    let changed = f(&text);
+    assert_ne!(changed, text, "{rel}: the edit changed nothing");
+    std::fs::write(&path, changed).unwrap();
+}
+
+#[test]
+fn a_line_changed_in_the_simulator_redoes_the_flight_stress_and_online_stages_and_nothing_upstream() {
+    let redone = redone_by(|root| {
+        rewrite(root, "sim/src/lib.rs", |t| format!("{t}\n#[doc(hidden)]\npub const ONE_MORE_LINE: u8 = 1;\n"))
+    });
     assert_eq!(redone, ["flight", "stress", "online"]);
+}
+
+#[test]
+fn a_doc_comment_in_the_config_or_a_colour_in_the_plot_crate_redoes_no_stage() {
+    let redone = redone_by(|root| {
+        rewrite(root, "pipeline/src/config.rs", |t| {
+            t.replacen("\n/// ", "\n/// Reworded for a reader, as documentation changes do.\n/// ", 1)
+        });
+        rewrite(root, "pipeline/src/config.rs", |t| format!("{t}\n// A comment at the end.\n"));
+    });
+    assert!(redone.is_empty(), "a doc comment redid {redone:?}");
+    let redone = redone_by(|root| {
+        rewrite(root, "plot/src/palette.rs", |t| t.replace("Rgb(0x1f, 0x1f, 0x1f)", "Rgb(0x20, 0x20, 0x20)"))
+    });
+    assert!(redone.is_empty(), "a colour redid {redone:?}");
+}
+
+#[test]
+fn a_change_in_the_nerf_kernels_redoes_training_and_what_uses_the_model() {
+    let redone = redone_by(|root| {
+        rewrite(root, "nerf/src/kernels.rs", |t| format!("{t}\n#[doc(hidden)]\npub const ONE_MORE_LINE: u8 = 1;\n"))
+    });
+    assert_eq!(redone, ["nerf", "eval", "ensemble", "uq", "nerf_collision", "flight", "stress", "online"]);
+}
+
+#[test]
+fn code_text_drops_comments_and_spacing_but_keeps_literals() {
+    use nerfsv_pipeline::digest::code_text;
+    let a = "/// Doc.\nfn f(x: u32) -> u32 {\n    // note\n    x /* inline /* nested */ */ + 1\n}\n";
+    let b = "fn f(x: u32) -> u32 { x + 1 }";
+    assert_eq!(code_text(a), code_text(b));
+    assert_eq!(code_text(b), "fn f(x: u32) -> u32 { x + 1 }");
+    // What a literal holds is code, however it looks.
+    for (x, y) in [
+        (r#"let s = "a // b";"#, r#"let s = "a // c";"#),
+        (r#"let s = "a  b";"#, r#"let s = "a b";"#),
+        (r##"let s = r#"x " // y"#;"##, r##"let s = r#"x " // z"#;"##),
+        ("let c = '/'; let d = 1;", "let c = '/'; let d = 2;"),
+        ("let c = '\\''; // q\nlet d = 1;", "let c = '\\''; // q\nlet d = 2;"),
+        ("let s = \"\\\" // x\";", "let s = \"\\\" // y\";"),
+    ] {
+        assert_ne!(code_text(x), code_text(y), "{x} / {y}");
+    }
+    // A lifetime is not a character literal: the comment after it is still a comment.
+    assert_eq!(code_text("fn f<'a>(x: &'a u8) {} // c"), code_text("fn f<'a>(x: &'a u8) {}"));
+}
+
+#[test]
+fn a_presentation_crate_is_left_out_of_its_dependents_digests() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    workspace(root);
+    let m = std::fs::read_to_string(root.join("low/Cargo.toml")).unwrap();
+    write(&root.join("low/Cargo.toml"), &format!("{m}\n[package.metadata.nerfsv]\npresentation = true\n"));
+    let before = workspace_digests(root).unwrap();
+    write(&root.join("low/src/inner/deep.rs"), "pub const X: u32 = 2;\n");
+    let after = workspace_digests(root).unwrap();
+    assert_ne!(before["nerfsv-low"], after["nerfsv-low"], "its own digest follows its code");
+    assert_eq!(before["nerfsv-mid"], after["nerfsv-mid"]);
+    assert_eq!(before["nerfsv-top"], after["nerfsv-top"]);
 }

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use crate::error::ValidationError;
+use crate::label::Label;
 use crate::record::{read_csv_file, write_csv_file, RolloutRecord};
-use crate::sampler::Label;
 use crate::system::{Job, Outcome, System};
 use crate::Trajectory;
 

@@ -43,6 +43,7 @@ mod config;
 mod error;
 mod gaussian;
 mod journal;
+mod label;
 mod online;
 mod record;
 mod sampler;
@@ -58,12 +59,13 @@ pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, SubsetConfig, V
 pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};
+pub use label::{Label, Sampler};
 pub use online::{auroc, disagreement_auroc, step_auroc_interval, DisagreementAuroc};
 pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
-    replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate, Label,
-    MonteCarloResult, Reward, Sampler,
+    replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate,
+    MonteCarloResult, Reward,
 };
 pub use seed::rollout_seed;
 pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult};

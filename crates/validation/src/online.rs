@@ -5,8 +5,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::label::Label;
 use crate::record::RolloutRecord;
-use crate::sampler::Label;
 
 /// The area under the ROC curve of `scores` as a predictor of `labels` (higher score, more
 /// likely positive): the probability that a random positive outscores a random negative, ties

@@ -9,7 +9,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::ValidationError;
-use crate::sampler::Label;
+use crate::label::Label;
 use crate::Trajectory;
 
 /// Everything about one rollout: where it came from, what it flew, how likely it was, what

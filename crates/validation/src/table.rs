@@ -2,8 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::label::Label;
 use crate::record::{mean, RolloutRecord};
-use crate::sampler::Label;
 
 /// One row of the paper's Tables 1–2 over a set of rollouts.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -5,6 +5,8 @@
 //! disagreement stands for what the data leaves undetermined about the world. NeRF-sim flies in
 //! them with `sim.nerf_world = "ensemble"`.
 
+mod report;
+
 use std::path::{Path, PathBuf};
 
 use nerfsv_collision::SdfGrid;
@@ -181,14 +183,6 @@ impl Stage for EnsembleStage<'_> {
             .collect();
         write_json(&cx.dir.join(Self::MEMBERS), &list)?;
         Ok(EnsembleFigures { members: self.ensemble.members, steps, bootstrap: self.ensemble.bootstrap, trained })
-    }
-
-    fn describe(f: &EnsembleFigures) -> String {
-        if f.trained.is_empty() {
-            return "one member, the deployed model: no other trained".into();
-        }
-        let psnr: Vec<String> = f.trained.iter().map(|m| format!("{:.2}", m.test_psnr)).collect();
-        format!("{} more members of {} steps (test PSNR {} dB)", f.trained.len(), f.steps, psnr.join(", "))
     }
 }
 

@@ -2,6 +2,8 @@
 //! undisturbed, in both worlds with both estimators ([`nerfsv_study::flight`]); `RUN/flight/`
 //! holds each flight's trajectory CSV and plot.
 
+mod report;
+
 use std::path::Path;
 
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
@@ -151,15 +153,6 @@ impl Stage for FlightStage<'_> {
             waypoints: flight.waypoints.iter().map(|&p| p.into()).collect(),
             flights,
         })
-    }
-
-    fn describe(f: &FlightStageFigures) -> String {
-        let mut s = format!("path {:.2} m", f.path_length_m);
-        for fl in &f.flights {
-            s.push_str("\n    ");
-            s.push_str(&fl.describe());
-        }
-        s
     }
 }
 

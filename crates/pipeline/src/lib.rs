@@ -35,14 +35,14 @@
 //!         std::fs::write(cx.dir.join("count.txt"), n.to_string()).map_err(|e| PipelineError::io(&cx.dir, e))?;
 //!         Ok(n)
 //!     }
-//!
-//!     fn describe(n: &usize) -> String {
-//!         format!("{n} test views")
-//!     }
 //! }
 //!
 //! impl Report for CountTestViews {
 //!     const ABOUT: &'static str = "counts the test views";
+//!
+//!     fn describe(n: &usize) -> String {
+//!         format!("{n} test views")
+//!     }
 //!
 //!     fn report(n: &usize, _: &ReportContext) -> Option<Section> {
 //!         let mut s = Section::new("count", "Test views", "test views");
@@ -74,7 +74,6 @@ pub mod layout;
 pub mod online;
 pub mod replicate;
 pub mod report;
-mod sections;
 pub mod stage;
 pub mod stages;
 pub mod stress;

@@ -26,6 +26,8 @@
 //! ground-truth render of the same pixels); `nerfsv stress --uncertainty field` looks it up in
 //! an uncertainty field instead.
 
+mod report;
+
 use std::path::Path;
 
 use nerfsv_sim::WorldKind;
@@ -302,10 +304,6 @@ impl Stage for OnlineStage<'_> {
         };
         write_table(&cx.dir.join(ONLINE_TABLE_CSV), &figures)?;
         Ok(figures)
-    }
-
-    fn describe(f: &OnlineFigures) -> String {
-        f.describe()
     }
 }
 

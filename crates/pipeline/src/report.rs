@@ -402,3 +402,58 @@ fn page(run: &str, stages: &[Shown], config: Option<&str>, tables: &[String]) ->
     o.push_str(".</p>\n</body></html>\n");
     o
 }
+
+/// A number for a table: `digits` decimals, or "–" when absent.
+pub(crate) fn num(v: impl Into<Option<f64>>, digits: usize) -> String {
+    v.into().map_or("–".into(), |x| format!("{x:.digits$}"))
+}
+
+/// Metres as millimetres, one decimal.
+pub(crate) fn mm(v: f64) -> String {
+    format!("{:.1}", 1e3 * v)
+}
+
+/// A percentage of a fraction.
+pub(crate) fn pct(v: f64) -> String {
+    format!("{:.1} %", 100.0 * v)
+}
+
+pub(crate) fn yes_no(v: bool) -> String {
+    if v { "yes" } else { "no" }.into()
+}
+
+/// Writes a picture a section drew into its stage's folder `dir`; `false` if it could not.
+pub(crate) fn draw(dir: &Path, file: &str, png: Option<Vec<u8>>) -> bool {
+    png.is_some_and(|png| nerfsv_scene::io::atomic_write_bytes(&dir.join(file), &png).is_ok())
+}
+
+/// A rate with its interval: `3.0 % [1.0, 8.5]`.
+pub(crate) fn rate_ci(value: f64, ci: [f64; 2]) -> String {
+    format!("{} [{:.1}, {:.1}]", pct(value), 100.0 * ci[0], 100.0 * ci[1])
+}
+
+/// "MC 0.61 [0.51, 0.71] (18 of 548 steps disagree)": a sampler's step AUROC with its interval.
+pub(crate) fn step_auroc_with_interval(a: &nerfsv_study::stress::StepAurocFigures) -> String {
+    let ci = a.step_auroc_ci95.map_or(String::new(), |[lo, hi]| format!(" [{lo:.2}, {hi:.2}]"));
+    format!(
+        "{} {}{ci} ({} of {} steps disagree)",
+        a.sampler.name().to_uppercase(),
+        num(a.auroc.step_auroc, 2),
+        a.auroc.disagreeing_steps,
+        a.auroc.steps
+    )
+}
+
+/// `k / n` with its Wilson 95 % interval, or "–" for `n = 0`.
+pub(crate) fn proportion(k: usize, n: usize) -> String {
+    if n == 0 {
+        return "–".into();
+    }
+    let (lo, hi) = nerfsv_validation::wilson_interval(k, n);
+    format!("{:.2} [{lo:.2}, {hi:.2}]", k as f64 / n as f64)
+}
+
+/// A proportion or coefficient with its interval, or "–".
+pub(crate) fn estimate(e: Option<nerfsv_validation::Estimate>) -> String {
+    e.map_or("–".into(), |e| format!("{:.2} [{:.2}, {:.2}]", e.value, e.ci95[0], e.ci95[1]))
+}

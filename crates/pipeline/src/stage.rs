@@ -61,9 +61,6 @@ pub trait Stage {
 
     /// Computes the stage's outputs into `cx.dir` and returns its figures.
     fn run(&self, cx: &StageContext) -> Result<Self::Figures, PipelineError>;
-
-    /// One line for the user once the stage has run.
-    fn describe(figures: &Self::Figures) -> String;
 }
 
 /// A stage's part of the report: what it computes, and its section, built from its typed
@@ -72,11 +69,15 @@ pub trait Stage {
 /// ([`REPORT_SECTION`]), from which [`crate::report::write_report`] assembles the page.
 ///
 /// A trait of its own so that it may live outside the stage's code: a stage's key digests its
-/// [`Stage::CODE`], and changing how a table looks must not rerun a stage. The built-in
-/// stages' sections are in `sections.rs`, which no stage's key includes.
+/// [`Stage::CODE`], and changing how a table or a line reads must not rerun a stage. Each
+/// built-in stage's `Report` is in its module's child `report.rs` (`stress/report.rs` for
+/// `stress.rs`), which no stage's key includes.
 pub trait Report: Stage {
     /// What the stage computes, in a few words (the report's table of stage timings).
     const ABOUT: &'static str;
+
+    /// One line for the user once the stage has run.
+    fn describe(figures: &Self::Figures) -> String;
 
     /// The stage's section; `None` shows none. It may draw pictures into `cx.dir`.
     fn report(figures: &Self::Figures, cx: &ReportContext) -> Option<Section> {
@@ -377,13 +378,13 @@ mod tests {
             }
             Ok(Written { value: self.value, half: self.value as f64 / 3.0 })
         }
-
-        fn describe(f: &Written) -> String {
-            format!("wrote {}", f.value)
-        }
     }
 
     impl Report for Writer<'_> {
+        fn describe(f: &Written) -> String {
+            format!("wrote {}", f.value)
+        }
+
         const ABOUT: &'static str = "writes its value";
     }
 
@@ -402,13 +403,13 @@ mod tests {
         fn run(&self, cx: &StageContext) -> Result<String, PipelineError> {
             Ok(std::fs::read_to_string(cx.input_dir("writer").join("out.txt")).unwrap())
         }
-
-        fn describe(f: &String) -> String {
-            f.clone()
-        }
     }
 
     impl Report for Reader {
+        fn describe(f: &String) -> String {
+            f.clone()
+        }
+
         const ABOUT: &'static str = "reads the writer's output";
     }
 
@@ -490,14 +491,14 @@ mod tests {
             }
             Ok((n, cx.resume))
         }
-
-        fn describe(f: &(u32, bool)) -> String {
-            format!("{f:?}")
-        }
     }
 
     impl Report for Counter {
         const ABOUT: &'static str = "counts to 5";
+
+        fn describe(f: &(u32, bool)) -> String {
+            format!("{f:?}")
+        }
     }
 
     #[test]

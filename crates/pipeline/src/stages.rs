@@ -1,5 +1,7 @@
 //! The stages of `nerfsv run`, each a thin [`Stage`] around its library function.
 
+mod report;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -174,10 +176,6 @@ impl Stage for Dataset<'_> {
             }
         }
     }
-
-    fn describe(f: &DatasetFigures) -> String {
-        format!("{} views of {}×{} in {:.1} s", f.views, f.width, f.height, f.seconds)
-    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -240,11 +238,6 @@ impl Stage for GroundTruthField<'_> {
     fn run(&self, cx: &StageContext) -> Result<GroundTruthFigures, PipelineError> {
         build_ground_truth(self.scene, self.cells_per_metre, &cx.dir.join(Self::SDF), Some(&cx.dir.join(Self::MESH)))
     }
-
-    fn describe(f: &GroundTruthFigures) -> String {
-        let [nx, ny, nz] = f.grid.dims;
-        format!("{nx}×{ny}×{nz} grid in {:.2} s", f.build_seconds)
-    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -298,10 +291,6 @@ impl Stage for Train<'_> {
         let (nerf, train) = (self.settings.nerf.clone(), self.settings.train.clone());
         let (_, stats) = nerfsv_nerf::train(&data, &cx.dir, Budget::Steps(steps), cx.resume, nerf, train, &mut report)?;
         Ok(stats)
-    }
-
-    fn describe(f: &TrainStats) -> String {
-        format!("{} steps in {:.0} s (last batch PSNR {:.2} dB)", f.steps, f.seconds, f.train_batch_psnr)
     }
 }
 
@@ -363,15 +352,6 @@ impl Stage for Eval {
         let path = cx.dir.join(Self::COMPARE);
         nerfsv_scene::io::atomic_write(&path, |w| image.write_png(w)).map_err(|e| PipelineError::io(&path, e))?;
         Ok(EvalFigures::from(&report))
-    }
-
-    fn describe(f: &EvalFigures) -> String {
-        format!(
-            "test PSNR {:.2} dB, SSIM {:.3}, median depth error {}",
-            f.psnr,
-            f.ssim,
-            f.depth_median_abs_err_m.map_or("n/a".into(), |d| format!("{d:.3} m"))
-        )
     }
 }
 
@@ -489,17 +469,5 @@ impl Stage for NerfField {
             &cx.dir.join(Self::SDF),
             Some(&cx.dir.join(Self::MESH)),
         )
-    }
-
-    fn describe(f: &NerfFieldFigures) -> String {
-        match &f.agreement_with_ground_truth {
-            Some(a) => format!(
-                "against ground truth in the flight band: IoU {:.3}, |SDF diff| mean {} m / p95 {} m",
-                a.band_iou,
-                a.band_mean_abs_diff.map_or("n/a".into(), |d| format!("{d:.3}")),
-                a.band_p95_abs_diff.map_or("n/a".into(), |d| format!("{d:.3}")),
-            ),
-            None => format!("built in {:.2} s", f.build_seconds),
-        }
     }
 }

@@ -1,6 +1,8 @@
 //! The stress stage: the drone study's searches ([`nerfsv_study::stress`]) over this run's
 //! model and fields, cached and resumable.
 
+mod report;
+
 use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
@@ -111,10 +113,6 @@ impl Stage for StressStage<'_> {
             figures.transfer = Some(self.transfer(cx, &inputs, &flight, &records)?);
         }
         Ok(figures)
-    }
-
-    fn describe(f: &StressFigures) -> String {
-        f.describe()
     }
 }
 

@@ -3,6 +3,8 @@
 //! offline library ([`nerfsv_uq::offline`]), which `nerfsv uq offline` and `nerfsv uq ause`
 //! call too.
 
+mod report;
+
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -343,22 +345,6 @@ impl Stage for Uncertainty<'_> {
         } else {
             Self::INPUTS
         }
-    }
-
-    fn describe(f: &UqFigures) -> String {
-        let splits = [&f.train, &f.val, &f.test];
-        let ga: usize = splits.iter().map(|s| s.ga_images).sum();
-        let bla: usize = splits.iter().map(|s| s.bla_images).sum();
-        format!(
-            "GA on {ga} images (test mean σ_d {}), BLA on {bla} (test mean trace {}); depth AUSE GA {} over {}, BLA {} over {}; {:.1} s",
-            short(f.test.ga_mean_sigma_d),
-            short(f.test.bla_mean_normalized_trace),
-            short(f.ause_ga),
-            f.ause_ga_images,
-            short(f.ause_bla),
-            f.ause_bla_images,
-            f.seconds
-        )
     }
 }
 

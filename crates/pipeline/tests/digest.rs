@@ -195,7 +195,7 @@ fn a_line_changed_in_the_simulator_redoes_the_flight_stress_and_online_stages_an
 }
 
 #[test]
-fn a_doc_comment_in_the_config_or_a_colour_in_the_plot_crate_redoes_no_stage() {
+fn a_doc_comment_in_the_config_a_colour_in_the_plot_crate_or_a_report_section_redoes_no_stage() {
     let redone = redone_by(|root| {
         rewrite(root, "pipeline/src/config.rs", |t| {
             t.replacen("\n/// ", "\n/// Reworded for a reader, as documentation changes do.\n/// ", 1)
@@ -207,6 +207,12 @@ fn a_doc_comment_in_the_config_or_a_colour_in_the_plot_crate_redoes_no_stage() {
         rewrite(root, "plot/src/palette.rs", |t| t.replace("Rgb(0x1f, 0x1f, 0x1f)", "Rgb(0x20, 0x20, 0x20)"))
     });
     assert!(redone.is_empty(), "a colour redid {redone:?}");
+    // A stage's section and its one-line description live in its module's child report.rs.
+    let redone = redone_by(|root| {
+        rewrite(root, "pipeline/src/stress/report.rs", |t| t.replacen("Monte Carlo", "Plain Monte Carlo", 1));
+        rewrite(root, "pipeline/src/stages/report.rs", |t| t.replacen("views of {}×{} in", "views, {}×{} pixels, in", 1));
+    });
+    assert!(redone.is_empty(), "a report section redid {redone:?}");
 }
 
 #[test]

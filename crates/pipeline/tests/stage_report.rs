@@ -31,14 +31,14 @@ impl Stage for Squares {
         std::fs::write(cx.dir.join("squares.csv"), text).map_err(|e| PipelineError::io(&cx.dir, e))?;
         Ok(SquaresFigures { count: self.n, largest: (self.n - 1).pow(2) })
     }
-
-    fn describe(f: &SquaresFigures) -> String {
-        format!("{} squares", f.count)
-    }
 }
 
 impl Report for Squares {
     const ABOUT: &'static str = "squares of the first integers";
+
+    fn describe(f: &SquaresFigures) -> String {
+        format!("{} squares", f.count)
+    }
 
     fn report(f: &SquaresFigures, _: &ReportContext) -> Option<Section> {
         let mut s = Section::new("squares", "Squares & more", "squares");

@@ -7,7 +7,6 @@
 use nalgebra::{DMatrix, DVector};
 use nerfsv_scene::validate::InvalidValue;
 
-
 use crate::config::{CemConfig, MonteCarloConfig, ValidationConfig};
 use crate::error::ValidationError;
 use crate::gaussian::{Gaussian, Prior, Proposal};

@@ -1,0 +1,351 @@
+//! The stress stage's section of the report: the study's answer, the transfer table, the
+//! samplers' figures and the clearance differences drawn.
+//!
+//! Presentation only: a stage's key digests its own module file, not this child module, so a
+//! change here redoes no stage.
+
+use std::path::Path;
+
+use nerfsv_sim::WorldKind;
+use nerfsv_study::stress::{Sampler, SamplerFigures, StressFigures};
+
+use crate::report::{draw, esc, estimate, mm, num, pct, proportion, rate_ci, Section, Table};
+use crate::stress::StressStage;
+use crate::{Report, ReportContext};
+
+/// The stress stage's histograms of clearance differences.
+const CLEARANCE_PNG: &str = "clearance_difference.png";
+
+/// Histograms of |clearance in NeRF-sim − in GT-sim| (mm) per sampler, per trajectory and per
+/// step, from the stress stage's rollouts and their replays in `dir`; `None` without them.
+fn clearance_figure(dir: &Path) -> Option<Vec<u8>> {
+    let records = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::ROLLOUTS_CSV)).ok()?;
+    let replays = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::replay_csv(WorldKind::Gt))).ok()?;
+    let mut groups = Vec::new();
+    for sampler in [nerfsv_validation::Label::Mc, nerfsv_validation::Label::Cem] {
+        let ours: Vec<_> = records.iter().filter(|r| r.sampler == sampler).cloned().collect();
+        let theirs: Vec<_> = replays.iter().filter(|r| r.sampler == sampler).cloned().collect();
+        let Ok(a) = nerfsv_validation::compare(&ours, &theirs) else { continue };
+        let mm = |v: &[f64]| v.iter().map(|x| 1e3 * x).collect::<Vec<f64>>();
+        let name = sampler.name().to_uppercase();
+        groups.push(nerfsv_plot::Group {
+            label: format!("{name}, per trajectory"),
+            values: mm(&a.clearance_difference.values),
+        });
+        groups.push(nerfsv_plot::Group {
+            label: format!("{name}, per step"),
+            values: mm(&a.step_clearance_difference.values),
+        });
+    }
+    groups.retain(|g| !g.values.is_empty());
+    if groups.is_empty() {
+        return None;
+    }
+    let fig = nerfsv_plot::HistogramFigure {
+        title: "NeRF-sim against GT-sim: |Δ minimum clearance| on the same disturbances".into(),
+        x_title: "|clearance difference| (mm)".into(),
+        y_title: "count".into(),
+        groups,
+        bins: 30,
+    };
+    nerfsv_plot::histograms_png(&fig, 1100, 700).ok()
+}
+
+/// Each world's crash rate and each NeRF world's agreement with GT-sim, a row per world.
+fn transfer_table(t: &nerfsv_study::stress::TransferFigures) -> Table {
+    let world = |name: &str, r: &nerfsv_study::stress::RateFigure, x: Option<&nerfsv_validation::Transfer>| {
+        let mut row = vec![name.to_string(), format!("{} of {}", r.failures, r.rollouts), rate_ci(r.rate, r.ci95)];
+        match x {
+            Some(x) => row.extend([
+                format!("{} / {}", x.confusion.false_positive, x.confusion.false_negative),
+                format!("{:.2e}", x.mcnemar_p),
+                estimate(x.precision),
+                estimate(x.recall),
+                estimate(x.mcc),
+                format!(
+                    "{} (majority {})",
+                    x.accuracy.map_or("–".into(), |a| format!("{:.2}", a.value)),
+                    num(x.majority_accuracy, 2)
+                ),
+            ]),
+            None => row.extend(std::iter::repeat_n("–".to_string(), 6)),
+        }
+        row
+    };
+    Table::new(&[
+        "world",
+        "MC crashes",
+        "crash rate [95 %]",
+        "only NeRF / only GT",
+        "McNemar exact p",
+        "precision",
+        "recall",
+        "Matthews correlation",
+        "accuracy",
+    ])
+    .row(world("NeRF-sim, deployed NeRF as the world", &t.nerf_deployed, Some(&t.deployed)))
+    .row(world("NeRF-sim, the ensemble as the world", &t.nerf_ensemble, Some(&t.ensemble)))
+    .row(world("GT-sim", &t.gt, None))
+}
+
+/// The study's answer from the stress stage: how likely the drone fails under the disturbance
+/// prior (subset simulation's estimate where the stage ran it, else Monte Carlo's), how
+/// NeRF-sim's failures carry over to GT-sim, and the most likely failure.
+fn stress_answer(s: &mut Section, f: &StressFigures) {
+    let find = |sampler: Sampler| f.samplers.iter().find(|s| s.sampler == sampler);
+    let world = |s: &SamplerFigures| format!("{}-sim, {} estimator", s.world.name(), s.estimator.name());
+    if let Some(p) = find(Sampler::Subset).or_else(|| find(Sampler::Mc)) {
+        let how = match p.sampler {
+            Sampler::Subset => "subset simulation",
+            _ => "Monte Carlo",
+        };
+        let mut line = format!(
+            "<b>How likely does the drone crash</b> under the disturbance prior ({})? P(fail) = {}, 95 % interval [{}, {}] \
+             ({how}, {} rollouts)",
+            esc(&world(p)),
+            num(p.p_fail, 3),
+            num(p.p_fail_interval.0, 3),
+            num(p.p_fail_interval.1, 3),
+            p.rollouts,
+        );
+        if let (Some(mc), Sampler::Subset) = (find(Sampler::Mc), p.sampler) {
+            let _ = std::fmt::Write::write_fmt(
+                &mut line,
+                format_args!(
+                    "; Monte Carlo alone: {} of {} [{}, {}]",
+                    pct(mc.p_fail),
+                    mc.rollouts,
+                    num(mc.p_fail_interval.0, 3),
+                    num(mc.p_fail_interval.1, 3)
+                ),
+            );
+        }
+        s.answer(10, line + ".");
+    }
+    if let Some(c) = find(Sampler::Mc).and_then(|s| s.confusion.as_ref()) {
+        let t = &c.trajectories;
+        let (tp, fp, fneg, tn) = (t.true_positive, t.false_positive, t.false_negative, t.true_negative);
+        s.answer(
+            20,
+            format!(
+                "<b>Do NeRF-sim's failures hold in GT-sim?</b> Of the Monte Carlo rollouts, {} crashed in NeRF-sim and {} in \
+                 GT-sim with the same disturbances; {tp} crashed in both (precision {}, recall {}, Wilson 95 % \
+                 intervals), {fp} only in NeRF-sim, {fneg} only in GT-sim, {tn} in neither (accuracy {} against {} for \
+                 always predicting GT-sim's commoner outcome).",
+                t.nerf_failures(),
+                t.gt_failures(),
+                proportion(tp, t.nerf_failures()),
+                proportion(tp, t.gt_failures()),
+                proportion(tp + tn, t.total()),
+                num(t.majority_accuracy(), 2),
+            ),
+        );
+    }
+    if let Some(m) = find(Sampler::Cem).or_else(|| find(Sampler::Mc)).and_then(|s| s.most_likely_failure.as_ref()) {
+        let replay = match m.replay_collided {
+            Some(true) => "it crashes in GT-sim too",
+            Some(false) => "it does not crash in GT-sim",
+            None => "not replayed",
+        };
+        s.answer(
+            30,
+            format!(
+                "<b>The most likely failure</b> found ({} {}/{}): log-likelihood {} (the steps after the crash at the prior's mode), collision at step {}; {replay}.",
+                esc(&m.sampler.name().to_uppercase()),
+                m.population,
+                m.index,
+                num(m.log_likelihood, 2),
+                m.collision_step.map_or("–".into(), |k| k.to_string()),
+            ),
+        );
+    }
+}
+
+impl Report for StressStage<'_> {
+    const ABOUT: &'static str = "Monte Carlo, CEM and subset simulation in NeRF-sim, replayed in GT-sim";
+
+    fn describe(f: &StressFigures) -> String {
+        f.describe()
+    }
+
+    fn report(f: &StressFigures, cx: &ReportContext) -> Option<Section> {
+        let title = match f.replay_world {
+            Some(_) => "Stress tests: failure probability and NeRF-sim against GT-sim",
+            None => "Stress tests: failure probability (nothing replayed in another world)",
+        };
+        let mut s = Section::new("stress", title, "stress tests");
+        stress_answer(&mut s, f);
+        if let Some(t) = &f.transfer {
+            let table = transfer_table(t);
+            s.answer(
+                5,
+                format!(
+                    "<b>Do failures found in a NeRF predict failures in the world?</b> The same {} Monte Carlo rollouts \
+                     (disturbances and seeds) in NeRF-sim with the deployed NeRF as the world, in NeRF-sim with the \
+                     ensemble's other members as the world, and in GT-sim; each NeRF world against GT-sim, failure \
+                     positive, 95 % intervals (rates and proportions Wilson, correlation bootstrap over rollouts):\n{}",
+                    t.gt.rollouts,
+                    table.html()
+                ),
+            );
+            s.paragraph("The transfer table: the Monte Carlo rollouts in both NeRF worlds against GT-sim.");
+            s.table(table);
+            if !t.step_auroc.is_empty() {
+                s.paragraph(
+                    "How well the ensemble's uncertainty of the drone's view at each step (the mean density-aware \
+                     spread of its NeRFs' renders of the view's rays, measured at the step's recorded pose, no \
+                     ground-truth image) predicts the steps where NeRF-sim and GT-sim disagree (one touched geometry, \
+                     the other not); per sampler, the step AUROC's interval from a bootstrap over rollouts:",
+                );
+                s.table(
+                    Table::new(&[
+                        "sampler",
+                        "NeRF world",
+                        "steps",
+                        "disagreeing",
+                        "step AUROC [95 %]",
+                        "rollout AUROC",
+                    ])
+                    .rows(t.step_auroc.iter().map(|a| {
+                        vec![
+                            a.sampler.name().to_uppercase(),
+                            a.nerf_world.name().into(),
+                            a.auroc.steps.to_string(),
+                            a.auroc.disagreeing_steps.to_string(),
+                            match (a.auroc.step_auroc, a.step_auroc_ci95) {
+                                (Some(v), Some(ci)) => format!("{v:.2} [{:.2}, {:.2}]", ci[0], ci[1]),
+                                (v, _) => num(v, 2),
+                            },
+                            num(a.auroc.trajectory_auroc, 2),
+                        ]
+                    })),
+                );
+            }
+        }
+        let name = |x: &SamplerFigures| x.sampler.name().to_uppercase();
+        s.table(
+            Table::new(&[
+                "sampler",
+                "rollouts flown",
+                "collision rate of the searched",
+                "lost",
+                "avg. collision step",
+                "avg. log-likelihood",
+                "P(fail) ± SE",
+                "95 % interval",
+            ])
+            .rows(f.samplers.iter().map(|x| {
+                vec![
+                    name(x),
+                    x.rollouts.to_string(),
+                    // The rate is over the search's own rollouts (CEM: its populations, not the
+                    // importance batch), which the first row of the sampler's table counts.
+                    format!(
+                        "{} of {}",
+                        pct(x.collision_rate),
+                        x.table.first().map_or("–".into(), |r| r.rollouts.to_string())
+                    ),
+                    pct(x.lost_rate),
+                    num(x.avg_collision_step, 2),
+                    num(x.avg_log_likelihood, 2),
+                    format!("{} ± {}", num(x.p_fail, 3), num(x.p_fail_se, 3)),
+                    format!("[{}, {}]", num(x.p_fail_interval.0, 3), num(x.p_fail_interval.1, 3)),
+                ]
+            })),
+        );
+        s.table(
+            Table::new(&["sampler", "P(fail) estimator", "effective rollouts / failures", "paper's plain IS estimate"])
+                .rows(f.samplers.iter().map(|x| {
+                    vec![
+                        name(x),
+                        x.p_fail_estimator.clone(),
+                        format!("{} / {}", num(x.effective_sample_size, 1), num(x.effective_failures, 1)),
+                        num(x.p_fail_unnormalised, 3),
+                    ]
+                })),
+        );
+        s.paragraph(
+            "Lost: rollouts whose state stopped being finite or left the field's grid without a collision, \
+             neither passes nor failures. The CEM's P(fail) is the importance-sampling estimate with the weight as \
+             control variate (its expectation under the proposal is 1), clamped to [0, 1]; the paper's plain estimate \
+             (1/N) Σ 𝟙·p/q, unbiased but able to exceed 1, stands beside it. Effective rollouts and failures are \
+             Kish's sizes (Σw)²/Σw² of the batch's and of the failures' weights: the number of rollouts the \
+             estimate effectively rests on. SUBSET is subset simulation (Au & Beck): level 0 is independent draws \
+             from the prior (the MC rollouts, then its own), each next level Markov chains held below the last \
+             level's p0-quantile of the clearance (10 % by default); P(fail) is the product of the levels' shares, its \
+             SE Au & Beck's bound from the chains' correlation, and its effective rollouts the Monte Carlo rollouts \
+             with the same variance. It is the estimator whose ±2 SE interval covers the truth at 10⁻³ and 0.08 on a \
+             72-dimensional test problem with these settings (the CEM's does not: BENCHMARKS.md); its rollouts are \
+             driven towards failure, so their collision rate is not a rate of anything.",
+        );
+        s.paragraph(
+            "Confusion of NeRF-sim (prediction) against GT-sim (truth) over each search's rollouts, failure positive, \
+             each proportion with its Wilson 95 % interval; the majority baseline is the accuracy of always predicting \
+             GT-sim's commoner outcome. The CEM's rollouts are driven towards failure: its rows describe those \
+             rollouts, not the prior's.",
+        );
+        s.table(
+            Table::new(&[
+                "sampler",
+                "TP",
+                "FP",
+                "FN",
+                "TN",
+                "accuracy",
+                "majority baseline",
+                "precision",
+                "recall",
+                "MCC",
+                "|Δclearance| median / p90 / max (m)",
+            ])
+            .rows(f.samplers.iter().filter_map(|x| {
+                let c = x.confusion.as_ref()?;
+                let (t, d) = (&c.trajectories, &c.clearance_difference_m);
+                Some(vec![
+                    name(x),
+                    t.true_positive.to_string(),
+                    t.false_positive.to_string(),
+                    t.false_negative.to_string(),
+                    t.true_negative.to_string(),
+                    proportion(t.true_positive + t.true_negative, t.total()),
+                    num(t.majority_accuracy(), 2),
+                    proportion(t.true_positive, t.nerf_failures()),
+                    proportion(t.true_positive, t.gt_failures()),
+                    num(nerfsv_validation::matthews(t), 2),
+                    format!("{} / {} / {}", num(d.median, 4), num(d.p90, 4), num(d.max, 4)),
+                ])
+            })),
+        );
+        if !f.estimate_errors.is_empty() {
+            s.paragraph(
+                "The vision estimator's error after each image update, over every rollout the stage flew (the \
+                 searches in NeRF-sim and their replays in GT-sim):",
+            );
+            s.table(
+                Table::new(&["world", "images", "position error median / p90 (mm)", "attitude error median / p90 (°)"])
+                    .rows(f.estimate_errors.iter().map(|e| {
+                        vec![
+                            format!("{}-sim", e.world.name()),
+                            e.images.to_string(),
+                            format!("{} / {}", mm(e.median_position_m), mm(e.p90_position_m)),
+                            format!("{} / {}", num(e.median_attitude_deg, 2), num(e.p90_attitude_deg, 2)),
+                        ]
+                    })),
+            );
+        }
+        for (file, caption) in [
+            ("estimate_errors.png", "The vision estimator's position error after each image, both worlds"),
+            ("most_likely_failure_mc_nerf.png", "MC's most likely failure in NeRF-sim"),
+            ("most_likely_failure_mc_gt.png", "The same disturbances in GT-sim"),
+            ("most_likely_failure_cem_nerf.png", "CEM's most likely failure in NeRF-sim"),
+            ("most_likely_failure_cem_gt.png", "The same disturbances in GT-sim"),
+        ] {
+            s.picture(file, caption);
+        }
+        if draw(cx.dir, CLEARANCE_PNG, clearance_figure(cx.dir)) {
+            s.picture(CLEARANCE_PNG, "|clearance in NeRF-sim − in GT-sim| on the same disturbances");
+        }
+        s.csv(nerfsv_study::stress::TABLE_CSV, "stress_table.csv");
+        Some(s)
+    }
+}

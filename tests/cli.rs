@@ -263,6 +263,18 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert_eq!(resumed["nerf"]["steps"], 5);
 }
 
+/// The files of the pictures a stage's kept section (`report.json`) names.
+fn pictures_named(v: &serde_json::Value) -> Vec<String> {
+    match v {
+        serde_json::Value::Object(m) => match (m.get("file"), m.get("caption")) {
+            (Some(serde_json::Value::String(f)), Some(_)) => vec![f.clone()],
+            _ => m.values().flat_map(pictures_named).collect(),
+        },
+        serde_json::Value::Array(a) => a.iter().flat_map(pictures_named).collect(),
+        _ => Vec::new(),
+    }
+}
+
 /// The report of the tiny run above: the page has every section, every picture it shows is
 /// beside it, the tables and summary are copied, and the run's last line names the page.
 fn assert_report(run: &std::path::Path, stderr: &str) {
@@ -301,6 +313,15 @@ fn assert_report(run: &std::path::Path, stderr: &str) {
     for img in images {
         let bytes = std::fs::read(dir.join(img)).unwrap_or_else(|e| panic!("report/{img}: {e}"));
         assert_eq!(&bytes[1..4], b"PNG", "report/{img}");
+    }
+    // Every picture a stage's section names is one the stage wrote (the page would drop it
+    // without a word).
+    for stage in std::fs::read_dir(run).unwrap().flatten().map(|e| e.path()) {
+        let Ok(text) = std::fs::read_to_string(stage.join("report.json")) else { continue };
+        let section: serde_json::Value = serde_json::from_str(&text).unwrap();
+        for file in pictures_named(&section) {
+            assert!(stage.join(&file).is_file(), "{}'s section names {file}, which it did not write", stage.display());
+        }
     }
     for f in ["summary.json", "stress_table.csv", "online_table.csv", "ause.csv", "config.toml"] {
         assert!(dir.join(f).is_file(), "report/{f} missing");

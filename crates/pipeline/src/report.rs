@@ -457,3 +457,11 @@ pub(crate) fn proportion(k: usize, n: usize) -> String {
 pub(crate) fn estimate(e: Option<nerfsv_validation::Estimate>) -> String {
     e.map_or("–".into(), |e| format!("{:.2} [{:.2}, {:.2}]", e.value, e.ci95[0], e.ci95[1]))
 }
+
+/// A world as the captions name it: `GT` or `NeRF`.
+pub(crate) fn world_label(world: nerfsv_sim::WorldKind) -> &'static str {
+    match world {
+        nerfsv_sim::WorldKind::Gt => "GT",
+        nerfsv_sim::WorldKind::Nerf => "NeRF",
+    }
+}

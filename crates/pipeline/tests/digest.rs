@@ -210,7 +210,9 @@ fn a_doc_comment_in_the_config_a_colour_in_the_plot_crate_or_a_report_section_re
     // A stage's section and its one-line description live in its module's child report.rs.
     let redone = redone_by(|root| {
         rewrite(root, "pipeline/src/stress/report.rs", |t| t.replacen("Monte Carlo", "Plain Monte Carlo", 1));
-        rewrite(root, "pipeline/src/stages/report.rs", |t| t.replacen("views of {}×{} in", "views, {}×{} pixels, in", 1));
+        rewrite(root, "pipeline/src/stages/report.rs", |t| {
+            t.replacen("views of {}×{} in", "views, {}×{} pixels, in", 1)
+        });
     });
     assert!(redone.is_empty(), "a report section redid {redone:?}");
 }

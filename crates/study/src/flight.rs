@@ -256,6 +256,15 @@ pub fn fly(req: &FlightRequest) -> Result<(FlightFigures, Rollout), StudyError> 
     Ok(fly_timed(&drone, &sortie))
 }
 
+/// What the vision estimator's error plots show, in the order [`fly_and_write`] draws them.
+pub const ESTIMATE_ERRORS: [&str; 2] = ["position", "attitude"];
+
+/// Where [`fly_and_write`] draws the vision estimator's `what` error (one of [`ESTIMATE_ERRORS`])
+/// for the trajectory plot `png`: beside it, `…_{what}_error.png`.
+pub fn estimate_error_png(png: &Path, what: &str) -> PathBuf {
+    PathBuf::from(format!("{}_{what}_error.png", png.with_extension("").display()))
+}
+
 /// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths; for
 /// the vision estimator also its error figures beside the PNG (`…_position_error.png`,
 /// `…_attitude_error.png`).
@@ -274,9 +283,8 @@ pub fn fly_and_write(
             .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", png_path.display())))?;
     nerfsv_scene::io::atomic_write_bytes(png_path, &png).map_err(|e| StudyError::io(png_path, e))?;
     if estimator == EstimatorKind::Vision {
-        let stem = png_path.with_extension("");
-        for (fig, what) in estimate_figures(world.kind(), &rollout).iter().zip(["position", "attitude"]) {
-            let path = PathBuf::from(format!("{}_{what}_error.png", stem.display()));
+        for (fig, what) in estimate_figures(world.kind(), &rollout).iter().zip(ESTIMATE_ERRORS) {
+            let path = estimate_error_png(png_path, what);
             let png = nerfsv_plot::scatter_png(fig, 1000, 480)
                 .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", path.display())))?;
             nerfsv_scene::io::atomic_write_bytes(&path, &png).map_err(|e| StudyError::io(&path, e))?;

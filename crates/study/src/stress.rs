@@ -1140,6 +1140,16 @@ fn write_estimate_errors(
     Ok(logs.iter().filter_map(|(w, e)| EstimateErrorFigures::new(*w, e)).collect())
 }
 
+/// The stem of a sampler's most likely failure's files: `most_likely_failure_{sampler}`.
+pub fn most_likely_failure_stem(sampler: Sampler) -> String {
+    format!("most_likely_failure_{}", sampler.name())
+}
+
+/// The plot of a sampler's most likely failure flown in `world`.
+pub fn most_likely_failure_png(sampler: Sampler, world: WorldKind) -> String {
+    format!("{}_{}.png", most_likely_failure_stem(sampler), world.name())
+}
+
 /// The most likely failure's disturbances, and its flight in the search's world (and, when
 /// replaying, in the other), as trajectory CSV and plot; the other world's flight's figures.
 fn write_failure(
@@ -1151,16 +1161,15 @@ fn write_failure(
     other: Option<&dyn World>,
 ) -> Result<Option<FlightFigures>, StudyError> {
     let ds = drone_disturbances(&f.disturbances);
-    let name = format!("most_likely_failure_{}", sampler.name());
+    let name = most_likely_failure_stem(sampler);
     let path = out.join(format!("{name}.csv"));
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&ds).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;
     let mut replayed = None;
     for w in std::iter::once(search).chain(other.filter(|_| setup.replay)) {
-        let stem = format!("{name}_{}", w.kind().name());
+        let png = out.join(most_likely_failure_png(sampler, w.kind()));
         let sortie = Sortie { world: w, estimator: setup.estimator, disturbances: &ds, seed: f.seed };
-        let (figures, _) =
-            fly_and_write(&setup.drone, &sortie, &out.join(format!("{stem}.csv")), &out.join(format!("{stem}.png")))?;
+        let (figures, _) = fly_and_write(&setup.drone, &sortie, &png.with_extension("csv"), &png)?;
         if w.kind() != setup.world {
             replayed = Some(figures);
         }

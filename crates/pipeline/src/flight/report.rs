@@ -5,8 +5,11 @@
 
 use std::path::Path;
 
+use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_study::flight::{estimate_error_png, ESTIMATE_ERRORS};
+
 use crate::flight::{FlightStage, FlightStageFigures};
-use crate::report::{draw, num, yes_no, Section, Table};
+use crate::report::{draw, num, world_label, yes_no, Section, Table};
 use crate::stages::{GroundTruthField, NerfField};
 use crate::{Report, ReportContext, Stage};
 
@@ -108,23 +111,28 @@ impl Report for FlightStage<'_> {
              against the NeRF; errors are after each image's update, NEES is the normalised estimation error squared \
              of the whole state (χ²(12) when the filter's covariance is honest).",
         );
-        for (file, caption) in [
-            ("trajectory_gt_vision.png", "Nominal flight in GT-sim, vision estimator"),
-            ("trajectory_nerf_vision.png", "Nominal flight in NeRF-sim, vision estimator"),
-            (
-                "trajectory_gt_vision_position_error.png",
-                "GT-sim, vision estimator: position error of the estimate and the filter's 2σ",
-            ),
-            (
-                "trajectory_gt_vision_attitude_error.png",
-                "GT-sim, vision estimator: attitude error of the estimate and the filter's 2σ",
-            ),
-            (
-                "trajectory_nerf_vision_position_error.png",
-                "NeRF-sim, vision estimator: position error of the estimate and the filter's 2σ",
-            ),
-        ] {
-            s.picture(file, caption);
+        // The vision flights the stage flew: their trajectories, then their estimate errors.
+        let flown = |world: WorldKind| {
+            f.flights.iter().any(|x| x.world == world && x.estimator == EstimatorKind::Vision).then_some(world)
+        };
+        let vision: Vec<WorldKind> = [WorldKind::Gt, WorldKind::Nerf].into_iter().filter_map(flown).collect();
+        let png = |world: WorldKind| FlightStage::output(world, EstimatorKind::Vision, "png");
+        for &world in &vision {
+            s.picture(&png(world), &format!("Nominal flight in {}-sim, vision estimator", world_label(world)));
+        }
+        for &world in &vision {
+            // GT-sim's position and attitude errors; NeRF-sim's position error.
+            let shown = if world == WorldKind::Gt { &ESTIMATE_ERRORS[..] } else { &ESTIMATE_ERRORS[..1] };
+            for what in shown {
+                let file = estimate_error_png(Path::new(&png(world)), what);
+                s.picture(
+                    &file.to_string_lossy(),
+                    &format!(
+                        "{}-sim, vision estimator: {what} error of the estimate and the filter's 2σ",
+                        world_label(world)
+                    ),
+                );
+            }
         }
         // Both collision fields at the planned path's mean altitude.
         let z = if f.waypoints.is_empty() {

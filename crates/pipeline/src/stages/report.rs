@@ -54,7 +54,7 @@ impl Report for Eval {
             num(e.ssim, 3),
             num(e.depth_median_abs_err_m, 4),
         ]));
-        s.picture("compare.png", "Test views: ground truth (left) beside the NeRF (right)");
+        s.picture(Eval::COMPARE, "Test views: ground truth (left) beside the NeRF (right)");
         Some(s)
     }
 }

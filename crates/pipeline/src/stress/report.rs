@@ -7,9 +7,11 @@
 use std::path::Path;
 
 use nerfsv_sim::WorldKind;
-use nerfsv_study::stress::{Sampler, SamplerFigures, StressFigures};
+use nerfsv_study::stress::{
+    most_likely_failure_png, other_world, Sampler, SamplerFigures, StressFigures, ESTIMATE_ERRORS_PNG,
+};
 
-use crate::report::{draw, esc, estimate, mm, num, pct, proportion, rate_ci, Section, Table};
+use crate::report::{draw, esc, estimate, mm, num, pct, proportion, rate_ci, world_label, Section, Table};
 use crate::stress::StressStage;
 use crate::{Report, ReportContext};
 
@@ -333,14 +335,19 @@ impl Report for StressStage<'_> {
                     })),
             );
         }
-        for (file, caption) in [
-            ("estimate_errors.png", "The vision estimator's position error after each image, both worlds"),
-            ("most_likely_failure_mc_nerf.png", "MC's most likely failure in NeRF-sim"),
-            ("most_likely_failure_mc_gt.png", "The same disturbances in GT-sim"),
-            ("most_likely_failure_cem_nerf.png", "CEM's most likely failure in NeRF-sim"),
-            ("most_likely_failure_cem_gt.png", "The same disturbances in GT-sim"),
-        ] {
-            s.picture(file, caption);
+        if !f.estimate_errors.is_empty() {
+            s.picture(ESTIMATE_ERRORS_PNG, "The vision estimator's position error after each image, both worlds");
+        }
+        // The most likely failures the searches found, flown in their world and replayed.
+        for sf in f.samplers.iter().filter(|sf| matches!(sf.sampler, Sampler::Mc | Sampler::Cem)) {
+            let Some(failure) = &sf.most_likely_failure else { continue };
+            let name = sf.sampler.name().to_uppercase();
+            let png = |world| most_likely_failure_png(sf.sampler, world);
+            s.picture(&png(sf.world), &format!("{name}'s most likely failure in {}-sim", world_label(sf.world)));
+            if failure.replay_collided.is_some() {
+                let other = other_world(sf.world);
+                s.picture(&png(other), &format!("The same disturbances in {}-sim", world_label(other)));
+            }
         }
         if draw(cx.dir, CLEARANCE_PNG, clearance_figure(cx.dir)) {
             s.picture(CLEARANCE_PNG, "|clearance in NeRF-sim − in GT-sim| on the same disturbances");

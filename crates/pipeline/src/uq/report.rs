@@ -8,7 +8,8 @@ use std::path::Path;
 use crate::report::{num, Section, Table};
 use crate::uq::{Uncertainty, UqFigures};
 use crate::{Report, ReportContext};
-use nerfsv_uq::offline::short;
+use nerfsv_uq::offline::{figure_stems, short, MAPS_PNG};
+use nerfsv_uq::Method;
 
 impl Report for Uncertainty<'_> {
     const ABOUT: &'static str = "offline uncertainty: GA, BLA, depth AUSE";
@@ -144,19 +145,21 @@ impl Report for Uncertainty<'_> {
              score only the pixels their method gives a value, so where many pixels are unscored the figures are not \
              directly comparable (ause.csv counts them per image).",
         );
-        for (file, caption) in [
-            (
-                "uq_maps.png",
-                "Per pixel, on one test view: the NeRF's depth error and GA's and BLA's depth standard deviations \
-                 (and the ensemble's, with one)",
-            ),
-            ("uq_ga_sigma_d.png", "GA: σ_d per image and split"),
-            ("uq_ga_mu_sigma.png", "GA: μ_d against σ_d"),
-            ("uq_bla_trace.png", "BLA: normalised trace per image and split"),
-            ("uq_bla_rmv.png", "BLA: rmv per image and split"),
-            ("uq_bla_trace_rmv.png", "BLA: normalised trace against rmv"),
-        ] {
-            s.picture(file, caption);
+        let captions = [
+            "GA: σ_d per image and split",
+            "GA: μ_d against σ_d",
+            "BLA: normalised trace per image and split",
+            "BLA: rmv per image and split",
+            "BLA: normalised trace against rmv",
+        ];
+        let stems = [Method::Ga, Method::Bla].into_iter().flat_map(figure_stems);
+        s.picture(
+            MAPS_PNG,
+            "Per pixel, on one test view: the NeRF's depth error and GA's and BLA's depth standard deviations \
+             (and the ensemble's, with one)",
+        );
+        for (stem, caption) in stems.zip(captions) {
+            s.picture(&format!("{stem}.png"), caption);
         }
         if u.ensemble_field.is_some() {
             let slice = nerfsv_uq::offline::field_slice_path(Path::new(Uncertainty::ENSEMBLE_FIELD));

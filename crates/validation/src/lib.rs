@@ -61,7 +61,7 @@ pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};
 pub use label::{Label, Sampler};
 pub use online::{auroc, disagreement_auroc, step_auroc_interval, DisagreementAuroc};
-pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutRecord};
+pub use record::{csv_header, parse_csv, read_csv_file, write_csv, write_csv_file, RolloutId, RolloutRecord};
 pub use sampler::{
     cross_entropy, elite_weights, importance_estimate, importance_sampling, monte_carlo, most_likely_failure, refit,
     replay, replay_all, replay_on, rollout, select_elites, wilson_interval, CemResult, ImportanceEstimate,

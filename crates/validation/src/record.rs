@@ -12,6 +12,23 @@ use crate::error::ValidationError;
 use crate::label::Label;
 use crate::Trajectory;
 
+/// Which rollout of a run a record is: its sampler's label, population and index, and the seed
+/// its disturbances were drawn from and its system ran with ([`crate::rollout_seed`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RolloutId {
+    pub sampler: Label,
+    pub population: usize,
+    pub index: usize,
+    pub seed: u64,
+}
+
+impl RolloutId {
+    /// Rollout `index` of `population` of `sampler` in the run seeded by `run_seed`.
+    pub fn in_run(run_seed: u64, sampler: Label, population: usize, index: usize) -> Self {
+        Self { sampler, population, index, seed: crate::rollout_seed(run_seed, sampler.name(), population, index) }
+    }
+}
+
 /// Everything about one rollout: where it came from, what it flew, how likely it was, what
 /// happened.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -138,6 +155,11 @@ impl RolloutRecord {
     /// rollout that was lost and also crashed counts as a crash.
     pub fn lost_without_failing(&self) -> bool {
         self.lost_step.is_some() && !self.failed
+    }
+
+    /// Its identity: sampler, population, index and seed.
+    pub fn id(&self) -> RolloutId {
+        RolloutId { sampler: self.sampler, population: self.population, index: self.index, seed: self.seed }
     }
 
     /// The key that identifies a rollout within a run: (sampler, population, index).

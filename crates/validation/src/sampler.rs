@@ -12,8 +12,7 @@ use crate::error::ValidationError;
 use crate::gaussian::{Gaussian, Prior, Proposal};
 use crate::journal::{recall_or_run_all, Planned, Recorder};
 use crate::label::{Label, Sampler};
-use crate::record::RolloutRecord;
-use crate::seed::rollout_seed;
+use crate::record::{RolloutId, RolloutRecord};
 use crate::system::{Outcome, System};
 use crate::Trajectory;
 
@@ -68,44 +67,36 @@ pub type Reward<'a> = &'a (dyn Fn(&RolloutRecord) -> f64 + Sync);
 
 /// Runs one rollout: draws its disturbances from `proposal` with `seed`, runs `system` with the
 /// same seed, and records log-densities under `prior` and `proposal`.
-#[allow(clippy::too_many_arguments)]
 pub fn rollout<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
     proposal: &Proposal,
-    sampler: Label,
-    population: usize,
-    index: usize,
-    seed: u64,
+    id: RolloutId,
     reward: Option<Reward<'_>>,
 ) -> RolloutRecord {
-    let x = proposal.draw(seed);
-    let outcome = system.run(&x, seed);
-    let mut record = record_of(prior, Some(proposal), x, sampler, population, index, seed, outcome);
+    let x = proposal.draw(id.seed);
+    let outcome = system.run(&x, id.seed);
+    let mut record = record_of(prior, Some(proposal), x, id, outcome);
     record.reward = reward.map(|r| r(&record));
     record
 }
 
 /// The record of a rollout that flew `disturbances` with `seed` to `outcome`, with their
 /// log-densities under `prior` and under `proposal` (without one, the prior's: a weight of 1).
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn record_of(
     prior: &Prior,
     proposal: Option<&Proposal>,
     disturbances: Trajectory,
-    sampler: Label,
-    population: usize,
-    index: usize,
-    seed: u64,
+    id: RolloutId,
     outcome: Outcome,
 ) -> RolloutRecord {
     let step_log_p = prior.step_log_pdfs(&disturbances);
     let step_log_q = proposal.map_or_else(|| step_log_p.clone(), |q| q.step_log_pdfs(&disturbances));
     RolloutRecord {
-        sampler,
-        population,
-        index,
-        seed,
+        sampler: id.sampler,
+        population: id.population,
+        index: id.index,
+        seed: id.seed,
         defensive_fraction: proposal.and_then(Proposal::defensive_fraction),
         step_log_p,
         step_log_q,
@@ -126,7 +117,7 @@ pub fn replay<S: System + ?Sized>(
     record: &RolloutRecord,
     reward: Option<Reward<'_>>,
 ) -> RolloutRecord {
-    rollout(system, prior, proposal, record.sampler, record.population, record.index, record.seed, reward)
+    rollout(system, prior, proposal, record.id(), reward)
 }
 
 /// Flies the same disturbances with the same seed in another `system` (GT-sim for a rollout
@@ -160,29 +151,46 @@ pub fn replay_all<S: System + ?Sized>(
     Ok(recall_or_run_all(system, recorder, planned, &make)?.into_iter().map(|(r, _)| r).collect())
 }
 
-/// `n` rollouts of one population in parallel, in index order; rollouts `recorder` recalls
-/// are not run again, the others are kept in it as they finish.
-#[allow(clippy::too_many_arguments)]
-fn population<S: System + ?Sized>(
-    system: &S,
-    prior: &Prior,
-    proposal: &Proposal,
+/// One population a sampler draws: `n` rollouts of population `population` of `sampler` in the
+/// run seeded by `run_seed`.
+#[derive(Clone, Copy)]
+struct Batch {
     sampler: Label,
     population: usize,
     n: usize,
     run_seed: u64,
+}
+
+impl Batch {
+    fn id(&self, index: usize) -> RolloutId {
+        RolloutId::in_run(self.run_seed, self.sampler, self.population, index)
+    }
+}
+
+/// The `batch` from `proposal`, in parallel, in index order; rollouts `recorder` recalls are not
+/// run again, the others are kept in it as they finish.
+fn population<S: System + ?Sized>(
+    system: &S,
+    prior: &Prior,
+    proposal: &Proposal,
+    batch: Batch,
     reward: Option<Reward<'_>>,
     recorder: &dyn Recorder,
 ) -> Result<Vec<RolloutRecord>, ValidationError> {
-    let planned = (0..n)
+    let planned = (0..batch.n)
         .map(|index| {
-            let seed = rollout_seed(run_seed, sampler.name(), population, index);
-            Planned { sampler, population, index, seed, disturbances: proposal.draw(seed) }
+            let id = batch.id(index);
+            Planned {
+                sampler: id.sampler,
+                population: id.population,
+                index,
+                seed: id.seed,
+                disturbances: proposal.draw(id.seed),
+            }
         })
         .collect();
     let make = |i: usize, x: Trajectory, outcome: Outcome| {
-        let seed = rollout_seed(run_seed, sampler.name(), population, i);
-        let mut record = record_of(prior, Some(proposal), x, sampler, population, i, seed, outcome);
+        let mut record = record_of(prior, Some(proposal), x, batch.id(i), outcome);
         record.reward = reward.map(|r| r(&record));
         record
     };
@@ -286,7 +294,14 @@ pub fn monte_carlo<S: System + ?Sized>(
     config.validate()?;
     check_shapes(system, prior)?;
     let proposal = prior.to_proposal();
-    let records = population(system, prior, &proposal, Label::Mc, 0, config.rollouts, run_seed, None, recorder)?;
+    let records = population(
+        system,
+        prior,
+        &proposal,
+        Batch { sampler: Label::Mc, population: 0, n: config.rollouts, run_seed },
+        None,
+        recorder,
+    )?;
     let failures = records.iter().filter(|r| r.failed).count();
     Ok(MonteCarloResult {
         failures,
@@ -432,7 +447,14 @@ pub fn importance_sampling<S: System + ?Sized>(
             format!("{} steps", proposal.len()),
         )));
     }
-    let records = population(system, prior, proposal, Label::CemIs, 0, n, run_seed, None, recorder)?;
+    let records = population(
+        system,
+        prior,
+        proposal,
+        Batch { sampler: Label::CemIs, population: 0, n, run_seed },
+        None,
+        recorder,
+    )?;
     let estimate = importance_estimate(&records);
     Ok((records, estimate))
 }
@@ -573,7 +595,14 @@ pub fn cross_entropy<S: System + ?Sized>(
     let mut records = Vec::with_capacity(config.m * config.k_max + config.is_samples);
     for k in 0..config.k_max {
         let q = &proposals[k];
-        let pop = population(system, prior, q, Label::Cem, k, config.m, run_seed, reward, recorder)?;
+        let pop = population(
+            system,
+            prior,
+            q,
+            Batch { sampler: Label::Cem, population: k, n: config.m, run_seed },
+            reward,
+            recorder,
+        )?;
         let rewards: Option<Vec<f64>> =
             reward.map(|_| pop.iter().map(|r| r.reward.unwrap_or(f64::NEG_INFINITY)).collect());
         let elite = select_elites(&pop, config.m_elite, rewards.as_deref());
@@ -656,8 +685,15 @@ mod tests {
         // more likely than `wild` over all five.
         let other = trajectory([0.6, 0.6, 0.6, 1.6, 0.0]);
         for q in [shifted.clone(), shifted.clone().defensive(&prior, 0.2)] {
-            let record =
-                |x: &Trajectory| record_of(&prior, Some(&q), x.clone(), Label::CemIs, 0, 0, 1, Threshold.run(x, 1));
+            let record = |x: &Trajectory| {
+                record_of(
+                    &prior,
+                    Some(&q),
+                    x.clone(),
+                    RolloutId { sampler: Label::CemIs, population: 0, index: 0, seed: 1 },
+                    Threshold.run(x, 1),
+                )
+            };
             let (a, b, c) = (record(&calm), record(&wild), record(&other));
             assert!(a.failed && b.failed && c.failed);
             assert_eq!((a.counted_steps(), b.counted_steps(), c.counted_steps()), (2, 2, 4));
@@ -687,7 +723,13 @@ mod tests {
         assert!(prior.mode_step_log_pdf() > 0.0, "the case needs a positive log density at the mode");
         let record = |v: [f64; 5]| {
             let x = Trajectory::from_flat(1, v.to_vec()).unwrap();
-            record_of(&prior, None, x.clone(), Label::Mc, 0, 0, 1, Threshold.run(&x, 1))
+            record_of(
+                &prior,
+                None,
+                x.clone(),
+                RolloutId { sampler: Label::Mc, population: 0, index: 0, seed: 1 },
+                Threshold.run(&x, 1),
+            )
         };
         let (early, late) = (record([0.0, 1.04, 0.0, 0.0, 0.0]), record([0.0, 0.0, 0.0, 0.0, 1.05]));
         assert_eq!((early.collision_step, late.collision_step), (Some(1), Some(4)));

@@ -33,7 +33,7 @@ use crate::error::ValidationError;
 use crate::gaussian::Prior;
 use crate::journal::{recall_or_run, Recorder};
 use crate::label::Label;
-use crate::record::RolloutRecord;
+use crate::record::{RolloutId, RolloutRecord};
 use crate::sampler::{check_shapes, most_likely_failure, record_of, wilson, ImportanceEstimate};
 use crate::seed::rollout_seed;
 use crate::system::System;
@@ -134,7 +134,7 @@ fn fly<S: System + ?Sized>(
     let run = || {
         let x = trajectory(prior, z);
         let outcome = system.run(&x, seed);
-        record_of(prior, None, x, Label::Subset, level, index, seed, outcome)
+        record_of(prior, None, x, RolloutId { sampler: Label::Subset, population: level, index, seed }, outcome)
     };
     Ok(recall_or_run(recorder, (Label::Subset, level, index), seed, run)?.0)
 }

@@ -57,7 +57,6 @@ impl Tally {
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
     fn add(&mut self, truth: f64, p: f64, se: f64, interval: (f64, f64), effective_failures: f64, rollouts: usize) {
         self.rollouts += rollouts;
         self.two_se += usize::from((p - truth).abs() <= 2.0 * se);

@@ -36,7 +36,7 @@ use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{so3_exp, so3_log};
 use nerfsv_sim::estimator::Starts;
-use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, ImageUpdate, PosePrior, Rollout, WorldKind};
+use nerfsv_sim::{Belief, Collision, Disturbance, EstimatorKind, ImageAt, ImageUpdate, PosePrior, Rollout, WorldKind};
 use nerfsv_study::flight::{world, FlightInputs};
 use rayon::prelude::*;
 
@@ -325,7 +325,13 @@ fn main() -> anyhow::Result<()> {
                     let d = rng.disturbance();
                     let truth = if mode == "floor" { at } else { d.apply(&at) };
                     let t = Instant::now();
-                    let u = sim.image_update(w.as_ref(), &truth, &mut belief, case as u64, k, 0, 0.0);
+                    let u = sim.image_update(
+                        w.as_ref(),
+                        &truth,
+                        &mut belief,
+                        case as u64,
+                        ImageAt { step: k, substep: 0, time: 0.0 },
+                    );
                     ms += 1e3 * t.elapsed().as_secs_f64();
                     if u.position_error_m <= 0.01 && u.rotation_error_deg <= 0.5 {
                         within += 1;
@@ -374,7 +380,13 @@ fn main() -> anyhow::Result<()> {
                             .map(|j| {
                                 let (step, substep) = (j / per_step, j % per_step);
                                 let seed = nerfsv_scene::seed::mix(k as u64, step as u64 + 1, substep as u64);
-                                sim.image_update(w.as_ref(), &truth, &mut belief, seed, step, substep, t)
+                                sim.image_update(
+                                    w.as_ref(),
+                                    &truth,
+                                    &mut belief,
+                                    seed,
+                                    ImageAt { step, substep, time: t },
+                                )
                             })
                             .collect()
                     })

@@ -12,7 +12,8 @@ use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_scene::validate::in_range;
 use nerfsv_uq::offline::{
-    ause_frames, csv, figure_files, has_split, offline_split, write_files, ImageAuse, Method, OfflineSummary, SPLITS,
+    ause_frames, csv, figure_files, has_split, offline_split, write_files, ImageAuse, Method, OfflineSummary,
+    SplitImages, SPLITS,
 };
 use serde::Serialize;
 
@@ -238,7 +239,15 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
         let stage = format!("uq {} {name}", method.name());
         let progress = |done: usize, total: usize| reporter.progress(&stage, done as u64, total as u64, "images");
         let note = |message: &str| reporter.note(&stage, message);
-        rows.extend(offline_split(&nerf, method, &split, name, &indices, args.rays, &cfg, &progress, &note)?);
+        rows.extend(offline_split(
+            &nerf,
+            method,
+            SplitImages { split: &split, name, indices: &indices },
+            args.rays,
+            &cfg,
+            &progress,
+            &note,
+        )?);
     }
 
     let mut summary = OfflineSummary::new(method, &rows, &present, skipped_splits, cfg.ga_sigma_max);

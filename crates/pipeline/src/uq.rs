@@ -232,7 +232,15 @@ impl Stage for Uncertainty<'_> {
                             tick(&status)
                         }
                     };
-                    rows.extend(offline_split(&nerf, method, split, name, indices, None, self.uq, &progress, &note)?);
+                    rows.extend(offline_split(
+                        &nerf,
+                        method,
+                        SplitImages { split, name, indices },
+                        None,
+                        self.uq,
+                        &progress,
+                        &note,
+                    )?);
                 }
                 continue;
             }

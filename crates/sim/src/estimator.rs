@@ -458,6 +458,15 @@ struct PoseRender<'a> {
     render: RayRender<'a>,
 }
 
+/// What one camera image shows at its sampled pixels: the pixels (column, row), the colours
+/// observed there (linear RGB in `[0, 1]`) and the background colour the NeRF composites against.
+#[derive(Clone, Copy, Debug)]
+pub struct Observation<'a> {
+    pub pixels: &'a [[u32; 2]],
+    pub colours: &'a [[f32; 3]],
+    pub background: [f32; 3],
+}
+
 /// Refines the camera pose of a drone whose prediction is `prior` against the colours
 /// `observed` at `pixels` (drawn by [`stratified_pixels`] with `cfg.pixels`), by
 /// Levenberg–Marquardt with the analytic pose Jacobian of the NeRF's rendered colours, coarse to
@@ -472,17 +481,15 @@ struct PoseRender<'a> {
 /// accepted step lowers the cost by less than `cfg.stop_cost_decrease`, or after
 /// `cfg.max_refused` refused steps in a row, and so does the search at the finest level. A
 /// search that ends on the step tolerance takes that last Gauss–Newton step unrendered.
-#[allow(clippy::too_many_arguments)]
 pub fn refine_pose(
     nerf: &Nerf,
     intrinsics: Intrinsics,
     prior: &PosePrior,
-    pixels: &[[u32; 2]],
-    observed: &[[f32; 3]],
-    background: [f32; 3],
+    image: Observation,
     cfg: &VisionConfig,
     starts: Starts,
 ) -> PoseFit {
+    let Observation { pixels, colours: observed, background } = image;
     let prior_info = prior.information;
     let (cols, _) = strata(&intrinsics, pixels.len());
     let group_ids = |level: u32| -> Vec<u32> {

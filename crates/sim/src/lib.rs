@@ -34,5 +34,5 @@ pub use filter::{Belief, PoseMeasurement};
 pub use flight::{plan_flight, Flight, SimError};
 pub use io::{check_component, read_disturbances, trajectory_csv, DisturbanceFileError, DISTURBANCE_COLUMNS};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};
-pub use rollout::{Collision, Event, ImageUpdate, Rollout, Simulator, Substep};
+pub use rollout::{Collision, Event, ImageAt, ImageUpdate, Rollout, Simulator, Substep};
 pub use world::{EnsembleWorld, GroundTruthWorld, NerfWorld, World, WorldKind};

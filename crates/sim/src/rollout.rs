@@ -23,7 +23,9 @@ use serde::{Deserialize, Serialize};
 use crate::camera::drone_camera;
 use crate::controller::{control, ControllerGains};
 use crate::dynamics::{rotation_error, step, Disturbance, DroneParams, State};
-use crate::estimator::{refine_pose, stratified_pixels, EstimatorKind, PoseFit, PosePrior, Starts, VisionConfig};
+use crate::estimator::{
+    refine_pose, stratified_pixels, EstimatorKind, Observation, PoseFit, PosePrior, Starts, VisionConfig,
+};
 use crate::filter::{Belief, PoseMeasurement};
 use crate::reference::ReferenceTrajectory;
 use crate::world::World;
@@ -91,6 +93,14 @@ pub struct Substep {
     /// bound beyond (see [`body_query`]); for the centre cell the least corner value of its
     /// cell. `None` when the body is partly outside the field's grid.
     pub clearance: Option<f32>,
+}
+
+/// When a camera image is taken: its step, its substep within the step, and the time (s).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageAt {
+    pub step: usize,
+    pub substep: usize,
+    pub time: f64,
 }
 
 /// One camera image's estimator update.
@@ -340,7 +350,13 @@ impl Simulator<'_> {
                 let t = t0 + j as f64 * self.drone.dt;
                 if vision && finite(&truth) && self.image_before(j) {
                     let pixel_seed = if j == 0 { step_seed(seed, k) } else { image_seed(seed, k, j) };
-                    out.updates.push(self.image_update(world, &truth, &mut belief, pixel_seed, k, j, t));
+                    out.updates.push(self.image_update(
+                        world,
+                        &truth,
+                        &mut belief,
+                        pixel_seed,
+                        ImageAt { step: k, substep: j, time: t },
+                    ));
                 }
                 if j == 0 && !record(&mut out, k, 0, t0, &truth, &belief) {
                     break 'steps;
@@ -364,19 +380,17 @@ impl Simulator<'_> {
     }
 
     /// One camera image: observe the true state, fit the pose from the belief's prediction, and
-    /// update the belief (through the innovation gate); `step`, `substep` and `time` only label
-    /// the record.
-    #[allow(clippy::too_many_arguments)]
+    /// update the belief (through the innovation gate); `at` labels the record (and a first
+    /// substep's image is fitted from the disturbance-wide prior).
     pub fn image_update(
         &self,
         world: &dyn World,
         truth: &State,
         belief: &mut Belief,
         seed: u64,
-        step: usize,
-        substep: usize,
-        time: f64,
+        at: ImageAt,
     ) -> ImageUpdate {
+        let ImageAt { step, substep, time } = at;
         let (predicted, before) = (belief.mean, *belief);
         let relocalised = self.vision.relocalise_after > 0 && belief.refused_in_a_row >= self.vision.relocalise_after;
         if relocalised {
@@ -450,6 +464,7 @@ impl Simulator<'_> {
         let pixels = stratified_pixels(&self.intrinsics, self.vision.pixels, seed);
         let camera = drone_camera(self.intrinsics, &truth.position, &truth.rotation);
         let observed = world.observe(&camera, &pixels, self.background);
-        refine_pose(self.nerf, self.intrinsics, prior, &pixels, &observed, self.background, &self.vision, starts)
+        let image = Observation { pixels: &pixels, colours: &observed, background: self.background };
+        refine_pose(self.nerf, self.intrinsics, prior, image, &self.vision, starts)
     }
 }

@@ -14,7 +14,7 @@ use nerfsv_nerf::{Nerf, Trainer};
 use nerfsv_scene::{Aabb, Intrinsics};
 use nerfsv_sim::config::SimConfig;
 use nerfsv_sim::planner::PlannedPath;
-use nerfsv_sim::{Belief, Disturbance, EstimatorKind, Flight, NerfWorld, Simulator, State};
+use nerfsv_sim::{Belief, Disturbance, EstimatorKind, Flight, ImageAt, NerfWorld, Simulator, State};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -82,11 +82,17 @@ fn one_image_and_one_steps_images_bring_a_paper_prior_disturbance_within_1_cm() 
         let mut belief = Belief::new(start, &sim.vision.initial_std);
         belief.disturb(&sim.vision.disturbance_std);
         let truth = gaussian_disturbance(&mut rng).apply(&start);
-        let first = sim.image_update(&world, &truth, &mut belief, case, 0, 0, 0.0);
+        let first = sim.image_update(&world, &truth, &mut belief, case, ImageAt { step: 0, substep: 0, time: 0.0 });
         firsts.push((first.position_error_m, first.rotation_error_deg));
         let mut last = first;
         for j in 1..sim.vision.images_per_step {
-            last = sim.image_update(&world, &truth, &mut belief, case * 16 + j as u64, 0, j, 0.0);
+            last = sim.image_update(
+                &world,
+                &truth,
+                &mut belief,
+                case * 16 + j as u64,
+                ImageAt { step: 0, substep: j, time: 0.0 },
+            );
         }
         before.push((first.predicted_position_error_m, first.predicted_rotation_error_deg));
         after.push((last.position_error_m, last.rotation_error_deg));

@@ -537,20 +537,29 @@ pub fn data_term(
     (d, images, n_rays)
 }
 
+/// A field's values at its grid's nodes, node-major as the geometry orders them.
+#[derive(Clone, Debug, Default)]
+pub struct NodeValues {
+    /// The NeRF's density σ (1/m).
+    pub density: Vec<f32>,
+    /// The method's variance of the density.
+    pub variance: Vec<f32>,
+    /// How much of the measurement's weight each node got.
+    pub weight: Vec<f32>,
+}
+
 impl UncertaintyField {
     /// A field from its parts (the lookup table is derived). Errors: arrays whose length is not
     /// the geometry's node count.
-    #[allow(clippy::too_many_arguments)]
     pub fn from_parts(
         method: FieldMethod,
         geometry: GridGeometry,
-        density: Vec<f32>,
-        variance: Vec<f32>,
-        weight: Vec<f32>,
+        values: NodeValues,
         checkpoint_id: String,
         checkpoint: String,
         figures: FieldFigures,
     ) -> Result<Self, UqError> {
+        let NodeValues { density, variance, weight } = values;
         let n = geometry.len();
         for (what, len) in [("density", density.len()), ("variance", variance.len()), ("weight", weight.len())] {
             if len != n {
@@ -697,8 +706,14 @@ impl UncertaintyField {
     ) -> Result<Self, UqError> {
         summarise(&variance, &weight, &mut figures);
         figures.seconds = start.elapsed().as_secs_f64();
-        let mut field =
-            Self::from_parts(method, geometry, density, variance, weight, model_id(nerf), checkpoint.into(), figures)?;
+        let mut field = Self::from_parts(
+            method,
+            geometry,
+            NodeValues { density, variance, weight },
+            model_id(nerf),
+            checkpoint.into(),
+            figures,
+        )?;
         field.set_empty_density(empty_density(nerf));
         Ok(field)
     }
@@ -1074,9 +1089,7 @@ impl UncertaintyField {
         Self::from_parts(
             method,
             geometry,
-            density,
-            variance,
-            weight,
+            NodeValues { density, variance, weight },
             field("checkpoint_id")?.clone(),
             field("checkpoint")?.clone(),
             figures,

@@ -65,7 +65,7 @@ pub use config::{BlaMeasure, GaMeasure, Method, UqConfig};
 pub use error::UqError;
 pub use field::{
     data_term, density_param_count, empty_density, field_geometry, model_id, DensityPosterior, FieldFigures,
-    FieldMethod, TrainingView, UncertaintyField,
+    FieldMethod, NodeValues, TrainingView, UncertaintyField,
 };
 pub use ga::{
     ga_fit, ga_fit_samples, ga_floored_objective, ga_image, ga_objective, GaExclusion, GaFit, GaFloored, GaRay,

@@ -302,21 +302,27 @@ pub fn ause_frames(
     Ok(out)
 }
 
-/// `method` on the images `indices` of `split` (named `name` in the rows), after checking
-/// that the model's box is in view of the split's cameras. Reports each image fitted to
-/// `progress` (done, total) and each one whose rays all miss to `note`.
-#[allow(clippy::too_many_arguments)]
+/// Some images of a dataset split: the split, its name in the rows, the images' indices.
+#[derive(Clone, Copy)]
+pub struct SplitImages<'a> {
+    pub split: &'a Split,
+    pub name: &'static str,
+    pub indices: &'a [usize],
+}
+
+/// `method` on `images`, after checking that the model's box is in view of the split's
+/// cameras. Reports each image fitted to `progress` (done, total) and each one whose rays all
+/// miss to `note`.
 pub fn offline_split(
     nerf: &Nerf,
     method: Method,
-    split: &Split,
-    name: &'static str,
-    indices: &[usize],
+    images: SplitImages,
     ga_rays: Option<usize>,
     cfg: &UqConfig,
     progress: &dyn Fn(usize, usize),
     note: &dyn Fn(&str),
 ) -> Result<Vec<Row>, UqError> {
+    let SplitImages { split, name, indices } = images;
     nerfsv_nerf::check_bounds(&nerf.config, split)?;
     let total = indices.len();
     progress(0, total);

@@ -14,7 +14,7 @@ use nerfsv_nerf::Nerf;
 use nerfsv_scene::{Camera, Intrinsics};
 use nerfsv_uq::{
     data_term, density_param_count, ga_maps_from_samples, model_id, DensityPosterior, FieldFigures, FieldMethod,
-    TrainingView, UncertaintyField, UqConfig, UqError,
+    NodeValues, TrainingView, UncertaintyField, UqConfig, UqError,
 };
 
 const BG: [f32; 3] = [0.5, 0.5, 0.5];
@@ -227,9 +227,7 @@ fn constant_field(nerf: &Nerf, method: FieldMethod, c: f32) -> UncertaintyField 
     UncertaintyField::from_parts(
         method,
         geometry,
-        density,
-        variance,
-        weight,
+        NodeValues { density, variance, weight },
         model_id(nerf),
         "m".into(),
         FieldFigures::default(),
@@ -260,9 +258,7 @@ fn view_uncertainty_of_a_constant_field_is_its_square_root() {
     empty = UncertaintyField::from_parts(
         FieldMethod::Ga,
         empty.geometry,
-        empty.density,
-        empty.variance,
-        vec![0.0; empty.weight.len()],
+        NodeValues { density: empty.density, variance: empty.variance, weight: vec![0.0; empty.weight.len()] },
         empty.checkpoint_id,
         empty.checkpoint,
         FieldFigures::default(),
@@ -311,9 +307,11 @@ fn maps_of_a_constant_ga_field_are_ga_maps_with_that_sigma_d() {
     bla4 = UncertaintyField::from_parts(
         FieldMethod::Bla,
         bla4.geometry,
-        bla4.density,
-        bla4.variance.iter().map(|v| 4.0 * v).collect(),
-        bla4.weight,
+        NodeValues {
+            density: bla4.density,
+            variance: bla4.variance.iter().map(|v| 4.0 * v).collect(),
+            weight: bla4.weight,
+        },
         bla4.checkpoint_id,
         bla4.checkpoint,
         FieldFigures::default(),
@@ -406,9 +404,7 @@ fn bla_maps_propagate_the_density_variance_with_the_composites_derivatives() {
     let field = UncertaintyField::from_parts(
         FieldMethod::Bla,
         geometry,
-        vec![1.0; n],
-        vec![v; n],
-        vec![1.0; n],
+        NodeValues { density: vec![1.0; n], variance: vec![v; n], weight: vec![1.0; n] },
         model_id(&nerf),
         "m".into(),
         FieldFigures::default(),
@@ -481,9 +477,7 @@ fn empty_space_skipping_leaves_the_view_value_unchanged() {
     let mut field = UncertaintyField::from_parts(
         FieldMethod::Ga,
         geometry,
-        density,
-        variance,
-        vec![1.0; n],
+        NodeValues { density, variance, weight: vec![1.0; n] },
         model_id(&nerf),
         "m".into(),
         FieldFigures::default(),

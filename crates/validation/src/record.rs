@@ -318,121 +318,16 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
     // Each rollout's first line and its rows' `counted` flags, checked against the rule below.
     let mut counted_rows: Vec<(usize, Vec<bool>)> = Vec::new();
     for (n, line) in lines {
-        let fields: Vec<&str> = line.split(',').collect();
-        if fields.len() != columns.len() {
-            return Err((n, format!("{} fields, expected {}", fields.len(), columns.len())));
-        }
-        let col = |i: usize| columns[i];
-        let float = |i: usize| -> Result<f64, (usize, String)> {
-            fields[i].parse::<f64>().map_err(|_| (n, format!("column {}: `{}` is not a number", col(i), fields[i])))
-        };
-        let optional = |i: usize| -> Result<Option<f64>, (usize, String)> {
-            if fields[i].is_empty() {
-                Ok(None)
-            } else {
-                float(i).map(Some)
-            }
-        };
-        let integer = |i: usize| -> Result<u64, (usize, String)> {
-            fields[i].parse::<u64>().map_err(|_| (n, format!("column {}: `{}` is not a count", col(i), fields[i])))
-        };
-        let (population, index, seed, step) =
-            (integer(1)? as usize, integer(2)? as usize, integer(3)?, integer(4)? as usize);
-        let tail = 5 + dim;
-        let x: Vec<f64> = (5..tail).map(float).collect::<Result<_, _>>()?;
-        let (log_p, log_q) = (float(tail)?, float(tail + 1)?);
-        let uncertainty = optional(tail + 2)?;
-        let reward = optional(tail + 3)?;
-        let score = float(tail + 4)?;
-        let trajectory_log_q = float(tail + 5)?;
-        let clearance = float(tail + 6)?;
-        let position = [optional(tail + 7)?, optional(tail + 8)?, optional(tail + 9)?];
-        let attitude = [optional(tail + 10)?, optional(tail + 11)?, optional(tail + 12)?];
-        let flag = |i: usize| match fields[i] {
-            "0" => Ok(false),
-            "1" => Ok(true),
-            other => Err((n, format!("column {}: `{other}` is not 0 or 1", col(i)))),
-        };
-        let (collided, lost, counted) = (flag(tail + 13)?, flag(tail + 14)?, flag(tail + 15)?);
-        let defensive_fraction = optional(tail + 16)?;
-        let sampler: Label = fields[0].parse().map_err(|e| (n, format!("column {}: {e}", col(0))))?;
-        let continues = records
-            .last()
-            .is_some_and(|r| r.sampler == sampler && r.population == population && r.index == index && r.seed == seed);
-        if step == 0 {
-            records.push(RolloutRecord {
-                sampler,
-                population,
-                index,
-                seed,
-                disturbances: Trajectory::empty(dim),
-                step_log_p: Vec::new(),
-                step_log_q: Vec::new(),
-                log_p: 0.0,
-                log_q: trajectory_log_q,
-                defensive_fraction,
-                score,
-                step_scores: Vec::new(),
-                step_positions: Vec::new(),
-                step_attitudes: Vec::new(),
-                step_uncertainty: Vec::new(),
-                collision_step: None,
-                lost_step: None,
-                reward,
-                failed: score <= 0.0,
-            });
-        } else if !continues {
-            return Err((n, format!("step {step} does not continue the rollout above it")));
+        let row = CsvRow::parse(line, &columns, dim).map_err(|e| (n, e))?;
+        if row.step == 0 {
+            records.push(row.first_of_rollout(dim));
+            counted_rows.push((n, Vec::new()));
+        } else if !records.last().is_some_and(|r| row.continues(r)) {
+            return Err((n, format!("step {} does not continue the rollout above it", row.step)));
         }
         let r = records.last_mut().expect("a record was pushed or continues");
-        if r.disturbances.steps() != step {
-            return Err((n, format!("step {step} follows step {}", r.disturbances.steps().wrapping_sub(1))));
-        }
-        if r.score.to_bits() != score.to_bits()
-            || r.reward.map(f64::to_bits) != reward.map(f64::to_bits)
-            || r.log_q.to_bits() != trajectory_log_q.to_bits()
-            || r.defensive_fraction.map(f64::to_bits) != defensive_fraction.map(f64::to_bits)
-        {
-            return Err((
-                n,
-                "score, reward, trajectory_log_q and defensive_fraction must repeat on every row of a rollout"
-                    .to_owned(),
-            ));
-        }
-        if step == 0 {
-            counted_rows.push((n, Vec::new()));
-        }
-        counted_rows.last_mut().expect("pushed at step 0").1.push(counted);
-        r.disturbances.push(&x).map_err(|e| (n, e.to_string()))?;
-        r.step_log_p.push(log_p);
-        r.step_log_q.push(log_q);
-        r.step_scores.push(clearance);
-        for (value, v, names) in
-            [(position, &mut r.step_positions, "x, y, z"), (attitude, &mut r.step_attitudes, "rx, ry, rz")]
-        {
-            match (value, step == 0 || !v.is_empty()) {
-                ([Some(x), Some(y), Some(z)], true) => v.push([x, y, z]),
-                ([None, None, None], _) if v.is_empty() => {}
-                _ => return Err((n, format!("{names} must be all given or all empty, on every row of a rollout"))),
-            }
-        }
-        match (uncertainty, step == 0 || !r.step_uncertainty.is_empty()) {
-            (Some(u), true) => r.step_uncertainty.push(u),
-            (None, _) if r.step_uncertainty.is_empty() => {}
-            _ => return Err((n, "uncertainty must be given on every row of a rollout or on none".to_owned())),
-        }
-        if collided {
-            if r.collision_step.is_some() {
-                return Err((n, "a rollout has one first collision".to_owned()));
-            }
-            r.collision_step = Some(step);
-        }
-        if lost {
-            if r.lost_step.is_some() {
-                return Err((n, "a rollout is lost once".to_owned()));
-            }
-            r.lost_step = Some(step);
-        }
+        counted_rows.last_mut().expect("pushed at step 0").1.push(row.counted);
+        row.append_to(r).map_err(|e| (n, e))?;
     }
     records
         .into_iter()
@@ -450,4 +345,159 @@ pub fn parse_csv(text: &str) -> Result<Vec<RolloutRecord>, (usize, String)> {
             Ok(r)
         })
         .collect()
+}
+
+/// One line of [`write_csv`]'s format: one step of one rollout.
+struct CsvRow {
+    sampler: Label,
+    population: usize,
+    index: usize,
+    seed: u64,
+    step: usize,
+    x: Vec<f64>,
+    log_p: f64,
+    log_q: f64,
+    uncertainty: Option<f64>,
+    reward: Option<f64>,
+    score: f64,
+    trajectory_log_q: f64,
+    clearance: f64,
+    position: [Option<f64>; 3],
+    attitude: [Option<f64>; 3],
+    collided: bool,
+    lost: bool,
+    counted: bool,
+    defensive_fraction: Option<f64>,
+}
+
+impl CsvRow {
+    /// The fields of `line` under `columns` (`dim` disturbance components); the error names the
+    /// column.
+    fn parse(line: &str, columns: &[&str], dim: usize) -> Result<Self, String> {
+        let fields: Vec<&str> = line.split(',').collect();
+        if fields.len() != columns.len() {
+            return Err(format!("{} fields, expected {}", fields.len(), columns.len()));
+        }
+        let col = |i: usize| columns[i];
+        let float = |i: usize| -> Result<f64, String> {
+            fields[i].parse::<f64>().map_err(|_| format!("column {}: `{}` is not a number", col(i), fields[i]))
+        };
+        let optional = |i: usize| -> Result<Option<f64>, String> {
+            if fields[i].is_empty() {
+                Ok(None)
+            } else {
+                float(i).map(Some)
+            }
+        };
+        let integer = |i: usize| -> Result<u64, String> {
+            fields[i].parse::<u64>().map_err(|_| format!("column {}: `{}` is not a count", col(i), fields[i]))
+        };
+        let flag = |i: usize| match fields[i] {
+            "0" => Ok(false),
+            "1" => Ok(true),
+            other => Err(format!("column {}: `{other}` is not 0 or 1", col(i))),
+        };
+        let (population, index, seed, step) =
+            (integer(1)? as usize, integer(2)? as usize, integer(3)?, integer(4)? as usize);
+        let tail = 5 + dim;
+        Ok(Self {
+            population,
+            index,
+            seed,
+            step,
+            x: (5..tail).map(float).collect::<Result<_, _>>()?,
+            log_p: float(tail)?,
+            log_q: float(tail + 1)?,
+            uncertainty: optional(tail + 2)?,
+            reward: optional(tail + 3)?,
+            score: float(tail + 4)?,
+            trajectory_log_q: float(tail + 5)?,
+            clearance: float(tail + 6)?,
+            position: [optional(tail + 7)?, optional(tail + 8)?, optional(tail + 9)?],
+            attitude: [optional(tail + 10)?, optional(tail + 11)?, optional(tail + 12)?],
+            collided: flag(tail + 13)?,
+            lost: flag(tail + 14)?,
+            counted: flag(tail + 15)?,
+            defensive_fraction: optional(tail + 16)?,
+            sampler: fields[0].parse().map_err(|e| format!("column {}: {e}", col(0)))?,
+        })
+    }
+
+    /// Whether this row is a later step of `r`'s rollout.
+    fn continues(&self, r: &RolloutRecord) -> bool {
+        r.sampler == self.sampler && r.population == self.population && r.index == self.index && r.seed == self.seed
+    }
+
+    /// The record this row (step 0) starts, without steps yet.
+    fn first_of_rollout(&self, dim: usize) -> RolloutRecord {
+        RolloutRecord {
+            sampler: self.sampler,
+            population: self.population,
+            index: self.index,
+            seed: self.seed,
+            disturbances: Trajectory::empty(dim),
+            step_log_p: Vec::new(),
+            step_log_q: Vec::new(),
+            log_p: 0.0,
+            log_q: self.trajectory_log_q,
+            defensive_fraction: self.defensive_fraction,
+            score: self.score,
+            step_scores: Vec::new(),
+            step_positions: Vec::new(),
+            step_attitudes: Vec::new(),
+            step_uncertainty: Vec::new(),
+            collision_step: None,
+            lost_step: None,
+            reward: self.reward,
+            failed: self.score <= 0.0,
+        }
+    }
+
+    /// Appends this row's step to its rollout's record `r`, checking what must repeat on every
+    /// row and what a rollout has once.
+    fn append_to(self, r: &mut RolloutRecord) -> Result<(), String> {
+        let step = self.step;
+        if r.disturbances.steps() != step {
+            return Err(format!("step {step} follows step {}", r.disturbances.steps().wrapping_sub(1)));
+        }
+        if r.score.to_bits() != self.score.to_bits()
+            || r.reward.map(f64::to_bits) != self.reward.map(f64::to_bits)
+            || r.log_q.to_bits() != self.trajectory_log_q.to_bits()
+            || r.defensive_fraction.map(f64::to_bits) != self.defensive_fraction.map(f64::to_bits)
+        {
+            return Err("score, reward, trajectory_log_q and defensive_fraction must repeat on every row of a rollout"
+                .to_owned());
+        }
+        r.disturbances.push(&self.x).map_err(|e| e.to_string())?;
+        r.step_log_p.push(self.log_p);
+        r.step_log_q.push(self.log_q);
+        r.step_scores.push(self.clearance);
+        for (value, v, names) in
+            [(self.position, &mut r.step_positions, "x, y, z"), (self.attitude, &mut r.step_attitudes, "rx, ry, rz")]
+        {
+            match (value, step == 0 || !v.is_empty()) {
+                ([Some(x), Some(y), Some(z)], true) => v.push([x, y, z]),
+                ([None, None, None], _) if v.is_empty() => {}
+                _ => return Err(format!("{names} must be all given or all empty, on every row of a rollout")),
+            }
+        }
+        match (self.uncertainty, step == 0 || !r.step_uncertainty.is_empty()) {
+            (Some(u), true) => r.step_uncertainty.push(u),
+            (None, _) if r.step_uncertainty.is_empty() => {}
+            _ => return Err("uncertainty must be given on every row of a rollout or on none".to_owned()),
+        }
+        if self.collided {
+            if r.collision_step.is_some() {
+                return Err("a rollout has one first collision".to_owned());
+            }
+            r.collision_step = Some(step);
+        }
+        if self.lost {
+            if r.lost_step.is_some() {
+                return Err("a rollout is lost once".to_owned());
+            }
+            r.lost_step = Some(step);
+        }
+        Ok(())
+    }
 }

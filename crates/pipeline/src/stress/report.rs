@@ -8,7 +8,7 @@ use std::path::Path;
 
 use nerfsv_sim::WorldKind;
 use nerfsv_study::stress::{
-    most_likely_failure_png, other_world, Sampler, SamplerFigures, StressFigures, ESTIMATE_ERRORS_PNG,
+    most_likely_failure_png, other_world, Sampler, SamplerFigures, StressFigures, TransferFigures, ESTIMATE_ERRORS_PNG,
 };
 
 use crate::report::{draw, esc, estimate, mm, num, pct, proportion, rate_ci, world_label, Section, Table};
@@ -178,181 +178,197 @@ impl Report for StressStage<'_> {
         let mut s = Section::new("stress", title, "stress tests");
         stress_answer(&mut s, f);
         if let Some(t) = &f.transfer {
-            let table = transfer_table(t);
-            s.answer(
-                5,
-                format!(
-                    "<b>Do failures found in a NeRF predict failures in the world?</b> The same {} Monte Carlo rollouts \
-                     (disturbances and seeds) in NeRF-sim with the deployed NeRF as the world, in NeRF-sim with the \
-                     ensemble's other members as the world, and in GT-sim; each NeRF world against GT-sim, failure \
-                     positive, 95 % intervals (rates and proportions Wilson, correlation bootstrap over rollouts):\n{}",
-                    t.gt.rollouts,
-                    table.html()
-                ),
-            );
-            s.paragraph("The transfer table: the Monte Carlo rollouts in both NeRF worlds against GT-sim.");
-            s.table(table);
-            if !t.step_auroc.is_empty() {
-                s.paragraph(
-                    "How well the ensemble's uncertainty of the drone's view at each step (the mean density-aware \
-                     spread of its NeRFs' renders of the view's rays, measured at the step's recorded pose, no \
-                     ground-truth image) predicts the steps where NeRF-sim and GT-sim disagree (one touched geometry, \
-                     the other not); per sampler, the step AUROC's interval from a bootstrap over rollouts:",
-                );
-                s.table(
-                    Table::new(&[
-                        "sampler",
-                        "NeRF world",
-                        "steps",
-                        "disagreeing",
-                        "step AUROC [95 %]",
-                        "rollout AUROC",
-                    ])
-                    .rows(t.step_auroc.iter().map(|a| {
-                        vec![
-                            a.sampler.name().to_uppercase(),
-                            a.nerf_world.name().into(),
-                            a.auroc.steps.to_string(),
-                            a.auroc.disagreeing_steps.to_string(),
-                            match (a.auroc.step_auroc, a.step_auroc_ci95) {
-                                (Some(v), Some(ci)) => format!("{v:.2} [{:.2}, {:.2}]", ci[0], ci[1]),
-                                (v, _) => num(v, 2),
-                            },
-                            num(a.auroc.trajectory_auroc, 2),
-                        ]
-                    })),
-                );
-            }
+            transfer_part(&mut s, t);
         }
-        let name = |x: &SamplerFigures| x.sampler.name().to_uppercase();
-        s.table(
-            Table::new(&[
-                "sampler",
-                "rollouts flown",
-                "collision rate of the searched",
-                "lost",
-                "avg. collision step",
-                "avg. log-likelihood",
-                "P(fail) ± SE",
-                "95 % interval",
-            ])
-            .rows(f.samplers.iter().map(|x| {
-                vec![
-                    name(x),
-                    x.rollouts.to_string(),
-                    // The rate is over the search's own rollouts (CEM: its populations, not the
-                    // importance batch), which the first row of the sampler's table counts.
-                    format!(
-                        "{} of {}",
-                        pct(x.collision_rate),
-                        x.table.first().map_or("–".into(), |r| r.rollouts.to_string())
-                    ),
-                    pct(x.lost_rate),
-                    num(x.avg_collision_step, 2),
-                    num(x.avg_log_likelihood, 2),
-                    format!("{} ± {}", num(x.p_fail, 3), num(x.p_fail_se, 3)),
-                    format!("[{}, {}]", num(x.p_fail_interval.0, 3), num(x.p_fail_interval.1, 3)),
-                ]
-            })),
-        );
-        s.table(
-            Table::new(&["sampler", "P(fail) estimator", "effective rollouts / failures", "paper's plain IS estimate"])
-                .rows(f.samplers.iter().map(|x| {
-                    vec![
-                        name(x),
-                        x.p_fail_estimator.clone(),
-                        format!("{} / {}", num(x.effective_sample_size, 1), num(x.effective_failures, 1)),
-                        num(x.p_fail_unnormalised, 3),
-                    ]
-                })),
-        );
-        s.paragraph(
-            "Lost: rollouts whose state stopped being finite or left the field's grid without a collision, \
-             neither passes nor failures. The CEM's P(fail) is the importance-sampling estimate with the weight as \
-             control variate (its expectation under the proposal is 1), clamped to [0, 1]; the paper's plain estimate \
-             (1/N) Σ 𝟙·p/q, unbiased but able to exceed 1, stands beside it. Effective rollouts and failures are \
-             Kish's sizes (Σw)²/Σw² of the batch's and of the failures' weights: the number of rollouts the \
-             estimate effectively rests on. SUBSET is subset simulation (Au & Beck): level 0 is independent draws \
-             from the prior (the MC rollouts, then its own), each next level Markov chains held below the last \
-             level's p0-quantile of the clearance (10 % by default); P(fail) is the product of the levels' shares, its \
-             SE Au & Beck's bound from the chains' correlation, and its effective rollouts the Monte Carlo rollouts \
-             with the same variance. It is the estimator whose ±2 SE interval covers the truth at 10⁻³ and 0.08 on a \
-             72-dimensional test problem with these settings (the CEM's does not: BENCHMARKS.md); its rollouts are \
-             driven towards failure, so their collision rate is not a rate of anything.",
-        );
-        s.paragraph(
-            "Confusion of NeRF-sim (prediction) against GT-sim (truth) over each search's rollouts, failure positive, \
-             each proportion with its Wilson 95 % interval; the majority baseline is the accuracy of always predicting \
-             GT-sim's commoner outcome. The CEM's rollouts are driven towards failure: its rows describe those \
-             rollouts, not the prior's.",
-        );
-        s.table(
-            Table::new(&[
-                "sampler",
-                "TP",
-                "FP",
-                "FN",
-                "TN",
-                "accuracy",
-                "majority baseline",
-                "precision",
-                "recall",
-                "MCC",
-                "|Δclearance| median / p90 / max (m)",
-            ])
-            .rows(f.samplers.iter().filter_map(|x| {
-                let c = x.confusion.as_ref()?;
-                let (t, d) = (&c.trajectories, &c.clearance_difference_m);
-                Some(vec![
-                    name(x),
-                    t.true_positive.to_string(),
-                    t.false_positive.to_string(),
-                    t.false_negative.to_string(),
-                    t.true_negative.to_string(),
-                    proportion(t.true_positive + t.true_negative, t.total()),
-                    num(t.majority_accuracy(), 2),
-                    proportion(t.true_positive, t.nerf_failures()),
-                    proportion(t.true_positive, t.gt_failures()),
-                    num(nerfsv_validation::matthews(t), 2),
-                    format!("{} / {} / {}", num(d.median, 4), num(d.p90, 4), num(d.max, 4)),
-                ])
-            })),
-        );
-        if !f.estimate_errors.is_empty() {
-            s.paragraph(
-                "The vision estimator's error after each image update, over every rollout the stage flew (the \
-                 searches in NeRF-sim and their replays in GT-sim):",
-            );
-            s.table(
-                Table::new(&["world", "images", "position error median / p90 (mm)", "attitude error median / p90 (°)"])
-                    .rows(f.estimate_errors.iter().map(|e| {
-                        vec![
-                            format!("{}-sim", e.world.name()),
-                            e.images.to_string(),
-                            format!("{} / {}", mm(e.median_position_m), mm(e.p90_position_m)),
-                            format!("{} / {}", num(e.median_attitude_deg, 2), num(e.p90_attitude_deg, 2)),
-                        ]
-                    })),
-            );
-        }
-        if !f.estimate_errors.is_empty() {
-            s.picture(ESTIMATE_ERRORS_PNG, "The vision estimator's position error after each image, both worlds");
-        }
-        // The most likely failures the searches found, flown in their world and replayed.
-        for sf in f.samplers.iter().filter(|sf| matches!(sf.sampler, Sampler::Mc | Sampler::Cem)) {
-            let Some(failure) = &sf.most_likely_failure else { continue };
-            let name = sf.sampler.name().to_uppercase();
-            let png = |world| most_likely_failure_png(sf.sampler, world);
-            s.picture(&png(sf.world), &format!("{name}'s most likely failure in {}-sim", world_label(sf.world)));
-            if failure.replay_collided.is_some() {
-                let other = other_world(sf.world);
-                s.picture(&png(other), &format!("The same disturbances in {}-sim", world_label(other)));
-            }
-        }
+        sampler_tables(&mut s, f);
+        confusion_table(&mut s, f);
+        estimator_errors_and_failures(&mut s, f);
         if draw(cx.dir, CLEARANCE_PNG, clearance_figure(cx.dir)) {
             s.picture(CLEARANCE_PNG, "|clearance in NeRF-sim − in GT-sim| on the same disturbances");
         }
         s.csv(nerfsv_study::stress::TABLE_CSV, "stress_table.csv");
         Some(s)
+    }
+}
+
+/// The transfer table and the ensemble's step AUROC per sampler.
+fn transfer_part(s: &mut Section, t: &TransferFigures) {
+    let table = transfer_table(t);
+    s.answer(
+        5,
+        format!(
+            "<b>Do failures found in a NeRF predict failures in the world?</b> The same {} Monte Carlo rollouts \
+             (disturbances and seeds) in NeRF-sim with the deployed NeRF as the world, in NeRF-sim with the \
+             ensemble's other members as the world, and in GT-sim; each NeRF world against GT-sim, failure \
+             positive, 95 % intervals (rates and proportions Wilson, correlation bootstrap over rollouts):\n{}",
+            t.gt.rollouts,
+            table.html()
+        ),
+    );
+    s.paragraph("The transfer table: the Monte Carlo rollouts in both NeRF worlds against GT-sim.");
+    s.table(table);
+    if !t.step_auroc.is_empty() {
+        s.paragraph(
+            "How well the ensemble's uncertainty of the drone's view at each step (the mean density-aware \
+             spread of its NeRFs' renders of the view's rays, measured at the step's recorded pose, no \
+             ground-truth image) predicts the steps where NeRF-sim and GT-sim disagree (one touched geometry, \
+             the other not); per sampler, the step AUROC's interval from a bootstrap over rollouts:",
+        );
+        s.table(
+            Table::new(&["sampler", "NeRF world", "steps", "disagreeing", "step AUROC [95 %]", "rollout AUROC"]).rows(
+                t.step_auroc.iter().map(|a| {
+                    vec![
+                        a.sampler.name().to_uppercase(),
+                        a.nerf_world.name().into(),
+                        a.auroc.steps.to_string(),
+                        a.auroc.disagreeing_steps.to_string(),
+                        match (a.auroc.step_auroc, a.step_auroc_ci95) {
+                            (Some(v), Some(ci)) => format!("{v:.2} [{:.2}, {:.2}]", ci[0], ci[1]),
+                            (v, _) => num(v, 2),
+                        },
+                        num(a.auroc.trajectory_auroc, 2),
+                    ]
+                }),
+            ),
+        );
+    }
+}
+
+/// Each sampler's rates and failure probability, and how its estimate was made.
+fn sampler_tables(s: &mut Section, f: &StressFigures) {
+    let name = |x: &SamplerFigures| x.sampler.name().to_uppercase();
+    s.table(
+        Table::new(&[
+            "sampler",
+            "rollouts flown",
+            "collision rate of the searched",
+            "lost",
+            "avg. collision step",
+            "avg. log-likelihood",
+            "P(fail) ± SE",
+            "95 % interval",
+        ])
+        .rows(f.samplers.iter().map(|x| {
+            vec![
+                name(x),
+                x.rollouts.to_string(),
+                // The rate is over the search's own rollouts (CEM: its populations, not the
+                // importance batch), which the first row of the sampler's table counts.
+                format!(
+                    "{} of {}",
+                    pct(x.collision_rate),
+                    x.table.first().map_or("–".into(), |r| r.rollouts.to_string())
+                ),
+                pct(x.lost_rate),
+                num(x.avg_collision_step, 2),
+                num(x.avg_log_likelihood, 2),
+                format!("{} ± {}", num(x.p_fail, 3), num(x.p_fail_se, 3)),
+                format!("[{}, {}]", num(x.p_fail_interval.0, 3), num(x.p_fail_interval.1, 3)),
+            ]
+        })),
+    );
+    s.table(
+        Table::new(&["sampler", "P(fail) estimator", "effective rollouts / failures", "paper's plain IS estimate"])
+            .rows(f.samplers.iter().map(|x| {
+                vec![
+                    name(x),
+                    x.p_fail_estimator.clone(),
+                    format!("{} / {}", num(x.effective_sample_size, 1), num(x.effective_failures, 1)),
+                    num(x.p_fail_unnormalised, 3),
+                ]
+            })),
+    );
+    s.paragraph(
+        "Lost: rollouts whose state stopped being finite or left the field's grid without a collision, \
+         neither passes nor failures. The CEM's P(fail) is the importance-sampling estimate with the weight as \
+         control variate (its expectation under the proposal is 1), clamped to [0, 1]; the paper's plain estimate \
+         (1/N) Σ 𝟙·p/q, unbiased but able to exceed 1, stands beside it. Effective rollouts and failures are \
+         Kish's sizes (Σw)²/Σw² of the batch's and of the failures' weights: the number of rollouts the \
+         estimate effectively rests on. SUBSET is subset simulation (Au & Beck): level 0 is independent draws \
+         from the prior (the MC rollouts, then its own), each next level Markov chains held below the last \
+         level's p0-quantile of the clearance (10 % by default); P(fail) is the product of the levels' shares, its \
+         SE Au & Beck's bound from the chains' correlation, and its effective rollouts the Monte Carlo rollouts \
+         with the same variance. It is the estimator whose ±2 SE interval covers the truth at 10⁻³ and 0.08 on a \
+         72-dimensional test problem with these settings (the CEM's does not: BENCHMARKS.md); its rollouts are \
+         driven towards failure, so their collision rate is not a rate of anything.",
+    );
+}
+
+/// NeRF-sim against GT-sim over each search's rollouts.
+fn confusion_table(s: &mut Section, f: &StressFigures) {
+    let name = |x: &SamplerFigures| x.sampler.name().to_uppercase();
+    s.paragraph(
+        "Confusion of NeRF-sim (prediction) against GT-sim (truth) over each search's rollouts, failure positive, \
+         each proportion with its Wilson 95 % interval; the majority baseline is the accuracy of always predicting \
+         GT-sim's commoner outcome. The CEM's rollouts are driven towards failure: its rows describe those \
+         rollouts, not the prior's.",
+    );
+    s.table(
+        Table::new(&[
+            "sampler",
+            "TP",
+            "FP",
+            "FN",
+            "TN",
+            "accuracy",
+            "majority baseline",
+            "precision",
+            "recall",
+            "MCC",
+            "|Δclearance| median / p90 / max (m)",
+        ])
+        .rows(f.samplers.iter().filter_map(|x| {
+            let c = x.confusion.as_ref()?;
+            let (t, d) = (&c.trajectories, &c.clearance_difference_m);
+            Some(vec![
+                name(x),
+                t.true_positive.to_string(),
+                t.false_positive.to_string(),
+                t.false_negative.to_string(),
+                t.true_negative.to_string(),
+                proportion(t.true_positive + t.true_negative, t.total()),
+                num(t.majority_accuracy(), 2),
+                proportion(t.true_positive, t.nerf_failures()),
+                proportion(t.true_positive, t.gt_failures()),
+                num(nerfsv_validation::matthews(t), 2),
+                format!("{} / {} / {}", num(d.median, 4), num(d.p90, 4), num(d.max, 4)),
+            ])
+        })),
+    );
+}
+
+/// The estimator's errors after its image updates, their histograms and the most likely
+/// failures' flights.
+fn estimator_errors_and_failures(s: &mut Section, f: &StressFigures) {
+    if !f.estimate_errors.is_empty() {
+        s.paragraph(
+            "The vision estimator's error after each image update, over every rollout the stage flew (the \
+             searches in NeRF-sim and their replays in GT-sim):",
+        );
+        s.table(
+            Table::new(&["world", "images", "position error median / p90 (mm)", "attitude error median / p90 (°)"])
+                .rows(f.estimate_errors.iter().map(|e| {
+                    vec![
+                        format!("{}-sim", e.world.name()),
+                        e.images.to_string(),
+                        format!("{} / {}", mm(e.median_position_m), mm(e.p90_position_m)),
+                        format!("{} / {}", num(e.median_attitude_deg, 2), num(e.p90_attitude_deg, 2)),
+                    ]
+                })),
+        );
+    }
+    if !f.estimate_errors.is_empty() {
+        s.picture(ESTIMATE_ERRORS_PNG, "The vision estimator's position error after each image, both worlds");
+    }
+    // The most likely failures the searches found, flown in their world and replayed.
+    for sf in f.samplers.iter().filter(|sf| matches!(sf.sampler, Sampler::Mc | Sampler::Cem)) {
+        let Some(failure) = &sf.most_likely_failure else { continue };
+        let name = sf.sampler.name().to_uppercase();
+        let png = |world| most_likely_failure_png(sf.sampler, world);
+        s.picture(&png(sf.world), &format!("{name}'s most likely failure in {}-sim", world_label(sf.world)));
+        if failure.replay_collided.is_some() {
+            let other = other_world(sf.world);
+            s.picture(&png(other), &format!("The same disturbances in {}-sim", world_label(other)));
+        }
     }
 }

@@ -154,6 +154,24 @@ pub fn marching_cubes(grid: &ScalarGrid, iso: f32, inside_is_below: bool) -> Mes
 
 /// [`marching_cubes`] with the node classification (from [`classify_nodes`]) at hand.
 pub(crate) fn marching_cubes_classified(grid: &ScalarGrid, iso: f32, inside: &[bool]) -> Mesh {
+    let placed = place_vertices(grid, iso, inside);
+    let triangles = triangulate(grid, inside, &placed);
+    let triangles = drop_opposite_pairs(triangles, &placed.on_node);
+    Mesh { vertices: placed.vertices, triangles }
+}
+
+/// Where marching cubes put its vertices: per node, its own vertex (or [`NO_VERTEX`]); per axis
+/// and node, the vertex on the grid edge leaving the node along that axis ([`AT_START`] /
+/// [`AT_END`]: an end node's own vertex); the vertices, and which of them sit on a node.
+struct PlacedVertices {
+    node_vertex: Vec<u32>,
+    edge_vertex: [Vec<u32>; 3],
+    vertices: Vec<Point3<f32>>,
+    on_node: Vec<bool>,
+}
+
+/// Pass 1 of [`marching_cubes_classified`].
+fn place_vertices(grid: &ScalarGrid, iso: f32, inside: &[bool]) -> PlacedVertices {
     let g = &grid.geometry;
     let [nx, ny, nz] = g.dims;
     let slice = nx * ny;
@@ -233,9 +251,18 @@ pub(crate) fn marching_cubes_classified(grid: &ScalarGrid, iso: f32, inside: &[b
     for &v in node_vertex.iter().filter(|&&v| v != NO_VERTEX) {
         on_node[v as usize] = true;
     }
+    PlacedVertices { node_vertex, edge_vertex, vertices, on_node }
+}
 
+/// Pass 2 of [`marching_cubes_classified`]: the triangles of every cube, by slabs of cubes.
+fn triangulate(grid: &ScalarGrid, inside: &[bool], placed: &PlacedVertices) -> Vec<[u32; 3]> {
+    let g = &grid.geometry;
+    let [nx, ny, nz] = g.dims;
+    let slice = nx * ny;
+    let strides = [1, nx, slice];
+    let (node_vertex, edge_vertex) = (&placed.node_vertex, &placed.edge_vertex);
     // Pass 2: triangles per slab of cubes between z-slices k and k+1.
-    let triangles: Vec<[u32; 3]> = (0..nz - 1)
+    (0..nz - 1)
         .into_par_iter()
         .map(|k| {
             let mut tris = Vec::new();
@@ -274,10 +301,7 @@ pub(crate) fn marching_cubes_classified(grid: &ScalarGrid, iso: f32, inside: &[b
             tris
         })
         .flatten()
-        .collect();
-    let triangles = drop_opposite_pairs(triangles, &on_node);
-
-    Mesh { vertices, triangles }
+        .collect()
 }
 
 /// Drops pairs of triangles made of the same three vertices with opposite winding. They arise

@@ -153,6 +153,70 @@ fn ause_csv(rows: &[(&str, usize, String, AuseOutcome)]) -> String {
     out
 }
 
+/// A split the offline study fits: its name, its frames, the indices GA and BLA fit.
+type Chosen = (&'static str, nerfsv_dataset::Split, Vec<usize>, Vec<usize>);
+
+/// The images of each split the offline study fits (`ga_n`, `bla_n` per split, spread over the
+/// split).
+fn choose_images(data: &std::path::Path, ga_n: usize, bla_n: usize) -> Result<Vec<Chosen>, PipelineError> {
+    let splits = SPLITS.map(|name| load_dataset_split(data, name, 1));
+    let mut chosen = Vec::new();
+    for (name, split) in SPLITS.into_iter().zip(splits) {
+        let split = split?;
+        let all: Vec<usize> = (0..split.frames.len()).collect();
+        let (ga_idx, bla_idx) = (stride(&all, Some(ga_n)), stride(&all, Some(bla_n)));
+        chosen.push((name, split, ga_idx, bla_idx));
+    }
+    Ok(chosen)
+}
+
+impl Uncertainty<'_> {
+    /// The ensemble's uncertainty field of `all` (the deployed model first), written with its
+    /// slice into the stage's folder; its figures.
+    fn write_ensemble_field(&self, cx: &StageContext, all: &[&Nerf]) -> Result<nerfsv_uq::FieldFigures, PipelineError> {
+        // Named relative to the run's folder, so that the file does not depend on where the run is.
+        let path = Train::checkpoint(cx.root);
+        let checkpoint = path.strip_prefix(cx.root).unwrap_or(&path).display().to_string();
+        let mut field = nerfsv_uq::UncertaintyField::build_ensemble(all, &checkpoint, self.uq)?;
+        // A run's files are the same bytes on every run (resumed or not): the build's wall time
+        // stays out of the file, in the figures.
+        let figures = field.figures.clone();
+        field.figures.seconds = 0.0;
+        save_field_with_slice(&field, &cx.dir.join(Self::ENSEMBLE_FIELD))?;
+        Ok(figures)
+    }
+}
+
+/// An image's depth AUSE under a method: (method, image index, file, outcome).
+type AuseEntry = (&'static str, usize, String, AuseOutcome);
+
+/// The mean depth AUSE of `method`'s scored images among `ause` (only those of `indices`, when
+/// given), and how many it averages.
+fn mean_ause_of(ause: &[AuseEntry], method: &str, indices: Option<&[usize]>) -> (Option<f64>, usize) {
+    let scored: Vec<Sparsification> = ause
+        .iter()
+        .filter(|(m, index, ..)| *m == method && indices.is_none_or(|i| i.contains(index)))
+        .filter_map(|(.., o)| if let AuseOutcome::Scored(c) = o { Some(c.clone()) } else { None })
+        .collect();
+    (mean_ause(&scored), scored.len())
+}
+
+/// The ensemble's depth AUSE (of `members` NeRFs) and a random order's on the test images GA
+/// and BLA scored.
+fn ensemble_ause_of(ause: &[AuseEntry], members: usize, ga_idx: &[usize], bla_idx: &[usize]) -> EnsembleAuse {
+    let (on_ga_images, ga_images) = mean_ause_of(ause, "ensemble", Some(ga_idx));
+    let (on_bla_images, bla_images) = mean_ause_of(ause, "ensemble", Some(bla_idx));
+    EnsembleAuse {
+        members,
+        on_ga_images,
+        random_on_ga_images: mean_ause_of(ause, "random", Some(ga_idx)).0,
+        ga_images,
+        on_bla_images,
+        random_on_bla_images: mean_ause_of(ause, "random", Some(bla_idx)).0,
+        bla_images,
+    }
+}
+
 impl Stage for Uncertainty<'_> {
     const NAME: &'static str = "uq";
     const CODE: &'static [&'static str] = &["nerfsv-uq", "uq.rs", "stages.rs", "config.rs"];
@@ -206,14 +270,7 @@ impl Stage for Uncertainty<'_> {
         let all: Vec<&Nerf> = std::iter::once(&nerf).chain(others.iter().copied()).collect();
         let data = Dataset::folder(cx.root)?;
         let (ga_n, bla_n) = (self.offline.ga_images_per_split, self.offline.bla_images_per_split);
-        let splits = SPLITS.map(|name| load_dataset_split(&data, name, 1));
-        let mut chosen = Vec::new();
-        for (name, split) in SPLITS.into_iter().zip(splits) {
-            let split = split?;
-            let all: Vec<usize> = (0..split.frames.len()).collect();
-            let (ga_idx, bla_idx) = (stride(&all, Some(ga_n)), stride(&all, Some(bla_n)));
-            chosen.push((name, split, ga_idx, bla_idx));
-        }
+        let chosen = choose_images(&data, ga_n, bla_n)?;
         // Progress counts the images fitted, over all splits and both methods.
         let total = chosen.iter().map(|(_, _, g, b)| g.len() + b.len()).sum::<usize>() as u64;
         let done = std::cell::Cell::new(0u64);
@@ -272,28 +329,11 @@ impl Stage for Uncertainty<'_> {
             }
             _ => None,
         };
-        let mean_of = |method: &str, indices: Option<&[usize]>| {
-            let scored: Vec<Sparsification> = ause
-                .iter()
-                .filter(|(m, index, ..)| *m == method && indices.is_none_or(|i| i.contains(index)))
-                .filter_map(|(.., o)| if let AuseOutcome::Scored(c) = o { Some(c.clone()) } else { None })
-                .collect();
-            (mean_ause(&scored), scored.len())
-        };
+        let mean_of = |method: &str, indices: Option<&[usize]>| mean_ause_of(&ause, method, indices);
         let ((ause_ga, ause_ga_images), (ause_bla, ause_bla_images)) = (mean_of("ga", None), mean_of("bla", None));
         let ensemble_ause = ensemble_ause.map(|members| {
             let (_, _, ga_idx, bla_idx) = chosen.iter().find(|(n, ..)| *n == "test").expect("the test split");
-            let (on_ga_images, ga_images) = mean_of("ensemble", Some(ga_idx));
-            let (on_bla_images, bla_images) = mean_of("ensemble", Some(bla_idx));
-            EnsembleAuse {
-                members,
-                on_ga_images,
-                random_on_ga_images: mean_of("random", Some(ga_idx)).0,
-                ga_images,
-                on_bla_images,
-                random_on_bla_images: mean_of("random", Some(bla_idx)).0,
-                bla_images,
-            }
+            ensemble_ause_of(&ause, members, ga_idx, bla_idx)
         });
 
         let ause_on_common_images = compare_on_common_images(&ause);
@@ -319,16 +359,7 @@ impl Stage for Uncertainty<'_> {
             true => None,
             false => {
                 cx.progress(done.get(), total, "ensemble field");
-                // Named relative to the run's folder, so that the file does not depend on where the run is.
-                let path = Train::checkpoint(cx.root);
-                let checkpoint = path.strip_prefix(cx.root).unwrap_or(&path).display().to_string();
-                let mut field = nerfsv_uq::UncertaintyField::build_ensemble(&all, &checkpoint, self.uq)?;
-                // A run's files are the same bytes on every run (resumed or not): the build's
-                // wall time stays out of the file, in the figures.
-                let figures = field.figures.clone();
-                field.figures.seconds = 0.0;
-                save_field_with_slice(&field, &cx.dir.join(Self::ENSEMBLE_FIELD))?;
-                Some(figures)
+                Some(self.write_ensemble_field(cx, &all)?)
             }
         };
         let rows: Vec<Row> = ga.into_iter().chain(bla).collect();

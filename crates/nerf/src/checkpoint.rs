@@ -149,6 +149,42 @@ pub fn write(path: &Path, nerf: &Nerf, train: Option<TrainingState<'_>>) -> Resu
     nerfsv_scene::io::atomic_write_bytes(path, &buf).map_err(|e| NerfError::io(path, e))
 }
 
+/// Refuses a file of another format or format version.
+fn check_format(path: &Path, format: &str, version: &str) -> Result<(), NerfError> {
+    if format != FORMAT {
+        return Err(NerfError::Format {
+            path: path.into(),
+            message: format!("format is {format:?}, expected {FORMAT:?}"),
+        });
+    }
+    if version != FORMAT_VERSION {
+        return Err(NerfError::Version { path: path.into(), found: version.into(), expected: FORMAT_VERSION.into() });
+    }
+    Ok(())
+}
+
+/// Reads the f32 tensor `name` of shape `shape` from the checkpoint `st` (read from `path`) into
+/// `dst`; every value must be finite.
+fn load_tensor(st: &SafeTensors, path: &Path, name: &str, shape: &[usize], dst: &mut [f32]) -> Result<(), NerfError> {
+    let t = st.tensor(name).map_err(|_| NerfError::MissingTensor { path: path.into(), tensor: name.into() })?;
+    if t.dtype() != Dtype::F32 || t.shape() != shape {
+        return Err(NerfError::TensorShape {
+            path: path.into(),
+            tensor: name.into(),
+            found: t.shape().to_vec(),
+            expected: shape.to_vec(),
+            dtype: format!("{:?}", t.dtype()),
+        });
+    }
+    for (i, (d, c)) in dst.iter_mut().zip(t.data().chunks_exact(4)).enumerate() {
+        *d = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+        if !d.is_finite() {
+            return Err(NerfError::NonFiniteTensor { path: path.into(), tensor: name.into(), index: i, value: *d });
+        }
+    }
+    Ok(())
+}
+
 /// Reads a checkpoint; with `need_optimizer` the Adam moments and training metadata must be
 /// present too, and a training step of its configs must fit the memory budget.
 pub fn read(path: &Path, need_optimizer: bool) -> Result<Checkpoint, NerfError> {
@@ -167,17 +203,7 @@ pub fn read(path: &Path, need_optimizer: bool) -> Result<Checkpoint, NerfError> 
     };
     let bad = |name: &str, m: String| NerfError::Metadata { path: path.into(), field: name.into(), message: m };
     let invalid = |error: InvalidValue| NerfError::InvalidMetadata { path: path.into(), error };
-    let fmt = field("format")?;
-    if fmt != FORMAT {
-        return Err(NerfError::Format {
-            path: path.into(),
-            message: format!("format is {fmt:?}, expected {FORMAT:?}"),
-        });
-    }
-    let ver = field("format_version")?;
-    if ver != FORMAT_VERSION {
-        return Err(NerfError::Version { path: path.into(), found: ver.clone(), expected: FORMAT_VERSION.into() });
-    }
+    check_format(path, field("format")?, field("format_version")?)?;
     // Every tensor needed is present (before the metadata that sizes them is trusted).
     let mut names: Vec<String> = TENSOR_NAMES.iter().map(|n| n.to_string()).collect();
     if need_optimizer {
@@ -243,25 +269,7 @@ pub fn read(path: &Path, need_optimizer: bool) -> Result<Checkpoint, NerfError> 
         }
     };
     let f = NgpField::new(&config);
-    let load = |name: &str, shape: &[usize], dst: &mut [f32]| -> Result<(), NerfError> {
-        let t = st.tensor(name).map_err(|_| NerfError::MissingTensor { path: path.into(), tensor: name.into() })?;
-        if t.dtype() != Dtype::F32 || t.shape() != shape {
-            return Err(NerfError::TensorShape {
-                path: path.into(),
-                tensor: name.into(),
-                found: t.shape().to_vec(),
-                expected: shape.to_vec(),
-                dtype: format!("{:?}", t.dtype()),
-            });
-        }
-        for (i, (d, c)) in dst.iter_mut().zip(t.data().chunks_exact(4)).enumerate() {
-            *d = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
-            if !d.is_finite() {
-                return Err(NerfError::NonFiniteTensor { path: path.into(), tensor: name.into(), index: i, value: *d });
-            }
-        }
-        Ok(())
-    };
+    let load = |name: &str, shape: &[usize], dst: &mut [f32]| load_tensor(&st, path, name, shape, dst);
     let mut params = vec![0.0f32; f.n_params];
     let mut adam = need_optimizer.then(|| Adam::new(f.n_params));
     for (name, (shape, range)) in TENSOR_NAMES.iter().zip(&f.tensors) {

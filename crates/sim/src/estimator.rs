@@ -458,6 +458,83 @@ struct PoseRender<'a> {
     render: RayRender<'a>,
 }
 
+/// One image aligned against the NeRF from a pose prior: what every render and linearisation
+/// of [`refine_pose`] shares.
+struct Aligner<'a> {
+    intrinsics: Intrinsics,
+    prior: &'a PosePrior,
+    image: Observation<'a>,
+    cfg: &'a VisionConfig,
+    /// Per level (0 the finest), each pixel's block: its residuals are pooled per block.
+    levels: Vec<Vec<u32>>,
+}
+
+impl<'a> Aligner<'a> {
+    fn new(intrinsics: Intrinsics, prior: &'a PosePrior, image: Observation<'a>, cfg: &'a VisionConfig) -> Self {
+        let n = image.pixels.len();
+        let (cols, _) = strata(&intrinsics, n);
+        let group_ids = |level: u32| -> Vec<u32> {
+            let gcols = cols.div_ceil(1 << level);
+            (0..n as u32).map(|i| ((i / cols) >> level) * gcols + ((i % cols) >> level)).collect()
+        };
+        let levels = (0..=cfg.levels[0]).map(group_ids).collect();
+        Self { intrinsics, prior, image, cfg, levels }
+    }
+
+    /// The prior's residual at a pose; its Jacobian is taken as the identity (small
+    /// corrections).
+    fn prior_residual(&self, p: &Vector3<f64>, r: &Matrix3<f64>) -> Vector6<f64> {
+        let dp = p - self.prior.position;
+        let dr = so3_log(&(r * self.prior.rotation.transpose()));
+        Vector6::new(dp.x, dp.y, dp.z, dr.x, dr.y, dr.z)
+    }
+
+    /// Renders the image's pixels at pose `(p, r)` into `pose`.
+    fn render_at(&self, pose: &mut PoseRender, p: Vector3<f64>, r: Matrix3<f64>) {
+        let camera = drone_camera(self.intrinsics, &p, &r);
+        pose.rays = pixel_rays(&camera, self.image.pixels, self.image.background);
+        pose.render.render(&pose.rays);
+        (pose.position, pose.rotation) = (p, r);
+    }
+
+    /// The cost, Gauss–Newton matrix and gradient at `pose` on `level` (photometric and prior),
+    /// and the photometric part of the matrix alone.
+    fn linearise(
+        &self,
+        pose: &PoseRender,
+        jacobian: Option<&[Matrix3x6<f64>]>,
+        level: usize,
+    ) -> (Linearised, Matrix6<f64>) {
+        let mut lin = photometric(pose.render.rgb(), jacobian, self.image.colours, &self.levels[level], self.cfg);
+        let photometric_h = lin.h;
+        let e = self.prior_residual(&pose.position, &pose.rotation);
+        let we = self.prior.information * e;
+        lin.cost += e.dot(&we);
+        lin.h += self.prior.information;
+        lin.g += we;
+        (lin, photometric_h)
+    }
+
+    /// The fit's RMS colour error at `pose`, and the a-posteriori variance factor of the
+    /// `finest` level: its robust cost per degree of freedom (≈ 1 when the residuals are the
+    /// noise `photometric_sigma` describes).
+    fn quality(&self, pose: &PoseRender, finest: usize) -> (f64, f64) {
+        let observed = self.image.colours;
+        let sq: f64 = pose
+            .render
+            .rgb()
+            .iter()
+            .zip(observed)
+            .map(|(c, o)| (Vector3::from(c.map(f64::from)) - Vector3::from(o.map(f64::from))).norm_squared())
+            .sum();
+        let rmse = (sq / (3 * self.image.pixels.len().max(1)) as f64).sqrt();
+        let blocks = self.levels[finest].iter().map(|&g| g as usize + 1).max().unwrap_or(0);
+        let dof = (3 * blocks).saturating_sub(6).max(1) as f64;
+        let variance_factor = photometric(pose.render.rgb(), None, observed, &self.levels[finest], self.cfg).cost / dof;
+        (rmse, variance_factor)
+    }
+}
+
 /// What one camera image shows at its sampled pixels: the pixels (column, row), the colours
 /// observed there (linear RGB in `[0, 1]`) and the background colour the NeRF composites against.
 #[derive(Clone, Copy, Debug)]
@@ -489,41 +566,16 @@ pub fn refine_pose(
     cfg: &VisionConfig,
     starts: Starts,
 ) -> PoseFit {
-    let Observation { pixels, colours: observed, background } = image;
-    let prior_info = prior.information;
-    let (cols, _) = strata(&intrinsics, pixels.len());
-    let group_ids = |level: u32| -> Vec<u32> {
-        let gcols = cols.div_ceil(1 << level);
-        (0..pixels.len() as u32).map(|i| ((i / cols) >> level) * gcols + ((i % cols) >> level)).collect()
-    };
+    let aligner = Aligner::new(intrinsics, prior, image, cfg);
     let [coarsest, finest] = cfg.levels.map(|l| l as usize);
-    let levels: Vec<Vec<u32>> = (0..=coarsest as u32).map(group_ids).collect();
     // Renders (the first included) after which each level ends at the latest.
     let level_end = |level: usize| -> usize {
         let per = cfg.iterations.div_ceil(coarsest - finest + 1).max(1);
         per * (coarsest - level + 1)
     };
-    // Prior residual; its Jacobian is taken as the identity (small corrections).
-    let prior_residual = |p: &Vector3<f64>, r: &Matrix3<f64>| {
-        let dp = p - prior.position;
-        let dr = so3_log(&(r * prior.rotation.transpose()));
-        Vector6::new(dp.x, dp.y, dp.z, dr.x, dr.y, dr.z)
-    };
-    let render_at = |pose: &mut PoseRender, p: Vector3<f64>, r: Matrix3<f64>| {
-        pose.rays = pixel_rays(&drone_camera(intrinsics, &p, &r), pixels, background);
-        pose.render.render(&pose.rays);
-        (pose.position, pose.rotation) = (p, r);
-    };
-    let linearise = |pose: &PoseRender, jacobian: Option<&[Matrix3x6<f64>]>, level: usize| {
-        let mut lin = photometric(pose.render.rgb(), jacobian, observed, &levels[level], cfg);
-        let photometric_h = lin.h;
-        let e = prior_residual(&pose.position, &pose.rotation);
-        let we = prior_info * e;
-        lin.cost += e.dot(&we);
-        lin.h += prior_info;
-        lin.g += we;
-        (lin, photometric_h)
-    };
+    let render_at = |pose: &mut PoseRender, p: Vector3<f64>, r: Matrix3<f64>| aligner.render_at(pose, p, r);
+    let linearise =
+        |pose: &PoseRender, jacobian: Option<&[Matrix3x6<f64>]>, level: usize| aligner.linearise(pose, jacobian, level);
     let stop = [cfg.stop_step[0], cfg.stop_step[1].to_radians()];
 
     let empty = |nerf| PoseRender {
@@ -618,19 +670,7 @@ pub fn refine_pose(
             }
         }
     }
-    let sq: f64 = current
-        .render
-        .rgb()
-        .iter()
-        .zip(observed)
-        .map(|(c, o)| (Vector3::from(c.map(f64::from)) - Vector3::from(o.map(f64::from))).norm_squared())
-        .sum();
-    let rmse = (sq / (3 * pixels.len().max(1)) as f64).sqrt();
-    // The a-posteriori variance factor of the finest level: its robust cost per degree of
-    // freedom (≈ 1 when the residuals are the noise `photometric_sigma` describes).
-    let blocks = levels[finest].iter().map(|&g| g as usize + 1).max().unwrap_or(0);
-    let dof = (3 * blocks).saturating_sub(6).max(1) as f64;
-    let variance_factor = photometric(current.render.rgb(), None, observed, &levels[finest], cfg).cost / dof;
+    let (rmse, variance_factor) = aligner.quality(&current, finest);
     let (position, rotation) = final_pose.unwrap_or((current.position, current.rotation));
     PoseFit { position, rotation, information, variance_factor, renders, linearisations, rmse }
 }

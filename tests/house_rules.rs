@@ -1,0 +1,117 @@
+//! Rules a reader can rely on across the library crates, the binary and the Python package:
+//! no function longer than [`MAX_LINES`] lines and no `too_many_arguments` allowance, outside
+//! the NeRF's fused kernels (one pass over a chunk of rays each, kept whole for speed) and the
+//! Python functions (whose arguments are Python's keyword arguments).
+
+use std::path::{Path, PathBuf};
+
+/// The longest a function may be, in lines from its `fn` to its closing brace.
+const MAX_LINES: usize = 120;
+
+/// Functions allowed to be longer: the NeRF's fused kernels (file, function).
+const LONG_KERNELS: &[(&str, &str)] = &[
+    ("crates/nerf/src/jacobian.rs", "backward_body"),
+    ("crates/nerf/src/fields.rs", "forward_body"),
+    ("crates/nerf/src/train.rs", "step"),
+];
+
+/// Files allowed `#[allow(clippy::too_many_arguments)]`: the NeRF's kernels and the Python
+/// functions.
+const MANY_ARGUMENTS: &[&str] = &[
+    "crates/nerf/src/model_components/ray_samplers.rs",
+    "crates/nerf/src/field_components/mlp.rs",
+    "python/src/model.rs",
+    "python/src/drone.rs",
+];
+
+/// Every `.rs` file under `dir`, relative to `root`, sorted.
+fn sources(root: &Path, dir: &str) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.join(dir)];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).into_iter().flatten().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                stack.push(path);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                out.push(path.strip_prefix(root).unwrap().to_path_buf());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The functions of `text` longer than `max` lines: (name, first line, lines). A function runs
+/// from its `fn` line to the line where the braces it opened close again (braces in strings,
+/// character literals and comments are rare enough in this code base to be counted as they
+/// come; a false length would show up as a failure to look at, not a silent pass).
+fn long_functions(text: &str, max: usize) -> Vec<(String, usize, usize)> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut found = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        let code = line.split("//").next().unwrap_or("");
+        let Some(at) = code.find("fn ") else { continue };
+        if at > 0 && !code[..at].ends_with([' ', '(', '\t']) {
+            continue;
+        }
+        let name: String = code[at + 3..].chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+        if name.is_empty() {
+            continue;
+        }
+        let (mut depth, mut opened) = (0i64, false);
+        for (j, l) in lines[i..].iter().enumerate() {
+            let l = l.split("//").next().unwrap_or("");
+            if !opened && l.trim_end().ends_with(';') && !l.contains('{') {
+                break; // a declaration without a body
+            }
+            for c in l.chars() {
+                match c {
+                    '{' => (depth, opened) = (depth + 1, true),
+                    '}' => depth -= 1,
+                    _ => {}
+                }
+            }
+            if opened && depth <= 0 {
+                if j + 1 > max {
+                    found.push((name.clone(), i + 1, j + 1));
+                }
+                break;
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn no_function_is_longer_than_a_reader_can_hold_and_none_takes_too_many_arguments() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = sources(root, "src");
+    files.extend(sources(root, "python/src"));
+    for entry in std::fs::read_dir(root.join("crates")).unwrap().flatten() {
+        files.extend(sources(root, &format!("crates/{}/src", entry.file_name().to_string_lossy())));
+    }
+    assert!(files.len() > 100, "only {} source files found", files.len());
+    let mut bad = Vec::new();
+    for file in &files {
+        let name = file.to_string_lossy().replace('\\', "/");
+        let text = std::fs::read_to_string(root.join(file)).unwrap();
+        for (function, line, lines) in long_functions(&text, MAX_LINES) {
+            if !LONG_KERNELS.contains(&(name.as_str(), function.as_str())) {
+                bad.push(format!("{name}:{line}: fn {function} is {lines} lines (at most {MAX_LINES})"));
+            }
+        }
+        if text.contains("clippy::too_many_arguments") && !MANY_ARGUMENTS.contains(&name.as_str()) {
+            bad.push(format!("{name}: allows too_many_arguments; pass a request struct"));
+        }
+    }
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+#[test]
+fn a_long_function_is_measured_from_its_fn_to_its_closing_brace() {
+    let body = "    let x = 1;\n".repeat(5);
+    let text = format!("/// doc\npub fn short() {{\n}}\n\nfn long(a: u32) -> u32 {{\n{body}    if a > 0 {{ a }} else {{ 0 }}\n}}\nfn decl();\n");
+    assert_eq!(long_functions(&text, 3), [("long".to_string(), 5, 8)]);
+    assert!(long_functions(&text, 8).is_empty());
+}

@@ -45,40 +45,20 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
     assert!(observed.iter().any(|c| (c[0] - observed[0][0]).abs() > 1e-3), "a flat image tests nothing");
 
     let prior = PosePrior::isotropic(p, r, 0.05, 3.0);
-    let fit = refine_pose(
-        &nerf,
-        k,
-        &prior,
-        Observation { pixels: &pixels, colours: &observed, background: bg },
-        &cfg,
-        Starts::NONE,
-    );
+    let image = Observation { pixels: &pixels, colours: &observed, background: bg };
+    let fit = refine_pose(&nerf, k, &prior, image, &cfg, Starts::NONE);
     assert_eq!((fit.renders, fit.linearisations), (1, 1));
     assert_eq!((fit.position, fit.rotation), (p, r));
     assert_eq!(fit.rmse, 0.0);
 
     let exhaustive = VisionConfig { stop_step: [0.0, 0.0], max_refused: 0, stop_cost_decrease: 0.0, ..cfg.clone() };
-    let fit = refine_pose(
-        &nerf,
-        k,
-        &prior,
-        Observation { pixels: &pixels, colours: &observed, background: bg },
-        &exhaustive,
-        Starts::NONE,
-    );
+    let fit = refine_pose(&nerf, k, &prior, image, &exhaustive, Starts::NONE);
     assert_eq!(fit.renders, cfg.iterations);
     // Null steps do not lower the cost, so no trial is accepted and none is differentiated.
     assert_eq!(fit.linearisations, 1);
 
     let refusing = VisionConfig { max_refused: 2, ..exhaustive };
-    let fit = refine_pose(
-        &nerf,
-        k,
-        &prior,
-        Observation { pixels: &pixels, colours: &observed, background: bg },
-        &refusing,
-        Starts::NONE,
-    );
+    let fit = refine_pose(&nerf, k, &prior, image, &refusing, Starts::NONE);
     let levels = (cfg.levels[0] - cfg.levels[1] + 1) as usize;
     assert_eq!((fit.renders, fit.linearisations), (1 + 2 * levels, 1));
 }
@@ -91,24 +71,11 @@ fn the_search_stops_at_the_first_step_below_its_tolerance() {
 #[test]
 fn start_candidates_are_forward_renders_and_the_cheapest_starts_the_search() {
     let OwnImage { nerf, k, p, r, cfg, pixels, bg, observed } = own_image();
+    let image = Observation { pixels: &pixels, colours: &observed, background: bg };
 
     let at_optimum = PosePrior::isotropic(p, r, 0.05, 3.0);
-    let a = refine_pose(
-        &nerf,
-        k,
-        &at_optimum,
-        Observation { pixels: &pixels, colours: &observed, background: bg },
-        &cfg,
-        Starts::NONE,
-    );
-    let b = refine_pose(
-        &nerf,
-        k,
-        &at_optimum,
-        Observation { pixels: &pixels, colours: &observed, background: bg },
-        &cfg,
-        Starts::one_sigma(3),
-    );
+    let a = refine_pose(&nerf, k, &at_optimum, image, &cfg, Starts::NONE);
+    let b = refine_pose(&nerf, k, &at_optimum, image, &cfg, Starts::one_sigma(3));
     assert_eq!((b.renders, b.linearisations), (a.renders + 6, a.linearisations));
     assert_eq!((b.position, b.rotation), (a.position, a.rotation));
 
@@ -117,14 +84,7 @@ fn start_candidates_are_forward_renders_and_the_cheapest_starts_the_search() {
     let mut offset = PosePrior::isotropic(p + Vector3::new(0.08, 0.0, 0.0), r, 0.02, 1.0);
     offset.information[(0, 0)] = 0.08f64.powi(-2);
     let one_pair = VisionConfig { iterations: 1, ..cfg.clone() };
-    let fit = refine_pose(
-        &nerf,
-        k,
-        &offset,
-        Observation { pixels: &pixels, colours: &observed, background: bg },
-        &one_pair,
-        Starts::one_sigma(1),
-    );
+    let fit = refine_pose(&nerf, k, &offset, image, &one_pair, Starts::one_sigma(1));
     assert_eq!(fit.renders, 3);
     assert!((fit.position - p).norm() < 1e-9, "started at {} instead of the optimum {p}", fit.position);
 }

@@ -151,7 +151,7 @@ fn digested_bytes(path: &Path) -> io::Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// The digest of one file (see [`digested_bytes`]).
+/// The digest of one file: a Rust file's [`code_text`], any other file's bytes.
 pub fn file_digest(path: &Path) -> io::Result<u64> {
     Ok(fnv1a_from(BASIS, &digested_bytes(path)?))
 }

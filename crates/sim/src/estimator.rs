@@ -87,22 +87,17 @@ pub struct VisionConfig {
     /// Standard deviations of the initial estimate's error (same order): the drone starts at rest
     /// at a known start.
     pub initial_std: [f64; Disturbance::DIM],
-    /// Camera images per step, spread evenly over its substeps; the first right after the
+    /// Camera images per step (1–1000), spread evenly over its substeps; the first right after the
     /// step's disturbance (the paper's order: disturb, observe, estimate, act). Default 8, an
-    /// image every substep of 0.1 s: with one image per step the body-rate kick of a step is not
-    /// observable apart from its attitude kick, and the tilt it leaves grows unseen for the
-    /// whole step. With [`VisionConfig::stop_step`] the images after the first of a step start
-    /// near the optimum and stop after 2–3 renders, so 8 images cost about what 4 did without
-    /// early stopping (BENCHMARKS.md has the crash rates per camera rate).
+    /// image every substep of 0.1 s: with one image per step a step's body-rate kick cannot be
+    /// told from its attitude kick. Crash rates per camera rate: BENCHMARKS.md.
     pub images_per_step: usize,
     /// Poses tried before the search besides the prediction, at the image right after each
     /// step's disturbance (whose prior is as wide as the disturbance; the later images of a step
     /// start within millimetres of their optimum): ±1σ along this many principal axes of the
     /// prediction's pose covariance, each one forward render scored at the coarsest level, the
-    /// cheapest starting the search. Default 3 (six renders a step): from 5 cm / 3° off on
-    /// the default study's NeRF images 35 of 36 searches end within 1 cm / 0.5° of the truth
-    /// (30 with none), and one image from the paper's disturbance brings 95 of 100 drones
-    /// within it (94); the crash rates did not change (BENCHMARKS.md).
+    /// cheapest starting the search. 0–6 (0 tries none); default 3 (six renders a step). How often
+    /// searches end near the truth with and without them: BENCHMARKS.md.
     pub start_candidates: usize,
     /// The innovation gate: an image whose normalised innovation squared (its optimum's
     /// distance from the prediction under the prediction's and the measurement's covariances
@@ -120,19 +115,16 @@ pub struct VisionConfig {
     /// place the drone (the search sits in a basin far from the truth): the image is refused
     /// like one the gate refuses, and counts towards relocalising. Its weight `1/vf` would make it
     /// a near-empty measurement that passes any gate and keeps a lost filter from relocalising.
-    /// Default 5: on the default scene's flights an accepted fit's factor is ≈ 0 in NeRF-sim and
-    /// 2.9 at GT-sim's 90th percentile (4.2 at its 99th), while fits from a search started
-    /// 30 cm / 10° away end above 6.6 in nine of ten refusals. `f64::INFINITY`: never.
+    /// Dimensionless, > 0; default 5 (above the factors of accepted fits on the default scene,
+    /// below those of lost ones: BENCHMARKS.md). `f64::INFINITY`: never.
     pub lost_variance_factor: f64,
     /// `[metres, degrees]` per unit of the fit's colour RMSE: the standard deviation per axis of
     /// the error of the image's optimum itself (the filter's model error, added to the fit's
     /// covariance), proportional to how badly the NeRF explains the image. A NeRF rendering its
     /// own image fits to an RMSE of ≈ 0.001 and its optimum is the truth; against ground-truth
-    /// images the RMSE is ≈ 0.05 and the optimum lies 1–4.5 cm from the truth. Default
-    /// `[1.0, 30.0]` (5 cm / 1.5° at an RMSE of 0.05): with `[0.3, 10]` the GT-sim filter was
-    /// overconfident (mean NEES 34) and the nominal GT-sim flight ended 0.2 m from its goal; with
-    /// this, mean NEES ≈ 12 in GT-sim over 40 Monte Carlo rollouts, while NeRF-sim's filter is
-    /// conservative (mean NEES ≈ 3) at the same crash rate (BENCHMARKS.md).
+    /// images the RMSE is ≈ 0.05 and the optimum lies 1–4.5 cm from the truth. Both ≥ 0; default
+    /// `[1.0, 30.0]` (5 cm / 1.5° at an RMSE of 0.05). The filter's consistency (NEES) with it
+    /// in both worlds: BENCHMARKS.md.
     pub model_error_per_rmse: [f64; 2],
     /// `[metres, degrees]`: the search stops at the finest level when the step it proposes
     /// moves the pose less than this in both position and rotation, and leaves a coarser level

@@ -126,8 +126,8 @@ pub struct UqConfig {
     /// Uncertainty field, BLA: eigen-directions of the (reduced) data term kept exactly; the
     /// rest of the posterior is taken at the prior. At or above the number m of weights that
     /// reach σ (2112 with the default model) the variance is exact, by a Cholesky factor, at
-    /// about 2.6× the cost of K = 256 (the default, 4096); below, an upper bound that is far
-    /// off on a trained model (K = 256: a median 284 % too large, BENCHMARKS.md).
+    /// about 2.6× the cost of K = 256 (the default, 4096); below, an upper bound, far off on a
+    /// trained model (BENCHMARKS.md).
     pub field_rank: usize,
     /// Online, GA: which σ_d measures a view (`"noise_floored"`, the default, or `"paper"`).
     pub ga_measure: GaMeasure,

@@ -356,8 +356,6 @@ fn estimator_errors_and_failures(s: &mut Section, f: &StressFigures) {
                     ]
                 })),
         );
-    }
-    if !f.estimate_errors.is_empty() {
         s.picture(ESTIMATE_ERRORS_PNG, "The vision estimator's position error after each image, both worlds");
     }
     // The most likely failures the searches found, flown in their world and replayed.

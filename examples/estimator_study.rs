@@ -68,7 +68,7 @@ impl Normal {
 
 fn percentile(v: &mut [f64], q: f64) -> f64 {
     v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
+    nerfsv_scene::stats::quantile_sorted(v, q)
 }
 
 fn main() -> anyhow::Result<()> {

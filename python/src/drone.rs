@@ -30,36 +30,13 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
 use crate::inputs::{io_at, run_config, scene_of};
-use crate::{py_err, to_json, value_error};
+use crate::{choice, py_err, to_json, value_error};
 
 /// The drone's input files exist (else `FileNotFoundError` naming the argument).
 fn inputs_exist(model: &Path, nerf_field: Option<&Path>, mesh: Option<&Path>) -> PyResult<()> {
     crate::must_exist(model, "model")?;
     nerf_field.map_or(Ok(()), |p| crate::must_exist(p, "nerf_field"))?;
     mesh.map_or(Ok(()), |p| crate::must_exist(p, "mesh"))
-}
-
-fn world_kind(name: &str) -> PyResult<WorldKind> {
-    match name {
-        "nerf" => Ok(WorldKind::Nerf),
-        "gt" => Ok(WorldKind::Gt),
-        other => Err(value_error(format!("world: expected \"nerf\" or \"gt\", found {other:?}"))),
-    }
-}
-
-fn estimator_kind(name: &str) -> PyResult<EstimatorKind> {
-    match name {
-        "vision" => Ok(EstimatorKind::Vision),
-        "truth" => Ok(EstimatorKind::Truth),
-        other => Err(value_error(format!("estimator: expected \"vision\" or \"truth\", found {other:?}"))),
-    }
-}
-
-fn estimator_name(e: EstimatorKind) -> &'static str {
-    match e {
-        EstimatorKind::Vision => "vision",
-        EstimatorKind::Truth => "truth",
-    }
 }
 
 /// The config with the seed override a command's `--seed` gives.
@@ -94,7 +71,7 @@ pub fn fly<'py>(
     mesh: Option<PathBuf>,
     nerf_field: Option<PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (kind, est) = (world_kind(world)?, estimator_kind(estimator)?);
+    let (kind, est) = (choice::<WorldKind>("world", world)?, choice::<EstimatorKind>("estimator", estimator)?);
     inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
     let cfg = run_config(config.as_deref())?;
     let ds: Vec<Disturbance> = match (disturbances, random_seed) {
@@ -172,7 +149,7 @@ impl RemoteRollouts for PyExecutor {
         Python::attach(|py| {
             let list = PyList::new(py, jobs.iter().map(|j| PyBytes::new(py, j))).map_err(failed)?;
             let results =
-                self.0.call1(py, (spec.world.name(), estimator_name(spec.estimator), list)).map_err(failed)?;
+                self.0.call1(py, (spec.world.name(), spec.estimator.name(), list)).map_err(failed)?;
             for item in results.bind(py).try_iter().map_err(failed)? {
                 let (i, bytes): (usize, Vec<u8>) = item.and_then(|it| it.extract()).map_err(failed)?;
                 finished(i, &bytes)?;
@@ -208,13 +185,8 @@ pub fn stress(
     resume: bool,
     executor: Option<Py<PyAny>>,
 ) -> PyResult<String> {
-    let sampler = match sampler {
-        "mc" => Sampler::Mc,
-        "cem" => Sampler::Cem,
-        "subset" => Sampler::Subset,
-        other => return Err(value_error(format!("sampler: expected \"mc\", \"cem\" or \"subset\", found {other:?}"))),
-    };
-    let (kind, est) = (world_kind(world)?, estimator_kind(estimator)?);
+    let sampler: Sampler = choice("sampler", sampler)?;
+    let (kind, est) = (choice::<WorldKind>("world", world)?, choice::<EstimatorKind>("estimator", estimator)?);
     inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
     let cfg = config_with_seed(config.as_deref(), seed)?;
     let mut guard = nerfsv_pipeline::Guard::new()
@@ -375,7 +347,7 @@ pub fn run_jobs<'py>(
     jobs: Vec<Vec<u8>>,
     threads: usize,
 ) -> PyResult<Bound<'py, PyList>> {
-    let (kind, est) = (world_kind(world)?, estimator_kind(estimator)?);
+    let (kind, est) = (choice::<WorldKind>("world", world)?, choice::<EstimatorKind>("estimator", estimator)?);
     if threads == 0 {
         return Err(value_error("threads: must be at least 1"));
     }

@@ -48,6 +48,12 @@ pub(crate) fn value_error(message: impl Into<String>) -> PyErr {
     PyValueError::new_err(message.into())
 }
 
+/// The library enum a string argument names (`nerfsv.stress(sampler="cem")`), or a `ValueError`
+/// naming the argument and the choices.
+pub(crate) fn choice<T: std::str::FromStr<Err = String>>(arg: &str, value: &str) -> PyResult<T> {
+    value.parse().map_err(|e| value_error(format!("{arg}: {e}")))
+}
+
 /// Figures as JSON text (the Python side parses it).
 pub(crate) fn to_json(value: &impl serde::Serialize) -> PyResult<String> {
     serde_json::to_string(value).map_err(|e| value_error(format!("figures are not serialisable: {e}")))

@@ -127,11 +127,7 @@ impl Model {
         image: &Bound<'_, PyAny>,
         config: Option<PathBuf>,
     ) -> PyResult<String> {
-        let method = match method {
-            "ga" => Method::Ga,
-            "bla" => Method::Bla,
-            other => return Err(value_error(format!("method: expected \"ga\" or \"bla\", found {other:?}"))),
-        };
+        let method: Method = crate::choice("method", method)?;
         let cam = camera(pose, width, height, intrinsics)?;
         let (shape, values) = f32_array(image, "image")?;
         if shape.len() != 3

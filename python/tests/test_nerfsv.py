@@ -182,7 +182,7 @@ def test_bad_arguments_raise_value_error_with_the_rust_message(world, tmp_path):
         model.render(np.eye(3), 8, 8, (8.0, 8.0, 4.0, 4.0))
     with pytest.raises(ValueError, match="points: expected shape"):
         model.density(np.zeros((4, 2)))
-    with pytest.raises(ValueError, match="sampler: expected"):
+    with pytest.raises(ValueError, match="sampler: unknown sampler \"nope\": one of mc, cem, subset"):
         nerfsv.stress(world["model"], tmp_path / "s", sampler="nope")
     with pytest.raises(ValueError, match="disturbances: expected shape"):
         nerfsv.fly(world["model"], disturbances=np.zeros((2, 3)), scene="monolith", nerf_field=world["field"])

@@ -1,6 +1,6 @@
 use std::path::{Path, PathBuf};
 
-use clap::{Args, ValueEnum};
+use clap::Args;
 use nerfsv_pipeline::{Guard, RunConfig};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
@@ -9,28 +9,12 @@ use nerfsv_study::flight::{fly_into, FlightInputs, FlightRequest};
 
 use crate::commands::world::{load_mesh_scene, MeshArgs};
 
-#[derive(Clone, Copy, ValueEnum)]
-pub enum WorldArg {
-    /// NeRF-sim: images rendered by the NeRF, collisions against the NeRF's signed field.
-    Nerf,
-    /// GT-sim: images from the ground-truth renderer, collisions against its signed field.
-    Gt,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum EstimatorArg {
-    /// The controller sees the true state.
-    Truth,
-    /// Dynamics prediction refined by photometric alignment of the camera image to the NeRF.
-    Vision,
-}
-
 /// The drone, its worlds and its estimator: what `fly` and `stress` both take.
 #[derive(Args)]
 pub struct DroneArgs {
     /// The world the drone flies in.
     #[arg(long, value_enum, default_value = "nerf")]
-    pub world: WorldArg,
+    pub world: WorldKind,
     /// Built-in ground-truth scene (GT-sim's world; its grid also carries the NeRF's field).
     #[arg(long, default_value = "stonehenge", conflicts_with = "gt_mesh")]
     pub scene: String,
@@ -50,7 +34,7 @@ pub struct DroneArgs {
     /// What the controller believes: `vision` (the pose fitted to camera images of the NeRF,
     /// through the filter) or `truth` (the true state, for a baseline without estimation error).
     #[arg(long, value_enum, default_value = "vision")]
-    pub estimator: EstimatorArg,
+    pub estimator: EstimatorKind,
 }
 
 impl DroneArgs {
@@ -111,24 +95,6 @@ pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
     })
 }
 
-impl From<WorldArg> for WorldKind {
-    fn from(w: WorldArg) -> Self {
-        match w {
-            WorldArg::Nerf => WorldKind::Nerf,
-            WorldArg::Gt => WorldKind::Gt,
-        }
-    }
-}
-
-impl From<EstimatorArg> for EstimatorKind {
-    fn from(e: EstimatorArg) -> Self {
-        match e {
-            EstimatorArg::Truth => EstimatorKind::Truth,
-            EstimatorArg::Vision => EstimatorKind::Vision,
-        }
-    }
-}
-
 pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let cfg = load_config(args.config.as_deref())?;
     let guard = args.drone.inputs(Guard::new().output("--out", &args.out));
@@ -152,8 +118,8 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         sim: &cfg.sim,
         intrinsics: cfg.camera_intrinsics(),
         render: cfg.dataset.render_settings(),
-        kind: args.drone.world.into(),
-        estimator: args.drone.estimator.into(),
+        kind: args.drone.world,
+        estimator: args.drone.estimator,
         disturbances: &disturbances,
         seed: args.seed.or(args.random_seed).unwrap_or(0),
     };

@@ -1,6 +1,6 @@
 use std::path::PathBuf;
 
-use clap::{Args, ValueEnum};
+use clap::Args;
 use nerfsv_pipeline::stress::{run_stress, StressRequest};
 use nerfsv_pipeline::Guard;
 use nerfsv_study::stress::{journal_dir, OnlineSettings, Sampler};
@@ -10,48 +10,12 @@ use nerfsv_validation::Journal;
 
 use crate::commands::fly::{load_config, DroneArgs};
 
-#[derive(Clone, Copy, ValueEnum)]
-pub enum SamplerArg {
-    /// Monte Carlo: `validation.monte_carlo.rollouts` rollouts from the prior.
-    Mc,
-    /// Cross-Entropy Method (`validation.cem`), then importance sampling from its final proposal.
-    Cem,
-    /// Subset simulation (`validation.subset`): nested levels of Markov chains, a failure
-    /// probability calibrated on a toy of the drone's dimension; its rollouts are not replayed.
-    Subset,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum UqMethodArg {
-    /// Gaussian Approximation: the view's σ_d (eq. 10).
-    Ga,
-    /// Bayesian Laplace Approximation: the view's rmv · normalised trace (eq. 11).
-    Bla,
-}
-
-impl From<UqMethodArg> for Method {
-    fn from(m: UqMethodArg) -> Self {
-        match m {
-            UqMethodArg::Ga => Method::Ga,
-            UqMethodArg::Bla => Method::Bla,
-        }
-    }
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum UqModeArg {
-    /// GA or BLA on the view's rays against the ground truth's render of them (as the paper).
-    Exact,
-    /// Look the uncertainty up along the same rays in an uncertainty field (`--field`).
-    Field,
-}
-
 #[derive(Args)]
 pub struct StressArgs {
     /// How the disturbances are drawn: Monte Carlo from the prior, the Cross-Entropy Method
     /// (the paper's failure search), or subset simulation (a calibrated failure probability).
     #[arg(long, value_enum, default_value = "cem")]
-    pub sampler: SamplerArg,
+    pub sampler: Sampler,
     /// The drone (`--world`: where the search flies).
     #[command(flatten)]
     pub drone: DroneArgs,
@@ -63,16 +27,16 @@ pub struct StressArgs {
     /// `log p − penalty·rmv·trace·n` for BLA; `[uq] reward_penalty`, `perturbations`), measuring
     /// its uncertainty at every step. Monte Carlo never ranks: it records the reward.
     #[arg(long, value_enum, conflicts_with = "measure")]
-    pub reward: Option<UqMethodArg>,
+    pub reward: Option<Method>,
     /// Measure this method's uncertainty at every step without ranking by it (the rows "without
     /// reward" of Tables 1–2).
     #[arg(long, value_enum)]
-    pub measure: Option<UqMethodArg>,
+    pub measure: Option<Method>,
     /// How the per-step uncertainty is measured (with --reward or --measure): `exact` fits the
     /// view's `[uq] online_rays` pixels (BLA: `online_bla_rays` of them); `field` looks them up
     /// in --field.
     #[arg(long, value_enum, default_value = "exact")]
-    pub uncertainty: UqModeArg,
+    pub uncertainty: UqMode,
     /// The uncertainty field of --model built by the same method (`nerfsv uq field`), for
     /// `--uncertainty field`.
     #[arg(long)]
@@ -106,11 +70,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let guard = d.inputs(Guard::new().output("--out", &args.out));
     guard.input_opt("--field", args.field.as_deref()).input_opt("--config", args.config.as_deref()).check()?;
     let online = args.reward.map(|m| (m, true)).or(args.measure.map(|m| (m, false))).map(|(m, reward)| {
-        let mode = match args.uncertainty {
-            UqModeArg::Exact => UqMode::Exact,
-            UqModeArg::Field => UqMode::Field,
-        };
-        OnlineSettings { method: m.into(), mode, reward }
+        OnlineSettings { method: m, mode: args.uncertainty, reward }
     });
     match (online.map(|o| o.mode), &args.field) {
         (Some(UqMode::Field), None) => anyhow::bail!("--uncertainty field needs --field FILE (`nerfsv uq field`)"),
@@ -118,7 +78,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         (Some(UqMode::Exact), Some(_)) => anyhow::bail!("--field is read only with --uncertainty field"),
         _ => {}
     }
-    if args.resume && !Journal::exists(&journal_dir(&args.out, d.world.into())) {
+    if args.resume && !Journal::exists(&journal_dir(&args.out, d.world)) {
         anyhow::bail!("{}: --resume needs the folder of an interrupted stress run", args.out.display());
     }
     let (scene, worlds) = d.load()?;
@@ -131,13 +91,9 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
             inputs: &worlds,
             model: &d.model,
             nerf_field: d.nerf_field.as_deref(),
-            world: d.world.into(),
-            estimator: d.estimator.into(),
-            sampler: match args.sampler {
-                SamplerArg::Mc => Sampler::Mc,
-                SamplerArg::Cem => Sampler::Cem,
-                SamplerArg::Subset => Sampler::Subset,
-            },
+            world: d.world,
+            estimator: d.estimator,
+            sampler: args.sampler,
             replay: args.replay,
             online,
             field: field.as_ref().map(|(p, f)| (*p, f)),

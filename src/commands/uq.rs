@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use clap::{Args, Subcommand, ValueEnum};
+use clap::{Args, Subcommand};
 use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
@@ -52,7 +52,7 @@ pub enum UqCommand {
 #[derive(Args)]
 pub struct AuseArgs {
     #[arg(long, value_enum)]
-    pub method: MethodArg,
+    pub method: Method,
     /// Checkpoint written by `nerfsv train`.
     #[arg(long)]
     pub model: PathBuf,
@@ -73,30 +73,12 @@ pub struct AuseArgs {
     pub json: bool,
 }
 
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum MethodArg {
-    /// Gaussian approximation (eq. 2–3): μ_d and σ_d per image from all its pixels (about 0.2 s
-    /// per 100×100 image).
-    Ga,
-    /// Bayesian Laplace approximation (eq. 4–9) over the `sigma_net` weights: normalised trace
-    /// and rmv of the posterior covariance per image, from at most `max_rays` rays (seconds per
-    /// image: 3 perturbations of Levenberg–Marquardt and a dense 3072² covariance).
-    Bla,
-}
-
-impl From<MethodArg> for Method {
-    fn from(m: MethodArg) -> Self {
-        match m {
-            MethodArg::Ga => Method::Ga,
-            MethodArg::Bla => Method::Bla,
-        }
-    }
-}
-
 #[derive(Args)]
 pub struct OfflineArgs {
+    /// GA takes about 0.2 s per 100×100 image; BLA seconds per image (3 perturbations of
+    /// Levenberg–Marquardt and a dense 3072² covariance from at most `max_rays` rays).
     #[arg(long, value_enum)]
-    pub method: MethodArg,
+    pub method: Method,
     /// Checkpoint written by `nerfsv train`.
     #[arg(long)]
     pub model: PathBuf,
@@ -151,7 +133,7 @@ struct AuseSummary {
 
 fn ause(args: AuseArgs) -> anyhow::Result<()> {
     let start = Instant::now();
-    let method = Method::from(args.method);
+    let method = args.method;
     let cfg = load_uq_config(args.config.as_deref())?;
     if let Some(n) = args.max_images {
         in_range("--max-images", n, 1, usize::MAX)?;
@@ -198,7 +180,7 @@ fn ause(args: AuseArgs) -> anyhow::Result<()> {
 
 fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     let start = Instant::now();
-    let method = Method::from(args.method);
+    let method = args.method;
     // Everything that can be refused is checked before anything is written.
     let mut cfg = load_uq_config(args.config.as_deref())?;
     if let Some(n) = args.max_images {

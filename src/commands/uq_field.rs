@@ -6,12 +6,12 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_uq::offline::{build_field, has_split, save_field_with_slice, Method, FIELD_SLICE_ALTITUDE};
-use nerfsv_uq::UncertaintyField;
+use nerfsv_uq::{FieldMethod, UncertaintyField};
 use serde::Serialize;
 
 use crate::config_file::load_uq_config;
@@ -24,7 +24,7 @@ pub struct FieldArgs {
     /// training images; about 90 s) or ensemble (the variance of the members' densities at
     /// each node, `--member` the other members; seconds).
     #[arg(long, value_enum)]
-    pub method: FieldMethodArg,
+    pub method: FieldMethod,
     /// Checkpoint written by `nerfsv train` (with `--method ensemble`, the deployed model).
     #[arg(long)]
     pub model: PathBuf,
@@ -47,13 +47,6 @@ pub struct FieldArgs {
     /// Print one JSON object with the field's figures.
     #[arg(long)]
     pub json: bool,
-}
-
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum FieldMethodArg {
-    Ga,
-    Bla,
-    Ensemble,
 }
 
 #[derive(Serialize)]
@@ -102,9 +95,9 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
         .with_context(|| format!("loading the train split of {}", args.data.display()))?;
     let reporter = Reporter::new(args.json);
     let method = match args.method {
-        FieldMethodArg::Ga => Some(Method::Ga),
-        FieldMethodArg::Bla => Some(Method::Bla),
-        FieldMethodArg::Ensemble => None,
+        FieldMethod::Ga => Some(Method::Ga),
+        FieldMethod::Bla => Some(Method::Bla),
+        FieldMethod::Ensemble => None,
     };
     if method.is_some() != args.members.is_empty() {
         anyhow::bail!("--member names the other members of an ensemble: give it with --method ensemble, and only then");

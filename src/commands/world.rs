@@ -1,16 +1,8 @@
 use std::path::{Path, PathBuf};
 
-use clap::{Args, ValueEnum};
+use clap::Args;
 use nerfsv_scene::mesh::{MeshOptions, UpAxis};
 use nerfsv_scene::Scene;
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum UpArg {
-    /// The file is z-up (nerfsv's frame).
-    Z,
-    /// The file is y-up (glTF, Blender's exports): turned to z-up.
-    Y,
-}
 
 /// How a mesh file becomes metres, z up.
 #[derive(Args, Clone)]
@@ -20,17 +12,14 @@ pub struct MeshArgs {
     pub mesh_scale: f32,
     /// Which axis of the mesh file points up.
     #[arg(long, value_enum, default_value = "z")]
-    pub mesh_up: UpArg,
+    pub mesh_up: UpAxis,
 }
 
 impl MeshArgs {
     pub fn options(&self) -> MeshOptions {
         MeshOptions {
             scale: self.mesh_scale,
-            up: match self.mesh_up {
-                UpArg::Z => UpAxis::Z,
-                UpArg::Y => UpAxis::Y,
-            },
+            up: self.mesh_up,
         }
     }
 }

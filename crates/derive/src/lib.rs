@@ -1,6 +1,6 @@
-//! `#[derive(FieldDocs)]`: a struct's named fields with their doc comments, as data.
+//! Derives for nerfsv's config types.
 //!
-//! For a struct with named fields it generates an inherent constant
+//! `#[derive(FieldDocs)]`: a struct's named fields with their doc comments, as data. For a struct with named fields it generates an inherent constant
 //! `FIELD_DOCS: &[(&str, &str)]`: each field's name and its documentation, the doc comment's
 //! lines trimmed and joined by one space, intra-doc link brackets (`` [`x`] ``) dropped, in
 //! declaration order. `nerfsv config --default` writes the default config with these as
@@ -17,7 +17,7 @@
 
 use proc_macro::TokenStream;
 use quote::quote;
-use syn::{parse_macro_input, Data, DeriveInput, Expr, Fields, Lit, Meta};
+use syn::{parse_macro_input, Attribute, Data, DeriveInput, Expr, Fields, Lit, LitStr, Meta};
 
 #[proc_macro_derive(FieldDocs)]
 pub fn field_docs(input: TokenStream) -> TokenStream {
@@ -56,4 +56,98 @@ pub fn field_docs(input: TokenStream) -> TokenStream {
         }
     }
     .into()
+}
+
+/// `#[derive(Choice)]`: a fieldless enum chosen by name in config files, on the command line and
+/// from Python.
+///
+/// It generates `ALL` (every variant, in declaration order), `name()` (the variant's
+/// `#[serde(rename = "…")]` if it has one, else its identifier in kebab case: `Ga` → `"ga"`,
+/// `CemIs` → `"cem-is"`), `Display` (the name) and `FromStr`, whose error lists the names and
+/// calls the value by `#[choice(what = "…")]` or by the type's name in words (`UqMode` →
+/// "uq mode").
+///
+/// ```ignore
+/// #[derive(nerfsv_derive::Choice, Clone, Copy)]
+/// pub enum Method { Ga, Bla }
+/// assert_eq!("bla".parse::<Method>().unwrap().name(), "bla");
+/// assert_eq!("x".parse::<Method>().unwrap_err(), "unknown method \"x\": one of ga, bla");
+/// ```
+#[proc_macro_derive(Choice, attributes(choice))]
+pub fn choice(input: TokenStream) -> TokenStream {
+    let input = parse_macro_input!(input as DeriveInput);
+    let name = &input.ident;
+    let Data::Enum(data) = &input.data else {
+        return syn::Error::new_spanned(name, "Choice is for enums").to_compile_error().into();
+    };
+    let mut variants = Vec::new();
+    let mut names = Vec::new();
+    for v in &data.variants {
+        if !matches!(v.fields, Fields::Unit) {
+            return syn::Error::new_spanned(v, "Choice needs fieldless variants").to_compile_error().into();
+        }
+        variants.push(&v.ident);
+        names.push(string_attr(&v.attrs, "serde", "rename").unwrap_or_else(|| words(&v.ident.to_string(), "-")));
+    }
+    let what = string_attr(&input.attrs, "choice", "what").unwrap_or_else(|| words(&name.to_string(), " "));
+    let count = variants.len();
+    quote! {
+        impl #name {
+            /// Every variant, in declaration order (`#[derive(Choice)]`).
+            pub const ALL: [#name; #count] = [#(#name::#variants),*];
+
+            /// The name config files, flags and Python use (`#[derive(Choice)]`).
+            pub fn name(self) -> &'static str {
+                match self {
+                    #(#name::#variants => #names,)*
+                }
+            }
+        }
+
+        impl ::std::fmt::Display for #name {
+            fn fmt(&self, f: &mut ::std::fmt::Formatter<'_>) -> ::std::fmt::Result {
+                f.write_str(self.name())
+            }
+        }
+
+        impl ::std::str::FromStr for #name {
+            type Err = String;
+
+            fn from_str(s: &str) -> Result<Self, String> {
+                #name::ALL.into_iter().find(|v| v.name() == s).ok_or_else(|| {
+                    let names: Vec<&str> = #name::ALL.iter().map(|v| v.name()).collect();
+                    format!("unknown {} {s:?}: one of {}", #what, names.join(", "))
+                })
+            }
+        }
+    }
+    .into()
+}
+
+/// `key`'s string in an attribute `#[outer(key = "…")]`, if one says it.
+fn string_attr(attrs: &[Attribute], outer: &str, key: &str) -> Option<String> {
+    let mut found = None;
+    for a in attrs.iter().filter(|a| a.path().is_ident(outer)) {
+        let _ = a.parse_nested_meta(|m| {
+            if m.path.is_ident(key) {
+                found = Some(m.value()?.parse::<LitStr>()?.value());
+            } else if m.input.peek(syn::Token![=]) {
+                m.value()?.parse::<Expr>()?;
+            }
+            Ok(())
+        });
+    }
+    found
+}
+
+/// `CemIs` as `"cem-is"` (with `sep` "-") or `"cem is"`.
+fn words(ident: &str, sep: &str) -> String {
+    let mut out = String::new();
+    for (i, c) in ident.chars().enumerate() {
+        if c.is_uppercase() && i > 0 {
+            out.push_str(sep);
+        }
+        out.extend(c.to_lowercase());
+    }
+    out
 }

@@ -22,6 +22,7 @@ pub mod render;
 pub mod scenes;
 pub mod sdf;
 pub mod seed;
+pub mod stats;
 pub mod texture;
 pub mod validate;
 pub mod views;

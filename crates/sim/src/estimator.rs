@@ -34,22 +34,14 @@ use crate::dynamics::{so3_exp, so3_log, Disturbance};
 use crate::world::pixel_rays;
 
 /// Which estimator feeds the controller.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum EstimatorKind {
     /// The controller sees the true state.
     Truth,
     /// Dynamics prediction refined by photometric alignment of the camera image to the NeRF.
     Vision,
-}
-
-impl EstimatorKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            EstimatorKind::Truth => "truth",
-            EstimatorKind::Vision => "vision",
-        }
-    }
 }
 
 /// Settings of the vision estimator, the `[sim.vision]` table.

@@ -10,22 +10,14 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Which world a rollout flies in.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum WorldKind {
     /// Observations rendered by the NeRF, collisions from the NeRF-derived signed field.
     Nerf,
     /// Observations from the ground-truth renderer, collisions from the ground-truth field.
     Gt,
-}
-
-impl WorldKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            WorldKind::Nerf => "nerf",
-            WorldKind::Gt => "gt",
-        }
-    }
 }
 
 /// What a simulator needs of a world: its signed field (metres, positive in free space) and

@@ -12,6 +12,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use nerfsv_scene::stats::quantile_sorted;
 use nerfsv_scene::Camera;
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::{EstimatorKind, NerfWorldSource, World, WorldKind};
@@ -387,7 +388,7 @@ impl EstimateErrorFigures {
         let quantile = |i: usize, q: f64| {
             let mut v: Vec<f64> = errors.iter().map(|e| e[i]).collect();
             v.sort_by(f64::total_cmp);
-            v[((v.len() - 1) as f64 * q).round() as usize]
+            quantile_sorted(&v, q)
         };
         Some(Self {
             world,

@@ -38,20 +38,15 @@ pub trait ViewUncertainty: Sync {
 }
 
 /// Exact or field: how a view's uncertainty is measured.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum UqMode {
+    /// GA or BLA fitted on the view's rays against the ground truth's render of them (as the
+    /// paper).
     Exact,
+    /// The uncertainty looked up along the same rays in an uncertainty field (`nerfsv uq field`).
     Field,
-}
-
-impl UqMode {
-    pub fn name(self) -> &'static str {
-        match self {
-            UqMode::Exact => "exact",
-            UqMode::Field => "field",
-        }
-    }
 }
 
 /// The pixels every view is measured on: `cfg.online_rays` stratified pixels of the image, seeded

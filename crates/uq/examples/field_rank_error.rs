@@ -21,7 +21,7 @@ const BG: [f32; 3] = [1.0; 3];
 
 fn quantiles(mut v: Vec<f64>) -> (f64, f64, f64) {
     v.sort_by(f64::total_cmp);
-    let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+    let q = |f: f64| nerfsv_scene::stats::quantile_sorted(&v, f);
     (q(0.5), q(0.9), q(1.0))
 }
 

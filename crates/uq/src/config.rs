@@ -5,23 +5,16 @@ use serde::{Deserialize, Serialize};
 
 /// The two methods of the paper: which one a fit, a field, an online measurement or a reward
 /// uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
-    /// Gaussian approximation (eq. 2–3).
+    /// Gaussian approximation (eq. 2–3): μ_d and σ_d of an image's pixels; a view's σ_d
+    /// online (eq. 10).
     Ga,
-    /// Bayesian Laplace approximation (eq. 4–9).
+    /// Bayesian Laplace approximation (eq. 4–9) over the `sigma_net` weights: the normalised
+    /// trace and rmv of the posterior covariance; a view's rmv · trace online (eq. 11).
     Bla,
-}
-
-impl Method {
-    /// `"ga"` or `"bla"`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Ga => "ga",
-            Method::Bla => "bla",
-        }
-    }
 }
 
 /// Which of GA's σ_d the online measurement (and so the reward) uses.

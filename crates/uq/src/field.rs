@@ -114,7 +114,8 @@ use crate::{Method, UqConfig, UqError};
 
 /// How a field's `variance` was made: from GA's or BLA's fits of the training images, or from
 /// an ensemble's spread.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FieldMethod {
     /// Per-ray σ̂² splatted by compositing weight (unitless).
     Ga,
@@ -122,17 +123,6 @@ pub enum FieldMethod {
     Bla,
     /// The population variance of the members' densities `Var_k[σ_k(x)]` (1/m²).
     Ensemble,
-}
-
-impl FieldMethod {
-    /// `"ga"`, `"bla"` or `"ensemble"`, as stored in the file.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Ga => "ga",
-            Self::Bla => "bla",
-            Self::Ensemble => "ensemble",
-        }
-    }
 }
 
 impl From<Method> for FieldMethod {
@@ -1047,12 +1037,7 @@ impl UncertaintyField {
         if version != FIELD_FORMAT_VERSION {
             return Err(bad(format!("format_version is {version:?}, expected {FIELD_FORMAT_VERSION:?}")));
         }
-        let method = match field("method")?.as_str() {
-            "ga" => FieldMethod::Ga,
-            "bla" => FieldMethod::Bla,
-            "ensemble" => FieldMethod::Ensemble,
-            other => return Err(bad(format!("method is {other:?}, expected \"ga\", \"bla\" or \"ensemble\""))),
-        };
+        let method: FieldMethod = field("method")?.parse().map_err(|e| bad(format!("metadata field \"method\": {e}")))?;
         fn list<T: std::str::FromStr>(s: &str) -> Option<[T; 3]> {
             let v: Vec<T> = s.split(',').map(|x| x.trim().parse().ok()).collect::<Option<_>>()?;
             v.try_into().ok()

@@ -12,6 +12,7 @@ use nerfsv_dataset::{Frame, Split};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, RayInput};
 use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
+use nerfsv_scene::stats::median;
 use serde::Serialize;
 
 pub use crate::Method;
@@ -450,16 +451,6 @@ pub fn short(v: Option<f64>) -> String {
 pub fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
     let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
     (n > 0).then(|| sum / n as f64)
-}
-
-pub fn median(mut values: Vec<f64>) -> Option<f64> {
-    values.sort_by(f64::total_cmp);
-    let n = values.len();
-    match n {
-        0 => None,
-        _ if n % 2 == 1 => Some(values[n / 2]),
-        _ => Some(0.5 * (values[n / 2 - 1] + values[n / 2])),
-    }
 }
 
 pub fn ga_rows<'a>(rows: impl Iterator<Item = &'a Row>) -> impl Iterator<Item = &'a GaRow> {

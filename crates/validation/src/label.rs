@@ -4,8 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 /// Which draw a rollout is: a sampler's search or estimate batch. Its label ([`Label::name`])
-/// is what the CSVs, the journal's file names and the rollout seeds carry.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+/// is what the CSVs, the journal's file names and the rollout seeds carry; [`Label::ALL`] is the
+/// order the stress run flies them in.
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[choice(what = "sampler label")]
 pub enum Label {
     /// Monte Carlo's rollouts (`mc`).
     #[serde(rename = "mc")]
@@ -23,19 +25,6 @@ pub enum Label {
 }
 
 impl Label {
-    /// Every label, in the order the stress run flies them.
-    pub const ALL: [Label; 4] = [Label::Mc, Label::Cem, Label::CemIs, Label::Subset];
-
-    /// The label as the files write it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Label::Mc => "mc",
-            Label::Cem => "cem",
-            Label::CemIs => "cem-is",
-            Label::Subset => "subset",
-        }
-    }
-
     /// The sampler whose run drew it.
     pub fn sampler(self) -> Sampler {
         match self {
@@ -52,43 +41,19 @@ impl Label {
     }
 }
 
-impl std::fmt::Display for Label {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for Label {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        Label::ALL.into_iter().find(|l| l.name() == s).ok_or_else(|| {
-            let names: Vec<&str> = Label::ALL.iter().map(|l| l.name()).collect();
-            format!("unknown sampler label {s:?}: one of {}", names.join(", "))
-        })
-    }
-}
-
 /// A search over the disturbances.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Sampler {
-    /// Plain Monte Carlo from the prior.
+    /// Monte Carlo: `validation.monte_carlo.rollouts` rollouts from the prior.
     Mc,
-    /// The Cross-Entropy Method, then importance sampling from its final proposal.
+    /// The Cross-Entropy Method (`validation.cem`), then importance sampling from its final
+    /// proposal.
     Cem,
-    /// Subset simulation: a failure probability from nested levels of Markov chains; it
-    /// estimates, it does not search, so its rollouts are not replayed (like CEM's importance
-    /// batch).
+    /// Subset simulation (`validation.subset`): a failure probability from nested levels of
+    /// Markov chains; it estimates, it does not search, so its rollouts are not replayed (like
+    /// CEM's importance batch).
     Subset,
 }
 
-impl Sampler {
-    pub fn name(self) -> &'static str {
-        match self {
-            Sampler::Mc => Label::Mc.name(),
-            Sampler::Cem => Label::Cem.name(),
-            Sampler::Subset => Label::Subset.name(),
-        }
-    }
-}

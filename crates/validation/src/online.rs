@@ -146,7 +146,7 @@ pub fn step_auroc_interval(
         return None;
     }
     values.sort_by(f64::total_cmp);
-    let at = |q| crate::transfer::quantile_sorted(&values, q);
+    let at = |q| nerfsv_scene::stats::quantile_sorted(&values, q);
     Some([at(0.025), at(0.975)])
 }
 

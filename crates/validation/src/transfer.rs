@@ -15,6 +15,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use nerfsv_scene::stats::quantile_sorted;
+
 use crate::compare::Confusion;
 use crate::sampler::wilson_interval;
 
@@ -150,12 +152,6 @@ fn bootstrap_mcc(nerf: &[bool], gt: &[bool], seed: u64) -> [f64; 2] {
     [quantile_sorted(&values, 0.025), quantile_sorted(&values, 0.975)]
 }
 
-/// The `q` quantile of sorted values, linear between order statistics (type 7).
-pub(crate) fn quantile_sorted(v: &[f64], q: f64) -> f64 {
-    let h = (v.len() - 1) as f64 * q;
-    let (lo, hi) = (h.floor() as usize, h.ceil() as usize);
-    v[lo] + (h - lo as f64) * (v[hi] - v[lo])
-}
 
 #[cfg(test)]
 mod tests {

@@ -11,7 +11,8 @@ use super::triangle::{MeshError, TriangleMesh, DEFAULT_COLOUR};
 use crate::image::Image;
 
 /// Which axis of the file points up.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum UpAxis {
     /// The file is z-up already (nerfsv's frame).

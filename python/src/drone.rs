@@ -148,8 +148,7 @@ impl RemoteRollouts for PyExecutor {
         let failed = |e: PyErr| ValidationError::Executor(e.to_string());
         Python::attach(|py| {
             let list = PyList::new(py, jobs.iter().map(|j| PyBytes::new(py, j))).map_err(failed)?;
-            let results =
-                self.0.call1(py, (spec.world.name(), spec.estimator.name(), list)).map_err(failed)?;
+            let results = self.0.call1(py, (spec.world.name(), spec.estimator.name(), list)).map_err(failed)?;
             for item in results.bind(py).try_iter().map_err(failed)? {
                 let (i, bytes): (usize, Vec<u8>) = item.and_then(|it| it.extract()).map_err(failed)?;
                 finished(i, &bytes)?;

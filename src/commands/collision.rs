@@ -1,9 +1,11 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use nerfsv_collision::{check_cells_per_metre, check_grid_memory, field_bounds, scene_field, GridGeometry, SdfGrid};
+use nerfsv_collision::{
+    build_ground_truth, check_cells_per_metre, check_grid_memory, field_bounds, scene_field, GridGeometry, SdfGrid,
+};
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::stages::{build_ground_truth, build_nerf_field};
+use nerfsv_pipeline::stages::build_nerf_field;
 use nerfsv_pipeline::Guard;
 use nerfsv_scene::{Aabb, Scene};
 

@@ -69,9 +69,11 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let d = &args.drone;
     let guard = d.inputs(Guard::new().output("--out", &args.out));
     guard.input_opt("--field", args.field.as_deref()).input_opt("--config", args.config.as_deref()).check()?;
-    let online = args.reward.map(|m| (m, true)).or(args.measure.map(|m| (m, false))).map(|(m, reward)| {
-        OnlineSettings { method: m, mode: args.uncertainty, reward }
-    });
+    let online = args
+        .reward
+        .map(|m| (m, true))
+        .or(args.measure.map(|m| (m, false)))
+        .map(|(m, reward)| OnlineSettings { method: m, mode: args.uncertainty, reward });
     match (online.map(|o| o.mode), &args.field) {
         (Some(UqMode::Field), None) => anyhow::bail!("--uncertainty field needs --field FILE (`nerfsv uq field`)"),
         (None, Some(_)) => anyhow::bail!("--field is read only with --reward or --measure and --uncertainty field"),

@@ -17,10 +17,7 @@ pub struct MeshArgs {
 
 impl MeshArgs {
     pub fn options(&self) -> MeshOptions {
-        MeshOptions {
-            scale: self.mesh_scale,
-            up: self.mesh_up,
-        }
+        MeshOptions { scale: self.mesh_scale, up: self.mesh_up }
     }
 }
 

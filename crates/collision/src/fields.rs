@@ -18,6 +18,7 @@
 //! # Ok::<(), nerfsv_collision::CollisionError>(())
 //! ```
 
+use std::path::Path;
 use std::time::Instant;
 
 use nalgebra::Point3;
@@ -29,6 +30,7 @@ use crate::classify::classify_nodes;
 use crate::grid::{positive, GridGeometry, ScalarGrid};
 use crate::mesh::{marching_cubes_classified, Mesh};
 use crate::sdf::SdfGrid;
+use crate::stats::{agreement, Agreement, GridSummary};
 use crate::CollisionError;
 
 /// The drone's flight altitudes, over which NeRF and ground-truth fields are compared (metres).
@@ -75,7 +77,8 @@ pub fn default_density_threshold(cells_per_metre: f32) -> f32 {
 pub struct ErrorStats {
     pub nodes: usize,
     pub mean: f64,
-    /// The value at sorted rank `round((nodes − 1) · 0.95)`.
+    /// The 0.95 quantile, linear between the order statistics at `(nodes − 1) · 0.95`
+    /// ([`nerfsv_scene::stats::quantile_sorted`]'s definition).
     pub p95: f32,
     pub max: f32,
 }
@@ -87,6 +90,101 @@ pub struct BuiltField {
     pub mesh: Mesh,
     /// Wall-clock seconds of sampling, marching cubes and the signed EDT.
     pub build_seconds: f64,
+}
+
+impl BuiltField {
+    /// Writes the signed field to `sdf_path` and, if asked, the mesh to `mesh_path`: both or
+    /// neither (each file atomically, creating their folders; the mesh is removed again if the
+    /// field cannot be written).
+    pub fn write(&self, sdf_path: &Path, mesh_path: Option<&Path>) -> Result<(), CollisionError> {
+        for path in std::iter::once(sdf_path).chain(mesh_path) {
+            if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+                std::fs::create_dir_all(parent)
+                    .map_err(|error| CollisionError::Io { path: parent.to_path_buf(), error })?;
+            }
+            nerfsv_scene::io::remove_stale_temporaries(path);
+        }
+        if let Some(m) = mesh_path {
+            self.mesh.write_ply(m, true)?;
+        }
+        if let Err(e) = self.sdf.save(sdf_path) {
+            if let Some(m) = mesh_path {
+                let _ = std::fs::remove_file(m);
+            }
+            return Err(e);
+        }
+        Ok(())
+    }
+}
+
+/// What a ground-truth field reports.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GroundTruthFigures {
+    pub scene: String,
+    pub build_seconds: f64,
+    pub grid: GridSummary,
+    /// The grid field against the analytic SDF at nodes within 0.25 m of a surface, metres.
+    pub error_vs_analytic_m: ErrorStats,
+}
+
+/// Builds the ground-truth field of `scene` ([`ground_truth_field`]), writes it (and the mesh,
+/// [`BuiltField::write`]) and returns its figures.
+pub fn build_ground_truth(
+    scene: &Scene,
+    cells_per_metre: f32,
+    sdf_path: &Path,
+    mesh_path: Option<&Path>,
+) -> Result<GroundTruthFigures, CollisionError> {
+    let (field, error) = ground_truth_field(scene, cells_per_metre)?;
+    field.write(sdf_path, mesh_path)?;
+    Ok(GroundTruthFigures {
+        scene: scene.name.clone(),
+        build_seconds: field.build_seconds,
+        grid: GridSummary::new(&field.sdf.geometry).with_sdf(&field.sdf).with_mesh(&field.mesh),
+        error_vs_analytic_m: error,
+    })
+}
+
+/// What a density model's collision field (a NeRF's) reports.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DensityFieldFigures {
+    pub density_threshold: f32,
+    pub build_seconds: f64,
+    pub grid: GridSummary,
+    /// Occupancy IoU and |SDF difference| against the ground truth (in the flight band too).
+    pub agreement_with_ground_truth: Option<Agreement>,
+}
+
+/// A density model's collision field on `geometry` ([`density_field`]), solid above
+/// `threshold` or, without one, above [`default_density_threshold`] of the grid's cell (ln 2 /
+/// cell). Returns the threshold used and the field.
+pub fn model_field(
+    geometry: GridGeometry,
+    threshold: Option<f32>,
+    density: impl Fn(&[Point3<f32>], &mut [f32]) + Sync,
+) -> Result<(f32, BuiltField), CollisionError> {
+    let threshold = threshold.unwrap_or_else(|| default_density_threshold(1.0 / geometry.cell));
+    Ok((threshold, density_field(geometry, threshold, density)?))
+}
+
+/// [`model_field`], compared with `reference` when given (in [`FLIGHT_BAND`]), written to
+/// `sdf_path` (and the mesh to `mesh_path`); its figures.
+pub fn build_model_field(
+    geometry: GridGeometry,
+    threshold: Option<f32>,
+    density: impl Fn(&[Point3<f32>], &mut [f32]) + Sync,
+    reference: Option<&SdfGrid>,
+    sdf_path: &Path,
+    mesh_path: Option<&Path>,
+) -> Result<DensityFieldFigures, CollisionError> {
+    let (threshold, field) = model_field(geometry, threshold, density)?;
+    field.write(sdf_path, mesh_path)?;
+    Ok(DensityFieldFigures {
+        density_threshold: threshold,
+        build_seconds: field.build_seconds,
+        grid: GridSummary::new(&geometry).with_sdf(&field.sdf).with_mesh(&field.mesh),
+        agreement_with_ground_truth: reference.map(|gt| agreement(&field.sdf, gt, FLIGHT_BAND)),
+    })
 }
 
 /// The scene's exact SDF sampled at the nodes of `geometry`, and the signed field built from it
@@ -292,9 +390,14 @@ fn error_stats(exact: &ScalarGrid, grid: &SdfGrid) -> ErrorStats {
     }
     let mean = errs.iter().map(|&e| e as f64).sum::<f64>() / nodes as f64;
     let max = errs.iter().copied().fold(0f32, f32::max);
-    let rank = ((nodes as f64 - 1.0) * 0.95).round() as usize;
-    let (_, p95, _) = errs.select_nth_unstable_by(rank, f32::total_cmp);
-    ErrorStats { nodes, mean, p95: *p95, max }
+    // The two order statistics around (n − 1)·0.95 without sorting all of them.
+    let h = (nodes - 1) as f64 * 0.95;
+    let lo = h.floor() as usize;
+    let (_, below, above) = errs.select_nth_unstable_by(lo, f32::total_cmp);
+    let below = *below;
+    let above = above.iter().copied().reduce(f32::min).unwrap_or(below);
+    let p95 = (below as f64 + (h - lo as f64) * (above as f64 - below as f64)) as f32;
+    ErrorStats { nodes, mean, p95, max }
 }
 
 #[cfg(test)]
@@ -302,6 +405,21 @@ mod tests {
     use super::*;
     use nalgebra::Point3;
     use std::f64::consts::PI;
+
+    #[test]
+    fn error_stats_p95_is_the_shared_quantile_over_the_band() {
+        // 23 nodes in the band (|exact| < 0.25) with scattered errors, 21 outside it.
+        let g = GridGeometry::new(Point3::origin(), 1.0, [11, 2, 2]).unwrap();
+        let exact: Vec<f32> = (0..44).map(|i| if i < 23 { 0.01 * i as f32 } else { 1.0 }).collect();
+        let grid: Vec<f32> =
+            exact.iter().enumerate().map(|(i, e)| if i < 23 { e + 0.01 * ((i * 8) % 23) as f32 } else { *e }).collect();
+        let stats =
+            error_stats(&ScalarGrid { geometry: g, data: exact.clone() }, &SdfGrid { geometry: g, data: grid.clone() });
+        let errs: Vec<f64> = exact.iter().zip(&grid).take(23).map(|(e, g)| (e - g).abs() as f64).collect();
+        assert_eq!(stats.nodes, 23);
+        let want = nerfsv_scene::stats::quantile(errs, 0.95).unwrap();
+        assert!((stats.p95 as f64 - want).abs() < 1e-6, "{} vs {want}", stats.p95);
+    }
 
     #[test]
     fn field_bounds_grow_the_scene_by_a_decimetre_and_reach_a_metre_up() {

@@ -69,9 +69,9 @@ pub mod stats;
 
 pub use classify::{classify_nodes, crossing_parameter};
 pub use fields::{
-    check_cells_per_metre, check_grid_memory, default_density_threshold, density_field, field_bounds,
-    ground_truth_field, repair_contact_planes, sample_mesh, sample_scene, scene_field, BuiltField, ErrorStats,
-    ERROR_BAND, FLIGHT_BAND,
+    build_ground_truth, build_model_field, check_cells_per_metre, check_grid_memory, default_density_threshold,
+    density_field, field_bounds, ground_truth_field, model_field, repair_contact_planes, sample_mesh, sample_scene,
+    scene_field, BuiltField, DensityFieldFigures, ErrorStats, GroundTruthFigures, ERROR_BAND, FLIGHT_BAND,
 };
 pub use grid::{GridGeometry, GridQuery, ScalarGrid};
 pub use mesh::{marching_cubes, Mesh};

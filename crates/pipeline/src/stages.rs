@@ -5,7 +5,7 @@ mod report;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nerfsv_collision::{BuiltField, ErrorStats, GridSummary, SdfGrid};
+use nerfsv_collision::{DensityFieldFigures, GroundTruthFigures, SdfGrid};
 use nerfsv_dataset::{load_split, GenerateOptions, LoadOptions, Split};
 use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
 use nerfsv_scene::Scene;
@@ -21,27 +21,6 @@ pub fn load_dataset_split(dir: &Path, split: &str, downscale: u32) -> Result<Spl
         context: format!("loading the {split} split of {}", dir.display()),
         error: e,
     })
-}
-
-/// Writes a collision field and, if asked, its mesh: both or neither (each file atomically,
-/// creating their folders; the mesh is removed again if the field cannot be written).
-pub fn write_field(field: &BuiltField, sdf_path: &Path, mesh_path: Option<&Path>) -> Result<(), PipelineError> {
-    for path in std::iter::once(sdf_path).chain(mesh_path) {
-        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent).map_err(|e| PipelineError::io(parent, e))?;
-        }
-        nerfsv_scene::io::remove_stale_temporaries(path);
-    }
-    if let Some(m) = mesh_path {
-        field.mesh.write_ply(m, true)?;
-    }
-    if let Err(e) = field.sdf.save(sdf_path) {
-        if let Some(m) = mesh_path {
-            let _ = std::fs::remove_file(m);
-        }
-        return Err(e.into());
-    }
-    Ok(())
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -188,16 +167,6 @@ pub struct GroundTruthField<'a> {
     pub cells_per_metre: f32,
 }
 
-/// What a ground-truth field reports.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct GroundTruthFigures {
-    pub scene: String,
-    pub build_seconds: f64,
-    pub grid: GridSummary,
-    /// The grid field against the analytic SDF at nodes within 0.25 m of a surface, metres.
-    pub error_vs_analytic_m: ErrorStats,
-}
-
 impl GroundTruthField<'_> {
     pub const SDF: &'static str = "gt_sdf.safetensors";
     pub const MESH: &'static str = "gt_mesh.ply";
@@ -206,23 +175,6 @@ impl GroundTruthField<'_> {
     pub fn sdf_path(root: &Path) -> PathBuf {
         root.join(Self::NAME).join(Self::SDF)
     }
-}
-
-/// Builds the ground-truth field of `scene`, writes it (and the mesh) and returns its figures.
-pub fn build_ground_truth(
-    scene: &Scene,
-    cells_per_metre: f32,
-    sdf_path: &Path,
-    mesh_path: Option<&Path>,
-) -> Result<GroundTruthFigures, PipelineError> {
-    let (field, error) = nerfsv_collision::ground_truth_field(scene, cells_per_metre)?;
-    write_field(&field, sdf_path, mesh_path)?;
-    Ok(GroundTruthFigures {
-        scene: scene.name.clone(),
-        build_seconds: field.build_seconds,
-        grid: GridSummary::new(&field.sdf.geometry).with_sdf(&field.sdf).with_mesh(&field.mesh),
-        error_vs_analytic_m: error,
-    })
 }
 
 impl Stage for GroundTruthField<'_> {
@@ -236,7 +188,8 @@ impl Stage for GroundTruthField<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<GroundTruthFigures, PipelineError> {
-        build_ground_truth(self.scene, self.cells_per_metre, &cx.dir.join(Self::SDF), Some(&cx.dir.join(Self::MESH)))
+        let (sdf, mesh) = (cx.dir.join(Self::SDF), cx.dir.join(Self::MESH));
+        Ok(nerfsv_collision::build_ground_truth(self.scene, self.cells_per_metre, &sdf, Some(&mesh))?)
     }
 }
 
@@ -368,37 +321,14 @@ pub struct NerfField {
     pub own_grid: Option<f32>,
 }
 
-/// What a NeRF collision field reports.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct NerfFieldFigures {
-    pub density_threshold: f32,
-    pub build_seconds: f64,
-    pub grid: GridSummary,
-    /// Occupancy IoU and |SDF difference| against the ground truth (in the flight band too).
-    pub agreement_with_ground_truth: Option<nerfsv_collision::Agreement>,
-}
-
 impl NerfField {
     pub const SDF: &'static str = "nerf_sdf.safetensors";
     pub const MESH: &'static str = "nerf_mesh.ply";
 }
 
-/// The NeRF's collision field on `geometry`: density above `density_threshold` (default
-/// ln 2 / cell) is solid. Returns the threshold used and the field.
-pub fn nerf_density_field(
-    nerf: &Nerf,
-    geometry: nerfsv_collision::GridGeometry,
-    density_threshold: Option<f32>,
-) -> Result<(f32, BuiltField), PipelineError> {
-    let threshold =
-        density_threshold.unwrap_or_else(|| nerfsv_collision::default_density_threshold(1.0 / geometry.cell));
-    let field =
-        nerfsv_collision::density_field(geometry, threshold, |points, out| out.copy_from_slice(&nerf.density(points)))?;
-    Ok((threshold, field))
-}
-
-/// The NeRF's collision field on `geometry` ([`nerf_density_field`]), with its agreement with
-/// `reference` when given; written to `sdf_path` (and the mesh to `mesh_path`).
+/// The NeRF's collision field on `geometry` ([`nerfsv_collision::build_model_field`] of its
+/// density), with its agreement with `reference` when given; written to `sdf_path` (and the mesh
+/// to `mesh_path`).
 pub fn build_nerf_field(
     nerf: &Nerf,
     geometry: nerfsv_collision::GridGeometry,
@@ -406,16 +336,9 @@ pub fn build_nerf_field(
     reference: Option<&SdfGrid>,
     sdf_path: &Path,
     mesh_path: Option<&Path>,
-) -> Result<NerfFieldFigures, PipelineError> {
-    let (threshold, field) = nerf_density_field(nerf, geometry, density_threshold)?;
-    write_field(&field, sdf_path, mesh_path)?;
-    Ok(NerfFieldFigures {
-        density_threshold: threshold,
-        build_seconds: field.build_seconds,
-        grid: GridSummary::new(&geometry).with_sdf(&field.sdf).with_mesh(&field.mesh),
-        agreement_with_ground_truth: reference
-            .map(|gt| nerfsv_collision::agreement(&field.sdf, gt, nerfsv_collision::FLIGHT_BAND)),
-    })
+) -> Result<DensityFieldFigures, PipelineError> {
+    let density = |points: &[nalgebra::Point3<f32>], out: &mut [f32]| out.copy_from_slice(&nerf.density(points));
+    Ok(nerfsv_collision::build_model_field(geometry, density_threshold, density, reference, sdf_path, mesh_path)?)
 }
 
 /// The grid a NeRF's field of run `root` is built on, and the ground truth's field it is
@@ -445,7 +368,7 @@ impl Stage for NerfField {
     const CODE: &'static [&'static str] = &["nerfsv-nerf", "nerfsv-collision", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];
     const INPUTS: &'static [&'static str] = &[Train::NAME, GroundTruthField::NAME];
-    type Figures = NerfFieldFigures;
+    type Figures = DensityFieldFigures;
 
     fn inputs(&self) -> &'static [&'static str] {
         match self.own_grid {
@@ -458,7 +381,7 @@ impl Stage for NerfField {
         (self.density_threshold, self.own_grid)
     }
 
-    fn run(&self, cx: &StageContext) -> Result<NerfFieldFigures, PipelineError> {
+    fn run(&self, cx: &StageContext) -> Result<DensityFieldFigures, PipelineError> {
         let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
         let (geometry, reference) = nerf_field_geometry(cx.root, self.own_grid, &nerf)?;
         build_nerf_field(

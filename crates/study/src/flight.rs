@@ -352,12 +352,9 @@ impl FlightInputs {
         let nerf_field = match nerf_field {
             Some(path) => SdfGrid::load(path)?,
             None => {
-                let geometry = gt.sdf.geometry;
-                let threshold = nerfsv_collision::default_density_threshold(1.0 / geometry.cell);
-                nerfsv_collision::density_field(geometry, threshold, |points, out| {
-                    out.copy_from_slice(&nerf.density(points))
-                })?
-                .sdf
+                let density =
+                    |points: &[nalgebra::Point3<f32>], out: &mut [f32]| out.copy_from_slice(&nerf.density(points));
+                nerfsv_collision::model_field(gt.sdf.geometry, None, density)?.1.sdf
             }
         };
         Ok(Self { nerf, nerf_field, gt_field: Some(gt.sdf), members: Vec::new() })

@@ -1037,7 +1037,8 @@ impl UncertaintyField {
         if version != FIELD_FORMAT_VERSION {
             return Err(bad(format!("format_version is {version:?}, expected {FIELD_FORMAT_VERSION:?}")));
         }
-        let method: FieldMethod = field("method")?.parse().map_err(|e| bad(format!("metadata field \"method\": {e}")))?;
+        let method: FieldMethod =
+            field("method")?.parse().map_err(|e| bad(format!("metadata field \"method\": {e}")))?;
         fn list<T: std::str::FromStr>(s: &str) -> Option<[T; 3]> {
             let v: Vec<T> = s.split(',').map(|x| x.trim().parse().ok()).collect::<Option<_>>()?;
             v.try_into().ok()

@@ -6,7 +6,9 @@ use serde::{Deserialize, Serialize};
 /// Which draw a rollout is: a sampler's search or estimate batch. Its label ([`Label::name`])
 /// is what the CSVs, the journal's file names and the rollout seeds carry; [`Label::ALL`] is the
 /// order the stress run flies them in.
-#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(
+    nerfsv_derive::Choice, Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
 #[choice(what = "sampler label")]
 pub enum Label {
     /// Monte Carlo's rollouts (`mc`).
@@ -56,4 +58,3 @@ pub enum Sampler {
     /// CEM's importance batch).
     Subset,
 }
-

@@ -152,7 +152,6 @@ fn bootstrap_mcc(nerf: &[bool], gt: &[bool], seed: u64) -> [f64; 2] {
     [quantile_sorted(&values, 0.025), quantile_sorted(&values, 0.975)]
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

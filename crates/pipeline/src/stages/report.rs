@@ -4,8 +4,10 @@
 //! change here redoes no stage.
 
 use crate::report::{num, Section, Table};
-use crate::stages::{DatasetFigures, GroundTruthFigures};
-use crate::stages::{Eval, EvalFigures, GroundTruthField, NerfField, NerfFieldFigures};
+use nerfsv_collision::{DensityFieldFigures, GroundTruthFigures};
+
+use crate::stages::DatasetFigures;
+use crate::stages::{Eval, EvalFigures, GroundTruthField, NerfField};
 use crate::{Report, ReportContext};
 use nerfsv_nerf::TrainStats;
 
@@ -62,7 +64,7 @@ impl Report for Eval {
 impl Report for NerfField {
     const ABOUT: &'static str = "the NeRF's collision field";
 
-    fn describe(f: &NerfFieldFigures) -> String {
+    fn describe(f: &DensityFieldFigures) -> String {
         match &f.agreement_with_ground_truth {
             Some(a) => format!(
                 "against ground truth in the flight band: IoU {:.3}, |SDF diff| mean {} m / p95 {} m",
@@ -74,7 +76,7 @@ impl Report for NerfField {
         }
     }
 
-    fn report(f: &NerfFieldFigures, _: &ReportContext) -> Option<Section> {
+    fn report(f: &DensityFieldFigures, _: &ReportContext) -> Option<Section> {
         let title = match f.agreement_with_ground_truth {
             Some(_) => "Collision fields: the NeRF's against the ground truth",
             None => "The NeRF's collision field (no ground truth to compare it with)",

@@ -390,13 +390,7 @@ fn error_stats(exact: &ScalarGrid, grid: &SdfGrid) -> ErrorStats {
     }
     let mean = errs.iter().map(|&e| e as f64).sum::<f64>() / nodes as f64;
     let max = errs.iter().copied().fold(0f32, f32::max);
-    // The two order statistics around (n − 1)·0.95 without sorting all of them.
-    let h = (nodes - 1) as f64 * 0.95;
-    let lo = h.floor() as usize;
-    let (_, below, above) = errs.select_nth_unstable_by(lo, f32::total_cmp);
-    let below = *below;
-    let above = above.iter().copied().reduce(f32::min).unwrap_or(below);
-    let p95 = (below as f64 + (h - lo as f64) * (above as f64 - below as f64)) as f32;
+    let p95 = nerfsv_scene::stats::quantile_select(&mut errs, 0.95);
     ErrorStats { nodes, mean, p95, max }
 }
 

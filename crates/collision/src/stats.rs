@@ -162,9 +162,8 @@ pub fn agreement(a: &SdfGrid, b: &SdfGrid, z_band: (f32, f32)) -> Agreement {
     } else {
         let mean = diffs.iter().map(|&d| d as f64).sum::<f64>() / n as f64;
         let max = diffs.iter().copied().fold(0f32, f32::max);
-        let rank = ((0.95 * n as f64).ceil() as usize).clamp(1, n) - 1;
-        let (_, p95, _) = diffs.select_nth_unstable_by(rank, f32::total_cmp);
-        (Some(mean), Some(*p95), Some(max))
+        let p95 = nerfsv_scene::stats::quantile_select(&mut diffs, 0.95);
+        (Some(mean), Some(p95), Some(max))
     };
     Agreement {
         compared_nodes: acc.compared,

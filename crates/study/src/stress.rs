@@ -541,6 +541,42 @@ pub fn replay_csv(world: WorldKind) -> String {
     format!("replay_{}.csv", world.name())
 }
 
+/// `clearance_difference_{sampler}.csv`: per trajectory and per step, |minimum clearance in
+/// NeRF-sim − in GT-sim| on one sampler's searched disturbances (columns `per`, `abs_difference_m`;
+/// written when they were replayed).
+pub fn clearance_csv(sampler: Sampler) -> String {
+    format!("clearance_difference_{}.csv", sampler.name())
+}
+
+/// Reads a [`clearance_csv`]: the per-trajectory and the per-step differences, metres.
+pub fn read_clearance_csv(path: &Path) -> Result<(Vec<f64>, Vec<f64>), StudyError> {
+    let text = std::fs::read_to_string(path).map_err(|e| StudyError::io(path, e))?;
+    let (mut trajectories, mut steps) = (Vec::new(), Vec::new());
+    for (i, line) in text.lines().enumerate().skip(1) {
+        let bad =
+            || StudyError::Internal(format!("{}: line {}: expected `trajectory|step,metres`", path.display(), i + 1));
+        let (per, value) = line.split_once(',').ok_or_else(bad)?;
+        let value: f64 = value.parse().map_err(|_| bad())?;
+        match per {
+            "trajectory" => trajectories.push(value),
+            "step" => steps.push(value),
+            _ => return Err(bad()),
+        }
+    }
+    Ok((trajectories, steps))
+}
+
+/// Writes a [`clearance_csv`].
+fn write_clearance_csv(path: &Path, a: &nerfsv_validation::Agreement) -> Result<(), StudyError> {
+    let mut s = String::from("per,abs_difference_m\n");
+    for (per, spread) in [("trajectory", &a.clearance_difference), ("step", &a.step_clearance_difference)] {
+        for v in &spread.values {
+            s.push_str(&format!("{per},{v}\n"));
+        }
+    }
+    nerfsv_scene::io::atomic_write_bytes(path, s.as_bytes()).map_err(|e| StudyError::io(path, e))
+}
+
 /// The searches' own rollouts, in order: not the importance batch nor subset simulation's
 /// chains, which estimate a probability (the paper's confusion matrices are over MC's and CEM's
 /// own rollouts).
@@ -1080,7 +1116,9 @@ fn sampler_figures(
             let (ours, theirs): (Vec<RolloutRecord>, Vec<RolloutRecord>) =
                 searched(records).zip(rs).filter(|(r, _)| sampler.owns(r)).map(|(r, g)| (r.clone(), g.clone())).unzip();
             let (nerf, gt) = if setup.world == WorldKind::Nerf { (&ours, &theirs) } else { (&theirs, &ours) };
-            Some(ConfusionFigures::new(&compare(nerf, gt).map_err(StudyError::Internal)?))
+            let agreement = compare(nerf, gt).map_err(StudyError::Internal)?;
+            write_clearance_csv(&out.join(clearance_csv(sampler)), &agreement)?;
+            Some(ConfusionFigures::new(&agreement))
         }
         _ => None,
     };

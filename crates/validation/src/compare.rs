@@ -86,7 +86,8 @@ pub struct Spread {
 }
 
 impl Spread {
-    /// The spread of the finite `values` (nearest-rank quantiles); all zero when there are none.
+    /// The spread of the finite `values` (the workspace's quantile,
+    /// [`nerfsv_scene::stats::quantile_sorted`]); all zero when there are none.
     pub fn of(values: impl IntoIterator<Item = f64>) -> Self {
         let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
         v.sort_by(f64::total_cmp);
@@ -94,12 +95,11 @@ impl Spread {
         if n == 0 {
             return Self::default();
         }
-        let rank = |q: f64| v[((q * n as f64).ceil() as usize).clamp(1, n) - 1];
         Self {
             count: n,
             mean: v.iter().sum::<f64>() / n as f64,
-            median: rank(0.5),
-            p90: rank(0.9),
+            median: nerfsv_scene::stats::quantile_sorted(&v, 0.5),
+            p90: nerfsv_scene::stats::quantile_sorted(&v, 0.9),
             max: v[n - 1],
             values: v,
         }
@@ -192,10 +192,12 @@ mod tests {
         let s = a.steps;
         assert_eq!((s.true_positive, s.false_positive, s.false_negative, s.true_negative), (1, 1, 1, 5));
         assert_eq!(s.accuracy(), Some(0.75));
-        // |score differences|: 0.01, 0.06, 0.03, 0 → median (nearest rank) 0.01, max 0.06.
+        // |score differences|: 0.01, 0.06, 0.03, 0 → median 0.02 (between 0.01 and 0.03), p90
+        // 0.03 + 0.7·0.03 = 0.051 (numpy's default quantile), max 0.06.
         let d = &a.clearance_difference;
         assert_eq!(d.count, 4);
-        assert!((d.max - 0.06).abs() < 1e-12 && (d.median - 0.01).abs() < 1e-12, "{d:?}");
+        assert!((d.max - 0.06).abs() < 1e-12 && (d.median - 0.02).abs() < 1e-12, "{d:?}");
+        assert!((d.p90 - 0.051).abs() < 1e-12, "{d:?}");
         assert!((d.mean - 0.025).abs() < 1e-12);
         assert_eq!(a.step_clearance_difference.count, 8);
         assert!(compare(&nerf[1..2], &gt[3..4]).unwrap_err().contains("paired"));

@@ -6,9 +6,9 @@
 
 use std::path::Path;
 
-use nerfsv_sim::WorldKind;
 use nerfsv_study::stress::{
-    most_likely_failure_png, other_world, Sampler, SamplerFigures, StressFigures, TransferFigures, ESTIMATE_ERRORS_PNG,
+    clearance_csv, most_likely_failure_png, other_world, read_clearance_csv, Sampler, SamplerFigures, StressFigures,
+    TransferFigures, ESTIMATE_ERRORS_PNG,
 };
 
 use crate::report::{draw, esc, estimate, mm, num, pct, proportion, rate_ci, world_label, Section, Table};
@@ -19,25 +19,16 @@ use crate::{Report, ReportContext};
 const CLEARANCE_PNG: &str = "clearance_difference.png";
 
 /// Histograms of |clearance in NeRF-sim − in GT-sim| (mm) per sampler, per trajectory and per
-/// step, from the stress stage's rollouts and their replays in `dir`; `None` without them.
-fn clearance_figure(dir: &Path) -> Option<Vec<u8>> {
-    let records = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::ROLLOUTS_CSV)).ok()?;
-    let replays = nerfsv_validation::read_csv_file(&dir.join(nerfsv_study::stress::replay_csv(WorldKind::Gt))).ok()?;
+/// step, from the differences the stage wrote ([`clearance_csv`]) for the samplers that have a
+/// confusion matrix; `None` without them.
+fn clearance_figure(dir: &Path, f: &StressFigures) -> Option<Vec<u8>> {
     let mut groups = Vec::new();
-    for sampler in [nerfsv_validation::Label::Mc, nerfsv_validation::Label::Cem] {
-        let ours: Vec<_> = records.iter().filter(|r| r.sampler == sampler).cloned().collect();
-        let theirs: Vec<_> = replays.iter().filter(|r| r.sampler == sampler).cloned().collect();
-        let Ok(a) = nerfsv_validation::compare(&ours, &theirs) else { continue };
+    for s in f.samplers.iter().filter(|s| s.confusion.is_some()) {
+        let (trajectories, steps) = read_clearance_csv(&dir.join(clearance_csv(s.sampler))).ok()?;
         let mm = |v: &[f64]| v.iter().map(|x| 1e3 * x).collect::<Vec<f64>>();
-        let name = sampler.name().to_uppercase();
-        groups.push(nerfsv_plot::Group {
-            label: format!("{name}, per trajectory"),
-            values: mm(&a.clearance_difference.values),
-        });
-        groups.push(nerfsv_plot::Group {
-            label: format!("{name}, per step"),
-            values: mm(&a.step_clearance_difference.values),
-        });
+        let name = s.sampler.name().to_uppercase();
+        groups.push(nerfsv_plot::Group { label: format!("{name}, per trajectory"), values: mm(&trajectories) });
+        groups.push(nerfsv_plot::Group { label: format!("{name}, per step"), values: mm(&steps) });
     }
     groups.retain(|g| !g.values.is_empty());
     if groups.is_empty() {
@@ -183,7 +174,7 @@ impl Report for StressStage<'_> {
         sampler_tables(&mut s, f);
         confusion_table(&mut s, f);
         estimator_errors_and_failures(&mut s, f);
-        if draw(cx.dir, CLEARANCE_PNG, clearance_figure(cx.dir)) {
+        if draw(cx.dir, CLEARANCE_PNG, clearance_figure(cx.dir, f)) {
             s.picture(CLEARANCE_PNG, "|clearance in NeRF-sim − in GT-sim| on the same disturbances");
         }
         s.csv(nerfsv_study::stress::TABLE_CSV, "stress_table.csv");

@@ -60,6 +60,10 @@ pub struct UqFigures {
     /// members' densities at each node).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ensemble_field: Option<nerfsv_uq::FieldFigures>,
+    /// Whether the per-pixel maps of a test view (`MAPS_PNG`) were drawn: not when no test image
+    /// was fitted, has ground-truth depth or is hit by a ray.
+    #[serde(default)]
+    pub maps_drawn: bool,
     pub seconds: f64,
 }
 
@@ -354,6 +358,7 @@ impl Stage for Uncertainty<'_> {
                 }
             }
         }
+        let maps_drawn = files.iter().any(|(name, _)| name == MAPS_PNG);
         write_files(&cx.dir, &files)?;
         let ensemble_field = match others.is_empty() {
             true => None,
@@ -374,6 +379,7 @@ impl Stage for Uncertainty<'_> {
             ensemble_ause,
             ause_on_common_images,
             ensemble_field,
+            maps_drawn,
             seconds: start.elapsed().as_secs_f64(),
         })
     }

@@ -64,11 +64,13 @@ impl Report for Uncertainty<'_> {
             "BLA: normalised trace against rmv",
         ];
         let stems = [Method::Ga, Method::Bla].into_iter().flat_map(figure_stems);
-        s.picture(
-            MAPS_PNG,
-            "Per pixel, on one test view: the NeRF's depth error and GA's and BLA's depth standard deviations \
-             (and the ensemble's, with one)",
-        );
+        if u.maps_drawn {
+            s.picture(
+                MAPS_PNG,
+                "Per pixel, on one test view: the NeRF's depth error and GA's and BLA's depth standard deviations \
+                 (and the ensemble's, with one)",
+            );
+        }
         for (stem, caption) in stems.zip(captions) {
             s.picture(&format!("{stem}.png"), caption);
         }

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
 use nerfsv_sim::{EstimatorKind, SimConfig, WorldKind};
-use nerfsv_study::flight::{fly_and_write, world, Drone, FlightFigures, FlightInputs, Sortie};
+use nerfsv_study::flight::{fly_and_write, world, write_field_slices, Drone, FlightFigures, FlightInputs, Sortie};
 use serde::{Deserialize, Serialize};
 
 use crate::stage::{Stage, StageContext};
@@ -55,6 +55,10 @@ pub struct FlightStageFigures {
     pub path_vertices: Vec<[f64; 3]>,
     pub waypoints: Vec<[f64; 3]>,
     pub flights: Vec<FlightFigures>,
+    /// Whether both collision fields were drawn at flight altitude
+    /// ([`FIELDS_PNG`](nerfsv_study::flight::FIELDS_PNG)): with a ground truth.
+    #[serde(default)]
+    pub field_slices: bool,
 }
 
 impl FlightStage<'_> {
@@ -147,11 +151,15 @@ impl Stage for FlightStage<'_> {
             )?;
             flights.push(f);
         }
+        if let Some(gt) = &inputs.gt_field {
+            write_field_slices(&cx.dir, gt, &inputs.nerf_field, &flight)?;
+        }
         Ok(FlightStageFigures {
             path_length_m: flight.path.length(),
             path_vertices: flight.path.points.iter().map(|&p| p.into()).collect(),
             waypoints: flight.waypoints.iter().map(|&p| p.into()).collect(),
             flights,
+            field_slices: inputs.gt_field.is_some(),
         })
     }
 }

@@ -115,6 +115,71 @@ pub fn field_slice(field: &SdfGrid, altitude: f64) -> FieldSlice {
     }
 }
 
+/// The flight stage's drawing of both collision fields ([`field_slices_png`]).
+pub const FIELDS_PNG: &str = "field_slices.png";
+/// The difference panel's colours saturate at this many metres.
+const FIELD_DIFFERENCE_CLIP_M: f64 = 0.05;
+
+/// Slices of the ground-truth and the NeRF's signed fields at altitude `z`, sampled at the
+/// ground-truth grid's nodes in x and y, and their difference NeRF − GT, clipped at
+/// ±[`FIELD_DIFFERENCE_CLIP_M`], as PNG.
+pub fn field_slices_png(gt: &SdfGrid, nerf: &SdfGrid, z: f64) -> Result<Vec<u8>, StudyError> {
+    let g = gt.geometry;
+    let [nx, ny, _] = g.dims;
+    let sample = |f: &nerfsv_collision::SdfGrid, i: usize, j: usize| -> f64 {
+        let mut q = g.position_of(i, j, 0);
+        q.z = z as f32;
+        f.geometry.trilinear(&f.data, &q).in_grid().map_or(f64::NAN, f64::from)
+    };
+    let mut values = [Vec::with_capacity(nx * ny), Vec::with_capacity(nx * ny), Vec::with_capacity(nx * ny)];
+    for j in 0..ny {
+        for i in 0..nx {
+            let (a, b) = (sample(gt, i, j), sample(nerf, i, j));
+            values[0].push(a);
+            values[1].push(b);
+            values[2].push((b - a).clamp(-FIELD_DIFFERENCE_CLIP_M, FIELD_DIFFERENCE_CLIP_M));
+        }
+    }
+    let [gt_v, nerf_v, diff_v] = values;
+    let panel = |caption: String, colour_title: &str, values: Vec<f64>, scale| nerfsv_plot::Heatmap {
+        caption,
+        x_title: "x (m)".into(),
+        y_title: "y (m)".into(),
+        colour_title: colour_title.into(),
+        origin: [f64::from(g.origin.x), f64::from(g.origin.y)],
+        cell: [f64::from(g.cell); 2],
+        dims: [nx, ny],
+        values,
+        scale,
+    };
+    let fig = nerfsv_plot::HeatmapFigure {
+        title: format!("Signed distance at z = {z:.2} m"),
+        panels: vec![
+            panel("ground truth".into(), "signed distance (m)", gt_v, nerfsv_plot::ColourScale::Linear),
+            panel("NeRF".into(), "signed distance (m)", nerf_v, nerfsv_plot::ColourScale::Linear),
+            panel(
+                format!("NeRF − ground truth (clipped at ±{:.0} cm)", 100.0 * FIELD_DIFFERENCE_CLIP_M),
+                "difference (m)",
+                diff_v,
+                nerfsv_plot::ColourScale::Diverging,
+            ),
+        ],
+    };
+    nerfsv_plot::heatmap_png(&fig, 1500, 500).map_err(|e| StudyError::Internal(format!("plotting {FIELDS_PNG}: {e}")))
+}
+
+/// Draws both fields at the planned path's mean altitude ([`field_slices_png`]) into
+/// `dir/`[`FIELDS_PNG`].
+pub fn write_field_slices(dir: &Path, gt: &SdfGrid, nerf: &SdfGrid, flight: &Flight) -> Result<(), StudyError> {
+    let z = if flight.waypoints.is_empty() {
+        0.18
+    } else {
+        flight.waypoints.iter().map(|w| w.z).sum::<f64>() / flight.waypoints.len() as f64
+    };
+    let path = dir.join(FIELDS_PNG);
+    nerfsv_scene::io::atomic_write_bytes(&path, &field_slices_png(gt, nerf, z)?).map_err(|e| StudyError::io(&path, e))
+}
+
 /// The plot of one flight over its world's field at the mean planned altitude.
 pub fn flight_figure(
     flight: &Flight,

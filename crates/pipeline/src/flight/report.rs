@@ -1,4 +1,4 @@
-//! The nominal flights' section of the report, with both collision fields drawn.
+//! The nominal flights' section of the report (the stage drew the pictures it names).
 //!
 //! Presentation only: a stage's key digests its own module file, not this child module, so a
 //! change here redoes no stage.
@@ -6,67 +6,11 @@
 use std::path::Path;
 
 use nerfsv_sim::{EstimatorKind, WorldKind};
-use nerfsv_study::flight::{estimate_error_png, ESTIMATE_ERRORS};
+use nerfsv_study::flight::{estimate_error_png, ESTIMATE_ERRORS, FIELDS_PNG};
 
 use crate::flight::{FlightStage, FlightStageFigures};
-use crate::report::{draw, num, world_label, yes_no, Section, Table};
-use crate::stages::{GroundTruthField, NerfField};
-use crate::{Report, ReportContext, Stage};
-
-/// The flight stage's drawing of both collision fields.
-const FIELDS_PNG: &str = "field_slices.png";
-/// The difference panel's colours saturate at this many metres.
-const FIELD_DIFFERENCE_CLIP_M: f64 = 0.05;
-
-/// Slices of the ground-truth and the NeRF's signed fields at altitude `z`, sampled at the
-/// ground-truth grid's nodes in x and y, and their difference NeRF − GT, clipped at
-/// ±[`FIELD_DIFFERENCE_CLIP_M`]; `None` without both fields.
-fn field_slices_figure(root: &Path, z: f64) -> Option<Vec<u8>> {
-    let gt = nerfsv_collision::SdfGrid::load(GroundTruthField::sdf_path(root)).ok()?;
-    let nerf = nerfsv_collision::SdfGrid::load(root.join(NerfField::NAME).join(NerfField::SDF)).ok()?;
-    let g = gt.geometry;
-    let [nx, ny, _] = g.dims;
-    let sample = |f: &nerfsv_collision::SdfGrid, i: usize, j: usize| -> f64 {
-        let mut q = g.position_of(i, j, 0);
-        q.z = z as f32;
-        f.geometry.trilinear(&f.data, &q).in_grid().map_or(f64::NAN, f64::from)
-    };
-    let mut values = [Vec::with_capacity(nx * ny), Vec::with_capacity(nx * ny), Vec::with_capacity(nx * ny)];
-    for j in 0..ny {
-        for i in 0..nx {
-            let (a, b) = (sample(&gt, i, j), sample(&nerf, i, j));
-            values[0].push(a);
-            values[1].push(b);
-            values[2].push((b - a).clamp(-FIELD_DIFFERENCE_CLIP_M, FIELD_DIFFERENCE_CLIP_M));
-        }
-    }
-    let [gt_v, nerf_v, diff_v] = values;
-    let panel = |caption: String, colour_title: &str, values: Vec<f64>, scale| nerfsv_plot::Heatmap {
-        caption,
-        x_title: "x (m)".into(),
-        y_title: "y (m)".into(),
-        colour_title: colour_title.into(),
-        origin: [f64::from(g.origin.x), f64::from(g.origin.y)],
-        cell: [f64::from(g.cell); 2],
-        dims: [nx, ny],
-        values,
-        scale,
-    };
-    let fig = nerfsv_plot::HeatmapFigure {
-        title: format!("Signed distance at z = {z:.2} m"),
-        panels: vec![
-            panel("ground truth".into(), "signed distance (m)", gt_v, nerfsv_plot::ColourScale::Linear),
-            panel("NeRF".into(), "signed distance (m)", nerf_v, nerfsv_plot::ColourScale::Linear),
-            panel(
-                format!("NeRF − ground truth (clipped at ±{:.0} cm)", 100.0 * FIELD_DIFFERENCE_CLIP_M),
-                "difference (m)",
-                diff_v,
-                nerfsv_plot::ColourScale::Diverging,
-            ),
-        ],
-    };
-    nerfsv_plot::heatmap_png(&fig, 1500, 500).ok()
-}
+use crate::report::{num, world_label, yes_no, Section, Table};
+use crate::{Report, ReportContext};
 
 impl Report for FlightStage<'_> {
     const ABOUT: &'static str = "nominal flights in both worlds";
@@ -80,7 +24,7 @@ impl Report for FlightStage<'_> {
         s
     }
 
-    fn report(f: &FlightStageFigures, cx: &ReportContext) -> Option<Section> {
+    fn report(f: &FlightStageFigures, _: &ReportContext) -> Option<Section> {
         let mut s = Section::new("flight", "Nominal flights", "nominal flights");
         s.table(
             Table::new(&[
@@ -134,13 +78,7 @@ impl Report for FlightStage<'_> {
                 );
             }
         }
-        // Both collision fields at the planned path's mean altitude.
-        let z = if f.waypoints.is_empty() {
-            0.18
-        } else {
-            f.waypoints.iter().map(|w| w[2]).sum::<f64>() / f.waypoints.len() as f64
-        };
-        if draw(cx.dir, FIELDS_PNG, field_slices_figure(cx.root, z)) {
+        if f.field_slices {
             s.picture(FIELDS_PNG, "Signed distance at flight altitude: ground truth, NeRF, and their difference");
         }
         Some(s)

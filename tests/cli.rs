@@ -420,10 +420,10 @@ fn assert_uq_stage(run: &std::path::Path, uq: &serde_json::Value) {
         let text = std::fs::read_to_string(dir.join(name)).unwrap_or_else(|e| panic!("uq/{name}: {e}"));
         text.lines().map(str::to_string).collect::<Vec<_>>()
     };
-    let ga = lines("ga.csv");
+    let ga = lines("uq_ga.csv");
     assert!(ga[0].starts_with("split,index,file_path,mu_d,sigma_d,excluded"), "{ga:?}");
     assert_eq!(ga.len(), 1 + 8, "{ga:?}");
-    let bla = lines("bla.csv");
+    let bla = lines("uq_bla.csv");
     assert!(bla[0].starts_with("split,index,file_path,normalized_trace,rmv"), "{bla:?}");
     assert_eq!(bla.len(), 1 + 3, "{bla:?}");
     let ause = lines("ause.csv");

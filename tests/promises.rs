@@ -54,7 +54,7 @@ fn same_config_and_seed_give_byte_identical_files_at_one_and_two_threads() {
     let (fa, fb) = (files(&a), files(&b));
     assert!(fa.iter().any(|(p, _)| p.ends_with("checkpoint.safetensors")));
     assert!(fa.iter().any(|(p, _)| p.ends_with("nerf_sdf.safetensors")));
-    assert!(fa.iter().any(|(p, _)| p.ends_with("uq/bla.csv")) && fa.iter().any(|(p, _)| p.ends_with("uq/ause.csv")));
+    assert!(fa.iter().any(|(p, _)| p.ends_with("uq/uq_bla.csv")) && fa.iter().any(|(p, _)| p.ends_with("uq/ause.csv")));
     assert_same_files(&fb, &fa, "2 threads against 1");
     assert_eq!(summary_without_timings(&a), summary_without_timings(&b));
 }

@@ -12,8 +12,8 @@ use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_scene::validate::in_range;
 use nerfsv_uq::offline::{
-    ause_frames, csv, figure_files, has_split, offline_split, write_files, ImageAuse, Method, OfflineSummary,
-    SplitImages, SPLITS,
+    ause_frames, has_split, method_files, offline_split, write_files, ImageAuse, Method, OfflineSummary, SplitImages,
+    SPLITS,
 };
 use serde::Serialize;
 
@@ -234,9 +234,7 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
 
     let mut summary = OfflineSummary::new(method, &rows, &present, skipped_splits, cfg.ga_sigma_max);
     // Every file is made in memory first, so a failure leaves nothing half written.
-    let mut files: Vec<(String, Vec<u8>)> =
-        vec![(format!("uq_{}.csv", method.name()), csv(&rows, method).into_bytes())];
-    files.extend(figure_files(&rows, &present, method, &cfg)?);
+    let mut files = method_files(&rows, &present, method, &cfg)?;
     summary.seconds = start.elapsed().as_secs_f64();
     files.push((format!("uq_{}.json", method.name()), serde_json::to_vec_pretty(&summary)?));
     // All or nothing: the files this call has written are removed again if one fails.

@@ -26,7 +26,7 @@ const RANDOM_ORDER_SEED: u64 = 0;
 
 /// The offline uncertainty stage of `nerfsv run`: GA on the images of every split (at most
 /// `ga_images_per_split` each, an even stride), BLA on `bla_images_per_split` of each, and the
-/// depth AUSE of both on their test images. `RUN/uq/` holds `ga.csv` and `bla.csv` (the columns
+/// depth AUSE of both on their test images. `RUN/uq/` holds `uq_ga.csv` and `uq_bla.csv` (the columns
 /// of `nerfsv uq offline`), `ause.csv` (a row per test image and method) and the figures of
 /// `nerfsv uq offline` (PNG and SVG).
 pub struct Uncertainty<'a> {
@@ -136,8 +136,8 @@ pub struct EnsembleAuse {
 }
 
 impl Uncertainty<'_> {
-    pub const GA_CSV: &'static str = "ga.csv";
-    pub const BLA_CSV: &'static str = "bla.csv";
+    pub const GA_CSV: &'static str = csv_name(Method::Ga);
+    pub const BLA_CSV: &'static str = csv_name(Method::Bla);
     pub const AUSE_CSV: &'static str = "ause.csv";
     /// With an ensemble: its uncertainty field (`nerfsv uq field --method ensemble` writes the
     /// same), with its slice at flight altitude beside it.
@@ -342,13 +342,9 @@ impl Stage for Uncertainty<'_> {
 
         let ause_on_common_images = compare_on_common_images(&ause);
 
-        let mut files = vec![
-            (Self::GA_CSV.to_string(), csv(&ga, Method::Ga).into_bytes()),
-            (Self::BLA_CSV.to_string(), csv(&bla, Method::Bla).into_bytes()),
-            (Self::AUSE_CSV.to_string(), ause_csv(&ause).into_bytes()),
-        ];
-        files.extend(figure_files(&ga, &SPLITS, Method::Ga, self.uq)?);
-        files.extend(figure_files(&bla, &SPLITS, Method::Bla, self.uq)?);
+        let mut files = method_files(&ga, &SPLITS, Method::Ga, self.uq)?;
+        files.extend(method_files(&bla, &SPLITS, Method::Bla, self.uq)?);
+        files.push((Self::AUSE_CSV.to_string(), ause_csv(&ause).into_bytes()));
         // The maps of the first test image BLA fitted (else GA's first).
         if let Some((_, split, ga_idx, bla_idx)) = chosen.iter().find(|(n, ..)| *n == "test") {
             if let Some(&index) = bla_idx.first().or(ga_idx.first()) {

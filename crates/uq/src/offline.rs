@@ -682,6 +682,28 @@ pub fn figures(rows: &[Row], splits: &[&'static str], method: Method, cfg: &UqCo
     }
 }
 
+/// `uq_{method}.csv`: a method's rows ([`csv`]), as `nerfsv uq offline` and the run's `uq/`
+/// name them.
+pub const fn csv_name(method: Method) -> &'static str {
+    match method {
+        Method::Ga => "uq_ga.csv",
+        Method::Bla => "uq_bla.csv",
+    }
+}
+
+/// A method's offline files, in memory: its rows ([`csv_name`]) and its figures
+/// ([`figure_files`]).
+pub fn method_files(
+    rows: &[Row],
+    splits: &[&'static str],
+    method: Method,
+    cfg: &UqConfig,
+) -> Result<Vec<(String, Vec<u8>)>, UqError> {
+    let mut files = vec![(csv_name(method).to_string(), csv(rows, method).into_bytes())];
+    files.extend(figure_files(rows, splits, method, cfg)?);
+    Ok(files)
+}
+
 /// The figures of a method as files: `STEM.png` and `STEM.svg` for each, in memory.
 pub fn figure_files(
     rows: &[Row],

@@ -7,22 +7,15 @@ mod common;
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{Flight, WorldKind};
-use nerfsv_study::flight::{Drone, FlightInputs};
+use nerfsv_study::flight::{FlightInputs, Mission};
 use nerfsv_study::stress::{journal_dir, measure_recorded, stress, Flown, OnlineSettings, Sampler, StressSetup};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
 use nerfsv_validation::{parse_csv, write_csv, Label};
 
 /// The drone of the tests' runs: the tiny model's flight over the monolith scene.
-fn drone<'a>(inputs: &'a FlightInputs, flight: &'a Flight, scene: &'a Scene, cfg: &'a RunConfig) -> Drone<'a> {
-    Drone {
-        inputs,
-        flight,
-        scene: Some(scene),
-        sim: &cfg.sim,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
-    }
+fn drone<'a>(inputs: &'a FlightInputs, flight: &'a Flight, scene: &'a Scene, cfg: &'a RunConfig) -> Mission<'a> {
+    Mission { drone: cfg.drone(Some(scene)), inputs, flight }
 }
 
 #[test]

@@ -112,11 +112,8 @@ pub fn fly<'py>(
         .detach(|| -> Result<_, nerfsv_study::StudyError> {
             let inputs = FlightInputs::from_files(&model, nerf_field.as_deref(), &ground_truth, 40.0)?;
             nerfsv_study::flight::fly(&FlightRequest {
+                drone: cfg.drone(Some(&ground_truth)),
                 inputs: &inputs,
-                scene: Some(&ground_truth),
-                sim: &cfg.sim,
-                intrinsics: cfg.camera_intrinsics(),
-                render: cfg.dataset.render_settings(),
                 kind,
                 estimator: est,
                 disturbances: &ds,

@@ -113,11 +113,8 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     // `fly_into` plans the flight before it makes the folder: a flight that cannot be planned
     // writes nothing.
     let request = FlightRequest {
+        drone: cfg.drone(Some(&scene)),
         inputs: &inputs,
-        scene: Some(&scene),
-        sim: &cfg.sim,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
         kind: args.drone.world,
         estimator: args.drone.estimator,
         disturbances: &disturbances,

@@ -391,6 +391,18 @@ impl RunConfig {
         })
     }
 
+    /// The drone this config describes ([`Drone`](nerfsv_study::flight::Drone)): `[sim]`, the
+    /// dataset's camera and render settings, and the ground truth GT-sim flies in (none for a
+    /// world known only by a dataset).
+    pub fn drone<'a>(&'a self, scene: Option<&'a nerfsv_scene::Scene>) -> nerfsv_study::flight::Drone<'a> {
+        nerfsv_study::flight::Drone {
+            scene,
+            sim: &self.sim,
+            intrinsics: self.camera_intrinsics(),
+            render: self.dataset.render_settings(),
+        }
+    }
+
     /// The drone camera's default intrinsics: the dataset's.
     pub fn camera_intrinsics(&self) -> nerfsv_scene::Intrinsics {
         let d = &self.dataset;

@@ -6,9 +6,11 @@ mod report;
 
 use std::path::Path;
 
-use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{EstimatorKind, SimConfig, WorldKind};
-use nerfsv_study::flight::{fly_and_write, world, write_field_slices, Drone, FlightFigures, FlightInputs, Sortie};
+use nerfsv_scene::Scene;
+use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_study::flight::{
+    fly_and_write, world, write_field_slices, Drone, FlightFigures, FlightInputs, Mission, Sortie,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::stage::{Stage, StageContext};
@@ -37,14 +39,9 @@ pub fn flight_inputs(root: &Path, ground_truth: bool) -> Result<FlightInputs, Pi
 
 /// The flight stage.
 pub struct FlightStage<'a> {
-    /// The ground truth GT-sim flies in; none for a world known only by a dataset (then only the
-    /// NeRF-sim flights fly).
-    pub scene: Option<&'a Scene>,
-    pub sim: &'a SimConfig,
-    /// The dataset's camera (the drone camera's default).
-    pub intrinsics: Intrinsics,
-    /// How GT-sim renders the camera (the dataset's settings).
-    pub render: RenderSettings,
+    /// The drone; without a ground truth (a world known only by a dataset) only the NeRF-sim
+    /// flights fly.
+    pub drone: Drone<'a>,
     pub seed: u64,
 }
 
@@ -95,7 +92,7 @@ impl FlightStage<'_> {
     /// The flights this stage flies: all of [`Self::FLIGHTS`], or the NeRF-sim ones without a
     /// ground truth.
     fn flights(&self) -> Vec<(WorldKind, EstimatorKind)> {
-        Self::FLIGHTS.into_iter().filter(|(w, _)| self.scene.is_some() || *w == WorldKind::Nerf).collect()
+        Self::FLIGHTS.into_iter().filter(|(w, _)| self.drone.scene.is_some() || *w == WorldKind::Nerf).collect()
     }
 }
 
@@ -107,7 +104,7 @@ impl Stage for FlightStage<'_> {
     type Figures = FlightStageFigures;
 
     fn outputs(&self) -> &'static [&'static str] {
-        if self.scene.is_some() {
+        if self.drone.scene.is_some() {
             Self::OUTPUT_FILES
         } else {
             Self::NERF_OUTPUT_FILES
@@ -115,24 +112,23 @@ impl Stage for FlightStage<'_> {
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        drone_inputs(self.scene.is_some())
+        drone_inputs(self.drone.scene.is_some())
     }
 
     fn config(&self) -> impl Serialize {
-        (self.scene.map(Scene::key), self.sim, self.intrinsics, self.render.supersample, self.seed)
+        (
+            self.drone.scene.map(Scene::key),
+            self.drone.sim,
+            self.drone.intrinsics,
+            self.drone.render.supersample,
+            self.seed,
+        )
     }
 
     fn run(&self, cx: &StageContext) -> Result<FlightStageFigures, PipelineError> {
-        let inputs = flight_inputs(cx.root, self.scene.is_some())?;
-        let flight = inputs.plan(self.sim)?;
-        let drone = Drone {
-            inputs: &inputs,
-            flight: &flight,
-            scene: self.scene,
-            sim: self.sim,
-            intrinsics: self.intrinsics,
-            render: self.render,
-        };
+        let inputs = flight_inputs(cx.root, self.drone.scene.is_some())?;
+        let flight = inputs.plan(self.drone.sim)?;
+        let mission = Mission { drone: self.drone, inputs: &inputs, flight: &flight };
         let mut flights = Vec::new();
         let runs = self.flights();
         for (i, &(kind, estimator)) in runs.iter().enumerate() {
@@ -141,10 +137,10 @@ impl Stage for FlightStage<'_> {
                 runs.len() as u64,
                 &format!("flying {}-sim with the {} estimator", kind.name(), estimator.name()),
             );
-            let w = world(kind, &inputs, self.scene, self.render)?;
+            let w = world(kind, &inputs, self.drone.scene, self.drone.render)?;
             let sortie = Sortie { world: w.as_ref(), estimator, disturbances: &[], seed: self.seed };
             let (f, _) = fly_and_write(
-                &drone,
+                &mission,
                 &sortie,
                 &cx.dir.join(Self::output(kind, estimator, "csv")),
                 &cx.dir.join(Self::output(kind, estimator, "png")),

@@ -219,22 +219,13 @@ pub fn run_in(
         density_threshold: cfg.nerf_density_threshold,
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
     })?;
-    r.run(&flight::FlightStage {
-        scene,
-        sim: &cfg.sim,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
-        seed: cfg.flight_seed,
-    })?;
+    r.run(&flight::FlightStage { drone: cfg.drone(scene), seed: cfg.flight_seed })?;
     let prior = cfg.disturbance_prior()?;
     let search = stress::StressStage {
         ensemble: cfg.ensemble.members > 1,
-        scene,
-        sim: &cfg.sim,
+        drone: cfg.drone(scene),
         validation: &cfg.validation,
         prior: &prior,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
         subset: cfg.stress_subset,
     };
     r.run(&search)?;

@@ -187,11 +187,11 @@ impl Stage for OnlineStage<'_> {
     fn config(&self) -> impl Serialize {
         let s = self.search;
         (
-            s.scene.map(nerfsv_scene::Scene::key),
-            s.sim,
+            s.drone.scene.map(nerfsv_scene::Scene::key),
+            s.drone.sim,
             self.validation(),
-            s.intrinsics,
-            s.render.supersample,
+            s.drone.intrinsics,
+            s.drone.render.supersample,
             self.uq,
             self.online,
         )
@@ -204,7 +204,7 @@ impl Stage for OnlineStage<'_> {
             // Its rewarded searches fly in the stress stage's NeRF world.
             inputs.members = crate::ensemble::EnsembleStage::load_members(cx.root)?;
         }
-        let flight = inputs.plan(s.sim)?;
+        let flight = inputs.plan(s.drone.sim)?;
         let validation = self.validation();
         let stress_dir = cx.input_dir(nerfsv_study::stress::STAGE);
         let replays = read_records(&stress_dir.join(replay_csv(WorldKind::Gt)))?;
@@ -226,7 +226,7 @@ impl Stage for OnlineStage<'_> {
                 online: Some(OnlineSettings { method, mode: UqMode::Exact, reward }),
                 stage: Self::NAME,
                 reports_p_fail: false,
-                ..StressSetup::new(s.drone(&inputs, &flight), &validation, s.prior, samplers, self.uq)
+                ..StressSetup::new(s.mission(&inputs, &flight), &validation, s.prior, samplers, self.uq)
             };
             let (plain_records, plain_views, plain_seconds) = {
                 let setup = setup(&[], false);
@@ -290,7 +290,7 @@ impl Stage for OnlineStage<'_> {
                 per_sampler: [Sampler::Mc, Sampler::Cem]
                     .into_iter()
                     .map(|sampler| {
-                        StepAurocFigures::of(sampler, s.sim.nerf_world, &plain_records, &replays, validation.seed)
+                        StepAurocFigures::of(sampler, s.drone.sim.nerf_world, &plain_records, &replays, validation.seed)
                     })
                     .collect(),
                 transfer,

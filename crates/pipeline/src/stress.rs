@@ -6,9 +6,9 @@ mod report;
 use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
-use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
+use nerfsv_scene::Scene;
 use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, WorldKind};
-use nerfsv_study::flight::{Drone, FlightInputs};
+use nerfsv_study::flight::{Drone, FlightInputs, Mission};
 use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
     journal_dir, measure_at_poses, replay_csv, searched, stress, OnlineSettings, Sampler, StepAurocFigures,
@@ -36,19 +36,16 @@ pub struct StressStage<'a> {
     /// the other flies Monte Carlo only, into `nerf_{deployed,ensemble}/`), and the transfer
     /// table compares both with GT-sim's replays.
     pub ensemble: bool,
-    pub scene: Option<&'a Scene>,
-    pub sim: &'a SimConfig,
+    pub drone: Drone<'a>,
     pub validation: &'a ValidationConfig,
     pub prior: &'a Prior,
-    pub intrinsics: Intrinsics,
-    pub render: RenderSettings,
     pub subset: bool,
 }
 
 impl StressStage<'_> {
     /// The drone of this stage's config flying `flight` in `inputs`' worlds.
-    pub fn drone<'b>(&'b self, inputs: &'b FlightInputs, flight: &'b Flight) -> Drone<'b> {
-        Drone { inputs, flight, scene: self.scene, sim: self.sim, intrinsics: self.intrinsics, render: self.render }
+    pub fn mission<'b>(&'b self, inputs: &'b FlightInputs, flight: &'b Flight) -> Mission<'b> {
+        Mission { drone: self.drone, inputs, flight }
     }
 
     fn samplers(&self) -> &'static [Sampler] {
@@ -69,7 +66,7 @@ impl Stage for StressStage<'_> {
     type Figures = StressFigures;
 
     fn outputs(&self) -> &'static [&'static str] {
-        if self.scene.is_some() {
+        if self.drone.scene.is_some() {
             Self::OUTPUTS
         } else {
             &[ROLLOUTS_CSV, TABLE_CSV]
@@ -77,8 +74,8 @@ impl Stage for StressStage<'_> {
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        match (self.scene.is_some(), self.ensemble) {
-            (_, false) => drone_inputs(self.scene.is_some()),
+        match (self.drone.scene.is_some(), self.ensemble) {
+            (_, false) => drone_inputs(self.drone.scene.is_some()),
             (true, true) => &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
             (false, true) => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
         }
@@ -86,30 +83,30 @@ impl Stage for StressStage<'_> {
 
     fn config(&self) -> impl Serialize {
         (
-            self.scene.map(Scene::key),
-            self.sim,
+            self.drone.scene.map(Scene::key),
+            self.drone.sim,
             self.validation,
-            self.intrinsics,
-            self.render.supersample,
+            self.drone.intrinsics,
+            self.drone.render.supersample,
             self.samplers(),
         )
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
-        let mut inputs = flight_inputs(cx.root, self.scene.is_some())?;
+        let mut inputs = flight_inputs(cx.root, self.drone.scene.is_some())?;
         if self.ensemble {
             inputs.members = EnsembleStage::load_members(cx.root)?;
         }
-        let flight = inputs.plan(self.sim)?;
+        let flight = inputs.plan(self.drone.sim)?;
         let uq = UqConfig::default();
         let setup = StressSetup {
-            replay: self.scene.is_some(),
-            ..StressSetup::new(self.drone(&inputs, &flight), self.validation, self.prior, self.samplers(), &uq)
+            replay: self.drone.scene.is_some(),
+            ..StressSetup::new(self.mission(&inputs, &flight), self.validation, self.prior, self.samplers(), &uq)
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
         let (mut figures, records) = stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)?;
-        if self.ensemble && self.scene.is_some() && self.samplers().contains(&Sampler::Mc) {
+        if self.ensemble && self.drone.scene.is_some() && self.samplers().contains(&Sampler::Mc) {
             figures.transfer = Some(self.transfer(cx, &inputs, &flight, &records)?);
         }
         Ok(figures)
@@ -129,17 +126,17 @@ impl StressStage<'_> {
         flight: &Flight,
         records: &[RolloutRecord],
     ) -> Result<TransferFigures, PipelineError> {
-        let other = match self.sim.nerf_world {
+        let other = match self.drone.sim.nerf_world {
             NerfWorldSource::Deployed => NerfWorldSource::Ensemble,
             NerfWorldSource::Ensemble => NerfWorldSource::Deployed,
         };
-        let sim = SimConfig { nerf_world: other, ..self.sim.clone() };
+        let sim = SimConfig { nerf_world: other, ..self.drone.sim.clone() };
         let uq = UqConfig::default();
-        let drone = Drone { sim: &sim, ..self.drone(inputs, flight) };
+        let mission = Mission { drone: Drone { sim: &sim, ..self.drone }, inputs, flight };
         let setup = StressSetup {
             replay: false,
             reports_p_fail: false,
-            ..StressSetup::new(drone, self.validation, self.prior, &[Sampler::Mc], &uq)
+            ..StressSetup::new(mission, self.validation, self.prior, &[Sampler::Mc], &uq)
         };
         let dir = cx.dir.join(format!("nerf_{}", other.name()));
         std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
@@ -159,14 +156,14 @@ impl StressStage<'_> {
                 "the transfer table pairs the same Monte Carlo rollouts in three worlds, but they differ ({} in NeRF-sim \
                  {}, {} in NeRF-sim {}, {} in GT-sim)",
                 ours.len(),
-                self.sim.nerf_world.name(),
+                self.drone.sim.nerf_world.name(),
                 others.len(),
                 other.name(),
                 gt.len()
             )));
         }
         let failed = |rs: &[RolloutRecord]| rs.iter().map(|r| r.failed).collect::<Vec<bool>>();
-        let (deployed, ensemble) = match self.sim.nerf_world {
+        let (deployed, ensemble) = match self.drone.sim.nerf_world {
             NerfWorldSource::Deployed => (failed(&ours), failed(&others)),
             NerfWorldSource::Ensemble => (failed(&others), failed(&ours)),
         };
@@ -186,11 +183,11 @@ impl StressStage<'_> {
         records: &[RolloutRecord],
         replays: &[RolloutRecord],
     ) -> Result<Vec<StepAurocFigures>, PipelineError> {
-        let intrinsics = flight.simulator(self.sim, &inputs.nerf, self.intrinsics).intrinsics;
+        let intrinsics = flight.simulator(self.drone.sim, &inputs.nerf, self.drone.intrinsics).intrinsics;
         let meter = EnsembleUncertainty {
             members: std::iter::once(&inputs.nerf).chain(inputs.members.iter().map(|m| &m.nerf)).collect(),
             pixels: online_pixels(&intrinsics, &UqConfig::default()),
-            background: self.sim.background,
+            background: self.drone.sim.background,
         };
         let (measured, _, _) =
             measure_at_poses(searched(records).cloned().collect(), intrinsics, &meter, &|d, total, status| {
@@ -201,7 +198,9 @@ impl StressStage<'_> {
         Ok([Sampler::Mc, Sampler::Cem]
             .into_iter()
             .filter(|s| self.samplers().contains(s))
-            .map(|sampler| StepAurocFigures::of(sampler, self.sim.nerf_world, &measured, replays, self.validation.seed))
+            .map(|sampler| {
+                StepAurocFigures::of(sampler, self.drone.sim.nerf_world, &measured, replays, self.validation.seed)
+            })
             .collect())
     }
 }
@@ -313,14 +312,7 @@ pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<St
     let prior = cfg.disturbance_prior()?;
     let flight = request.inputs.plan(&cfg.sim)?;
     let key = request.key()?;
-    let drone = Drone {
-        inputs: request.inputs,
-        flight: &flight,
-        scene: Some(request.scene),
-        sim: &cfg.sim,
-        intrinsics: cfg.camera_intrinsics(),
-        render: cfg.dataset.render_settings(),
-    };
+    let mission = Mission { drone: cfg.drone(Some(request.scene)), inputs: request.inputs, flight: &flight };
     let samplers = [request.sampler];
     let setup = StressSetup {
         world: request.world,
@@ -329,7 +321,7 @@ pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<St
         online: request.online,
         field: request.field.map(|(_, f)| f),
         remote: request.remote,
-        ..StressSetup::new(drone, &cfg.validation, &prior, &samplers, &cfg.uq)
+        ..StressSetup::new(mission, &cfg.validation, &prior, &samplers, &cfg.uq)
     };
     std::fs::create_dir_all(request.out).map_err(|e| PipelineError::io(request.out, e))?;
     let (figures, _) = stress(&setup, request.out, &key, request.resume, observer)?;

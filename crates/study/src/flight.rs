@@ -247,12 +247,10 @@ pub fn estimate_figures(world: WorldKind, r: &Rollout) -> [ScatterFigure; 2] {
     [figure("position", "mm", position), figure("attitude", "°", attitude)]
 }
 
-/// The drone flying its planned path, and the worlds it can fly in: what every search over its
-/// disturbances shares.
+/// The drone as a config describes it: the simulator's settings, its camera and the ground truth
+/// GT-sim renders (and how). One value, passed to every stage and request that flies it.
 #[derive(Clone, Copy)]
 pub struct Drone<'a> {
-    pub inputs: &'a FlightInputs,
-    pub flight: &'a Flight,
     /// The ground truth GT-sim renders; none for a world known only by a dataset.
     pub scene: Option<&'a Scene>,
     pub sim: &'a SimConfig,
@@ -260,7 +258,16 @@ pub struct Drone<'a> {
     pub render: RenderSettings,
 }
 
-/// One rollout of a [`Drone`]: the world it flies in, its estimator, disturbances and seed.
+/// The drone flying its planned path, and the worlds it can fly in: what every search over its
+/// disturbances shares.
+#[derive(Clone, Copy)]
+pub struct Mission<'a> {
+    pub drone: Drone<'a>,
+    pub inputs: &'a FlightInputs,
+    pub flight: &'a Flight,
+}
+
+/// One rollout of a [`Mission`]: the world it flies in, its estimator, disturbances and seed.
 #[derive(Clone, Copy)]
 pub struct Sortie<'a> {
     pub world: &'a dyn World,
@@ -270,8 +277,8 @@ pub struct Sortie<'a> {
 }
 
 /// Flies one rollout and times it: its figures and the rollout.
-fn fly_timed(drone: &Drone, sortie: &Sortie) -> (FlightFigures, Rollout) {
-    let sim = drone.flight.simulator(drone.sim, &drone.inputs.nerf, drone.intrinsics);
+fn fly_timed(mission: &Mission, sortie: &Sortie) -> (FlightFigures, Rollout) {
+    let sim = mission.flight.simulator(mission.drone.sim, &mission.inputs.nerf, mission.drone.intrinsics);
     let start = Instant::now();
     let rollout = sim.fly(sortie.world, sortie.estimator, sortie.disturbances, sortie.seed);
     (FlightFigures::new(sortie.world.kind(), sortie.estimator, &rollout, start.elapsed().as_secs_f64()), rollout)
@@ -281,12 +288,8 @@ fn fly_timed(drone: &Drone, sortie: &Sortie) -> (FlightFigures, Rollout) {
 /// estimator and disturbances. The request of [`fly`] (the Python package's `fly`) and of
 /// [`fly_into`] (`nerfsv fly`).
 pub struct FlightRequest<'a> {
+    pub drone: Drone<'a>,
     pub inputs: &'a FlightInputs,
-    /// The ground truth's scene, which GT-sim renders (see [`world`]).
-    pub scene: Option<&'a Scene>,
-    pub sim: &'a SimConfig,
-    pub intrinsics: Intrinsics,
-    pub render: RenderSettings,
     pub kind: WorldKind,
     pub estimator: EstimatorKind,
     pub disturbances: &'a [Disturbance],
@@ -296,20 +299,14 @@ pub struct FlightRequest<'a> {
 impl FlightRequest<'_> {
     /// The planned flight and its world: everything that can be refused before flying.
     fn planned(&self) -> Result<(Flight, Box<dyn World + '_>), StudyError> {
-        Ok((self.inputs.plan(self.sim)?, world(self.kind, self.inputs, self.scene, self.render)?))
+        let d = &self.drone;
+        Ok((self.inputs.plan(d.sim)?, world(self.kind, self.inputs, d.scene, d.render)?))
     }
 
     /// The drone of this request flying `flight`, and its rollout in `world`.
-    fn drone<'b>(&'b self, flight: &'b Flight, world: &'b dyn World) -> (Drone<'b>, Sortie<'b>) {
-        let drone = Drone {
-            inputs: self.inputs,
-            flight,
-            scene: self.scene,
-            sim: self.sim,
-            intrinsics: self.intrinsics,
-            render: self.render,
-        };
-        (drone, Sortie { world, estimator: self.estimator, disturbances: self.disturbances, seed: self.seed })
+    fn mission<'b>(&'b self, flight: &'b Flight, world: &'b dyn World) -> (Mission<'b>, Sortie<'b>) {
+        let mission = Mission { drone: self.drone, inputs: self.inputs, flight };
+        (mission, Sortie { world, estimator: self.estimator, disturbances: self.disturbances, seed: self.seed })
     }
 }
 
@@ -317,8 +314,8 @@ impl FlightRequest<'_> {
 /// `flight.json`) and the rollout (every substep).
 pub fn fly(req: &FlightRequest) -> Result<(FlightFigures, Rollout), StudyError> {
     let (flight, w) = req.planned()?;
-    let (drone, sortie) = req.drone(&flight, w.as_ref());
-    Ok(fly_timed(&drone, &sortie))
+    let (mission, sortie) = req.mission(&flight, w.as_ref());
+    Ok(fly_timed(&mission, &sortie))
 }
 
 /// What the vision estimator's error plots show, in the order [`fly_and_write`] draws them.
@@ -334,18 +331,21 @@ pub fn estimate_error_png(png: &Path, what: &str) -> PathBuf {
 /// the vision estimator also its error figures beside the PNG (`…_position_error.png`,
 /// `…_attitude_error.png`).
 pub fn fly_and_write(
-    drone: &Drone,
+    mission: &Mission,
     sortie: &Sortie,
     csv_path: &Path,
     png_path: &Path,
 ) -> Result<(FlightFigures, Rollout), StudyError> {
-    let (figures, rollout) = fly_timed(drone, sortie);
+    let (figures, rollout) = fly_timed(mission, sortie);
     let (world, estimator) = (sortie.world, sortie.estimator);
     let csv = trajectory_csv(&rollout);
     nerfsv_scene::io::atomic_write_bytes(csv_path, csv.as_bytes()).map_err(|e| StudyError::io(csv_path, e))?;
-    let png =
-        nerfsv_plot::trajectory_png(&flight_figure(drone.flight, drone.sim, world, estimator, &rollout), 1200, 640)
-            .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", png_path.display())))?;
+    let png = nerfsv_plot::trajectory_png(
+        &flight_figure(mission.flight, mission.drone.sim, world, estimator, &rollout),
+        1200,
+        640,
+    )
+    .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", png_path.display())))?;
     nerfsv_scene::io::atomic_write_bytes(png_path, &png).map_err(|e| StudyError::io(png_path, e))?;
     if estimator == EstimatorKind::Vision {
         for (fig, what) in estimate_figures(world.kind(), &rollout).iter().zip(ESTIMATE_ERRORS) {
@@ -365,8 +365,8 @@ pub fn fly_and_write(
 pub fn fly_into(out: &Path, req: &FlightRequest) -> Result<FlightFigures, StudyError> {
     let (flight, w) = req.planned()?;
     std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
-    let (drone, sortie) = req.drone(&flight, w.as_ref());
-    let (figures, _) = fly_and_write(&drone, &sortie, &out.join("trajectory.csv"), &out.join("trajectory.png"))?;
+    let (mission, sortie) = req.mission(&flight, w.as_ref());
+    let (figures, _) = fly_and_write(&mission, &sortie, &out.join("trajectory.csv"), &out.join("trajectory.png"))?;
     let path = out.join("disturbances.csv");
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(req.disturbances).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;

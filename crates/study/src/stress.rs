@@ -24,7 +24,7 @@ use nerfsv_validation::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::flight::{drone_world, fly_and_write, world, Drone, FlightFigures, Sortie};
+use crate::flight::{drone_world, fly_and_write, world, FlightFigures, Mission, Sortie};
 use crate::remote::RemoteRollouts;
 use crate::{
     drone_disturbances, online_pixels, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Observer,
@@ -453,7 +453,7 @@ impl StressFigures {
 /// What a stress run needs. [`StressSetup::new`] is the stress stage's search; a caller
 /// changes what differs with struct update syntax.
 pub struct StressSetup<'a> {
-    pub drone: Drone<'a>,
+    pub mission: Mission<'a>,
     pub validation: &'a ValidationConfig,
     pub prior: &'a Prior,
     pub world: WorldKind,
@@ -492,18 +492,18 @@ pub struct Flown<'a> {
 }
 
 impl<'a> StressSetup<'a> {
-    /// `samplers` over `drone` under `prior`, as the stress stage searches: in NeRF-sim with the
+    /// `samplers` over `mission` under `prior`, as the stress stage searches: in NeRF-sim with the
     /// vision estimator, every search replayed in GT-sim, no per-step uncertainty (`uq` is used
     /// only when a caller asks for it), reported under [`STAGE`] with its failure probability.
     pub fn new(
-        drone: Drone<'a>,
+        mission: Mission<'a>,
         validation: &'a ValidationConfig,
         prior: &'a Prior,
         samplers: &'a [Sampler],
         uq: &'a UqConfig,
     ) -> Self {
         Self {
-            drone,
+            mission,
             validation,
             prior,
             world: WorldKind::Nerf,
@@ -608,13 +608,13 @@ fn view_meter<'a>(
     gt_world: Option<&'a dyn World>,
     background: [f32; 3],
 ) -> Result<Option<Box<dyn ViewUncertainty + 'a>>, StudyError> {
-    let pixels = online_pixels(&setup.drone.intrinsics, setup.uq);
+    let pixels = online_pixels(&setup.mission.drone.intrinsics, setup.uq);
     Ok(match setup.online {
         None => None,
         Some(o) => Some(match o.mode {
             UqMode::Exact => Box::new(ExactUncertainty {
                 method: o.method,
-                nerf: &setup.drone.inputs.nerf,
+                nerf: &setup.mission.inputs.nerf,
                 reference: gt_world.ok_or(StudyError::NoGroundTruth)?,
                 pixels,
                 background,
@@ -642,9 +642,15 @@ pub fn measure_recorded(
     records: Vec<RolloutRecord>,
     observer: &dyn Observer,
 ) -> Result<(Vec<RolloutRecord>, usize, f64), StudyError> {
-    let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
+    let sim = setup.mission.flight.simulator(
+        setup.mission.drone.sim,
+        &setup.mission.inputs.nerf,
+        setup.mission.drone.intrinsics,
+    );
     let gt_world = match setup.online.map(|o| o.mode) {
-        Some(UqMode::Exact) => Some(world(WorldKind::Gt, setup.drone.inputs, setup.drone.scene, setup.drone.render)?),
+        Some(UqMode::Exact) => {
+            Some(world(WorldKind::Gt, setup.mission.inputs, setup.mission.drone.scene, setup.mission.drone.render)?)
+        }
         _ => None,
     };
     let meter = view_meter(setup, gt_world.as_deref(), sim.background)?
@@ -788,15 +794,19 @@ pub fn stress(
 ) -> Result<(StressFigures, Vec<RolloutRecord>), StudyError> {
     check_setup(setup)?;
     let start = Instant::now();
-    let sim = setup.drone.flight.simulator(setup.drone.sim, &setup.drone.inputs.nerf, setup.drone.intrinsics);
-    let d = &setup.drone;
+    let sim = setup.mission.flight.simulator(
+        setup.mission.drone.sim,
+        &setup.mission.inputs.nerf,
+        setup.mission.drone.intrinsics,
+    );
+    let (d, inputs) = (&setup.mission.drone, setup.mission.inputs);
     let nerf_world = d.sim.nerf_world;
-    let search_world = drone_world(setup.world, nerf_world, d.inputs, d.scene, d.render)?;
+    let search_world = drone_world(setup.world, nerf_world, inputs, d.scene, d.render)?;
     let replay_kind = other_world(setup.world);
     // The other world: for the replays, and (as GT-sim) for exact online uncertainty.
     let exact = setup.online.is_some_and(|o| o.mode == UqMode::Exact);
     let replay_world = if setup.replay || (exact && replay_kind == WorldKind::Gt) {
-        Some(drone_world(replay_kind, nerf_world, d.inputs, d.scene, d.render)?)
+        Some(drone_world(replay_kind, nerf_world, inputs, d.scene, d.render)?)
     } else {
         None
     };
@@ -897,7 +907,7 @@ fn check_setup(setup: &StressSetup) -> Result<(), StudyError> {
             "a search whose rollouts fly elsewhere cannot measure their uncertainty: run it in one process".into(),
         ));
     }
-    if setup.remote.is_some() && setup.drone.sim.nerf_world == NerfWorldSource::Ensemble {
+    if setup.remote.is_some() && setup.mission.drone.sim.nerf_world == NerfWorldSource::Ensemble {
         return Err(StudyError::Internal(
             "rollouts flown elsewhere fly the deployed NeRF only: set sim.nerf_world = \"deployed\" or run in one \
              process"
@@ -1208,7 +1218,7 @@ fn write_failure(
     for w in std::iter::once(search).chain(other.filter(|_| setup.replay)) {
         let png = out.join(most_likely_failure_png(sampler, w.kind()));
         let sortie = Sortie { world: w, estimator: setup.estimator, disturbances: &ds, seed: f.seed };
-        let (figures, _) = fly_and_write(&setup.drone, &sortie, &png.with_extension("csv"), &png)?;
+        let (figures, _) = fly_and_write(&setup.mission, &sortie, &png.with_extension("csv"), &png)?;
         if w.kind() != setup.world {
             replayed = Some(figures);
         }

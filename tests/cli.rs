@@ -231,8 +231,11 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     assert!(how.contains("level 0: 4 Monte Carlo rollouts and 6 more"), "{how}");
     assert!(subset["p_fail"].as_f64().is_some_and(|p| (0.0..=1.0).contains(&p)), "{subset}");
 
+    // Every stage the summary records (its own `run` record aside), whichever stages the run has.
+    let stages: Vec<String> = summary.as_object().unwrap().keys().filter(|k| *k != "run").cloned().collect();
+    assert!(stages.iter().any(|s| s == "dataset") && stages.iter().any(|s| s == "online"), "{stages:?}");
     let (second, again) = run();
-    for stage in ["dataset", "collision", "nerf", "eval", "uq", "nerf_collision", "flight", "stress", "online"] {
+    for stage in &stages {
         assert!(second.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{second}");
     }
     assert_eq!(summary, again);
@@ -240,7 +243,7 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
     // Fewer GA images: only the uncertainty stage is redone (its key holds its config slice).
     write_cfg(3, 2);
     let (fewer, changed) = run();
-    for stage in ["dataset", "collision", "nerf", "eval", "nerf_collision", "flight", "stress", "online"] {
+    for stage in stages.iter().filter(|s| *s != "uq") {
         assert!(fewer.contains(&format!("{stage}: up to date")), "{stage} should be cached:\n{fewer}");
     }
     assert!(!fewer.contains("uq: up to date"), "{fewer}");

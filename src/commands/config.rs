@@ -16,32 +16,6 @@ pub struct ConfigArgs {
     pub default: bool,
 }
 
-/// Each table of the run config (`""` is the top level), the struct behind it and that
-/// struct's fields with their doc comments (`#[derive(FieldDocs)]`).
-type FieldDocs = &'static [(&'static str, &'static str)];
-const TABLES: &[(&str, &str, FieldDocs)] = &[
-    ("", "RunConfig", RunConfig::FIELD_DOCS),
-    ("dataset", "GenerateOptions", nerfsv_dataset::GenerateOptions::FIELD_DOCS),
-    ("nerf", "NerfConfig", nerfsv_nerf::NerfConfig::FIELD_DOCS),
-    ("train", "TrainConfig", nerfsv_nerf::TrainConfig::FIELD_DOCS),
-    ("sim", "SimConfig", nerfsv_sim::SimConfig::FIELD_DOCS),
-    ("sim.drone", "DroneParams", nerfsv_sim::DroneParams::FIELD_DOCS),
-    ("sim.controller", "ControllerGains", nerfsv_sim::controller::ControllerGains::FIELD_DOCS),
-    ("sim.planner", "PlannerConfig", nerfsv_sim::PlannerConfig::FIELD_DOCS),
-    ("sim.vision", "VisionConfig", nerfsv_sim::VisionConfig::FIELD_DOCS),
-    ("sim.camera", "CameraConfig", nerfsv_sim::CameraConfig::FIELD_DOCS),
-    ("validation", "ValidationConfig", nerfsv_validation::ValidationConfig::FIELD_DOCS),
-    ("validation.disturbance", "DisturbanceConfig", nerfsv_validation::DisturbanceConfig::FIELD_DOCS),
-    ("validation.monte_carlo", "MonteCarloConfig", nerfsv_validation::MonteCarloConfig::FIELD_DOCS),
-    ("validation.cem", "CemConfig", nerfsv_validation::CemConfig::FIELD_DOCS),
-    ("validation.subset", "SubsetConfig", nerfsv_validation::SubsetConfig::FIELD_DOCS),
-    ("uq", "UqConfig", nerfsv_uq::UqConfig::FIELD_DOCS),
-    ("uq_offline", "UqOfflineConfig", nerfsv_pipeline::UqOfflineConfig::FIELD_DOCS),
-    ("online", "OnlineConfig", nerfsv_pipeline::OnlineConfig::FIELD_DOCS),
-    ("world", "WorldConfig", nerfsv_pipeline::WorldConfig::FIELD_DOCS),
-    ("ensemble", "EnsembleConfig", nerfsv_pipeline::EnsembleConfig::FIELD_DOCS),
-];
-
 /// Comment lines are wrapped at this width.
 const WIDTH: usize = 96;
 
@@ -85,11 +59,15 @@ pub fn default_toml() -> anyhow::Result<String> {
 /// own documentation `doc` above the header), its keys in declaration order, then its
 /// sub-tables.
 fn table(path: &str, value: &toml::Table, doc: Option<&str>, out: &mut String) -> anyhow::Result<()> {
-    let (name, fields) = TABLES
+    // Each table of the run config, the struct behind it and its fields' doc comments
+    // (`#[derive(FieldDocs)]`; a field marked `#[docs(table)]` is a sub-table).
+    let mut tables = Vec::new();
+    RunConfig::tables("", &mut tables);
+    let (name, fields) = tables
         .iter()
-        .find(|(p, ..)| *p == path)
+        .find(|(p, ..)| p == path)
         .map(|&(_, n, f)| (n, f))
-        .with_context(|| format!("no struct is known for the table [{path}]"))?;
+        .with_context(|| format!("no struct is known for the table [{path}] (a field without #[docs(table)]?)"))?;
     if !path.is_empty() {
         out.push('\n');
         if let Some(d) = doc.filter(|d| !d.is_empty()) {
@@ -142,7 +120,35 @@ mod tests {
     #[test]
     fn every_key_of_the_default_config_is_documented() {
         let mut missing = Vec::new();
-        for (path, name, fields) in TABLES {
+        let mut tables = Vec::new();
+        RunConfig::tables("", &mut tables);
+        let paths: Vec<&str> = tables.iter().map(|(p, ..)| p.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "",
+                "dataset",
+                "nerf",
+                "train",
+                "sim",
+                "sim.drone",
+                "sim.controller",
+                "sim.planner",
+                "sim.vision",
+                "sim.camera",
+                "validation",
+                "validation.disturbance",
+                "validation.monte_carlo",
+                "validation.cem",
+                "validation.subset",
+                "uq",
+                "uq_offline",
+                "online",
+                "world",
+                "ensemble"
+            ]
+        );
+        for (path, name, fields) in &tables {
             assert!(!fields.is_empty(), "struct {name} has no fields");
             for &(field, doc) in *fields {
                 if doc.is_empty() {

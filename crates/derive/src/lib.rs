@@ -19,7 +19,10 @@ use proc_macro::TokenStream;
 use quote::quote;
 use syn::{parse_macro_input, Attribute, Data, DeriveInput, Expr, Fields, Lit, LitStr, Meta};
 
-#[proc_macro_derive(FieldDocs)]
+/// A field marked `#[docs(table)]` is a sub-table whose type derives `FieldDocs` too: the
+/// generated `TableDocs::tables` then lists it (and its own sub-tables) after the struct itself,
+/// so that the whole config's tables come from the top-level struct alone.
+#[proc_macro_derive(FieldDocs, attributes(docs))]
 pub fn field_docs(input: TokenStream) -> TokenStream {
     let input = parse_macro_input!(input as DeriveInput);
     let name = &input.ident;
@@ -49,10 +52,28 @@ pub fn field_docs(input: TokenStream) -> TokenStream {
         let doc = lines.join(" ").replace("[`", "`").replace("`]", "`").trim().to_owned();
         quote! { (#field, #doc) }
     });
+    let tables = fields.named.iter().filter(|f| is_table(&f.attrs)).map(|f| {
+        let field = f.ident.as_ref().map(|i| i.to_string()).unwrap_or_default();
+        let ty = option_inner(&f.ty).unwrap_or(&f.ty);
+        quote! {
+            <#ty>::tables(&if prefix.is_empty() { #field.to_owned() } else { format!("{prefix}.{}", #field) }, out);
+        }
+    });
+    let struct_name = name.to_string();
     quote! {
         impl #impl_generics #name #ty_generics #where_clause {
             /// Each field's name and documentation, in declaration order (`#[derive(FieldDocs)]`).
             pub const FIELD_DOCS: &'static [(&'static str, &'static str)] = &[#(#entries),*];
+
+            /// This struct's table at `prefix` (`""` for the top level), then its sub-tables (the
+            /// fields marked `#[docs(table)]`), depth first: `(path, struct name, FIELD_DOCS)`.
+            pub fn tables(
+                prefix: &str,
+                out: &mut Vec<(String, &'static str, &'static [(&'static str, &'static str)])>,
+            ) {
+                out.push((prefix.to_owned(), #struct_name, Self::FIELD_DOCS));
+                #(#tables)*
+            }
         }
     }
     .into()
@@ -122,6 +143,29 @@ pub fn choice(input: TokenStream) -> TokenStream {
         }
     }
     .into()
+}
+
+/// `T` of a field typed `Option<T>` (a table that is unset by default).
+fn option_inner(ty: &syn::Type) -> Option<&syn::Type> {
+    let syn::Type::Path(p) = ty else { return None };
+    let last = p.path.segments.last()?;
+    let syn::PathArguments::AngleBracketed(args) = &last.arguments else { return None };
+    match (last.ident == "Option", args.args.first()) {
+        (true, Some(syn::GenericArgument::Type(inner))) => Some(inner),
+        _ => None,
+    }
+}
+
+/// Whether the field says `#[docs(table)]`.
+fn is_table(attrs: &[Attribute]) -> bool {
+    let mut table = false;
+    for a in attrs.iter().filter(|a| a.path().is_ident("docs")) {
+        let _ = a.parse_nested_meta(|m| {
+            table |= m.path.is_ident("table");
+            Ok(())
+        });
+    }
+    table
 }
 
 /// `key`'s string in an attribute `#[outer(key = "…")]`, if one says it.

@@ -88,12 +88,15 @@ pub struct RunConfig {
     /// Run folder; every artifact goes below it.
     pub out: PathBuf,
     /// Dataset rendering (views, size, field of view, seed).
+    #[docs(table)]
     pub dataset: GenerateOptions,
     /// Collision field resolution in cells per metre (the paper's 40).
     pub cells_per_metre: f32,
     /// NeRF model settings (hash grid, networks, occupancy grid, ray marching).
+    #[docs(table)]
     pub nerf: NerfConfig,
     /// NeRF optimiser settings (Adam, batch, background, seed).
+    #[docs(table)]
     pub train: TrainConfig,
     /// Training length in optimiser steps. A step count, not a time budget, so the same config
     /// and seed give the same model on any machine.
@@ -102,11 +105,13 @@ pub struct RunConfig {
     /// ln 2 / cell size.
     pub nerf_density_threshold: Option<f32>,
     /// The drone, its path, controller and estimator (the `[sim]` table).
+    #[docs(table)]
     pub sim: nerfsv_sim::SimConfig,
     /// Seed of the flight's random choices (the vision estimator's pixels).
     pub flight_seed: u64,
     /// The adversary: disturbance prior, Monte Carlo, Cross-Entropy Method, run seed (the
     /// `[validation]` table).
+    #[docs(table)]
     pub validation: nerfsv_validation::ValidationConfig,
     /// Whether the stress stage also estimates the failure probability by subset simulation
     /// (`[validation.subset]`), after Monte Carlo and the CEM: the estimator whose calibration
@@ -117,18 +122,23 @@ pub struct RunConfig {
     pub stress_subset: bool,
     /// Uncertainty quantification: GA and BLA settings, the online rewards, the uncertainty
     /// field (the `[uq]` table).
+    #[docs(table)]
     pub uq: nerfsv_uq::UqConfig,
     /// How many images of each split the offline uncertainty stage (`RUN/uq/`) fits (the
     /// `[uq_offline]` table).
+    #[docs(table)]
     pub uq_offline: UqOfflineConfig,
     /// The online uncertainty stage (`RUN/online/`): which methods' reward studies run and
     /// their sizes (the `[online]` table).
+    #[docs(table)]
     pub online: OnlineConfig,
     /// A user's own world instead of the built-in `scene`: a mesh as the ground truth and a
     /// dataset folder used as is (the `[world]` table).
+    #[docs(table)]
     pub world: WorldConfig,
     /// More NeRFs of the same data with other seeds: the world's model uncertainty, NeRF-sim's
     /// world with `sim.nerf_world = "ensemble"` (the `[ensemble]` table).
+    #[docs(table)]
     pub ensemble: EnsembleConfig,
 }
 

@@ -79,14 +79,19 @@ pub struct SimConfig {
     /// flown, its remaining steps have no clearance); `false` flies on through geometry.
     pub stop_at_collision: bool,
     /// The quadrotor: mass, inertia, gravity, integration step.
+    #[docs(table)]
     pub drone: DroneParams,
     /// The geometric tracking controller's gains.
+    #[docs(table)]
     pub controller: ControllerGains,
     /// The path planner on the NeRF's collision field.
+    #[docs(table)]
     pub planner: PlannerConfig,
     /// The vision-based state estimator (photometric alignment against the NeRF).
+    #[docs(table)]
     pub vision: VisionConfig,
     /// The drone camera; default: the dataset's intrinsics.
+    #[docs(table)]
     pub camera: Option<CameraConfig>,
     /// Background colour the camera sees where nothing is (the NeRF's render background).
     pub background: [f32; 3],

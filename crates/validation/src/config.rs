@@ -13,14 +13,18 @@ pub struct ValidationConfig {
     /// Run seed: every rollout's seed derives from it (with sampler, population and index).
     pub seed: u64,
     /// The per-step disturbance prior.
+    #[docs(table)]
     pub disturbance: DisturbanceConfig,
     /// Plain Monte Carlo from the prior.
+    #[docs(table)]
     pub monte_carlo: MonteCarloConfig,
     /// The Cross-Entropy Method and its importance-sampling estimate.
+    #[docs(table)]
     pub cem: CemConfig,
     /// Subset simulation (`nerfsv stress --sampler subset`). Left out of the serialised config
     /// while it holds the defaults, so the keys of results cached before it existed still match.
     #[serde(skip_serializing_if = "SubsetConfig::is_default")]
+    #[docs(table)]
     pub subset: SubsetConfig,
 }
 

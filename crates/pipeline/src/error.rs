@@ -1,0 +1,52 @@
+//! The pipeline's error: every way a stage, the runner or a request can stop.
+
+use std::path::PathBuf;
+
+/// Everything that can stop a stage; each variant names the file, stage or key involved.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("{}: {error}", .path.display())]
+    Io { path: PathBuf, error: std::io::Error },
+    #[error("{}: invalid config: {error}", .path.display())]
+    Toml { path: PathBuf, error: toml::de::Error },
+    #[error("{}: invalid config: {error}", .path.display())]
+    InvalidConfig { path: PathBuf, error: nerfsv_scene::InvalidValue },
+    #[error(transparent)]
+    Invalid(#[from] nerfsv_scene::InvalidValue),
+    #[error(transparent)]
+    Scene(#[from] nerfsv_scene::SceneError),
+    #[error("{context}: {error}")]
+    Dataset { context: String, error: nerfsv_dataset::DatasetError },
+    #[error(transparent)]
+    Nerf(#[from] nerfsv_nerf::NerfError),
+    #[error(transparent)]
+    Collision(#[from] nerfsv_collision::CollisionError),
+    #[error(transparent)]
+    Sim(#[from] nerfsv_sim::SimError),
+    #[error(transparent)]
+    Validation(#[from] nerfsv_validation::ValidationError),
+    #[error(transparent)]
+    Uq(#[from] nerfsv_uq::UqError),
+    #[error(transparent)]
+    Plot(#[from] nerfsv_plot::PlotError),
+    #[error(transparent)]
+    Study(#[from] nerfsv_study::StudyError),
+    #[error("stage {stage} reads stage {input}, which has not run before it")]
+    MissingInput { stage: &'static str, input: &'static str },
+    #[error("{}: is or lies inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
+    OutputInsideInput { output: PathBuf, option: String, input: PathBuf },
+    #[error("{}: holds {option} {}; refusing to write over or delete an input", .output.display(), .input.display())]
+    OutputHoldsInput { output: PathBuf, option: String, input: PathBuf },
+    #[error("{first} and {second} are one path or one lies inside the other; two outputs must be apart")]
+    OutputsOverlap { first: String, second: String },
+    #[error("{key}: {message}")]
+    World { key: &'static str, message: String },
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl PipelineError {
+    pub fn io(path: impl Into<PathBuf>, error: std::io::Error) -> Self {
+        Self::Io { path: path.into(), error }
+    }
+}

@@ -11,18 +11,17 @@ use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, WorldKind};
 use nerfsv_study::flight::{Drone, FlightInputs, Mission};
 use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
-    journal_dir, measure_at_poses, replay_csv, searched, stress, OnlineSettings, Sampler, StepAurocFigures,
-    StressFigures, StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, STRESS_JSON, TABLE_CSV,
+    measure_at_poses, replay_csv, search_into, searched, stress, OnlineSettings, Sampler, SearchRequest,
+    StepAurocFigures, StressFigures, StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, TABLE_CSV,
 };
-use nerfsv_study::UqMode;
 use nerfsv_study::{online_pixels, EnsembleUncertainty};
-use nerfsv_uq::{model_id, UncertaintyField, UqConfig};
-use nerfsv_validation::{read_csv_file, Journal, Label, Prior, RolloutRecord, ValidationConfig};
+use nerfsv_uq::{UncertaintyField, UqConfig};
+use nerfsv_validation::{read_csv_file, Label, Prior, RolloutRecord, ValidationConfig};
 use serde::Serialize;
 
 use crate::ensemble::EnsembleStage;
 use crate::flight::{drone_inputs, flight_inputs};
-use crate::stage::{stage_key, write_json, Observer, Stage, StageContext};
+use crate::stage::{stage_key, Observer, Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::{PipelineError, RunConfig};
 
@@ -275,56 +274,26 @@ fn file_hash(path: &Path) -> Result<u64, PipelineError> {
     std::fs::read(path).map(|b| fnv1a(&b)).map_err(|e| PipelineError::io(path, e))
 }
 
-/// Runs one [`StressRequest`]: checks everything that can be refused (the uncertainty settings
-/// against the field, a resume without a journal, the prior, the flight's plan) before it
-/// writes anything, then searches ([`stress`]) and writes `stress.json`. The figures are the
-/// ones `stress.json` holds.
+/// Runs one [`StressRequest`] ([`search_into`] keyed by [`StressRequest::key`]): the figures
+/// `stress.json` holds.
 pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<StressFigures, PipelineError> {
     let cfg = request.config;
-    let refuse = |message: String| PipelineError::World { key: "stress", message };
-    match (request.online, request.field) {
-        (Some(o), Some((path, field))) if o.mode == UqMode::Field && field.method != o.method.into() => {
-            return Err(refuse(format!(
-                "{}: a {} uncertainty field, but the search measures {}",
-                path.display(),
-                field.method.name(),
-                o.method.name()
-            )))
-        }
-        (Some(o), None) if o.mode == UqMode::Field => {
-            return Err(refuse("field mode needs an uncertainty field (`nerfsv uq field`)".into()))
-        }
-        (Some(o), Some(_)) if o.mode == UqMode::Exact => {
-            return Err(refuse("an uncertainty field is read only in field mode".into()))
-        }
-        (None, Some(_)) => return Err(refuse("an uncertainty field is read only when the search measures one".into())),
-        _ => {}
-    }
-    if let Some((path, field)) = request.field {
-        field.check_checkpoint(path, &model_id(&request.inputs.nerf))?;
-    }
-    if request.resume && !Journal::exists(&journal_dir(request.out, request.world)) {
-        return Err(refuse(format!(
-            "{}: resuming needs the folder of an interrupted stress run",
-            request.out.display()
-        )));
-    }
     let prior = cfg.disturbance_prior()?;
-    let flight = request.inputs.plan(&cfg.sim)?;
-    let key = request.key()?;
-    let mission = Mission { drone: cfg.drone(Some(request.scene)), inputs: request.inputs, flight: &flight };
-    let samplers = [request.sampler];
-    let setup = StressSetup {
+    let search = SearchRequest {
+        drone: cfg.drone(Some(request.scene)),
+        inputs: request.inputs,
+        validation: &cfg.validation,
+        prior: &prior,
+        uq: &cfg.uq,
         world: request.world,
         estimator: request.estimator,
+        sampler: request.sampler,
         replay: request.replay,
         online: request.online,
-        field: request.field.map(|(_, f)| f),
+        field: request.field,
+        out: request.out,
+        resume: request.resume,
         remote: request.remote,
-        ..StressSetup::new(mission, &cfg.validation, &prior, &samplers, &cfg.uq)
     };
-    std::fs::create_dir_all(request.out).map_err(|e| PipelineError::io(request.out, e))?;
-    let (figures, _) = stress(&setup, request.out, &key, request.resume, observer)?;
-    write_json(&request.out.join(STRESS_JSON), &figures)?;
-    Ok(figures)
+    Ok(search_into(&search, &request.key()?, observer)?)
 }

@@ -70,6 +70,9 @@ pub enum StudyError {
          train them with [ensemble] members = 2 or more, or set sim.nerf_world = \"deployed\""
     )]
     NoEnsemble,
+    /// A request refused before anything is written: `key` names what was asked (`stress`).
+    #[error("{key}: {message}")]
+    Refused { key: &'static str, message: String },
     #[error("{0}")]
     Internal(String),
 }

@@ -24,7 +24,7 @@ use nerfsv_validation::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::flight::{drone_world, fly_and_write, world, FlightFigures, Mission, Sortie};
+use crate::flight::{drone_world, fly_and_write, world, Drone, FlightFigures, FlightInputs, Mission, Sortie};
 use crate::remote::RemoteRollouts;
 use crate::{
     drone_disturbances, online_pixels, DroneSystem, EstimateLog, ExactUncertainty, FieldUncertainty, Observer,
@@ -772,6 +772,85 @@ impl Recorder for Counting<'_> {
         self.observer.progress(self.stage, done, self.total.max(done), &self.status);
         Ok(())
     }
+}
+
+/// One search outside `nerfsv run` (`nerfsv stress`, the Python package): one sampler over a
+/// drone, its worlds and (for GT-sim and replays) a ground truth, into a folder of its own.
+pub struct SearchRequest<'a> {
+    pub drone: Drone<'a>,
+    /// The drone's worlds: its model, the model's field, the ground truth's field.
+    pub inputs: &'a FlightInputs,
+    pub validation: &'a ValidationConfig,
+    pub prior: &'a Prior,
+    /// The online measurement's settings (used with `online`).
+    pub uq: &'a UqConfig,
+    pub world: WorldKind,
+    pub estimator: EstimatorKind,
+    pub sampler: Sampler,
+    /// Fly the search's rollouts again in the other world and compare.
+    pub replay: bool,
+    /// Measure each step's uncertainty (and rank CEM by its reward), or not.
+    pub online: Option<OnlineSettings>,
+    /// The uncertainty field `UqMode::Field` reads, with the file it came from. Refused unless
+    /// its method is the online measurement's and it was built from `inputs`' model.
+    pub field: Option<(&'a Path, &'a UncertaintyField)>,
+    /// Output folder: rollouts.csv, replay_*.csv, table.csv, stress.json, the most likely
+    /// failure's files, the journal.
+    pub out: &'a Path,
+    /// Continue a killed search in `out` (its journal must be there and be this key's).
+    pub resume: bool,
+    /// Where the rollouts fly, if not in this process (the Python package's Ray executor).
+    pub remote: Option<&'a dyn RemoteRollouts>,
+}
+
+/// Runs one [`SearchRequest`] under `key` (everything its rollouts depend on: a resume into
+/// another key's journal is refused): checks everything that can be refused (the uncertainty
+/// settings against the field, a resume without a journal, the flight's plan) before it writes
+/// anything, then searches ([`stress`]) and writes `stress.json`, whose figures it returns.
+pub fn search_into(req: &SearchRequest, key: &str, observer: &dyn Observer) -> Result<StressFigures, StudyError> {
+    let refuse = |message: String| StudyError::Refused { key: "stress", message };
+    match (req.online, req.field) {
+        (Some(o), Some((path, field))) if o.mode == UqMode::Field && field.method != o.method.into() => {
+            return Err(refuse(format!(
+                "{}: a {} uncertainty field, but the search measures {}",
+                path.display(),
+                field.method.name(),
+                o.method.name()
+            )))
+        }
+        (Some(o), None) if o.mode == UqMode::Field => {
+            return Err(refuse("field mode needs an uncertainty field (`nerfsv uq field`)".into()))
+        }
+        (Some(o), Some(_)) if o.mode == UqMode::Exact => {
+            return Err(refuse("an uncertainty field is read only in field mode".into()))
+        }
+        (None, Some(_)) => return Err(refuse("an uncertainty field is read only when the search measures one".into())),
+        _ => {}
+    }
+    if let Some((path, field)) = req.field {
+        field.check_checkpoint(path, &nerfsv_uq::model_id(&req.inputs.nerf))?;
+    }
+    if req.resume && !nerfsv_validation::Journal::exists(&journal_dir(req.out, req.world)) {
+        return Err(refuse(format!("{}: resuming needs the folder of an interrupted stress run", req.out.display())));
+    }
+    let flight = req.inputs.plan(req.drone.sim)?;
+    let mission = Mission { drone: req.drone, inputs: req.inputs, flight: &flight };
+    let samplers = [req.sampler];
+    let setup = StressSetup {
+        world: req.world,
+        estimator: req.estimator,
+        replay: req.replay,
+        online: req.online,
+        field: req.field.map(|(_, f)| f),
+        remote: req.remote,
+        ..StressSetup::new(mission, req.validation, req.prior, &samplers, req.uq)
+    };
+    std::fs::create_dir_all(req.out).map_err(|e| StudyError::io(req.out, e))?;
+    let (figures, _) = stress(&setup, req.out, key, req.resume, observer)?;
+    let path = req.out.join(STRESS_JSON);
+    nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer_pretty(w, &figures).map_err(std::io::Error::other))
+        .map_err(|e| StudyError::io(&path, e))?;
+    Ok(figures)
 }
 
 /// Runs the searches of `setup` into `out` (which exists): every sampler in `setup.world`, then,

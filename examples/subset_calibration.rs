@@ -41,7 +41,9 @@ use nerfsv_scene::Scene;
 use nerfsv_sim::{EstimatorKind, WorldKind};
 use nerfsv_study::flight::{world, FlightInputs};
 use nerfsv_study::DroneSystem;
-use nerfsv_validation::{rollout_seed, subset_simulation, wilson_interval, Prior, SubsetEstimate, System};
+use nerfsv_validation::{
+    rollout_seed, subset_simulation, wilson_interval, Prior, SubsetConfig, SubsetEstimate, System,
+};
 use rayon::prelude::*;
 
 /// Sampler label of the reference's rollouts (not `mc`, not `subset`: seeds of their own).
@@ -75,6 +77,18 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
 fn share(k: usize, n: usize) -> String {
     let (lo, hi) = wilson_interval(k, n);
     format!("{k}/{n} = {:.1} % (Wilson 95 % {:.1}–{:.1} %)", 100.0 * k as f64 / n as f64, 100.0 * lo, 100.0 * hi)
+}
+
+/// The calibration's settings: the drone, its disturbance prior, the subset settings, the
+/// reference's size and run seed, the number of subset runs and whether to print each.
+struct Calibration<'a> {
+    system: &'a DroneSystem<'a>,
+    prior: &'a Prior,
+    subset: &'a SubsetConfig,
+    reference: usize,
+    runs: u64,
+    ref_seed: u64,
+    verbose: bool,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -111,11 +125,27 @@ fn main() -> anyhow::Result<()> {
         subset,
         rayon::current_num_threads()
     );
+    let calibration =
+        Calibration { system: &system, prior: &prior, subset: &subset, reference, runs, ref_seed, verbose };
 
     // 1. Throughput.
+    throughput(&calibration);
+
+    // 2. The reference.
+    let (p_ref, ref_time) = fly_reference(&calibration);
+
+    // 3. Independent subset simulations.
+    let (estimates, subset_time) = subset_runs(&calibration)?;
+    report(&estimates, p_ref, runs, subset_time, ref_time);
+    Ok(())
+}
+
+/// Prints the rollouts per second of a small Monte Carlo batch and the expected run times.
+fn throughput(calibration: &Calibration) {
+    let Calibration { system, prior, subset, reference, runs, ref_seed, .. } = *calibration;
     let batch = 2_000;
     let start = Instant::now();
-    let k = failures(&system, &prior, ref_seed ^ 0xA5A5, 0..batch);
+    let k = failures(system, prior, ref_seed ^ 0xA5A5, 0..batch);
     let rate = batch as f64 / start.elapsed().as_secs_f64();
     println!(
         "throughput: {batch} rollouts in {:.2} s = {rate:.0} rollouts/s ({k} failures)",
@@ -126,15 +156,18 @@ fn main() -> anyhow::Result<()> {
         reference as f64 / rate / 60.0,
         (runs as usize * (2 * subset.samples - subset.seeds())) as f64 / rate / 60.0
     );
+}
 
-    // 2. The reference.
+/// Prints the reference's failures and p_ref (Wilson 95 %); returns p_ref and its wall time.
+fn fly_reference(calibration: &Calibration) -> (f64, f64) {
+    let Calibration { system, prior, reference, ref_seed, .. } = *calibration;
     let start = Instant::now();
     let mut ref_failures = env("REF_FAILURES", 0);
     let given = ref_failures > 0;
     let mut done = if given { reference } else { 0 };
     while done < reference {
         let end = (done + CHUNK).min(reference);
-        ref_failures += failures(&system, &prior, ref_seed, done..end);
+        ref_failures += failures(system, prior, ref_seed, done..end);
         done = end;
         eprintln!("  reference {done}/{reference}: {ref_failures} failures, {:.0} s", start.elapsed().as_secs_f64());
     }
@@ -149,13 +182,17 @@ fn main() -> anyhow::Result<()> {
             format!("{ref_time:.0} s ({:.0} rollouts/s)", reference as f64 / ref_time)
         }
     );
+    (p_ref, ref_time)
+}
 
-    // 3. Independent subset simulations.
+/// Prints each subset run (`VERBOSE=1`) or the progress; returns the estimates and wall time.
+fn subset_runs(calibration: &Calibration) -> anyhow::Result<(Vec<SubsetEstimate>, f64)> {
+    let Calibration { system, prior, subset, runs, verbose, .. } = *calibration;
     let start = Instant::now();
     let finished = AtomicUsize::new(0);
     let estimates: Vec<SubsetEstimate> = (1..=runs)
         .map(|seed| {
-            let r = subset_simulation(&system, &prior, &subset, seed, &())?;
+            let r = subset_simulation(system, prior, subset, seed, &())?;
             let e = r.estimate;
             let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
             if verbose {
@@ -179,6 +216,11 @@ fn main() -> anyhow::Result<()> {
         })
         .collect::<Result<_, nerfsv_validation::ValidationError>>()?;
     let subset_time = start.elapsed().as_secs_f64();
+    Ok((estimates, subset_time))
+}
+
+/// Prints the subset runs' coverage of p_ref, bias, SE calibration, cost and wall times.
+fn report(estimates: &[SubsetEstimate], p_ref: f64, runs: u64, subset_time: f64, ref_time: f64) {
     let n = estimates.len();
     let within = |e: &SubsetEstimate, k: f64| (e.probability - p_ref).abs() <= k * e.standard_error;
     let two_se = estimates.iter().filter(|e| within(e, 2.0)).count();
@@ -208,7 +250,7 @@ fn main() -> anyhow::Result<()> {
     let equivalent: Vec<f64> = estimates.iter().map(|e| e.equivalent_rollouts).collect();
     let (equivalent_mean, _) = mean_sd(&equivalent);
     let mut level_counts = std::collections::BTreeMap::new();
-    for e in &estimates {
+    for e in estimates {
         *level_counts.entry(e.levels).or_insert(0) += 1;
     }
 
@@ -244,5 +286,4 @@ fn main() -> anyhow::Result<()> {
         ref_time + subset_time
     );
     println!("goal (≥ 90 % coverage by p̂ ± 2 SE): {}", if two_se as f64 >= 0.9 * n as f64 { "met" } else { "NOT met" });
-    Ok(())
 }

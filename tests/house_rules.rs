@@ -1,7 +1,8 @@
-//! Rules a reader can rely on across the library crates, the binary and the Python package:
-//! no function longer than [`MAX_LINES`] lines and no `too_many_arguments` allowance, outside
-//! the NeRF's fused kernels (one pass over a chunk of rays each, kept whole for speed) and the
-//! Python functions (whose arguments are Python's keyword arguments).
+//! Rules a reader can rely on across the library crates, the binary, the Python package and the
+//! examples (the workspace's and each crate's): no function longer than [`MAX_LINES`] lines and
+//! no `too_many_arguments` allowance, outside the NeRF's fused kernels (one pass over a chunk of
+//! rays each, kept whole for speed) and the Python functions (whose arguments are Python's
+//! keyword arguments).
 
 use std::path::{Path, PathBuf};
 
@@ -87,9 +88,12 @@ fn long_functions(text: &str, max: usize) -> Vec<(String, usize, usize)> {
 fn no_function_is_longer_than_a_reader_can_hold_and_none_takes_too_many_arguments() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut files = sources(root, "src");
+    files.extend(sources(root, "examples"));
     files.extend(sources(root, "python/src"));
     for entry in std::fs::read_dir(root.join("crates")).unwrap().flatten() {
-        files.extend(sources(root, &format!("crates/{}/src", entry.file_name().to_string_lossy())));
+        let krate = entry.file_name().to_string_lossy().into_owned();
+        files.extend(sources(root, &format!("crates/{krate}/src")));
+        files.extend(sources(root, &format!("crates/{krate}/examples")));
     }
     assert!(files.len() > 100, "only {} source files found", files.len());
     let mut bad = Vec::new();

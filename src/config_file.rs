@@ -1,15 +1,60 @@
-//! Config files the subcommands read, validated, their errors naming the file and the key.
+//! The one config every command reads: the run config (`nerfsv config` prints the default), from
+//! `--config FILE` and `--set TABLE.KEY=VALUE` overrides, validated, its errors naming the file
+//! or the override and the key. Each command reads the tables it needs.
 
 use std::path::Path;
 
-use anyhow::Context;
+use clap::Args;
+use nerfsv_pipeline::{NerfSettings, RunConfig};
 use nerfsv_uq::UqConfig;
 
-/// The uq settings of `--config` (top-level keys), validated, naming the file and the key.
-pub(crate) fn load_uq_config(path: Option<&Path>) -> anyhow::Result<UqConfig> {
-    let Some(path) = path else { return Ok(UqConfig::default()) };
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let cfg: UqConfig = toml::from_str(&text).with_context(|| format!("{}: not a uq config", path.display()))?;
-    cfg.validate().map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(cfg)
+/// `--set TABLE.KEY=VALUE`, repeatable: overrides of the run config's keys, after `--config`.
+#[derive(Args, Clone, Default)]
+pub struct Sets {
+    /// Override one key of the run config, after --config's file: `--set sim.steps=20`,
+    /// `--set validation.cem.m=50`, `--set train.seed=3`; repeat for more. The value is TOML (a
+    /// bare word is a string); `nerfsv config` prints every key.
+    #[arg(long = "set", value_name = "TABLE.KEY=VALUE")]
+    pub sets: Vec<String>,
+}
+
+/// The run config of `nerfsv run`: the embedded default, the file, the overrides.
+pub fn run_config(path: Option<&Path>, sets: &Sets) -> anyhow::Result<RunConfig> {
+    let cfg = match path {
+        Some(p) => RunConfig::load(p)?,
+        None => RunConfig::default(),
+    };
+    Ok(cfg.set(&sets.sets)?)
+}
+
+/// The run config of a study of one model (`fly`, `stress`): the ensemble's world refused.
+pub fn one_model(path: Option<&Path>, sets: &Sets) -> anyhow::Result<RunConfig> {
+    Ok(RunConfig::one_model_with(path, &sets.sets)?)
+}
+
+/// The `[nerf]` and `[train]` tables of the run config (`nerfsv train`).
+pub fn nerf_settings(path: Option<&Path>, sets: &Sets) -> anyhow::Result<NerfSettings> {
+    Ok(run_config(path, sets)?.nerf_settings())
+}
+
+/// The `[uq]` table of the run config (`nerfsv uq …`). A file of bare uq keys (the older
+/// shape) is refused with the fix: put them under `[uq]`.
+pub fn uq_config(path: Option<&Path>, sets: &Sets) -> anyhow::Result<UqConfig> {
+    match run_config(path, sets) {
+        Ok(cfg) => Ok(cfg.uq),
+        Err(e) => {
+            let flat = path
+                .and_then(|p| std::fs::read_to_string(p).ok())
+                .and_then(|text| toml::from_str::<toml::Table>(&text).ok())
+                .and_then(|t| t.keys().find(|k| UqConfig::FIELD_DOCS.iter().any(|(f, _)| f == k)).cloned());
+            match (flat, path) {
+                (Some(key), Some(p)) => anyhow::bail!(
+                    "{}: `{key}` is a key of the [uq] table: the file is a run config (`nerfsv config` prints \
+                     one); put the uq keys under a [uq] header",
+                    p.display()
+                ),
+                _ => Err(e),
+            }
+        }
+    }
 }

@@ -460,3 +460,29 @@ fn report_refuses_a_folder_without_a_summary_and_names_the_stages_a_run_lacks() 
     let (ok, _, err) = nerfsv(&["report", dir.path().to_str().unwrap()]);
     assert!(!ok && err.contains("summary.json") && err.contains("not a run summary"), "{err}");
 }
+
+/// One config for every command: `nerfsv config` prints the default (as `--default` does), and
+/// `train` trains from that very file with `--set` overrides on top; an override that names no
+/// key is refused by name before anything is written.
+#[test]
+fn train_reads_the_printed_default_config_and_its_overrides() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, plain, err) = nerfsv(&["config"]);
+    assert!(ok, "{err}");
+    assert_eq!(plain, nerfsv(&["config", "--default"]).1);
+    let cfg = dir.path().join("nerfsv.toml");
+    std::fs::write(&cfg, &plain).unwrap();
+    let ds = common::tiny_dataset(dir.path(), "6", "1");
+    let out = dir.path().join("model");
+    let train = |sets: &[&str]| {
+        let base = ["train", "--data", ds.to_str().unwrap(), "--out", out.to_str().unwrap(), "--steps", "2"];
+        nerfsv(&[&base[..], &["--config", cfg.to_str().unwrap()], sets].concat())
+    };
+    let (ok, _, err) = train(&["--set", "train.batch_rays=64", "--set", "train.batch_ray=64"]);
+    assert!(!ok && err.contains("--set train.batch_ray=64") && err.contains("unknown field"), "{err}");
+    assert!(!out.exists());
+    let (ok, _, err) = train(&["--set", "nerf.grid_resolution=32", "--set", "train.batch_rays=64"]);
+    assert!(ok, "{err}");
+    let model = nerfsv_nerf::Nerf::load(&out.join("checkpoint.safetensors")).unwrap();
+    assert_eq!(model.config.grid_resolution, 32);
+}

@@ -350,7 +350,7 @@ fn a_reward_measures_every_flown_step_changes_only_what_cem_ranks_and_a_field_dr
     // Field mode: a GA field of the same model drives the same study; a field is needed, and
     // one of another method is refused by name.
     let uq_cfg = dir.path().join("uq.toml");
-    std::fs::write(&uq_cfg, "field_cells_per_metre = 5.0\nfield_rays_per_image = 16\n").unwrap();
+    std::fs::write(&uq_cfg, "[uq]\nfield_cells_per_metre = 5.0\nfield_rays_per_image = 16\n").unwrap();
     let ga_field = dir.path().join("field_ga.safetensors");
     let bla_field = dir.path().join("field_bla.safetensors");
     let ds = dir.path().join("ds");

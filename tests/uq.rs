@@ -151,7 +151,7 @@ fn bla_offline_on_one_image_per_split_reports_trace_and_rmv() {
     let (ds, _) = setup();
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("uq.toml");
-    std::fs::write(&cfg, "perturbations = 2\nlm_iterations = 2\nprior_precision = 2.0\n").unwrap();
+    std::fs::write(&cfg, "[uq]\nperturbations = 2\nlm_iterations = 2\nprior_precision = 2.0\n").unwrap();
     let out = dir.path().join("bla");
     let (ok, stdout, err) =
         offline("bla", ds, &out, &["--max-images", "1", "--rays", "16", "--config", s(&cfg), "--json"]);
@@ -232,13 +232,22 @@ fn non_positive_prior_precision_is_refused_naming_the_key_and_nothing_is_written
     let (ds, _) = setup();
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("uq.toml");
-    for (text, key) in [("prior_precision = -1.0\n", "prior_precision"), ("noise_std = 0.0\n", "noise_std")] {
+    // The run config's [uq] table; a file of bare uq keys is refused with the fix; an override
+    // names itself.
+    let cases = [
+        ("[uq]\nprior_precision = -1.0\n", vec![], vec!["uq.prior_precision", "uq.toml"]),
+        ("[uq]\nnoise_std = 0.0\n", vec![], vec!["uq.noise_std", "uq.toml"]),
+        ("noise_std = 0.1\n", vec![], vec!["uq.toml", "`noise_std` is a key of the [uq] table", "[uq] header"]),
+        ("[uq]\nnoise_std = 0.1\n", vec!["--set", "uq.prior_precision=-1"], vec!["--set uq.prior_precision=-1"]),
+    ];
+    for (text, extra, says) in cases {
         std::fs::write(&cfg, text).unwrap();
         let out = dir.path().join("out");
         for method in ["ga", "bla"] {
-            let (ok, stdout, err) = offline(method, ds, &out, &["--config", s(&cfg), "--json"]);
+            let args = [&["--config", s(&cfg), "--json"][..], &extra[..]].concat();
+            let (ok, stdout, err) = offline(method, ds, &out, &args);
             assert!(!ok, "{method} {text}: accepted");
-            assert!(err.contains(key) && err.contains("uq.toml"), "{method}: {err}");
+            assert!(says.iter().all(|w| err.contains(w)), "{method}, {text}: {err}");
             assert!(stdout.is_empty(), "{stdout}");
             assert!(!out.exists(), "{method}: {} was created", out.display());
         }

@@ -10,7 +10,7 @@ use nerfsv_dataset::Frame;
 use nerfsv_nerf::{Budget, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::load_dataset_split;
-use nerfsv_pipeline::{load_toml, NerfSettings, RunConfig};
+use nerfsv_pipeline::{NerfSettings, RunConfig};
 use nerfsv_scene::{Camera, Image, Intrinsics};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_uq::offline::{fit_frame, Fit};
@@ -222,7 +222,7 @@ pub fn load_field(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> 
 
 /// Trains a NeRF on the train split of the dataset `data` into `out` (checkpoints as `nerfsv
 /// train` writes them) for `steps` steps or `seconds` seconds (default 300 s), with the NeRF
-/// and training settings of the TOML file `config` (`[nerf]`, `[train]`; default: the embedded
+/// and training settings of the run config `config` (its `[nerf]`, `[train]`; default: the embedded
 /// ones), calling `progress(dict)` after every step (`step`, `fraction`, `elapsed_s`, `loss`,
 /// `psnr`). Returns the model. An exception in `progress` stops reporting and is raised when
 /// training ends.
@@ -240,8 +240,9 @@ pub fn train(
     resume: bool,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Model> {
+    // The run config's `[nerf]` and `[train]` tables (any run config: `nerfsv config` prints one).
     let mut s = match &config {
-        Some(path) => load_toml::<NerfSettings>(path).map_err(py_err)?,
+        Some(path) => RunConfig::load(path).map_err(py_err)?.nerf_settings(),
         None => NerfSettings::default(),
     };
     if let Some(seed) = seed {

@@ -11,16 +11,15 @@ use nerfsv_pipeline::RunConfig;
 #[derive(Args)]
 pub struct ConfigArgs {
     /// Print the embedded default run config (what `nerfsv run` uses without a file) as TOML,
-    /// every key with its documentation.
-    #[arg(long, required = true)]
+    /// every key with its documentation: what `nerfsv config` prints with or without it.
+    #[arg(long)]
     pub default: bool,
 }
 
 /// Comment lines are wrapped at this width.
 const WIDTH: usize = 96;
 
-pub fn run(args: ConfigArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.default, "nothing to print: say --default");
+pub fn run(_: ConfigArgs) -> anyhow::Result<()> {
     print!("{}", default_toml()?);
     Ok(())
 }

@@ -1,13 +1,14 @@
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use clap::Args;
-use nerfsv_pipeline::{Guard, RunConfig};
+use nerfsv_pipeline::Guard;
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
 use nerfsv_study::drone_disturbances;
 use nerfsv_study::flight::{fly_into, FlightInputs, FlightRequest};
 
 use crate::commands::world::{load_mesh_scene, MeshArgs};
+use crate::config_file::{one_model, Sets};
 
 /// The drone, its worlds and its estimator: what `fly` and `stress` both take.
 #[derive(Args)]
@@ -78,6 +79,8 @@ pub struct FlyArgs {
     /// prior of --random-seed, `[dataset]` the camera. Default: the embedded run config.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub sets: Sets,
     /// Output folder: trajectory.csv, trajectory.png, disturbances.csv, flight.json.
     #[arg(long, default_value = "fly")]
     pub out: PathBuf,
@@ -86,17 +89,8 @@ pub struct FlyArgs {
     pub json: bool,
 }
 
-/// The run config a `--config` names (its `[sim]`, `[validation]` and `[dataset]` camera
-/// matter here) over the default of a study of one model, or that default.
-pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
-    Ok(match path {
-        Some(path) => RunConfig::load_one_model(path)?,
-        None => RunConfig::one_model(),
-    })
-}
-
 pub fn run(args: FlyArgs) -> anyhow::Result<()> {
-    let cfg = load_config(args.config.as_deref())?;
+    let cfg = one_model(args.config.as_deref(), &args.sets)?;
     let guard = args.drone.inputs(Guard::new().output("--out", &args.out));
     guard
         .input_opt("--disturbances", args.disturbances.as_deref())

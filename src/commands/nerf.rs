@@ -8,7 +8,7 @@ use nerfsv_dataset::Split;
 use nerfsv_nerf::{evaluate_with_progress, render_split, Budget, EvalOptions, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::{load_dataset_split, train_status, EvalFigures};
-use nerfsv_pipeline::{load_toml, Guard, NerfSettings, Observer};
+use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_scene::validate::{in_range, positive};
 
 use crate::progress::Reporter;
@@ -36,9 +36,12 @@ pub struct TrainArgs {
     /// Integer image downscaling factor (e.g. 8 for 800×800 Blender scenes).
     #[arg(long, default_value_t = 1)]
     pub downscale: u32,
-    /// TOML file with `[nerf]` and `[train]` tables; every key optional.
+    /// A run config (TOML, as `nerfsv config` prints): its `[nerf]` and `[train]` tables set
+    /// the model and its training; every key optional. Default: the embedded one.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub sets: crate::config_file::Sets,
     /// Print one JSON object with the figures instead of progress.
     #[arg(long)]
     pub json: bool,
@@ -96,10 +99,7 @@ pub struct RenderArgs {
 }
 
 pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
-    let mut s = match &args.config {
-        Some(path) => load_toml::<NerfSettings>(path)?,
-        None => NerfSettings::default(),
-    };
+    let mut s = crate::config_file::nerf_settings(args.config.as_deref(), &args.sets)?;
     if let Some(seed) = args.seed {
         s.train.seed = seed;
     }

@@ -8,6 +8,8 @@ use crate::progress::Reporter;
 pub struct ReplicateArgs {
     /// TOML run config (as `nerfsv run` takes); without it, the embedded default.
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub sets: crate::config_file::Sets,
     /// How many training seeds: the config's `train.seed`, then every 16th after it.
     #[arg(long)]
     pub seeds: usize,
@@ -21,7 +23,7 @@ pub struct ReplicateArgs {
 }
 
 pub fn run(args: ReplicateArgs) -> anyhow::Result<()> {
-    let cfg = crate::commands::run::load_config(args.config.as_deref(), args.out)?;
+    let cfg = crate::commands::run::load_config(args.config.as_deref(), &args.sets, args.out)?;
     let reporter = Reporter::new(args.json);
     let r = nerfsv_pipeline::replicate::replicate(&cfg, args.seeds, &reporter)?;
     crate::commands::report(args.json, &r, || {

@@ -3,6 +3,7 @@ use std::path::PathBuf;
 use clap::Args;
 use nerfsv_pipeline::{Observer, RunConfig};
 
+use crate::config_file::{run_config, Sets};
 use crate::progress::Reporter;
 
 #[derive(Args)]
@@ -10,6 +11,8 @@ pub struct RunArgs {
     /// TOML config; every key is optional (see `RunConfig` in crates/pipeline). Without it,
     /// the embedded default.
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub sets: Sets,
     /// Override the run folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -23,11 +26,8 @@ pub struct RunArgs {
 
 /// The run config at `config` (the embedded default without one), its run folder replaced by
 /// `out` if given.
-pub fn load_config(config: Option<&std::path::Path>, out: Option<PathBuf>) -> anyhow::Result<RunConfig> {
-    let mut cfg = match config {
-        Some(p) => RunConfig::load(p)?,
-        None => RunConfig::default(),
-    };
+pub fn load_config(config: Option<&std::path::Path>, sets: &Sets, out: Option<PathBuf>) -> anyhow::Result<RunConfig> {
+    let mut cfg = run_config(config, sets)?;
     if let Some(out) = out {
         cfg.out = out;
     }
@@ -35,7 +35,7 @@ pub fn load_config(config: Option<&std::path::Path>, out: Option<PathBuf>) -> an
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
-    let cfg = load_config(args.config.as_deref(), args.out)?;
+    let cfg = load_config(args.config.as_deref(), &args.sets, args.out)?;
     let reporter = Reporter::new(args.json);
     let named = |e: nerfsv_pipeline::PipelineError| match (&args.config, e) {
         (Some(path), nerfsv_pipeline::PipelineError::Invalid(error)) => {

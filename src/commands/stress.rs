@@ -8,7 +8,8 @@ use nerfsv_study::UqMode;
 use nerfsv_uq::{Method, UncertaintyField};
 use nerfsv_validation::Journal;
 
-use crate::commands::fly::{load_config, DroneArgs};
+use crate::commands::fly::DroneArgs;
+use crate::config_file::{one_model, Sets};
 
 #[derive(Args)]
 pub struct StressArgs {
@@ -52,6 +53,8 @@ pub struct StressArgs {
     /// `[dataset]` (the camera). Default: the embedded run config.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub sets: Sets,
     /// Output folder: rollouts.csv, replay_*.csv, table.csv, stress.json, the most likely
     /// failure's disturbances and trajectories, and the journal a --resume reads.
     #[arg(long, default_value = "stress")]
@@ -62,7 +65,7 @@ pub struct StressArgs {
 }
 
 pub fn run(args: StressArgs) -> anyhow::Result<()> {
-    let mut cfg = load_config(args.config.as_deref())?;
+    let mut cfg = one_model(args.config.as_deref(), &args.sets)?;
     if let Some(seed) = args.seed {
         cfg.validation.seed = seed;
     }

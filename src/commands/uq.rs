@@ -17,7 +17,7 @@ use nerfsv_uq::offline::{
 };
 use serde::Serialize;
 
-use crate::config_file::load_uq_config;
+use crate::config_file::uq_config;
 use crate::progress::Reporter;
 
 #[derive(Args)]
@@ -62,9 +62,12 @@ pub struct AuseArgs {
     /// The split scored.
     #[arg(long, default_value = "test")]
     pub split: String,
-    /// TOML file of uq settings, top-level keys (see `nerfsv uq offline --config`).
+    /// A run config (TOML, as `nerfsv config` prints): its `[uq]` table sets the fits (prior
+    /// precision, noise, rays, perturbations, the field's grid …). Default: the embedded one.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub sets: crate::config_file::Sets,
     /// Score only the first N images of the split (default: all; BLA takes seconds per image).
     #[arg(long)]
     pub max_images: Option<usize>,
@@ -90,10 +93,12 @@ pub struct OfflineArgs {
     /// summary) and the figures uq_{method}_*.png / .svg.
     #[arg(long)]
     pub out: PathBuf,
-    /// TOML file of uq settings, top-level keys (prior_precision, noise_std, max_rays,
-    /// perturbations, …; every key optional, see nerfsv_uq::UqConfig).
+    /// A run config (TOML, as `nerfsv config` prints): its `[uq]` table sets the fits (prior
+    /// precision, noise, rays, perturbations, the field's grid …). Default: the embedded one.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub sets: crate::config_file::Sets,
     /// Use only the first N images of each split (default: all; BLA takes seconds per image).
     #[arg(long)]
     pub max_images: Option<usize>,
@@ -134,7 +139,7 @@ struct AuseSummary {
 fn ause(args: AuseArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let method = args.method;
-    let cfg = load_uq_config(args.config.as_deref())?;
+    let cfg = uq_config(args.config.as_deref(), &args.sets)?;
     if let Some(n) = args.max_images {
         in_range("--max-images", n, 1, usize::MAX)?;
     }
@@ -182,7 +187,7 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let method = args.method;
     // Everything that can be refused is checked before anything is written.
-    let mut cfg = load_uq_config(args.config.as_deref())?;
+    let mut cfg = uq_config(args.config.as_deref(), &args.sets)?;
     if let Some(n) = args.max_images {
         in_range("--max-images", n, 1, usize::MAX)?;
     }

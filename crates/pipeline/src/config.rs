@@ -352,6 +352,65 @@ impl RunConfig {
         Ok(cfg)
     }
 
+    /// A study of one model's config: [`RunConfig::one_model`], the file at `path` if any
+    /// ([`RunConfig::load_one_model`]), then `sets` ([`RunConfig::set`]); the ensemble's world
+    /// refused.
+    pub fn one_model_with(path: Option<&Path>, sets: &[String]) -> Result<Self, PipelineError> {
+        let cfg = match path {
+            Some(p) => Self::load_one_model(p)?,
+            None => Self::one_model(),
+        }
+        .set(sets)?;
+        if !sets.is_empty() {
+            cfg.check_one_model(Path::new("--set"))?;
+        }
+        Ok(cfg)
+    }
+
+    /// The config with each override `TABLE.KEY=VALUE` of `sets` applied in order (a command
+    /// line's `--set`): the value is read as TOML (`3`, `0.5`, `true`, `[0.3, -0.9, 0.2]`,
+    /// `"text"`), a bare word as a string (`--set sim.nerf_world=deployed`); then the whole is
+    /// validated. An unknown key or a value of the wrong type or range is refused, naming the
+    /// override.
+    pub fn set(self, sets: &[String]) -> Result<Self, PipelineError> {
+        let mut cfg = self;
+        if sets.is_empty() {
+            return Ok(cfg);
+        }
+        let internal = |e: String| PipelineError::Internal(format!("the run config as TOML: {e}"));
+        let mut table = match toml::Value::try_from(&cfg).map_err(|e| internal(e.to_string()))? {
+            toml::Value::Table(t) => t,
+            _ => return Err(internal("not a table".into())),
+        };
+        for setting in sets {
+            let refuse = |message: String| PipelineError::Override { setting: setting.clone(), message };
+            let (key, text) = setting.split_once('=').ok_or_else(|| refuse("expected TABLE.KEY=VALUE".into()))?;
+            let path: Vec<&str> = key.trim().split('.').collect();
+            if path.iter().any(|k| k.is_empty()) {
+                return Err(refuse("expected TABLE.KEY=VALUE".into()));
+            }
+            let value = toml::from_str::<toml::Table>(&format!("v = {}", text.trim()))
+                .ok()
+                .and_then(|mut t| t.remove("v"))
+                .unwrap_or_else(|| toml::Value::String(text.trim().to_owned()));
+            let (last, tables) = path.split_last().expect("a non-empty key");
+            let mut at = &mut table;
+            for (i, name) in tables.iter().enumerate() {
+                at = match at.entry(name.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new())) {
+                    toml::Value::Table(t) => t,
+                    _ => return Err(refuse(format!("{} is a value, not a table", path[..=i].join(".")))),
+                };
+            }
+            at.insert(last.to_string(), value);
+            // Each override checked on its own, so the error names the one at fault.
+            cfg = toml::Value::Table(table.clone())
+                .try_into()
+                .map_err(|e: toml::de::Error| refuse(e.message().to_owned()))?;
+            cfg.validate().map_err(|e| refuse(e.to_string()))?;
+        }
+        Ok(cfg)
+    }
+
     fn load_onto(path: &Path, base: Self) -> Result<Self, PipelineError> {
         let mut cfg: Self = load_toml_onto(path, base)?;
         let folder = path.parent().unwrap_or(Path::new(""));
@@ -729,5 +788,33 @@ mod tests {
         std::fs::write(&path, "[dataset]\nwidht = 3").unwrap();
         let e = RunConfig::load(&path).unwrap_err().to_string();
         assert!(e.contains("run.toml") && e.contains("widht"), "{e}");
+    }
+
+    #[test]
+    fn overrides_set_keys_by_path_read_toml_values_and_name_the_one_at_fault() {
+        let sets: Vec<String> =
+            ["train_steps=7", "sim.vision.pixels = 64", "sim.start=[0.3, -0.9, 0.25]", "scene=pillars"]
+                .map(String::from)
+                .into();
+        let cfg = RunConfig::default().set(&sets).unwrap();
+        assert_eq!((cfg.train_steps, cfg.sim.vision.pixels, cfg.scene.as_str()), (7, 64, "pillars"));
+        assert_eq!(cfg.sim.start, [0.3, -0.9, 0.25]);
+        assert_eq!(cfg.sim.goal, RunConfig::default().sim.goal, "keys not named keep their values");
+        let nerf_world = RunConfig::default().set(&["sim.nerf_world=deployed".to_owned()]).unwrap().sim.nerf_world;
+        assert_eq!(nerf_world, nerfsv_sim::NerfWorldSource::Deployed, "a bare word is a string");
+        for (bad, says) in [
+            ("sim.vision.pixel=3", "unknown field `pixel`"),
+            ("sim.steps=0", "sim.steps"),
+            ("sim.vision=3", "sim.vision"),
+            ("train_steps", "expected TABLE.KEY=VALUE"),
+            ("sim..steps=3", "expected TABLE.KEY=VALUE"),
+            ("sim.steps.x=3", "sim.steps is a value, not a table"),
+        ] {
+            let error =
+                RunConfig::default().set(&["train_steps=7".to_owned(), bad.to_owned()]).unwrap_err().to_string();
+            assert!(error.starts_with(&format!("--set {bad}: ")) && error.contains(says), "{bad}: {error}");
+        }
+        let error = RunConfig::one_model_with(None, &["sim.nerf_world=ensemble".to_owned()]).unwrap_err().to_string();
+        assert!(error.contains("--set") && error.contains("sim.nerf_world"), "{error}");
     }
 }

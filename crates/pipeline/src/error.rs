@@ -41,6 +41,9 @@ pub enum PipelineError {
     OutputsOverlap { first: String, second: String },
     #[error("{key}: {message}")]
     World { key: &'static str, message: String },
+    /// A command line's `--set TABLE.KEY=VALUE` that names no key or gives a value out of range.
+    #[error("--set {setting}: {message}")]
+    Override { setting: String, message: String },
     #[error("{0}")]
     Internal(String),
 }

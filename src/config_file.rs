@@ -1,11 +1,12 @@
 //! The one config every command reads: the run config (`nerfsv config` prints the default), from
 //! `--config FILE` and `--set TABLE.KEY=VALUE` overrides, validated, its errors naming the file
-//! or the override and the key. Each command reads the tables it needs.
+//! or the override and the key. Each command reads the tables it needs (`train` its `[nerf]`,
+//! `[train]` and `train_steps`).
 
 use std::path::Path;
 
 use clap::Args;
-use nerfsv_pipeline::{NerfSettings, RunConfig};
+use nerfsv_pipeline::RunConfig;
 use nerfsv_uq::UqConfig;
 
 /// `--set TABLE.KEY=VALUE`, repeatable: overrides of the run config's keys, after `--config`.
@@ -30,11 +31,6 @@ pub fn run_config(path: Option<&Path>, sets: &Sets) -> anyhow::Result<RunConfig>
 /// The run config of a study of one model (`fly`, `stress`): the ensemble's world refused.
 pub fn one_model(path: Option<&Path>, sets: &Sets) -> anyhow::Result<RunConfig> {
     Ok(RunConfig::one_model_with(path, &sets.sets)?)
-}
-
-/// The `[nerf]` and `[train]` tables of the run config (`nerfsv train`).
-pub fn nerf_settings(path: Option<&Path>, sets: &Sets) -> anyhow::Result<NerfSettings> {
-    Ok(run_config(path, sets)?.nerf_settings())
 }
 
 /// The `[uq]` table of the run config (`nerfsv uq …`). A file of bare uq keys (the older

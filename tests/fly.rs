@@ -25,7 +25,7 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
     .unwrap();
     let out = dir.path().join("fly");
     let (ok, stdout, err) =
-        fly(&model, &field, &out, &["--world", "gt", "--random-seed", "3", "--config", s(&cfg), "--json"]);
+        fly(&model, &field, &out, &["--world", "gt", "--disturbance-seed", "3", "--config", s(&cfg), "--json"]);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
     for key in [
@@ -56,7 +56,7 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
             "gt",
             "--disturbances",
             s(&out.join("disturbances.csv")),
-            "--seed",
+            "--pixel-seed",
             "3",
             "--config",
             s(&cfg),

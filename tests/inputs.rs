@@ -140,9 +140,9 @@ fn a_split_linked_into_another_dataset_is_that_datasets_input() {
 fn two_outputs_at_one_path_are_refused_before_either_is_written() {
     let dir = tempfile::tempdir().unwrap();
     let x = dir.path().join("X");
-    let (ok, _, err) = nerfsv(&["collision", "--scene", "monolith", "--out", s(&x), "--mesh", s(&x)]);
+    let (ok, _, err) = nerfsv(&["collision", "--scene", "monolith", "--out", s(&x), "--mesh-out", s(&x)]);
     assert!(!ok);
-    assert!(err.contains("--out") && err.contains("--mesh") && err.contains("two outputs"), "{err}");
+    assert!(err.contains("--out") && err.contains("--mesh-out") && err.contains("two outputs"), "{err}");
     assert!(!x.exists());
 }
 

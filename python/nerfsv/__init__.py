@@ -55,7 +55,7 @@ def train(
 ) -> Model:
     """Trains a NeRF on the train split of the Blender-format dataset ``data`` into ``out``
     (``checkpoint.safetensors`` and the training statistics, as ``nerfsv train`` writes them),
-    for ``steps`` steps or ``seconds`` seconds (default 300 s). ``progress(dict)`` is called
+    for ``steps`` steps (default: the config's ``train_steps``, 2000) or ``seconds`` seconds. ``progress(dict)`` is called
     after every step with ``step``, ``fraction``, ``elapsed_s``, ``loss``, ``psnr``."""
     return _nerfsv.train(data, out, steps, seconds, config, seed, resume, progress)
 

@@ -10,7 +10,7 @@ use nerfsv_dataset::Frame;
 use nerfsv_nerf::{Budget, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::load_dataset_split;
-use nerfsv_pipeline::{NerfSettings, RunConfig};
+use nerfsv_pipeline::RunConfig;
 use nerfsv_scene::{Camera, Image, Intrinsics};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_uq::offline::{fit_frame, Fit};
@@ -221,7 +221,7 @@ pub fn load_field(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> 
 }
 
 /// Trains a NeRF on the train split of the dataset `data` into `out` (checkpoints as `nerfsv
-/// train` writes them) for `steps` steps or `seconds` seconds (default 300 s), with the NeRF
+/// train` writes them) for `steps` steps (default: the run config's `train_steps`, 2000) or `seconds` seconds, with the NeRF
 /// and training settings of the run config `config` (its `[nerf]`, `[train]`; default: the embedded
 /// ones), calling `progress(dict)` after every step (`step`, `fraction`, `elapsed_s`, `loss`,
 /// `psnr`). Returns the model. An exception in `progress` stops reporting and is raised when
@@ -241,10 +241,11 @@ pub fn train(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Model> {
     // The run config's `[nerf]` and `[train]` tables (any run config: `nerfsv config` prints one).
-    let mut s = match &config {
-        Some(path) => RunConfig::load(path).map_err(py_err)?.nerf_settings(),
-        None => NerfSettings::default(),
+    let cfg = match &config {
+        Some(path) => RunConfig::load(path).map_err(py_err)?,
+        None => RunConfig::default(),
     };
+    let mut s = cfg.nerf_settings();
     if let Some(seed) = seed {
         s.train.seed = seed;
     }
@@ -257,7 +258,7 @@ pub fn train(
             nerfsv_scene::validate::positive("seconds", t).map_err(py_err)?;
             Budget::Seconds(t)
         }
-        (None, None) => Budget::Seconds(300.0),
+        (None, None) => Budget::Steps(cfg.train_steps),
     };
     must_exist(&data, "data")?;
     nerfsv_pipeline::Guard::new().dataset("data", &data).output("out", &out).check().map_err(py_err)?;

@@ -38,8 +38,8 @@ pub struct CollisionArgs {
     /// Output signed distance field (safetensors: tensor `sdf` [nz, ny, nx] + grid metadata).
     #[arg(long)]
     pub out: PathBuf,
-    /// Also write the marching-cubes surface as PLY here.
-    #[arg(long)]
+    /// Also write the marching-cubes surface as PLY here (an output; `--gt-mesh` is the input).
+    #[arg(long = "mesh-out", alias = "mesh")]
     pub mesh: Option<PathBuf>,
     /// Grid resolution in cells per metre (the paper's 40).
     #[arg(long, default_value_t = 40.0)]
@@ -52,7 +52,7 @@ pub struct CollisionArgs {
 pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
     check_cells_per_metre("--cells-per-metre", args.cells_per_metre)?;
     let mesh = args.mesh.as_deref();
-    let mut guard = Guard::new().output("--out", &args.out).output_opt("--mesh", mesh);
+    let mut guard = Guard::new().output("--out", &args.out).output_opt("--mesh-out", mesh);
     if let Some(path) = &args.gt_mesh {
         guard = guard.mesh("--gt-mesh", path);
     }

@@ -70,13 +70,13 @@ pub struct FlyArgs {
     pub disturbances: Option<PathBuf>,
     /// Draw the disturbances from the prior (the config's `[validation.disturbance]`) with this
     /// seed (with a Monte Carlo rollout's recorded seed, its disturbances).
-    #[arg(long)]
+    #[arg(long = "disturbance-seed", alias = "random-seed")]
     pub random_seed: Option<u64>,
-    /// Seed of the estimator's pixel choices (default: --random-seed, else 0).
-    #[arg(long)]
+    /// Seed of the vision estimator's pixel choices (default: --disturbance-seed, else 0).
+    #[arg(long = "pixel-seed", alias = "seed")]
     pub seed: Option<u64>,
     /// A run config (TOML): its `[sim]` table sets the flight, `[validation.disturbance]` the
-    /// prior of --random-seed, `[dataset]` the camera. Default: the embedded run config.
+    /// prior of --disturbance-seed, `[dataset]` the camera. Default: the embedded run config.
     #[arg(long)]
     pub config: Option<PathBuf>,
     #[command(flatten)]

@@ -21,10 +21,11 @@ pub struct TrainArgs {
     /// Output folder: checkpoint.safetensors (model + optimiser state) is kept here.
     #[arg(long)]
     pub out: PathBuf,
-    /// Wall-clock training budget in seconds (default 300 unless --steps is given).
+    /// Train for this many seconds of wall-clock time instead of a step count (the model then
+    /// depends on the machine's speed).
     #[arg(long, conflicts_with = "steps", allow_negative_numbers = true)]
     pub seconds: Option<f64>,
-    /// Train to this total step count instead of a time budget.
+    /// Train to this total step count (default: the run config's `train_steps`, 2000).
     #[arg(long)]
     pub steps: Option<u64>,
     /// Continue from the checkpoint in --out (same config and seed as the interrupted run).
@@ -99,7 +100,8 @@ pub struct RenderArgs {
 }
 
 pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
-    let mut s = crate::config_file::nerf_settings(args.config.as_deref(), &args.sets)?;
+    let cfg = crate::config_file::run_config(args.config.as_deref(), &args.sets)?;
+    let mut s = cfg.nerf_settings();
     if let Some(seed) = args.seed {
         s.train.seed = seed;
     }
@@ -112,7 +114,7 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
             positive("--seconds", t)?;
             Budget::Seconds(t)
         }
-        (None, None) => Budget::Seconds(300.0),
+        (None, None) => Budget::Steps(cfg.train_steps),
     };
     Guard::new()
         .dataset("--data", &args.data)

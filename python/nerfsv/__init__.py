@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from os import PathLike
-from typing import Any, Callable, Dict, Iterable, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Iterable, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -52,12 +52,16 @@ def train(
     seed: Optional[int] = None,
     resume: bool = False,
     progress: Optional[Callable[[Dict[str, float]], Any]] = None,
+    overrides: Sequence[str] = (),
 ) -> Model:
     """Trains a NeRF on the train split of the Blender-format dataset ``data`` into ``out``
     (``checkpoint.safetensors`` and the training statistics, as ``nerfsv train`` writes them),
     for ``steps`` steps (default: the config's ``train_steps``, 2000) or ``seconds`` seconds. ``progress(dict)`` is called
-    after every step with ``step``, ``fraction``, ``elapsed_s``, ``loss``, ``psnr``."""
-    return _nerfsv.train(data, out, steps, seconds, config, seed, resume, progress)
+    after every step with ``step``, ``fraction``, ``elapsed_s``, ``loss``, ``psnr``. ``config`` is
+    a run config (``nerfsv config`` prints one; its ``[nerf]``, ``[train]`` and ``train_steps``
+    are read) and ``overrides`` its ``"TABLE.KEY=VALUE"`` overrides, as the command line's
+    ``--set``."""
+    return _nerfsv.train(data, out, steps, seconds, config, seed, resume, progress, list(overrides))
 
 
 def uncertainty(
@@ -69,11 +73,16 @@ def uncertainty(
     intrinsics: Tuple[float, float, float, float],
     image: np.ndarray,
     config: Optional[Path] = None,
+    overrides: Sequence[str] = (),
 ) -> Dict[str, Any]:
     """The paper's uncertainty of one image: ``method`` ``"ga"`` (σ_d of eq. 10) or ``"bla"``
     (the normalised trace and rmv of eq. 11). ``image`` is ``[h, w, 4]`` RGBA or ``[h, w, 3]``
-    RGB in ``[0, 1]``. Returns the figures; ``None`` when every ray misses the model."""
-    return json.loads(model.uncertainty(method, _f32(pose), width, height, intrinsics, _f32(image), config))
+    RGB in ``[0, 1]``; ``config`` a run config whose ``[uq]`` table sets the fit, with
+    ``overrides`` (``"uq.KEY=VALUE"``). Returns the figures; ``None`` when every ray misses the
+    model."""
+    return json.loads(
+        model.uncertainty(method, _f32(pose), width, height, intrinsics, _f32(image), config, list(overrides))
+    )
 
 
 def fly(
@@ -88,13 +97,14 @@ def fly(
     scene: str = "stonehenge",
     mesh: Optional[Path] = None,
     nerf_field: Optional[Path] = None,
+    overrides: Sequence[str] = (),
 ) -> Dict[str, Any]:
     """Flies the drone once along its planned path (``nerfsv fly``). ``disturbances`` is
     ``[steps, 12]`` float64, or ``random_seed`` draws them from the prior. Returns
     ``figures`` (a dict) and the trajectory at every substep: ``time`` ``[n]``, ``position``
     and ``estimate`` ``[n, 3]``, ``clearance`` ``[n]`` (NaN outside the field's grid)."""
     d = None if disturbances is None else np.ascontiguousarray(disturbances, dtype=np.float64)
-    out = _nerfsv.fly(model, world, estimator, d, random_seed, seed, config, scene, mesh, nerf_field)
+    out = _nerfsv.fly(model, world, estimator, d, random_seed, seed, config, scene, mesh, nerf_field, list(overrides))
     out["figures"] = json.loads(out["figures"])
     return out
 
@@ -114,15 +124,18 @@ def stress(
     nerf_field: Optional[Path] = None,
     resume: bool = False,
     executor: Optional[Callable[[str, str, list], Iterable[Tuple[int, bytes]]]] = None,
+    overrides: Sequence[str] = (),
 ) -> Dict[str, Any]:
     """Runs ``nerfsv stress`` into ``out`` (the same files: ``rollouts.csv``, ``table.csv``,
     ``stress.json``, the replays, the journal) and returns ``stress.json``'s figures.
     ``sampler`` is ``"mc"``, ``"cem"`` or ``"subset"``; ``seed`` replaces the config's
     ``validation.seed``. ``executor`` flies the rollouts elsewhere (``nerfsv.distributed``
-    builds one on Ray); the files are the same bytes either way."""
+    builds one on Ray); the files are the same bytes either way. ``overrides`` are the run
+    config's ``"TABLE.KEY=VALUE"`` overrides, as the command line's ``--set``."""
     return json.loads(
         _nerfsv.stress(
-            model, out, sampler, world, estimator, replay, seed, config, scene, mesh, nerf_field, resume, executor
+            model, out, sampler, world, estimator, replay, seed, config, scene, mesh, nerf_field, resume, executor,
+            list(overrides),
         )
     )
 

@@ -25,7 +25,7 @@ class Model:
     def density(self, points: npt.ArrayLike) -> npt.NDArray[np.float32]: ...
     def uncertainty(
         self, method: str, pose: npt.ArrayLike, width: int, height: int, intrinsics: _Intrinsics,
-        image: npt.ArrayLike, config: Optional[_Path] = ...,
+        image: npt.ArrayLike, config: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,
     ) -> str: ...
     def collision_field(
         self, scene: str = ..., mesh: Optional[_Path] = ..., cells_per_metre: float = ...
@@ -37,22 +37,24 @@ def write_depth_png(path: _Path, depth: npt.ArrayLike, opacity: npt.ArrayLike) -
 def train(
     data: _Path, out: _Path, steps: Optional[int] = ..., seconds: Optional[float] = ..., config: Optional[_Path] = ...,
     seed: Optional[int] = ..., resume: bool = ..., progress: Optional[Callable[[Dict[str, float]], Any]] = ...,
+    overrides: Optional[List[str]] = ...,
 ) -> Model: ...
 def ground_truth_field(scene: str = ..., mesh: Optional[_Path] = ..., cells_per_metre: float = ...) -> Dict[str, Any]: ...
 def load_field(path: _Path) -> Dict[str, Any]: ...
 def fly(
     model: _Path, world: str = ..., estimator: str = ..., disturbances: Optional[npt.NDArray[np.float64]] = ...,
     random_seed: Optional[int] = ..., seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ...,
-    mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ...,
+    mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,
 ) -> Dict[str, Any]: ...
 def stress(
     model: _Path, out: _Path, sampler: str = ..., world: str = ..., estimator: str = ..., replay: bool = ...,
     seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ..., mesh: Optional[_Path] = ...,
     nerf_field: Optional[_Path] = ..., resume: bool = ...,
     executor: Optional[Callable[[str, str, List[bytes]], Iterable[Tuple[int, bytes]]]] = ...,
+    overrides: Optional[List[str]] = ...,
 ) -> str: ...
 def stress_context(
     model: _Path, seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ...,
-    mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ...,
+    mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,
 ) -> bytes: ...
 def run_jobs(context: bytes, world: str, estimator: str, jobs: List[bytes], threads: int = ...) -> List[bytes]: ...

@@ -24,7 +24,7 @@ import json
 import os
 import signal
 import sys
-from typing import Any, Dict, Iterator, List, Optional, Tuple
+from typing import Any, Dict, Iterator, List, Optional, Sequence, Tuple
 
 from . import _nerfsv
 from . import stress as _stress
@@ -91,7 +91,7 @@ def stress(model, out, *, sampler: str = "cem", world: str = "nerf", estimator: 
            replay: bool = False, seed: Optional[int] = None, config=None, scene: str = "stonehenge",
            mesh=None, nerf_field=None, resume: bool = False, address: Optional[str] = None,
            chunk: int = 4, threads: int = 1, max_retries: int = 3, num_cpus: Optional[int] = None,
-           _kill_marker: Optional[str] = None) -> Dict[str, Any]:
+           overrides: Sequence[str] = (), _kill_marker: Optional[str] = None) -> Dict[str, Any]:
     """``nerfsv.stress`` with the rollouts flown as Ray tasks (see the module docs). Connects to
     the cluster at ``address`` (default: a local Ray, started if none runs) unless this process
     is connected already. Returns ``stress.json``'s figures."""
@@ -101,11 +101,12 @@ def stress(model, out, *, sampler: str = "cem", world: str = "nerf", estimator: 
         # num_cpus sizes a local Ray this call starts; a cluster has its own.
         ray.init(address=address, num_cpus=None if address else num_cpus, include_dashboard=False,
                  log_to_driver=False)
-    context = _nerfsv.stress_context(model, seed, config, scene, mesh, nerf_field)
+    context = _nerfsv.stress_context(model, seed, config, scene, mesh, nerf_field, list(overrides))
     ref = ray.put(context)
     run = executor(ref, chunk=chunk, threads=threads, max_retries=max_retries, kill_marker=_kill_marker)
     return _stress(model, out, sampler=sampler, world=world, estimator=estimator, replay=replay, seed=seed,
-                   config=config, scene=scene, mesh=mesh, nerf_field=nerf_field, resume=resume, executor=run)
+                   config=config, scene=scene, mesh=mesh, nerf_field=nerf_field, resume=resume, executor=run,
+                   overrides=overrides)
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -119,6 +120,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--replay", action="store_true", help="replay the search's rollouts in the other world")
     p.add_argument("--seed", type=int, help="run seed (default: the config's validation.seed)")
     p.add_argument("--config", help="run config (TOML); default: the embedded one")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE",
+                   help="override one key of the run config (repeat for more)")
     p.add_argument("--scene", default="stonehenge", help="built-in ground truth")
     p.add_argument("--mesh", help="a mesh file as the ground truth instead")
     p.add_argument("--nerf-field", help="the NeRF's signed field (default: built from --model)")
@@ -131,7 +134,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         figures = stress(a.model, a.out, sampler=a.sampler, world=a.world, estimator=a.estimator,
                          replay=a.replay, seed=a.seed, config=a.config, scene=a.scene, mesh=a.mesh,
                          nerf_field=a.nerf_field, resume=a.resume, address=a.address, chunk=a.chunk,
-                         threads=a.threads)
+                         threads=a.threads, overrides=a.set)
     except (ValueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

@@ -39,9 +39,9 @@ fn inputs_exist(model: &Path, nerf_field: Option<&Path>, mesh: Option<&Path>) ->
     mesh.map_or(Ok(()), |p| crate::must_exist(p, "mesh"))
 }
 
-/// The config with the seed override a command's `--seed` gives.
-fn config_with_seed(config: Option<&Path>, seed: Option<u64>) -> PyResult<RunConfig> {
-    let mut cfg = run_config(config)?;
+/// The config with its overrides and the seed override a command's `--seed` gives.
+fn config_with_seed(config: Option<&Path>, overrides: &[String], seed: Option<u64>) -> PyResult<RunConfig> {
+    let mut cfg = run_config(config, overrides)?;
     if let Some(seed) = seed {
         cfg.validation.seed = seed;
     }
@@ -56,7 +56,7 @@ fn config_with_seed(config: Option<&Path>, seed: Option<u64>) -> PyResult<RunCon
 /// where the body left the field's grid).
 #[pyfunction]
 #[pyo3(signature = (model, world = "nerf", estimator = "vision", disturbances = None, random_seed = None, seed = None,
-                    config = None, scene = "stonehenge", mesh = None, nerf_field = None))]
+                    config = None, scene = "stonehenge", mesh = None, nerf_field = None, overrides = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn fly<'py>(
     py: Python<'py>,
@@ -70,10 +70,11 @@ pub fn fly<'py>(
     scene: &str,
     mesh: Option<PathBuf>,
     nerf_field: Option<PathBuf>,
+    overrides: Option<Vec<String>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (kind, est) = (choice::<WorldKind>("world", world)?, choice::<EstimatorKind>("estimator", estimator)?);
     inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
-    let cfg = run_config(config.as_deref())?;
+    let cfg = run_config(config.as_deref(), &overrides.unwrap_or_default())?;
     let ds: Vec<Disturbance> = match (disturbances, random_seed) {
         (Some(_), Some(_)) => return Err(value_error("give disturbances or random_seed, not both")),
         (Some(a), None) => {
@@ -163,7 +164,8 @@ impl RemoteRollouts for PyExecutor {
 /// are the same bytes.
 #[pyfunction]
 #[pyo3(signature = (model, out, sampler = "cem", world = "nerf", estimator = "vision", replay = false, seed = None,
-                    config = None, scene = "stonehenge", mesh = None, nerf_field = None, resume = false, executor = None))]
+                    config = None, scene = "stonehenge", mesh = None, nerf_field = None, resume = false, executor = None,
+                    overrides = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn stress(
     py: Python<'_>,
@@ -180,11 +182,12 @@ pub fn stress(
     nerf_field: Option<PathBuf>,
     resume: bool,
     executor: Option<Py<PyAny>>,
+    overrides: Option<Vec<String>>,
 ) -> PyResult<String> {
     let sampler: Sampler = choice("sampler", sampler)?;
     let (kind, est) = (choice::<WorldKind>("world", world)?, choice::<EstimatorKind>("estimator", estimator)?);
     inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
-    let cfg = config_with_seed(config.as_deref(), seed)?;
+    let cfg = config_with_seed(config.as_deref(), &overrides.unwrap_or_default(), seed)?;
     let mut guard = nerfsv_pipeline::Guard::new()
         .output("out", &out)
         .input("model", &model)
@@ -230,6 +233,9 @@ pub fn stress(
 #[derive(serde::Serialize, serde::Deserialize)]
 struct ContextHeader {
     config: Option<String>,
+    /// The run config's overrides (`TABLE.KEY=VALUE`), applied after `config`.
+    #[serde(default)]
+    overrides: Vec<String>,
     seed: Option<u64>,
     scene: String,
     /// The mesh file's name (its extension picks the loader), when the ground truth is a mesh.
@@ -241,7 +247,9 @@ struct ContextHeader {
 /// The context of [`stress`]'s rollouts for `run_jobs` on workers: the same arguments as
 /// [`stress`] give the drone it flies.
 #[pyfunction]
-#[pyo3(signature = (model, seed = None, config = None, scene = "stonehenge", mesh = None, nerf_field = None))]
+#[pyo3(signature = (model, seed = None, config = None, scene = "stonehenge", mesh = None, nerf_field = None,
+                    overrides = None))]
+#[allow(clippy::too_many_arguments)]
 pub fn stress_context<'py>(
     py: Python<'py>,
     model: PathBuf,
@@ -250,10 +258,12 @@ pub fn stress_context<'py>(
     scene: &str,
     mesh: Option<PathBuf>,
     nerf_field: Option<PathBuf>,
+    overrides: Option<Vec<String>>,
 ) -> PyResult<Bound<'py, PyBytes>> {
     // Checked here as the driver checks it, so that a bad config fails before anything ships.
     inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
-    config_with_seed(config.as_deref(), seed)?;
+    let overrides = overrides.unwrap_or_default();
+    config_with_seed(config.as_deref(), &overrides, seed)?;
     let read = |p: &Path| std::fs::read(p).map_err(|e| py_err(io_at(p, e)));
     let text = config.as_deref().map(|p| std::fs::read_to_string(p).map_err(|e| py_err(io_at(p, e)))).transpose()?;
     let blobs = [
@@ -263,6 +273,7 @@ pub fn stress_context<'py>(
     ];
     let header = ContextHeader {
         config: text,
+        overrides,
         seed,
         scene: scene.to_owned(),
         mesh_name: mesh.as_deref().and_then(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()),
@@ -303,12 +314,8 @@ impl Worker {
         };
         let model = write("checkpoint.safetensors", &body[..a])?;
         let nerf_field = if b > 0 { Some(write("nerf_sdf.safetensors", &body[a..a + b])?) } else { None };
-        let mut cfg = match &header.config {
-            Some(text) => {
-                RunConfig::load_one_model(&write("config.toml", text.as_bytes())?).map_err(|e| e.to_string())?
-            }
-            None => RunConfig::one_model(),
-        };
+        let config = header.config.as_ref().map(|text| write("config.toml", text.as_bytes())).transpose()?;
+        let mut cfg = RunConfig::one_model_with(config.as_deref(), &header.overrides).map_err(|e| e.to_string())?;
         if let Some(seed) = header.seed {
             cfg.validation.seed = seed;
         }

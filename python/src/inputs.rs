@@ -22,12 +22,20 @@ pub(crate) fn f32_array(a: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<usize
     Ok((ro.shape().to_vec(), ro.as_slice()?.to_vec()))
 }
 
-/// The run config at `path` over the default of a study of one model, or that default.
-pub(crate) fn run_config(path: Option<&Path>) -> PyResult<RunConfig> {
-    match path {
-        Some(p) => RunConfig::load_one_model(p).map_err(py_err),
-        None => Ok(RunConfig::one_model()),
-    }
+/// The run config at `path` over the default of a study of one model, or that default, then
+/// `overrides` (`"TABLE.KEY=VALUE"` each, as the command line's `--set`).
+pub(crate) fn run_config(path: Option<&Path>, overrides: &[String]) -> PyResult<RunConfig> {
+    RunConfig::one_model_with(path, overrides).map_err(py_err)
+}
+
+/// The run config at `path` (or the default) with `overrides`, for the functions that read
+/// one of its tables whatever the NeRF-sim world (`train`, `Model.uncertainty`).
+pub(crate) fn any_run_config(path: Option<&Path>, overrides: &[String]) -> PyResult<RunConfig> {
+    let cfg = match path {
+        Some(p) => RunConfig::load(p).map_err(py_err)?,
+        None => RunConfig::default(),
+    };
+    cfg.set(overrides).map_err(py_err)
 }
 
 /// The ground truth: a built-in scene by name, or a mesh file (metres, z up).

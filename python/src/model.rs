@@ -10,7 +10,6 @@ use nerfsv_dataset::Frame;
 use nerfsv_nerf::{Budget, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::load_dataset_split;
-use nerfsv_pipeline::RunConfig;
 use nerfsv_scene::{Camera, Image, Intrinsics};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_uq::offline::{fit_frame, Fit};
@@ -114,7 +113,7 @@ impl Model {
     /// or `[h, w, 3]` RGB, in `[0, 1]`; `config` a run config whose `[uq]` table sets the fit
     /// (default: the embedded one). Returns the figures (dict), `None` values when every ray
     /// misses the model.
-    #[pyo3(signature = (method, pose, width, height, intrinsics, image, config = None))]
+    #[pyo3(signature = (method, pose, width, height, intrinsics, image, config = None, overrides = None))]
     #[allow(clippy::too_many_arguments)]
     fn uncertainty(
         &self,
@@ -126,6 +125,7 @@ impl Model {
         intrinsics: (f32, f32, f32, f32),
         image: &Bound<'_, PyAny>,
         config: Option<PathBuf>,
+        overrides: Option<Vec<String>>,
     ) -> PyResult<String> {
         let method: Method = crate::choice("method", method)?;
         let cam = camera(pose, width, height, intrinsics)?;
@@ -145,10 +145,7 @@ impl Model {
             values.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 1.0]).collect()
         };
         // Only the `[uq]` table matters here: any run config is read, the ensemble's too.
-        let cfg = match config.as_deref() {
-            Some(p) => RunConfig::load(p).map_err(py_err)?.uq,
-            None => RunConfig::default().uq,
-        };
+        let cfg = crate::inputs::any_run_config(config.as_deref(), &overrides.unwrap_or_default())?.uq;
         let frame = Frame {
             file_path: "python".into(),
             image_path: PathBuf::from("python"),
@@ -227,7 +224,8 @@ pub fn load_field(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> 
 /// `psnr`). Returns the model. An exception in `progress` stops reporting and is raised when
 /// training ends.
 #[pyfunction]
-#[pyo3(signature = (data, out, steps = None, seconds = None, config = None, seed = None, resume = false, progress = None))]
+#[pyo3(signature = (data, out, steps = None, seconds = None, config = None, seed = None, resume = false, progress = None,
+                    overrides = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     py: Python<'_>,
@@ -239,12 +237,10 @@ pub fn train(
     seed: Option<u64>,
     resume: bool,
     progress: Option<Py<PyAny>>,
+    overrides: Option<Vec<String>>,
 ) -> PyResult<Model> {
     // The run config's `[nerf]` and `[train]` tables (any run config: `nerfsv config` prints one).
-    let cfg = match &config {
-        Some(path) => RunConfig::load(path).map_err(py_err)?,
-        None => RunConfig::default(),
-    };
+    let cfg = crate::inputs::any_run_config(config.as_deref(), &overrides.unwrap_or_default())?;
     let mut s = cfg.nerf_settings();
     if let Some(seed) = seed {
         s.train.seed = seed;

@@ -207,6 +207,11 @@ def test_training_reports_progress_and_gives_a_model(world, tmp_path):
     model = nerfsv.train(world["ds"], tmp_path / "nerf", steps=2, config=world["nerf_toml"], progress=seen.append)
     assert [p["step"] for p in seen] == [1, 2] and all(np.isfinite(p["loss"]) for p in seen)
     assert Path(model.path).is_file()
+    # The command line's --set: the config's keys overridden, a key that is none refused by name.
+    nerfsv.train(world["ds"], tmp_path / "over", config=world["nerf_toml"], overrides=["train_steps=1"])
+    assert json.loads((tmp_path / "over" / "train_stats.json").read_text())["steps"] == 1
+    with pytest.raises(ValueError, match="--set train.batch_ray=8"):
+        nerfsv.train(world["ds"], tmp_path / "bad", steps=1, config=world["nerf_toml"], overrides=["train.batch_ray=8"])
 
 
 def test_the_command_line_entry_runs_the_study_of_nerfsv_stress(world, tmp_path):

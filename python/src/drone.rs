@@ -22,7 +22,7 @@ use nerfsv_sim::io::MAX_PRIOR_SIGMAS;
 use nerfsv_sim::{check_component, Disturbance, EstimatorKind, Flight, WorldKind, DISTURBANCE_COLUMNS};
 use nerfsv_study::flight::{world as world_of, FlightInputs, FlightRequest};
 use nerfsv_study::remote::{decode_job, encode_result, RemoteRollouts, RemoteSpec, Returned};
-use nerfsv_study::stress::Sampler;
+use nerfsv_study::stress::{Sampler, SearchSettings};
 use nerfsv_study::{drone_disturbances, DroneSystem, EstimateLog};
 use nerfsv_validation::{System, Trajectory, ValidationError};
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -209,15 +209,17 @@ pub fn stress(
                     inputs: &worlds,
                     model: &model,
                     nerf_field: nerf_field.as_deref(),
-                    world: kind,
-                    estimator: est,
-                    sampler,
-                    replay,
-                    online: None,
-                    field: None,
-                    out: &out,
-                    resume,
-                    remote: remote.as_ref().map(|r| r as &dyn RemoteRollouts),
+                    search: SearchSettings {
+                        world: kind,
+                        estimator: est,
+                        sampler,
+                        replay,
+                        online: None,
+                        field: None,
+                        out: &out,
+                        resume,
+                        remote: remote.as_ref().map(|r| r as &dyn RemoteRollouts),
+                    },
                 },
                 &Silent,
             )

@@ -3,7 +3,7 @@ use std::path::PathBuf;
 use clap::Args;
 use nerfsv_pipeline::stress::{run_stress, StressRequest};
 use nerfsv_pipeline::Guard;
-use nerfsv_study::stress::{journal_dir, OnlineSettings, Sampler};
+use nerfsv_study::stress::{journal_dir, OnlineSettings, Sampler, SearchSettings};
 use nerfsv_study::UqMode;
 use nerfsv_uq::{Method, UncertaintyField};
 use nerfsv_validation::Journal;
@@ -96,15 +96,17 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
             inputs: &worlds,
             model: &d.model,
             nerf_field: d.nerf_field.as_deref(),
-            world: d.world,
-            estimator: d.estimator,
-            sampler: args.sampler,
-            replay: args.replay,
-            online,
-            field: field.as_ref().map(|(p, f)| (*p, f)),
-            out: &args.out,
-            resume: args.resume,
-            remote: None,
+            search: SearchSettings {
+                world: d.world,
+                estimator: d.estimator,
+                sampler: args.sampler,
+                replay: args.replay,
+                online,
+                field: field.as_ref().map(|(p, f)| (*p, f)),
+                out: &args.out,
+                resume: args.resume,
+                remote: None,
+            },
         },
         &reporter,
     )?;

@@ -7,15 +7,14 @@ use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_scene::Scene;
-use nerfsv_sim::{EstimatorKind, Flight, NerfWorldSource, SimConfig, WorldKind};
+use nerfsv_sim::{Flight, NerfWorldSource, SimConfig, WorldKind};
 use nerfsv_study::flight::{Drone, FlightInputs, Mission};
-use nerfsv_study::remote::RemoteRollouts;
 use nerfsv_study::stress::{
-    measure_at_poses, replay_csv, search_into, searched, stress, OnlineSettings, Sampler, SearchRequest,
+    measure_at_poses, replay_csv, search_into, searched, stress, Sampler, SearchRequest, SearchSettings,
     StepAurocFigures, StressFigures, StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, TABLE_CSV,
 };
 use nerfsv_study::{online_pixels, EnsembleUncertainty};
-use nerfsv_uq::{UncertaintyField, UqConfig};
+use nerfsv_uq::UqConfig;
 use nerfsv_validation::{read_csv_file, Label, Prior, RolloutRecord, ValidationConfig};
 use serde::Serialize;
 
@@ -216,27 +215,11 @@ pub struct StressRequest<'a> {
     /// The drone's worlds, read from `model` and `nerf_field`
     /// ([`FlightInputs::from_files`](nerfsv_study::flight::FlightInputs::from_files)).
     pub inputs: &'a FlightInputs,
-    /// The files the worlds were read from: their bytes enter the key.
+    /// The files the worlds were read from: their bytes enter the key (with the field's).
     pub model: &'a Path,
     pub nerf_field: Option<&'a Path>,
-    pub world: WorldKind,
-    pub estimator: EstimatorKind,
-    pub sampler: Sampler,
-    /// Fly the search's rollouts again in the other world and compare.
-    pub replay: bool,
-    /// Measure each step's uncertainty (and rank CEM by its reward), or not.
-    pub online: Option<OnlineSettings>,
-    /// The uncertainty field `UqMode::Field` reads, with the file it came from (its bytes
-    /// enter the key). Refused unless its method is the online measurement's.
-    pub field: Option<(&'a Path, &'a UncertaintyField)>,
-    /// Output folder: rollouts.csv, replay_*.csv, table.csv, stress.json, the most likely
-    /// failure's files, the journal.
-    pub out: &'a Path,
-    /// Continue a killed search in `out` (its journal must be there and be this request's).
-    pub resume: bool,
-    /// Where the rollouts fly, if not in this process (the Python package's Ray executor); the
-    /// results are the same bytes either way, so it is not part of the key.
-    pub remote: Option<&'a dyn RemoteRollouts>,
+    /// The search (where it runs, `remote`, is not part of the key).
+    pub search: SearchSettings<'a>,
 }
 
 impl StressRequest<'_> {
@@ -255,14 +238,14 @@ impl StressRequest<'_> {
                 cfg.camera_intrinsics(),
                 render.supersample,
                 self.scene.key(),
-                self.world,
-                self.estimator,
-                self.sampler,
+                self.search.world,
+                self.search.estimator,
+                self.search.sampler,
                 file_hash(self.model)?,
                 self.nerf_field.map(file_hash).transpose()?,
-                self.online,
-                self.online.map(|_| &cfg.uq),
-                self.field.map(|(p, _)| file_hash(p)).transpose()?,
+                self.search.online,
+                self.search.online.map(|_| &cfg.uq),
+                self.search.field.map(|(p, _)| file_hash(p)).transpose()?,
             ),
             &[],
         )
@@ -285,15 +268,7 @@ pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<St
         validation: &cfg.validation,
         prior: &prior,
         uq: &cfg.uq,
-        world: request.world,
-        estimator: request.estimator,
-        sampler: request.sampler,
-        replay: request.replay,
-        online: request.online,
-        field: request.field,
-        out: request.out,
-        resume: request.resume,
-        remote: request.remote,
+        search: request.search,
     };
     Ok(search_into(&search, &request.key()?, observer)?)
 }

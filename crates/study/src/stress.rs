@@ -774,16 +774,10 @@ impl Recorder for Counting<'_> {
     }
 }
 
-/// One search outside `nerfsv run` (`nerfsv stress`, the Python package): one sampler over a
-/// drone, its worlds and (for GT-sim and replays) a ground truth, into a folder of its own.
-pub struct SearchRequest<'a> {
-    pub drone: Drone<'a>,
-    /// The drone's worlds: its model, the model's field, the ground truth's field.
-    pub inputs: &'a FlightInputs,
-    pub validation: &'a ValidationConfig,
-    pub prior: &'a Prior,
-    /// The online measurement's settings (used with `online`).
-    pub uq: &'a UqConfig,
+/// What one search outside `nerfsv run` does (`nerfsv stress`, the Python package), whatever
+/// describes its drone: one sampler in one world, into a folder of its own.
+#[derive(Clone, Copy)]
+pub struct SearchSettings<'a> {
     pub world: WorldKind,
     pub estimator: EstimatorKind,
     pub sampler: Sampler,
@@ -792,15 +786,28 @@ pub struct SearchRequest<'a> {
     /// Measure each step's uncertainty (and rank CEM by its reward), or not.
     pub online: Option<OnlineSettings>,
     /// The uncertainty field `UqMode::Field` reads, with the file it came from. Refused unless
-    /// its method is the online measurement's and it was built from `inputs`' model.
+    /// its method is the online measurement's and it was built from the drone's model.
     pub field: Option<(&'a Path, &'a UncertaintyField)>,
     /// Output folder: rollouts.csv, replay_*.csv, table.csv, stress.json, the most likely
     /// failure's files, the journal.
     pub out: &'a Path,
     /// Continue a killed search in `out` (its journal must be there and be this key's).
     pub resume: bool,
-    /// Where the rollouts fly, if not in this process (the Python package's Ray executor).
+    /// Where the rollouts fly, if not in this process (the Python package's Ray executor); the
+    /// results are the same bytes either way.
     pub remote: Option<&'a dyn RemoteRollouts>,
+}
+
+/// A [`SearchSettings`] search of a drone: its description, its worlds, the prior and the settings.
+pub struct SearchRequest<'a> {
+    pub drone: Drone<'a>,
+    /// The drone's worlds: its model, the model's field, the ground truth's field.
+    pub inputs: &'a FlightInputs,
+    pub validation: &'a ValidationConfig,
+    pub prior: &'a Prior,
+    /// The online measurement's settings (used with `online`).
+    pub uq: &'a UqConfig,
+    pub search: SearchSettings<'a>,
 }
 
 /// Runs one [`SearchRequest`] under `key` (everything its rollouts depend on: a resume into
@@ -808,8 +815,9 @@ pub struct SearchRequest<'a> {
 /// settings against the field, a resume without a journal, the flight's plan) before it writes
 /// anything, then searches ([`stress`]) and writes `stress.json`, whose figures it returns.
 pub fn search_into(req: &SearchRequest, key: &str, observer: &dyn Observer) -> Result<StressFigures, StudyError> {
+    let s = &req.search;
     let refuse = |message: String| StudyError::Refused { key: "stress", message };
-    match (req.online, req.field) {
+    match (s.online, s.field) {
         (Some(o), Some((path, field))) if o.mode == UqMode::Field && field.method != o.method.into() => {
             return Err(refuse(format!(
                 "{}: a {} uncertainty field, but the search measures {}",
@@ -827,27 +835,27 @@ pub fn search_into(req: &SearchRequest, key: &str, observer: &dyn Observer) -> R
         (None, Some(_)) => return Err(refuse("an uncertainty field is read only when the search measures one".into())),
         _ => {}
     }
-    if let Some((path, field)) = req.field {
+    if let Some((path, field)) = s.field {
         field.check_checkpoint(path, &nerfsv_uq::model_id(&req.inputs.nerf))?;
     }
-    if req.resume && !nerfsv_validation::Journal::exists(&journal_dir(req.out, req.world)) {
-        return Err(refuse(format!("{}: resuming needs the folder of an interrupted stress run", req.out.display())));
+    if s.resume && !nerfsv_validation::Journal::exists(&journal_dir(s.out, s.world)) {
+        return Err(refuse(format!("{}: resuming needs the folder of an interrupted stress run", s.out.display())));
     }
     let flight = req.inputs.plan(req.drone.sim)?;
     let mission = Mission { drone: req.drone, inputs: req.inputs, flight: &flight };
-    let samplers = [req.sampler];
+    let samplers = [s.sampler];
     let setup = StressSetup {
-        world: req.world,
-        estimator: req.estimator,
-        replay: req.replay,
-        online: req.online,
-        field: req.field.map(|(_, f)| f),
-        remote: req.remote,
+        world: s.world,
+        estimator: s.estimator,
+        replay: s.replay,
+        online: s.online,
+        field: s.field.map(|(_, f)| f),
+        remote: s.remote,
         ..StressSetup::new(mission, req.validation, req.prior, &samplers, req.uq)
     };
-    std::fs::create_dir_all(req.out).map_err(|e| StudyError::io(req.out, e))?;
-    let (figures, _) = stress(&setup, req.out, key, req.resume, observer)?;
-    let path = req.out.join(STRESS_JSON);
+    std::fs::create_dir_all(s.out).map_err(|e| StudyError::io(s.out, e))?;
+    let (figures, _) = stress(&setup, s.out, key, s.resume, observer)?;
+    let path = s.out.join(STRESS_JSON);
     nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer_pretty(w, &figures).map_err(std::io::Error::other))
         .map_err(|e| StudyError::io(&path, e))?;
     Ok(figures)

@@ -118,7 +118,7 @@ pub fn field_slice(field: &SdfGrid, altitude: f64) -> FieldSlice {
 /// The flight stage's drawing of both collision fields ([`field_slices_png`]).
 pub const FIELDS_PNG: &str = "field_slices.png";
 /// The difference panel's colours saturate at this many metres.
-const FIELD_DIFFERENCE_CLIP_M: f64 = 0.05;
+pub const FIELD_DIFFERENCE_CLIP_M: f64 = 0.05;
 
 /// Slices of the ground-truth and the NeRF's signed fields at altitude `z`, sampled at the
 /// ground-truth grid's nodes in x and y, and their difference NeRF − GT, clipped at

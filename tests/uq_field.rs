@@ -12,7 +12,7 @@ use nerfsv_uq::{model_id, FieldMethod, UncertaintyField, UqError};
 /// A coarse grid (5 cells/m: 11³ nodes over the ±1 m box) and a low rank keep BLA quick.
 fn config(dir: &Path) -> std::path::PathBuf {
     let path = dir.join("uq.toml");
-    std::fs::write(&path, "field_cells_per_metre = 5.0\nfield_rank = 32\nfield_rays_per_image = 16\n").unwrap();
+    std::fs::write(&path, "[uq]\nfield_cells_per_metre = 5.0\nfield_rank = 32\nfield_rays_per_image = 16\n").unwrap();
     path
 }
 

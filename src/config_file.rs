@@ -21,11 +21,7 @@ pub struct Sets {
 
 /// The run config of `nerfsv run`: the embedded default, the file, the overrides.
 pub fn run_config(path: Option<&Path>, sets: &Sets) -> anyhow::Result<RunConfig> {
-    let cfg = match path {
-        Some(p) => RunConfig::load(p)?,
-        None => RunConfig::default(),
-    };
-    Ok(cfg.set(&sets.sets)?)
+    Ok(RunConfig::load_with(path, &sets.sets)?)
 }
 
 /// The run config of a study of one model (`fly`, `stress`): the ensemble's world refused.

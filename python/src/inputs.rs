@@ -31,11 +31,7 @@ pub(crate) fn run_config(path: Option<&Path>, overrides: &[String]) -> PyResult<
 /// The run config at `path` (or the default) with `overrides`, for the functions that read
 /// one of its tables whatever the NeRF-sim world (`train`, `Model.uncertainty`).
 pub(crate) fn any_run_config(path: Option<&Path>, overrides: &[String]) -> PyResult<RunConfig> {
-    let cfg = match path {
-        Some(p) => RunConfig::load(p).map_err(py_err)?,
-        None => RunConfig::default(),
-    };
-    cfg.set(overrides).map_err(py_err)
+    RunConfig::load_with(path, overrides).map_err(py_err)
 }
 
 /// The ground truth: a built-in scene by name, or a mesh file (metres, z up).

@@ -352,6 +352,16 @@ impl RunConfig {
         Ok(cfg)
     }
 
+    /// The run's config: the embedded default, the file at `path` if any ([`RunConfig::load`]),
+    /// then `sets` ([`RunConfig::set`]).
+    pub fn load_with(path: Option<&Path>, sets: &[String]) -> Result<Self, PipelineError> {
+        match path {
+            Some(p) => Self::load(p)?,
+            None => Self::default(),
+        }
+        .set(sets)
+    }
+
     /// A study of one model's config: [`RunConfig::one_model`], the file at `path` if any
     /// ([`RunConfig::load_one_model`]), then `sets` ([`RunConfig::set`]); the ensemble's world
     /// refused.

@@ -6,7 +6,6 @@ mod report;
 
 use std::path::Path;
 
-use nerfsv_scene::Scene;
 use nerfsv_sim::{EstimatorKind, WorldKind};
 use nerfsv_study::flight::{
     fly_and_write, world, write_field_slices, Drone, FlightFigures, FlightInputs, Mission, Sortie,
@@ -116,13 +115,7 @@ impl Stage for FlightStage<'_> {
     }
 
     fn config(&self) -> impl Serialize {
-        (
-            self.drone.scene.map(Scene::key),
-            self.drone.sim,
-            self.drone.intrinsics,
-            self.drone.render.supersample,
-            self.seed,
-        )
+        (self.drone.key(), self.seed)
     }
 
     fn run(&self, cx: &StageContext) -> Result<FlightStageFigures, PipelineError> {

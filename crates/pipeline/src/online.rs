@@ -186,15 +186,7 @@ impl Stage for OnlineStage<'_> {
 
     fn config(&self) -> impl Serialize {
         let s = self.search;
-        (
-            s.drone.scene.map(nerfsv_scene::Scene::key),
-            s.drone.sim,
-            self.validation(),
-            s.drone.intrinsics,
-            s.drone.render.supersample,
-            self.uq,
-            self.online,
-        )
+        (s.drone.key(), self.validation(), self.uq, self.online)
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {

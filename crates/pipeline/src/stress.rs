@@ -80,14 +80,7 @@ impl Stage for StressStage<'_> {
     }
 
     fn config(&self) -> impl Serialize {
-        (
-            self.drone.scene.map(Scene::key),
-            self.drone.sim,
-            self.validation,
-            self.drone.intrinsics,
-            self.drone.render.supersample,
-            self.samplers(),
-        )
+        (self.drone.key(), self.validation, self.samplers())
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
@@ -228,16 +221,12 @@ impl StressRequest<'_> {
     /// refused.
     pub fn key(&self) -> Result<String, PipelineError> {
         let cfg = self.config;
-        let render = cfg.dataset.render_settings();
         stage_key(
             STAGE,
             <StressStage as Stage>::CODE,
             &(
-                &cfg.sim,
+                cfg.drone(Some(self.scene)).key(),
                 &cfg.validation,
-                cfg.camera_intrinsics(),
-                render.supersample,
-                self.scene.key(),
                 self.search.world,
                 self.search.estimator,
                 self.search.sampler,

@@ -258,6 +258,14 @@ pub struct Drone<'a> {
     pub render: RenderSettings,
 }
 
+impl Drone<'_> {
+    /// What a result flown with this drone depends on, for a cache key: the ground truth's key,
+    /// the simulator's settings, the camera and GT-sim's supersampling.
+    pub fn key(&self) -> impl Serialize + '_ {
+        (self.scene.map(Scene::key), self.sim, self.intrinsics, self.render.supersample)
+    }
+}
+
 /// The drone flying its planned path, and the worlds it can fly in: what every search over its
 /// disturbances shares.
 #[derive(Clone, Copy)]
@@ -417,8 +425,7 @@ impl FlightInputs {
         let nerf_field = match nerf_field {
             Some(path) => SdfGrid::load(path)?,
             None => {
-                let density =
-                    |points: &[nalgebra::Point3<f32>], out: &mut [f32]| out.copy_from_slice(&nerf.density(points));
+                let density = |points: &[nalgebra::Point3<f32>], out: &mut [f32]| nerf.density_into(points, out);
                 nerfsv_collision::model_field(gt.sdf.geometry, None, density)?.1.sdf
             }
         };

@@ -84,6 +84,13 @@ impl Nerf {
     /// Density σ in 1/m at world points (metres); 0 outside the scene box. Parallel.
     pub fn density(&self, points: &[Point3<f32>]) -> Vec<f32> {
         let mut out = vec![0.0; points.len()];
+        self.density_into(points, &mut out);
+        out
+    }
+
+    /// [`Nerf::density`] into `out` (one value per point), for a caller that owns the buffer
+    /// (a grid filled batch by batch).
+    pub fn density_into(&self, points: &[Point3<f32>], out: &mut [f32]) {
         let pool = Pool::<(DensityWorkspace, Vec<f32>)>::new();
         out.par_chunks_mut(DENSITY_CHUNK).zip(points.par_chunks(DENSITY_CHUNK)).for_each(|(o, p)| {
             pool.with(|(ws, pos)| {
@@ -92,7 +99,6 @@ impl Nerf {
                 self.field.density_batch(&self.params, pos, ws, o);
             })
         });
-        out
     }
 
     /// Density σ (1/m) and its gradient ∇σ (1/m², world frame) at world points (metres); both 0

@@ -337,7 +337,7 @@ pub fn build_nerf_field(
     sdf_path: &Path,
     mesh_path: Option<&Path>,
 ) -> Result<DensityFieldFigures, PipelineError> {
-    let density = |points: &[nalgebra::Point3<f32>], out: &mut [f32]| out.copy_from_slice(&nerf.density(points));
+    let density = |points: &[nalgebra::Point3<f32>], out: &mut [f32]| nerf.density_into(points, out);
     Ok(nerfsv_collision::build_model_field(geometry, density_threshold, density, reference, sdf_path, mesh_path)?)
 }
 

@@ -75,7 +75,7 @@ fn uq(c: &mut Criterion) {
     CovarianceFactor::new("bench", &bla.laplace.covariance).expect("Cholesky of Σ");
     eprintln!("uq: Cholesky of the 3072² covariance (inside bla_maps) {:.3} s", t.elapsed().as_secs_f64());
     let mut g = c.benchmark_group("uq");
-    // The plain render of the same view, the yardstick of GA's cost (issue 26: GA ≤ 1.1 render).
+    // The plain render of the same view, the yardstick of GA's cost (the goal: GA ≤ 1.1 renders).
     g.bench_function("render_100x100", |b| b.iter(|| nerf.render_rays(&rays)));
     g.bench_function("ga_100x100", |b| {
         b.iter(|| ga_image(&nerf, "bench", &rays, &reference, cfg.ga_sigma_max, cfg.noise_std))

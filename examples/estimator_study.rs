@@ -1,6 +1,6 @@
 //! The vision estimator on a run folder's model, away from the pipeline: how often it crashes
 //! the drone under the paper's disturbances, how consistent its filter is, and what one image
-//! update does from a disturbance. The figures of BENCHMARKS.md's issue-21 section come from it.
+//! update does from a disturbance. BENCHMARKS.md's vision-estimator figures come from it.
 //!
 //! ```sh
 //! cargo run --release -- run     # a run folder with a trained model and both fields

@@ -1,4 +1,4 @@
-//! GA's cost against a plain render of the same view (issue 26: GA at most 1.1× a render), robust
+//! GA's cost against a plain render of the same view (the goal: GA at most 1.1× a render), robust
 //! to a shared host: the two alternate `N` times (default 60) and the minima are compared, as
 //! is `render_rays_samples`, the render that keeps every composited sample.
 //!

@@ -2,8 +2,7 @@
 //! occupancy grid settle (as `benches/nerf.rs` does), then `K` steps timed (default 200), with the
 //! process's CPU time beside the wall time, so a step that leaves a core idle shows as fewer than
 //! two cores busy. The bench's dataset (40 views) takes 512 rays a step; the default dataset's
-//! steps take 512 or 768 (the count adapts to ≈ 24 576 samples), and a step of 768 rays was three
-//! chunks of 256 before session 13's chunks of 128 (BENCHMARKS.md).
+//! steps take 512 or 768 (the count adapts to ≈ 24 576 samples), in chunks of 128 rays.
 //!
 //! ```sh
 //! cargo run --release -- run                            # the default run's dataset

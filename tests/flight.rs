@@ -56,7 +56,7 @@ fn default_run() -> &'static DefaultRun {
 }
 
 /// How far from the goal the undisturbed GT-sim flight with the vision estimator may end. Its
-/// goal tolerance (10 cm) is issue 21's open goal: over the default seed and pixel seeds 1–6 it
+/// goal tolerance (10 cm) is an open goal: over the default seed and pixel seeds 1–6 it
 /// ended 7–22 cm from the goal, inside the tolerance in one or two of the seven draws, with the
 /// NeRF's attitude against ground-truth images off by tenths of a degree from image to image
 /// (BENCHMARKS.md). This bound catches an estimator that loses the drone, not that miss.

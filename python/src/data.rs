@@ -144,8 +144,9 @@ pub fn render_dataset(
         nerfsv_pipeline::Guard::new().mesh("mesh", mesh).output("out", &out).check().map_err(py_err)?;
     }
     let world = scene_of(scene, mesh.as_deref())?;
-    let figures =
-        py.detach(|| nerfsv_pipeline::stages::render_dataset(&world, &out, &opts, &|_, _| {})).map_err(py_err)?;
+    let figures = py
+        .detach(|| nerfsv_pipeline::stages::render_dataset(&world, &out, &opts, &|_, _| {}).map_err(Box::new))
+        .map_err(py_err)?;
     crate::to_json(&figures)
 }
 

@@ -30,7 +30,12 @@ pub struct Model {
 
 /// The camera of a 4×4 camera-to-world `pose` (row-major, OpenGL axes) with pixel intrinsics
 /// `(fx, fy, cx, cy)` and an image of `width` × `height`.
-pub(crate) fn camera(pose: &Bound<'_, PyAny>, width: u32, height: u32, intrinsics: (f32, f32, f32, f32)) -> PyResult<Camera> {
+pub(crate) fn camera(
+    pose: &Bound<'_, PyAny>,
+    width: u32,
+    height: u32,
+    intrinsics: (f32, f32, f32, f32),
+) -> PyResult<Camera> {
     let (shape, pose) = f32_array(pose, "pose")?;
     if shape != [4, 4] {
         return Err(value_error(format!("pose: expected shape (4, 4), found {shape:?}")));
@@ -62,7 +67,10 @@ pub(crate) fn frame(
 ) -> PyResult<Frame> {
     let cam = camera(pose, width, height, intrinsics)?;
     let (shape, values) = f32_array(image, "image")?;
-    if shape.len() != 3 || shape[0] != height as usize || shape[1] != width as usize || !(shape[2] == 3 || shape[2] == 4)
+    if shape.len() != 3
+        || shape[0] != height as usize
+        || shape[1] != width as usize
+        || !(shape[2] == 3 || shape[2] == 4)
     {
         return Err(value_error(format!(
             "image: expected shape ({height}, {width}, 4) or ({height}, {width}, 3), found {shape:?}"

@@ -102,7 +102,8 @@ fn columns<'py>(py: Python<'py>, rows: &[Row], method: Method) -> PyResult<Bound
             let values = |f: fn(&GaRow) -> f64| ga.iter().map(|g| g.map_or(f64::NAN, f)).collect::<Vec<f64>>();
             column("mu_d", values(|g| g.mu_d))?;
             column("sigma_d", values(|g| g.sigma_d))?;
-            let excluded: Vec<&str> = ga.iter().map(|g| g.map_or("all_rays_miss", |g| exclusion_name(g.excluded))).collect();
+            let excluded: Vec<&str> =
+                ga.iter().map(|g| g.map_or("all_rays_miss", |g| exclusion_name(g.excluded))).collect();
             d.set_item("excluded", excluded)?;
             column("objective", values(|g| g.objective))?;
             column("rays", values(|g| g.rays as f64))?;

@@ -77,6 +77,42 @@ def test_the_state_dict_is_the_checkpoint_file_s_tensors(world):
             assert np.array_equal(weights[name], expected), name
 
 
+def write_safetensors(path, tensors, metadata):
+    """A safetensors file by the same layout: `tensors` name → float32 array, `metadata` str → str;
+    the header padded with spaces to a multiple of 8 bytes."""
+    header, data, offset = {"__metadata__": metadata}, [], 0
+    for name, a in sorted(tensors.items()):
+        raw = np.ascontiguousarray(a, dtype="<f4").tobytes()
+        header[name] = {"dtype": "F32", "shape": list(a.shape), "data_offsets": [offset, offset + len(raw)]}
+        data.append(raw)
+        offset += len(raw)
+    text = json.dumps(header).encode()
+    text += b" " * (-len(text) % 8)
+    Path(path).write_bytes(struct.pack("<Q", len(text)) + text + b"".join(data))
+
+
+def test_a_checkpoint_without_training_state_has_weights_but_no_optimiser(world, tmp_path):
+    buf = Path(world["model"]).read_bytes()
+    (n,) = struct.unpack("<Q", buf[:8])
+    meta = json.loads(buf[8:8 + n])["__metadata__"]
+    kept = {"format", "format_version", "nerf_config", "aabb", "step", "seed"}
+    model_only = {k: v for k, v in meta.items() if k in kept}
+    weights = {k: a for k, (_, a) in read_safetensors(world["model"]).items() if not k.startswith("optimizer.")}
+    write_safetensors(tmp_path / "weights.safetensors", weights, model_only)
+    model = nerfsv.Model.load(tmp_path / "weights.safetensors")
+    got = model.state_dict()
+    assert set(got) == set(weights) and all(np.array_equal(got[k], weights[k]) for k in weights)
+    with pytest.raises(ValueError, match="train_config|optimizer"):
+        model.state_dict(optimizer=True)
+    # The same tensors, one value changed: the state dict follows the file.
+    weights["sigma_net.1.weight"] = weights["sigma_net.1.weight"].copy()
+    weights["sigma_net.1.weight"][3, 5] += 0.25
+    write_safetensors(tmp_path / "changed.safetensors", weights, model_only)
+    changed = nerfsv.Model.load(tmp_path / "changed.safetensors").state_dict()
+    assert not np.array_equal(changed["sigma_net.1.weight"], got["sigma_net.1.weight"])
+    assert np.array_equal(changed["sigma_net.1.weight"], weights["sigma_net.1.weight"])
+
+
 def readme_block(heading):
     """The first ```python block under `## heading` of python/README.md."""
     text = (ROOT / "python" / "README.md").read_text()
@@ -191,24 +227,58 @@ def tree(folder):
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
 
 
-def test_render_dataset_writes_the_files_of_nerfsv_scene_byte_for_byte(tmp_path):
-    cli("scene", "--scene", "pillars", "--out", tmp_path / "cli", "--width", 8, "--height", 6, "--train", 2, "--val",
-        1, "--test", 1, "--supersample", 1, "--seed", 4, "--fov", 0.9, "--close-up", 0.5)
-    figures = nerfsv.render_dataset(tmp_path / "py", scene="pillars", width=8, height=6, train=2, val=1, test=1,
-                                    supersample=1, seed=4, fov=0.9, close_up=0.5)
-    assert figures["views"] == 4 and figures["scene"] == "pillars"
+MESH = ROOT / "tests" / "fixtures" / "meshes" / "world.ply"
+
+
+@pytest.mark.parametrize("world_args, world_kwargs", [(["--scene", "pillars"], {"scene": "pillars"}),
+                                                      (["--mesh", MESH], {"mesh": MESH})])
+def test_render_dataset_writes_the_files_of_nerfsv_scene_byte_for_byte(tmp_path, world_args, world_kwargs):
+    cli("scene", *world_args, "--out", tmp_path / "cli", "--width", 8, "--height", 6, "--train", 2, "--val", 1,
+        "--test", 1, "--supersample", 1, "--seed", 4, "--fov", 0.9, "--close-up", 0.5)
+    options = dict(width=8, height=6, train=2, val=1, test=1, supersample=1, fov=0.9, close_up=0.5)
+    figures = nerfsv.render_dataset(tmp_path / "py", **world_kwargs, seed=4, **options)
+    assert figures["views"] == 4
     cli_files, py_files = tree(tmp_path / "cli"), tree(tmp_path / "py")
-    assert "transforms_train.json" in cli_files and "scene.json" in cli_files
+    assert "transforms_train.json" in cli_files and "scene.json" in cli_files and "test/r_0_depth.png" in cli_files
     assert cli_files == py_files
-    # The defaults are the command's: a different seed gives other cameras.
-    nerfsv.render_dataset(tmp_path / "other", scene="pillars", width=8, height=6, train=2, val=1, test=1,
-                          supersample=1, fov=0.9, close_up=0.5)
-    assert tree(tmp_path / "other") != py_files
+    # The defaults are the command's: seed 0 there and here, other cameras than seed 4's.
+    cli("scene", *world_args, "--out", tmp_path / "cli0", "--width", 8, "--height", 6, "--train", 2, "--val", 1,
+        "--test", 1, "--supersample", 1, "--fov", 0.9, "--close-up", 0.5)
+    nerfsv.render_dataset(tmp_path / "py0", **world_kwargs, **options)
+    assert tree(tmp_path / "py0") == tree(tmp_path / "cli0") != py_files
+
+
+def test_render_dataset_refuses_bad_options_by_their_argument_before_writing(tmp_path):
     with pytest.raises(ValueError, match="fov"):
         nerfsv.render_dataset(tmp_path / "bad", scene="pillars", fov=4.0)
     with pytest.raises(ValueError, match="width"):
         nerfsv.render_dataset(tmp_path / "bad", scene="pillars", width=0)
+    with pytest.raises(FileNotFoundError, match="missing.obj"):
+        nerfsv.render_dataset(tmp_path / "bad", mesh=tmp_path / "missing.obj")
     assert not (tmp_path / "bad").exists()
+
+
+def test_the_study_functions_refuse_bad_arguments_with_the_rust_message(world, tmp_path):
+    model = nerfsv.Model.load(world["model"])
+    with pytest.raises(ValueError, match="method: .*nope"):
+        nerfsv.uncertainty_offline(model, world["ds"], "nope")
+    with pytest.raises(ValueError, match="max_images"):
+        nerfsv.uncertainty_offline(model, world["ds"], max_images=0)
+    with pytest.raises(ValueError, match="rays"):
+        nerfsv.uncertainty_offline(model, world["ds"], rays=0)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="not a Blender-format dataset"):
+        nerfsv.uncertainty_offline(model, tmp_path / "empty")
+    with pytest.raises(ValueError, match='no transforms file for split "nope"'):
+        nerfsv.uncertainty_ause(model, world["ds"], split="nope")
+    with pytest.raises(ValueError, match="uq.nope"):
+        nerfsv.uncertainty_ause(model, world["ds"], overrides=["uq.nope=1"])
+    data = nerfsv.load_dataset(world["ds"], "test")
+    k = tuple(data["intrinsics"][0])
+    with pytest.raises(ValueError, match="depth: expected shape \\(16, 16\\)"):
+        nerfsv.uncertainty_maps(model, "ga", data["poses"][0], SIZE, SIZE, k, data["images"][0], depth=np.zeros((4, 4)))
+    with pytest.raises(ValueError, match="supersample"):
+        nerfsv.render_view(data["poses"][0], SIZE, SIZE, k, supersample=0)
 
 
 def test_render_view_is_the_dataset_s_image_before_it_is_written(world):

@@ -23,6 +23,8 @@ const MANY_ARGUMENTS: &[&str] = &[
     "crates/nerf/src/field_components/mlp.rs",
     "python/src/model.rs",
     "python/src/drone.rs",
+    "python/src/data.rs",
+    "python/src/uq.rs",
 ];
 
 /// Every `.rs` file under `dir`, relative to `root`, sorted.

@@ -3,13 +3,13 @@
 
 use std::path::PathBuf;
 
-use nerfsv_dataset::{load_split, LoadOptions};
+use nerfsv_dataset::{load_split, GenerateOptions, LoadOptions};
 use nerfsv_nerf::RenderedView;
-use numpy::{PyArray1, PyArrayMethods};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::inputs::{f32_array, io_at};
+use crate::inputs::{f32_array, io_at, scene_of};
 use crate::{py_err, value_error};
 
 /// A split of a Blender-format dataset: `images` `[n, h, w, 4]` float32 RGBA in `[0, 1]`,
@@ -90,4 +90,89 @@ fn view(w: usize, h: usize, rgb: Vec<f32>, depth: Vec<f32>, opacity: Vec<f32>) -
         return Err(value_error(format!("an image of {w}×{h} pixels is too large")));
     };
     Ok(RenderedView { width, height, rgb, distance: depth.clone(), depth, opacity, samples: 0 })
+}
+
+/// `nerfsv scene --out OUT`: renders the ground truth (`scene`, a built-in name, or `mesh`, a
+/// mesh file in metres with z up) into the Blender-format dataset folder `out` (replaced if it
+/// holds a dataset), the same files byte for byte. Every option left `None` takes the command's
+/// default: 100 × 100 pixels, 200 / 150 / 150 train / val / test views, `fov` 0.8 rad
+/// (horizontal), `close_up` 0 (the fraction of views at drone altitude), `supersample` 2 (n×n
+/// samples per pixel), `seed` 0 (camera placement). Returns the figures as JSON text.
+#[pyfunction]
+#[pyo3(signature = (out, scene = "stonehenge", mesh = None, width = None, height = None, train = None, val = None,
+                    test = None, fov = None, close_up = None, supersample = None, seed = None))]
+#[allow(clippy::too_many_arguments)]
+pub fn render_dataset(
+    py: Python<'_>,
+    out: PathBuf,
+    scene: &str,
+    mesh: Option<PathBuf>,
+    width: Option<u32>,
+    height: Option<u32>,
+    train: Option<usize>,
+    val: Option<usize>,
+    test: Option<usize>,
+    fov: Option<f32>,
+    close_up: Option<f32>,
+    supersample: Option<u32>,
+    seed: Option<u64>,
+) -> PyResult<String> {
+    let d = GenerateOptions::default();
+    let opts = GenerateOptions {
+        width: width.unwrap_or(d.width),
+        height: height.unwrap_or(d.height),
+        train: train.unwrap_or(d.train),
+        val: val.unwrap_or(d.val),
+        test: test.unwrap_or(d.test),
+        camera_angle_x: fov.unwrap_or(d.camera_angle_x),
+        close_up_fraction: close_up.unwrap_or(d.close_up_fraction),
+        supersample: supersample.unwrap_or(d.supersample),
+        seed: seed.unwrap_or(d.seed),
+        ..d
+    };
+    // Before anything is read or written, a bad value named by its argument.
+    opts.validate().map_err(|mut e| {
+        e.field = match e.field.as_str() {
+            "camera_angle_x" => "fov".into(),
+            "close_up_fraction" => "close_up".into(),
+            _ => e.field,
+        };
+        py_err(e)
+    })?;
+    if let Some(mesh) = &mesh {
+        crate::must_exist(mesh, "mesh")?;
+        nerfsv_pipeline::Guard::new().mesh("mesh", mesh).output("out", &out).check().map_err(py_err)?;
+    }
+    let world = scene_of(scene, mesh.as_deref())?;
+    let figures = py
+        .detach(|| nerfsv_pipeline::stages::render_dataset(&world, &out, &opts, &|_, _| {}).map_err(Box::new))
+        .map_err(py_err)?;
+    crate::to_json(&figures)
+}
+
+/// The ground truth's view of a camera, as `nerfsv scene` renders a dataset's image before it
+/// is quantised: `(rgba [h, w, 4], depth [h, w])` float32, straight RGBA in `[0, 1]` (alpha 0
+/// where nothing is hit), z-depth in metres (0 where nothing is hit). `scene` a built-in name
+/// or `mesh` a mesh file; the camera as in `Model.render`; `supersample` n×n samples per pixel
+/// (1–8; the datasets' default 2).
+#[pyfunction]
+#[pyo3(signature = (pose, width, height, intrinsics, scene = "stonehenge", mesh = None, supersample = 2))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+pub fn render_view<'py>(
+    py: Python<'py>,
+    pose: &Bound<'py, PyAny>,
+    width: u32,
+    height: u32,
+    intrinsics: (f32, f32, f32, f32),
+    scene: &str,
+    mesh: Option<PathBuf>,
+    supersample: u32,
+) -> PyResult<(Bound<'py, PyArray3<f32>>, Bound<'py, PyArray2<f32>>)> {
+    let cam = crate::model::camera(pose, width, height, intrinsics)?;
+    nerfsv_scene::validate::in_range("supersample", supersample, 1, 8).map_err(py_err)?;
+    let world = scene_of(scene, mesh.as_deref())?;
+    let settings = GenerateOptions { supersample, ..GenerateOptions::default() }.render_settings();
+    let r = py.detach(|| world.render(&cam, &settings));
+    let (h, w) = (height as usize, width as usize);
+    Ok((PyArray1::from_vec(py, r.rgba).reshape([h, w, 4])?, PyArray1::from_vec(py, r.depth).reshape([h, w])?))
 }

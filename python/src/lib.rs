@@ -12,6 +12,7 @@ mod data;
 mod drone;
 mod inputs;
 mod model;
+mod uq;
 
 /// An error of the Rust side as a Python exception: `OSError` when the chain holds an I/O
 /// error, else `ValueError`, with the whole message.
@@ -73,6 +74,11 @@ fn _nerfsv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(model::train, m)?)?;
     m.add_function(wrap_pyfunction!(model::ground_truth_field, m)?)?;
     m.add_function(wrap_pyfunction!(model::load_field, m)?)?;
+    m.add_function(wrap_pyfunction!(data::render_dataset, m)?)?;
+    m.add_function(wrap_pyfunction!(data::render_view, m)?)?;
+    m.add_function(wrap_pyfunction!(uq::uncertainty_offline, m)?)?;
+    m.add_function(wrap_pyfunction!(uq::uncertainty_ause, m)?)?;
+    m.add_function(wrap_pyfunction!(uq::uncertainty_maps, m)?)?;
     m.add_function(wrap_pyfunction!(drone::fly, m)?)?;
     m.add_function(wrap_pyfunction!(drone::stress, m)?)?;
     m.add_function(wrap_pyfunction!(drone::stress_context, m)?)?;

@@ -10,7 +10,7 @@ use nerfsv_dataset::Frame;
 use nerfsv_nerf::{Budget, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::load_dataset_split;
-use nerfsv_scene::{Camera, Image, Intrinsics};
+use nerfsv_scene::{Camera, DepthImage, Image, Intrinsics};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_uq::offline::{fit_frame, Fit};
 use nerfsv_uq::Method;
@@ -30,7 +30,12 @@ pub struct Model {
 
 /// The camera of a 4×4 camera-to-world `pose` (row-major, OpenGL axes) with pixel intrinsics
 /// `(fx, fy, cx, cy)` and an image of `width` × `height`.
-fn camera(pose: &Bound<'_, PyAny>, width: u32, height: u32, intrinsics: (f32, f32, f32, f32)) -> PyResult<Camera> {
+pub(crate) fn camera(
+    pose: &Bound<'_, PyAny>,
+    width: u32,
+    height: u32,
+    intrinsics: (f32, f32, f32, f32),
+) -> PyResult<Camera> {
     let (shape, pose) = f32_array(pose, "pose")?;
     if shape != [4, 4] {
         return Err(value_error(format!("pose: expected shape (4, 4), found {shape:?}")));
@@ -47,6 +52,49 @@ fn camera(pose: &Bound<'_, PyAny>, width: u32, height: u32, intrinsics: (f32, f3
         return Err(value_error("pose: every entry must be finite"));
     }
     Ok(Camera::new(Intrinsics { width, height, fx, fy, cx, cy }, m))
+}
+
+/// The frame the uncertainty functions fit: the camera of [`camera`] and `image` `[h, w, 4]`
+/// RGBA (straight alpha) or `[h, w, 3]` RGB in `[0, 1]`; `depth` `[h, w]` its ground-truth
+/// z-depth (metres, 0 where nothing is hit), if any.
+pub(crate) fn frame(
+    pose: &Bound<'_, PyAny>,
+    width: u32,
+    height: u32,
+    intrinsics: (f32, f32, f32, f32),
+    image: &Bound<'_, PyAny>,
+    depth: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Frame> {
+    let cam = camera(pose, width, height, intrinsics)?;
+    let (shape, values) = f32_array(image, "image")?;
+    if shape.len() != 3
+        || shape[0] != height as usize
+        || shape[1] != width as usize
+        || !(shape[2] == 3 || shape[2] == 4)
+    {
+        return Err(value_error(format!(
+            "image: expected shape ({height}, {width}, 4) or ({height}, {width}, 3), found {shape:?}"
+        )));
+    }
+    let rgba: Vec<f32> =
+        if shape[2] == 4 { values } else { values.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 1.0]).collect() };
+    let depth = match depth {
+        None => None,
+        Some(d) => {
+            let (shape, metres) = f32_array(d, "depth")?;
+            if shape != [height as usize, width as usize] {
+                return Err(value_error(format!("depth: expected shape ({height}, {width}), found {shape:?}")));
+            }
+            Some(DepthImage { width, height, metres })
+        }
+    };
+    Ok(Frame {
+        file_path: "python".into(),
+        image_path: PathBuf::from("python"),
+        camera: cam,
+        image: Image { width, height, rgba },
+        depth,
+    })
 }
 
 #[pymethods]
@@ -128,37 +176,46 @@ impl Model {
         overrides: Option<Vec<String>>,
     ) -> PyResult<String> {
         let method: Method = crate::choice("method", method)?;
-        let cam = camera(pose, width, height, intrinsics)?;
-        let (shape, values) = f32_array(image, "image")?;
-        if shape.len() != 3
-            || shape[0] != height as usize
-            || shape[1] != width as usize
-            || !(shape[2] == 3 || shape[2] == 4)
-        {
-            return Err(value_error(format!(
-                "image: expected shape ({height}, {width}, 4) or ({height}, {width}, 3), found {shape:?}"
-            )));
-        }
-        let rgba: Vec<f32> = if shape[2] == 4 {
-            values.to_vec()
-        } else {
-            values.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 1.0]).collect()
-        };
+        let frame = frame(pose, width, height, intrinsics, image, None)?;
         // Only the `[uq]` table matters here: any run config is read, the ensemble's too.
         let cfg = crate::inputs::any_run_config(config.as_deref(), &overrides.unwrap_or_default())?.uq;
-        let frame = Frame {
-            file_path: "python".into(),
-            image_path: PathBuf::from("python"),
-            camera: cam,
-            image: Image { width, height, rgba },
-            depth: None,
-        };
         let nerf = self.nerf.clone();
         let fit = py.detach(move || fit_frame(&nerf, method, "python", &frame, None, &cfg)).map_err(py_err)?;
         match fit {
             Fit::Ga(row) => to_json(&row),
             Fit::Bla(row) => to_json(&row),
         }
+    }
+
+    /// The checkpoint's tensors under their torch-ngp names, as numpy float32 arrays of the
+    /// file's shapes: `encoder.embeddings` `[n_entries, 2]`, `sigma_net.{0,1}.weight` and
+    /// `color_net.{0,1,2}.weight` `[out, in]` (torch's `Linear` layout, no biases),
+    /// `density_grid` `[res, res, res]` (`[z][y][x]`). With `optimizer`, also the Adam moments
+    /// `optimizer.exp_avg.NAME` and `optimizer.exp_avg_sq.NAME` of each weight tensor, read
+    /// again from the checkpoint file (a `ValueError` when it holds no training state).
+    #[pyo3(signature = (optimizer = false))]
+    fn state_dict<'py>(&self, py: Python<'py>, optimizer: bool) -> PyResult<Bound<'py, PyDict>> {
+        let adam = if optimizer {
+            let path = self.path.clone();
+            let ckpt = py.detach(move || nerfsv_nerf::checkpoint::read(&path, true)).map_err(py_err)?;
+            ckpt.adam
+        } else {
+            None
+        };
+        let (nerf, d) = (&self.nerf, PyDict::new(py));
+        let tensor = |name: String, shape: &[usize], values: &[f32]| -> PyResult<()> {
+            d.set_item(name, PyArray1::from_slice(py, values).reshape(shape.to_vec())?)
+        };
+        for (name, (shape, range)) in nerfsv_nerf::fields::TENSOR_NAMES.iter().zip(&nerf.field.tensors) {
+            tensor(name.to_string(), shape, &nerf.params[range.clone()])?;
+            if let Some(a) = &adam {
+                tensor(format!("optimizer.exp_avg.{name}"), shape, &a.m[range.clone()])?;
+                tensor(format!("optimizer.exp_avg_sq.{name}"), shape, &a.v[range.clone()])?;
+            }
+        }
+        let r = nerf.grid.resolution;
+        tensor("density_grid".into(), &[r, r, r], &nerf.grid.density)?;
+        Ok(d)
     }
 
     /// The model's signed collision field on the grid of a ground truth (`scene`, a built-in

@@ -509,7 +509,8 @@ pub fn csv_field(s: &str) -> String {
     }
 }
 
-fn exclusion_name(e: Option<GaExclusion>) -> &'static str {
+/// The CSV's `excluded` value of a GA exclusion (empty for none).
+pub fn exclusion_name(e: Option<GaExclusion>) -> &'static str {
     match e {
         None => "",
         Some(GaExclusion::AbsolutelyCertain) => "absolutely_certain",

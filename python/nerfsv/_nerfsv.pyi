@@ -42,17 +42,24 @@ def train(
 def ground_truth_field(scene: str = ..., mesh: Optional[_Path] = ..., cells_per_metre: float = ...) -> Dict[str, Any]: ...
 def load_field(path: _Path) -> Dict[str, Any]: ...
 def fly(
-    model: _Path, world: str = ..., estimator: str = ..., disturbances: Optional[npt.NDArray[np.float64]] = ...,
+    model: Union[_Path, Model], world: str = ..., estimator: str = ..., disturbances: Optional[npt.NDArray[np.float64]] = ...,
     random_seed: Optional[int] = ..., seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ...,
     mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,
 ) -> Dict[str, Any]: ...
 def stress(
-    model: _Path, out: _Path, sampler: str = ..., world: str = ..., estimator: str = ..., replay: bool = ...,
+    model: Union[_Path, Model], out: _Path, sampler: str = ..., world: str = ..., estimator: str = ..., replay: bool = ...,
     seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ..., mesh: Optional[_Path] = ...,
     nerf_field: Optional[_Path] = ..., resume: bool = ...,
     executor: Optional[Callable[[str, str, List[bytes]], Iterable[Tuple[int, bytes]]]] = ...,
-    overrides: Optional[List[str]] = ...,
+    overrides: Optional[List[str]] = ..., reward: Optional[str] = ..., measure: Optional[str] = ...,
+    uncertainty: str = ..., field: Optional[_Path] = ...,
 ) -> str: ...
+def stress_system(
+    system: Any, sampler: str = ..., std: Optional[List[float]] = ..., seed: Optional[int] = ...,
+    config: Optional[_Path] = ..., overrides: Optional[List[str]] = ..., out: Optional[_Path] = ...,
+    resume: bool = ..., proposal_mean: Optional[npt.NDArray[np.float64]] = ...,
+    proposal_std: Optional[npt.NDArray[np.float64]] = ...,
+) -> Dict[str, Any]: ...
 def stress_context(
     model: _Path, seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ...,
     mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,

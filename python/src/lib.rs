@@ -12,6 +12,7 @@ mod data;
 mod drone;
 mod inputs;
 mod model;
+mod system;
 
 /// An error of the Rust side as a Python exception: `OSError` when the chain holds an I/O
 /// error, else `ValueError`, with the whole message.
@@ -77,5 +78,6 @@ fn _nerfsv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(drone::stress, m)?)?;
     m.add_function(wrap_pyfunction!(drone::stress_context, m)?)?;
     m.add_function(wrap_pyfunction!(drone::run_jobs, m)?)?;
+    m.add_function(wrap_pyfunction!(system::stress_system, m)?)?;
     Ok(())
 }

@@ -220,7 +220,9 @@ def _stress_system(system, out, sampler, seed, config, resume, overrides, std, p
     if proposal is not None:
         shape = (getattr(system, "steps", None), dim)
         mean, q_std = (np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), shape)) for a in proposal)
-    return _nerfsv.stress_system(system, sampler, stds, seed, config, list(overrides), out, resume, mean, q_std)
+    settings = dict(std=stds, seed=seed, config=config, overrides=list(overrides), out=out, resume=resume,
+                    proposal_mean=mean, proposal_std=q_std)
+    return _nerfsv.stress_system(system, sampler, settings)
 
 
 def _f32(a: np.ndarray) -> np.ndarray:

@@ -54,12 +54,11 @@ def stress(
     overrides: Optional[List[str]] = ..., reward: Optional[str] = ..., measure: Optional[str] = ...,
     uncertainty: str = ..., field: Optional[_Path] = ...,
 ) -> str: ...
-def stress_system(
-    system: Any, sampler: str = ..., std: Optional[List[float]] = ..., seed: Optional[int] = ...,
-    config: Optional[_Path] = ..., overrides: Optional[List[str]] = ..., out: Optional[_Path] = ...,
-    resume: bool = ..., proposal_mean: Optional[npt.NDArray[np.float64]] = ...,
-    proposal_std: Optional[npt.NDArray[np.float64]] = ...,
-) -> Dict[str, Any]: ...
+def stress_system(system: Any, sampler: str, settings: Dict[str, Any]) -> Dict[str, Any]:
+    """``settings``: every one of ``std`` (``[dim]`` list or None), ``seed``, ``config``,
+    ``overrides`` (list), ``out``, ``resume`` (bool), ``proposal_mean``, ``proposal_std``
+    (``[steps, dim]`` float64 arrays or None)."""
+    ...
 def stress_context(
     model: _Path, seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ...,
     mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,

@@ -45,8 +45,7 @@ pub(crate) fn score_of(failed: bool, miss_distance: f64) -> Result<f64, String> 
     }
     match (failed, miss_distance) {
         (true, d) => Ok(d.min(0.0)),
-        (false, d) if d > 0.0 => Ok(d),
-        (false, d) if d == 0.0 => Ok(f64::MIN_POSITIVE),
+        (false, d) if d >= 0.0 => Ok(d.max(f64::MIN_POSITIVE)),
         (false, d) => Err(format!(
             "a pass with a negative miss distance ({d}): a pass's miss distance is its distance to failure, ≥ 0"
         )),
@@ -371,6 +370,28 @@ fn search(system: &PySystem, plan: &Plan, prior: &Prior, recorder: &dyn Recorder
     })
 }
 
+/// What `stress_system` reads besides the system and the sampler: a dict with every key (the
+/// wrapper in `nerfsv/__init__.py` gives them all, `None` for the defaults).
+#[derive(FromPyObject)]
+#[pyo3(from_item_all)]
+pub struct Settings<'py> {
+    /// Standard deviation of each component of a step's prior, `[dim]`.
+    std: Option<Vec<f64>>,
+    /// Run seed (default `validation.seed`).
+    seed: Option<u64>,
+    /// A run config (TOML) whose `[validation]` sets the samplers.
+    config: Option<PathBuf>,
+    /// Its `TABLE.KEY=VALUE` overrides.
+    overrides: Option<Vec<String>>,
+    /// Folder for `rollouts.csv` and the journal.
+    out: Option<PathBuf>,
+    /// Continue the interrupted run in `out`.
+    resume: Option<bool>,
+    /// Importance sampling's proposal, `[steps, dim]` each.
+    proposal_mean: Option<PyReadonlyArray2<'py, f64>>,
+    proposal_std: Option<PyReadonlyArray2<'py, f64>>,
+}
+
 /// Searches your own system under test (see `nerfsv.stress(system=...)`): `sampler` `"mc"`,
 /// `"cem"`, `"is"` (from the proposal `proposal_mean`, `proposal_std` `[steps, dim]`, the
 /// config's `validation.cem.is_samples` rollouts) or `"subset"`; the prior N(0, diag(`std`²))
@@ -378,22 +399,15 @@ fn search(system: &PySystem, plan: &Plan, prior: &Prior, recorder: &dyn Recorder
 /// config's `[validation]` with `overrides`; `seed` (default `validation.seed`). With `out`,
 /// writes `rollouts.csv` there and keeps a journal in `out/journal`, which `resume` continues.
 #[pyfunction]
-#[pyo3(signature = (system, sampler = "mc", std = None, seed = None, config = None, overrides = None, out = None,
-                    resume = false, proposal_mean = None, proposal_std = None))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (system, sampler, settings))]
 pub fn stress_system<'py>(
     py: Python<'py>,
     system: &Bound<'py, PyAny>,
     sampler: &str,
-    std: Option<Vec<f64>>,
-    seed: Option<u64>,
-    config: Option<PathBuf>,
-    overrides: Option<Vec<String>>,
-    out: Option<PathBuf>,
-    resume: bool,
-    proposal_mean: Option<PyReadonlyArray2<'py, f64>>,
-    proposal_std: Option<PyReadonlyArray2<'py, f64>>,
+    settings: Settings<'py>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let Settings { std, seed, config, overrides, out, resume, proposal_mean, proposal_std } = settings;
+    let resume = resume.unwrap_or(false);
     let kind = Search::parse(sampler)?;
     let sys = PySystem::new(system)?;
     let cfg = run_config(config.as_deref(), &overrides.unwrap_or_default())?;

@@ -179,7 +179,8 @@ def stress(
 
     Returns a dict: ``sampler``, ``estimator``, ``probability``, ``standard_error``,
     ``interval`` (95 %), ``rollouts``, ``failures``, ``seed``, per rollout (in the CSV's order)
-    ``scores``, ``failed``, ``seeds`` and ``labels``, ``most_likely_failure`` (``label``,
+    ``scores``, ``failed``, ``seeds`` and ``labels`` (the CSV's sampler column: ``"mc"``,
+    ``"cem"``, ``"cem-is"`` for an importance batch, ``"subset"``), ``most_likely_failure`` (``label``,
     ``population``, ``index``, ``seed``, ``score``, ``log_p``, ``disturbances``, or ``None``),
     and the sampler's own fields: for ``"cem"`` and ``"is"`` ``effective_sample_size``,
     ``effective_failures``, ``unnormalised`` and its ``unnormalised_standard_error``,
@@ -190,11 +191,13 @@ def stress(
     √(p(1 − p)/n) and ``interval`` Wilson's.
     """
     if system is not None:
-        drone = dict(model=model, world=world, estimator=estimator, replay=replay, scene=scene, mesh=mesh,
-                     nerf_field=nerf_field, executor=executor, reward=reward, measure=measure, field=field)
-        given = [k for k, v in drone.items() if v not in (None, False, "nerf", "vision", "stonehenge")]
-        if given or uncertainty != "exact":
-            raise ValueError(f"system: {', '.join(given or ['uncertainty'])} are the drone's, not a system's")
+        drone = dict(model=(model, None), world=(world, "nerf"), estimator=(estimator, "vision"),
+                     replay=(replay, False), scene=(scene, "stonehenge"), mesh=(mesh, None),
+                     nerf_field=(nerf_field, None), executor=(executor, None), reward=(reward, None),
+                     measure=(measure, None), uncertainty=(uncertainty, "exact"), field=(field, None))
+        given = [k for k, (v, default) in drone.items() if v is not default and v != default]
+        if given:
+            raise ValueError(f"system: {', '.join(given)}: the drone's arguments, not a system's")
         return _stress_system(system, out, sampler, seed, config, resume, overrides, std, proposal)
     if model is None or out is None:
         raise ValueError("stress: give model and out (the drone), or system=")

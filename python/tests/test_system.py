@@ -118,6 +118,8 @@ def test_subset_simulation_covers_the_closed_form_failure_probability():
     p = p_fail(2.0)
     r = stress(Toy(), "subset", seed=1)
     assert r["levels"] == 1 and r["interval"][0] < p < r["interval"][1], r
+    runs = [stress(Toy(), "subset", seed=s) for s in range(6)]
+    assert sum(x["interval"][0] < p < x["interval"][1] for x in runs) >= 5, [x["interval"] for x in runs]
     # At 3σ the chains must climb: more than one level, and the interval still covers.
     p3 = p_fail(3.0)
     runs = [stress(Toy(3.0), "subset", seed=s) for s in range(6)]
@@ -235,15 +237,23 @@ def test_bad_returns_and_arguments_raise_value_error_naming_the_rollout():
         nerfsv.stress(system=Toy(), sampler="is", std=1.0)
     with pytest.raises(ValueError, match="resume"):
         nerfsv.stress(system=Toy(), std=1.0, resume=True)
-    with pytest.raises(ValueError, match="are the drone's"):
-        nerfsv.stress(system=Toy(), std=1.0, reward="ga")
+    with pytest.raises(ValueError, match="system: world, reward: the drone's arguments"):
+        nerfsv.stress(system=Toy(), std=1.0, world="gt", reward="ga")
 
 
-def test_an_exception_in_run_propagates_as_itself():
+class RaisingBatch(BatchToy):
+    def run_batch(self, disturbances, seeds):
+        raise Interrupted("call 3")
+
+
+@pytest.mark.parametrize("sampler,system", [("subset", Toy(fail_after=2)), ("mc", Toy(fail_after=2)),
+                                            ("cem", RaisingBatch())])
+def test_an_exception_in_run_propagates_as_itself(sampler, system):
     with pytest.raises(Interrupted, match="call 3") as e:
-        nerfsv.stress(system=Toy(fail_after=2), sampler="subset", std=1.0)
+        nerfsv.stress(system=system, sampler=sampler, std=1.0)
     notes = getattr(e.value, "__notes__", None)
-    assert notes is None or any("system.run(disturbances, seed=" in n for n in notes)
+    call = "system.run_batch(disturbances [10, 10, 1]" if sampler == "cem" else "system.run(disturbances, seed="
+    assert notes is None or any(call in n for n in notes), notes
 
 
 # The drone: the small study of test_nerfsv.py.

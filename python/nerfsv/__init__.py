@@ -176,6 +176,9 @@ def stress(
     ``out``, ``out/rollouts.csv`` holds every rollout (the command line's layout) and
     ``out/journal`` every finished one as it finishes, so that ``resume=True`` after an
     interrupted call finishes with the same results without running the recorded rollouts again.
+    A journal belongs to the settings above, the system's class name and ``str(obj.key)`` when
+    ``obj`` has a ``key`` attribute (give one that names whatever else its results depend on):
+    resuming into another's raises ``ValueError``.
 
     Returns a dict: ``sampler``, ``estimator``, ``probability``, ``standard_error``,
     ``interval`` (95 %), ``rollouts``, ``failures``, ``seed``, per rollout (in the CSV's order)

@@ -288,7 +288,9 @@ impl Found {
 /// Everything a search's rollouts depend on, and the journal key made of it.
 #[derive(serde::Serialize)]
 struct Plan {
+    /// The system's class name and its `key` attribute (`str` of it), if it has one.
     system: String,
+    system_key: Option<String>,
     steps: usize,
     dim: usize,
     sampler: Search,
@@ -397,7 +399,8 @@ pub struct Settings<'py> {
 /// config's `validation.cem.is_samples` rollouts) or `"subset"`; the prior N(0, diag(`std`²))
 /// per step, or the config's `[validation.disturbance]`; the sampler's settings from the
 /// config's `[validation]` with `overrides`; `seed` (default `validation.seed`). With `out`,
-/// writes `rollouts.csv` there and keeps a journal in `out/journal`, which `resume` continues.
+/// writes `rollouts.csv` there and keeps a journal in `out/journal`, which `resume` continues:
+/// its key is made of everything above, the system's class name and its `key` attribute.
 #[pyfunction]
 #[pyo3(signature = (system, sampler, settings))]
 pub fn stress_system<'py>(
@@ -424,6 +427,10 @@ pub fn stress_system<'py>(
     }
     let plan = Plan {
         system: system.get_type().qualname()?.to_string(),
+        system_key: match system.getattr("key") {
+            Ok(k) => Some(k.str()?.to_string()),
+            Err(_) => None,
+        },
         steps: sys.steps,
         dim: sys.dim,
         sampler: kind,

@@ -166,9 +166,13 @@ def test_a_resumed_run_equals_an_uninterrupted_one_without_running_a_recorded_ro
     assert rest.calls == whole.calls - n, (rest.calls, whole.calls)
     assert_same(resumed, full)
     assert (tmp_path / "cut" / "rollouts.csv").read_bytes() == (tmp_path / "full" / "rollouts.csv").read_bytes()
-    # Another seed's journal is refused, not mixed in.
+    # Another seed's journal, or another system's, is refused, not mixed in.
     with pytest.raises(ValueError, match="another configuration"):
         stress(Toy(t), sampler, True, seed=5, out=tmp_path / "cut", resume=True)
+    other = Toy(t)
+    other.key = "threshold 2.5"
+    with pytest.raises(ValueError, match="another configuration"):
+        stress(other, sampler, True, seed=4, out=tmp_path / "cut", resume=True)
 
 
 @pytest.mark.parametrize("sampler", ["mc", "cem"])

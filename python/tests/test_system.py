@@ -54,13 +54,16 @@ class Toy:
 
 
 class BatchToy(Toy):
-    """The toy with `run_batch`: counts the batches and the rollouts in them."""
+    """The toy with `run_batch`: counts the batches and the rollouts in them; raises
+    `Interrupted` instead of running batch number `cut` (from 0)."""
 
-    def __init__(self, threshold=2.0):
+    def __init__(self, threshold=2.0, cut=None):
         super().__init__(threshold)
-        self.batches, self.batched = 0, 0
+        self.batches, self.batched, self.cut = 0, 0, cut
 
     def run_batch(self, disturbances, seeds):
+        if self.batches == self.cut:
+            raise Interrupted(f"batch {self.cut}")
         assert disturbances.ndim == 3 and disturbances.shape[1:] == (10, 1) and seeds.shape == disturbances.shape[:1]
         self.batches += 1
         self.batched += len(seeds)
@@ -173,6 +176,16 @@ def test_a_resumed_run_equals_an_uninterrupted_one_without_running_a_recorded_ro
     other.key = "threshold 2.5"
     with pytest.raises(ValueError, match="another configuration"):
         stress(other, sampler, True, seed=4, out=tmp_path / "cut", resume=True)
+
+
+def test_a_run_batch_that_raises_is_resumed_from_the_populations_before_it(tmp_path):
+    whole = BatchToy()
+    full = stress(whole, "cem", True, seed=6, out=tmp_path / "full")
+    with pytest.raises(Interrupted, match="batch 2"):
+        stress(BatchToy(cut=2), "cem", True, seed=6, out=tmp_path / "cut")
+    rest = BatchToy()
+    assert_same(stress(rest, "cem", True, seed=6, out=tmp_path / "cut", resume=True), full)
+    assert rest.batches == 2 and rest.batched == whole.batched - 2 * 50
 
 
 @pytest.mark.parametrize("sampler", ["mc", "cem"])

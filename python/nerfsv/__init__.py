@@ -91,7 +91,7 @@ def uncertainty(
 
 
 def fly(
-    model: Path,
+    model: Union[Path, Model],
     *,
     world: str = "nerf",
     estimator: str = "vision",
@@ -104,7 +104,10 @@ def fly(
     nerf_field: Optional[Path] = None,
     overrides: Sequence[str] = (),
 ) -> Dict[str, Any]:
-    """Flies the drone once along its planned path (``nerfsv fly``). ``disturbances`` is
+    """Flies the drone once along its planned path (``nerfsv fly``). ``model`` is a checkpoint's
+    path or a ``Model``: a ``Model`` flies from the file it was loaded from (``Model.path``),
+    which must still hold it (else ``ValueError``), or, when that file is gone, from a temporary
+    copy of it; the results are the same as with its path. ``disturbances`` is
     ``[steps, 12]`` float64, or ``random_seed`` draws them from the prior. Returns
     ``figures`` (a dict) and the trajectory at every substep: ``time`` ``[n]``, ``position``
     and ``estimate`` ``[n, 3]``, ``clearance`` ``[n]`` (NaN outside the field's grid)."""
@@ -115,9 +118,10 @@ def fly(
 
 
 def stress(
-    model: Path,
-    out: Path,
+    model: Union[Path, Model, None] = None,
+    out: Optional[Path] = None,
     *,
+    system: Any = None,
     sampler: str = "cem",
     world: str = "nerf",
     estimator: str = "vision",
@@ -130,17 +134,87 @@ def stress(
     resume: bool = False,
     executor: Optional[Callable[[str, str, list], Iterable[Tuple[int, bytes]]]] = None,
     overrides: Sequence[str] = (),
+    reward: Optional[str] = None,
+    measure: Optional[str] = None,
+    uncertainty: str = "exact",
+    field: Optional[Path] = None,
+    std: Union[float, Sequence[float], None] = None,
+    proposal: Optional[Tuple[np.ndarray, np.ndarray]] = None,
 ) -> Dict[str, Any]:
-    """Runs ``nerfsv stress`` into ``out`` (the same files: ``rollouts.csv``, ``table.csv``,
-    ``stress.json``, the replays, the journal) and returns ``stress.json``'s figures.
-    ``sampler`` is ``"mc"``, ``"cem"`` or ``"subset"``; ``seed`` replaces the config's
-    ``validation.seed``. ``executor`` flies the rollouts elsewhere (``nerfsv.distributed``
-    builds one on Ray); the files are the same bytes either way. ``overrides`` are the run
-    config's ``"TABLE.KEY=VALUE"`` overrides, as the command line's ``--set``."""
+    """A stress test: of the drone (``model``, ``out``), or of your own ``system``.
+
+    **The drone** runs ``nerfsv stress`` into ``out`` (the same files: ``rollouts.csv``,
+    ``table.csv``, ``stress.json``, the replays, the journal) and returns ``stress.json``'s
+    figures. ``model`` is a checkpoint's path or a ``Model`` (as ``fly``). ``sampler`` is
+    ``"mc"``, ``"cem"`` or ``"subset"``; ``seed`` replaces the config's ``validation.seed``.
+    ``reward`` or ``measure`` (``"ga"`` or ``"bla"``) measures that method's uncertainty at
+    every step, ``reward`` also ranking CEM's samples by its reward (eq. 10/11), measured as
+    ``uncertainty`` says (``"exact"``, or ``"field"`` from the uncertainty field file ``field``,
+    ``nerfsv uq field``): the command line's ``--reward``, ``--measure``, ``--uncertainty``,
+    ``--field``, so the online tables with and without reward come from Python too.
+    ``executor`` flies the rollouts elsewhere (``nerfsv.distributed`` builds one on Ray); the
+    files are the same bytes either way. ``overrides`` are the run config's
+    ``"TABLE.KEY=VALUE"`` overrides, as the command line's ``--set``.
+
+    **Your own system** (``system=obj``): ``obj.steps`` and ``obj.dim`` are ints and
+    ``obj.run(disturbances, seed)`` flies one rollout, ``disturbances`` ``[steps, dim]``
+    float64 and ``seed`` an int for the system's own randomness, and returns ``(failed,
+    miss_distance)``: ``failed`` a bool, ``miss_distance`` a finite float, a pass's distance to
+    failure (≥ 0). Optionally ``obj.run_batch(disturbances [n, steps, dim], seeds [n])`` returns
+    a sequence of ``n`` such pairs: then each batch of rollouts a sampler flies is one call (and
+    ``run`` is called only by subset simulation's chains), else ``run`` is called for each.
+    ``run`` must be a function of its arguments alone (a recorded rollout is not run again).
+
+    The samplers' score is ``miss_distance`` for a pass (0 counts as the smallest positive
+    number) and ``min(miss_distance, 0)`` for a failure, so failure ⇔ score ≤ 0; a pass with a
+    negative miss distance, a miss distance that is not finite, or a return that is not such a
+    pair raises ``ValueError`` naming the call and the rollout's seed. An exception ``run``
+    raises propagates as itself.
+
+    ``sampler``: ``"mc"`` (``[validation.monte_carlo]``), ``"cem"`` (``[validation.cem]``,
+    ending with its importance-sampling estimate), ``"is"`` (importance sampling from
+    ``proposal=(mean, std)``, each broadcast to ``[steps, dim]``, ``validation.cem.is_samples``
+    rollouts) or ``"subset"`` (``[validation.subset]``), with the settings of ``config`` and
+    ``overrides``. The prior is N(0, diag(``std``²)) per step (``std`` a number or one per
+    component), else the config's ``[validation.disturbance]``. ``seed`` (default
+    ``validation.seed``) fixes every rollout: the same seed gives the same results. With
+    ``out``, ``out/rollouts.csv`` holds every rollout (the command line's layout) and
+    ``out/journal`` every finished one as it finishes, so that ``resume=True`` after an
+    interrupted call finishes with the same results without running the recorded rollouts again.
+    A journal belongs to the settings above, the system's class name and ``str(obj.key)`` when
+    ``obj`` has a ``key`` attribute (give one that names whatever else its results depend on):
+    resuming into another's raises ``ValueError``.
+
+    Returns a dict: ``sampler``, ``estimator``, ``probability``, ``standard_error``,
+    ``interval`` (95 %), ``rollouts``, ``failures``, ``seed``, per rollout (in the CSV's order)
+    ``scores``, ``failed``, ``seeds`` and ``labels`` (the CSV's sampler column: ``"mc"``,
+    ``"cem"``, ``"cem-is"`` for an importance batch, ``"subset"``), ``most_likely_failure`` (``label``,
+    ``population``, ``index``, ``seed``, ``score``, ``log_p``, ``disturbances``, or ``None``),
+    and the sampler's own fields: for ``"cem"`` and ``"is"`` ``effective_sample_size``,
+    ``effective_failures``, ``unnormalised`` and its ``unnormalised_standard_error``,
+    ``is_samples``, ``is_failures``, ``proposal_mean`` and ``proposal_std`` (the proposal the
+    estimate's batch came from), for ``"cem"`` ``search_failures``; for ``"subset"`` ``cov``,
+    ``levels``, ``last_level_failures``, ``effective_failures``, ``equivalent_rollouts``,
+    ``thresholds``, ``acceptance``. For ``"mc"`` ``standard_error`` is the binomial
+    √(p(1 − p)/n) and ``interval`` Wilson's.
+    """
+    if system is not None:
+        drone = dict(model=(model, None), world=(world, "nerf"), estimator=(estimator, "vision"),
+                     replay=(replay, False), scene=(scene, "stonehenge"), mesh=(mesh, None),
+                     nerf_field=(nerf_field, None), executor=(executor, None), reward=(reward, None),
+                     measure=(measure, None), uncertainty=(uncertainty, "exact"), field=(field, None))
+        given = [k for k, (v, default) in drone.items() if v is not default and v != default]
+        if given:
+            raise ValueError(f"system: {', '.join(given)}: the drone's arguments, not a system's")
+        return _stress_system(system, out, sampler, seed, config, resume, overrides, std, proposal)
+    if model is None or out is None:
+        raise ValueError("stress: give model and out (the drone), or system=")
+    if std is not None or proposal is not None:
+        raise ValueError("std, proposal: are read only with system=")
     return json.loads(
         _nerfsv.stress(
             model, out, sampler, world, estimator, replay, seed, config, scene, mesh, nerf_field, resume, executor,
-            list(overrides),
+            list(overrides), reward, measure, uncertainty, field,
         )
     )
 
@@ -245,6 +319,23 @@ def uncertainty_maps(
     )
     out["fit"] = json.loads(out["fit"])
     return out
+
+
+def _stress_system(system, out, sampler, seed, config, resume, overrides, std, proposal) -> Dict[str, Any]:
+    dim = getattr(system, "dim", None)
+    stds = None
+    if std is not None:
+        stds = np.atleast_1d(np.asarray(std, dtype=np.float64))
+        if stds.shape == (1,) and isinstance(dim, int):
+            stds = np.repeat(stds, dim)
+        stds = [float(v) for v in stds.ravel()]
+    mean = q_std = None
+    if proposal is not None:
+        shape = (getattr(system, "steps", None), dim)
+        mean, q_std = (np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), shape)) for a in proposal)
+    settings = dict(std=stds, seed=seed, config=config, overrides=list(overrides), out=out, resume=resume,
+                    proposal_mean=mean, proposal_std=q_std)
+    return _nerfsv.stress_system(system, sampler, settings)
 
 
 def _f32(a: np.ndarray) -> np.ndarray:

@@ -65,17 +65,23 @@ def uncertainty_maps(
     overrides: Optional[List[str]] = ...,
 ) -> Dict[str, Any]: ...
 def fly(
-    model: _Path, world: str = ..., estimator: str = ..., disturbances: Optional[npt.NDArray[np.float64]] = ...,
+    model: Union[_Path, Model], world: str = ..., estimator: str = ..., disturbances: Optional[npt.NDArray[np.float64]] = ...,
     random_seed: Optional[int] = ..., seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ...,
     mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,
 ) -> Dict[str, Any]: ...
 def stress(
-    model: _Path, out: _Path, sampler: str = ..., world: str = ..., estimator: str = ..., replay: bool = ...,
+    model: Union[_Path, Model], out: _Path, sampler: str = ..., world: str = ..., estimator: str = ..., replay: bool = ...,
     seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ..., mesh: Optional[_Path] = ...,
     nerf_field: Optional[_Path] = ..., resume: bool = ...,
     executor: Optional[Callable[[str, str, List[bytes]], Iterable[Tuple[int, bytes]]]] = ...,
-    overrides: Optional[List[str]] = ...,
+    overrides: Optional[List[str]] = ..., reward: Optional[str] = ..., measure: Optional[str] = ...,
+    uncertainty: str = ..., field: Optional[_Path] = ...,
 ) -> str: ...
+def stress_system(system: Any, sampler: str, settings: Dict[str, Any]) -> Dict[str, Any]:
+    """``settings``: every one of ``std`` (``[dim]`` list or None), ``seed``, ``config``,
+    ``overrides`` (list), ``out``, ``resume`` (bool), ``proposal_mean``, ``proposal_std``
+    (``[steps, dim]`` float64 arrays or None)."""
+    ...
 def stress_context(
     model: _Path, seed: Optional[int] = ..., config: Optional[_Path] = ..., scene: str = ...,
     mesh: Optional[_Path] = ..., nerf_field: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,

@@ -22,8 +22,9 @@ use nerfsv_sim::io::MAX_PRIOR_SIGMAS;
 use nerfsv_sim::{check_component, Disturbance, EstimatorKind, Flight, WorldKind, DISTURBANCE_COLUMNS};
 use nerfsv_study::flight::{world as world_of, FlightInputs, FlightRequest};
 use nerfsv_study::remote::{decode_job, encode_result, RemoteRollouts, RemoteSpec, Returned};
-use nerfsv_study::stress::{Sampler, SearchSettings};
-use nerfsv_study::{drone_disturbances, DroneSystem, EstimateLog};
+use nerfsv_study::stress::{OnlineSettings, Sampler, SearchSettings};
+use nerfsv_study::{drone_disturbances, DroneSystem, EstimateLog, UqMode};
+use nerfsv_uq::{Method, UncertaintyField};
 use nerfsv_validation::{System, Trajectory, ValidationError};
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -31,6 +32,61 @@ use pyo3::types::{PyBytes, PyDict, PyList};
 
 use crate::inputs::{io_at, run_config, scene_of};
 use crate::{choice, py_err, to_json, value_error};
+
+/// The checkpoint a `model` argument names: a path, or a `nerfsv.Model`. A `Model` flies from
+/// the file it was loaded from (`Model.path`), which must still hold that model (checked by its
+/// content's id after loading); when that file is gone, from the model saved to a temporary
+/// file that lives as long as this value.
+struct Checkpoint {
+    path: PathBuf,
+    /// `nerfsv_uq::model_id` of the `Model` given, if one was.
+    id: Option<String>,
+    _dir: Option<tempfile::TempDir>,
+}
+
+impl Checkpoint {
+    fn of(model: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let Ok(m) = model.cast::<crate::model::Model>() else {
+            let path: PathBuf = model
+                .extract()
+                .map_err(|_| value_error(format!("model: a checkpoint path or a nerfsv.Model, found {model}")))?;
+            return Ok(Self { path, id: None, _dir: None });
+        };
+        let m = m.get();
+        let id = Some(nerfsv_uq::model_id(&m.nerf));
+        if m.path.is_file() {
+            return Ok(Self { path: m.path.clone(), id, _dir: None });
+        }
+        let dir = tempfile::tempdir().map_err(|e| py_err(io_at(Path::new("a temporary folder"), e)))?;
+        let path = dir.path().join("checkpoint.safetensors");
+        m.nerf.save(&path).map_err(py_err)?;
+        Ok(Self { path, id, _dir: Some(dir) })
+    }
+
+    /// Refuses a checkpoint file that no longer holds the `Model` given.
+    fn check(&self, loaded: &nerfsv_nerf::Nerf) -> PyResult<()> {
+        match &self.id {
+            Some(id) if *id != nerfsv_uq::model_id(loaded) => Err(value_error(format!(
+                "model: {} no longer holds the model that Model.load read from it; load it again",
+                self.path.display()
+            ))),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The per-step uncertainty `nerfsv stress` measures with `--reward` or `--measure` METHOD and
+/// `--uncertainty MODE`.
+fn online_of(reward: Option<&str>, measure: Option<&str>, uncertainty: &str) -> PyResult<Option<OnlineSettings>> {
+    let mode = choice::<UqMode>("uncertainty", uncertainty)?;
+    let method = |arg: &str, v: &str| choice::<Method>(arg, v);
+    Ok(match (reward, measure) {
+        (Some(_), Some(_)) => return Err(value_error("reward, measure: give one of them, not both")),
+        (Some(m), None) => Some(OnlineSettings { method: method("reward", m)?, mode, reward: true }),
+        (None, Some(m)) => Some(OnlineSettings { method: method("measure", m)?, mode, reward: false }),
+        (None, None) => None,
+    })
+}
 
 /// The drone's input files exist (else `FileNotFoundError` naming the argument).
 fn inputs_exist(model: &Path, nerf_field: Option<&Path>, mesh: Option<&Path>) -> PyResult<()> {
@@ -50,7 +106,8 @@ fn config_with_seed(config: Option<&Path>, overrides: &[String], seed: Option<u6
 
 /// Flies the drone once along its planned path, as `nerfsv fly` does: `disturbances` `[steps,
 /// 12]` float64 (one per step: Δposition, Δvelocity, Δrotation vector, Δangular velocity), or
-/// drawn from the config's prior with `random_seed`, or none. Returns a dict of the figures
+/// drawn from the config's prior with `random_seed`, or none. `model` is a checkpoint's path or a
+/// `nerfsv.Model` (see [`Checkpoint`]). Returns a dict of the figures
 /// (`nerfsv fly --json`'s) and the trajectory at every substep: `time` `[n]`, `position` and
 /// `estimate` `[n, 3]` (true and believed body centre, metres), `clearance` `[n]` (metres, NaN
 /// where the body left the field's grid).
@@ -60,7 +117,7 @@ fn config_with_seed(config: Option<&Path>, overrides: &[String], seed: Option<u6
 #[allow(clippy::too_many_arguments)]
 pub fn fly<'py>(
     py: Python<'py>,
-    model: PathBuf,
+    model: &Bound<'py, PyAny>,
     world: &str,
     estimator: &str,
     disturbances: Option<PyReadonlyArray2<'py, f64>>,
@@ -73,7 +130,9 @@ pub fn fly<'py>(
     overrides: Option<Vec<String>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (kind, est) = (choice::<WorldKind>("world", world)?, choice::<EstimatorKind>("estimator", estimator)?);
-    inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
+    let checkpoint = Checkpoint::of(model)?;
+    let model = &checkpoint.path;
+    inputs_exist(model, nerf_field.as_deref(), mesh.as_deref())?;
     let cfg = run_config(config.as_deref(), &overrides.unwrap_or_default())?;
     let ds: Vec<Disturbance> = match (disturbances, random_seed) {
         (Some(_), Some(_)) => return Err(value_error("give disturbances or random_seed, not both")),
@@ -109,9 +168,11 @@ pub fn fly<'py>(
     };
     let ground_truth = scene_of(scene, mesh.as_deref())?;
     let seed = seed.or(random_seed).unwrap_or(0);
+    let inputs =
+        py.detach(|| FlightInputs::from_files(model, nerf_field.as_deref(), &ground_truth, 40.0)).map_err(py_err)?;
+    checkpoint.check(&inputs.nerf)?;
     let (figures, r) = py
         .detach(|| -> Result<_, nerfsv_study::StudyError> {
-            let inputs = FlightInputs::from_files(&model, nerf_field.as_deref(), &ground_truth, 40.0)?;
             nerfsv_study::flight::fly(&FlightRequest {
                 drone: cfg.drone(Some(&ground_truth)),
                 inputs: &inputs,
@@ -161,15 +222,19 @@ impl RemoteRollouts for PyExecutor {
 /// in the other world with `replay`, with the config's `[validation]` (its seed replaced by
 /// `seed`). With `executor` (see `nerfsv.distributed`), the Monte Carlo and CEM rollouts and
 /// the replays fly wherever it sends them (subset simulation's chains fly here); the files
-/// are the same bytes.
+/// are the same bytes. `reward` or `measure` (`"ga"`, `"bla"`) measures that method's
+/// uncertainty at every step, `reward` also ranking CEM's samples by its reward, measured as
+/// `uncertainty` says (`"exact"`, or `"field"` from the uncertainty field `field`): the command
+/// line's `--reward`, `--measure`, `--uncertainty` and `--field`. `model` is a checkpoint's
+/// path or a `nerfsv.Model` (see [`Checkpoint`]).
 #[pyfunction]
 #[pyo3(signature = (model, out, sampler = "cem", world = "nerf", estimator = "vision", replay = false, seed = None,
                     config = None, scene = "stonehenge", mesh = None, nerf_field = None, resume = false, executor = None,
-                    overrides = None))]
+                    overrides = None, reward = None, measure = None, uncertainty = "exact", field = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn stress(
     py: Python<'_>,
-    model: PathBuf,
+    model: &Bound<'_, PyAny>,
     out: PathBuf,
     sampler: &str,
     world: &str,
@@ -183,39 +248,50 @@ pub fn stress(
     resume: bool,
     executor: Option<Py<PyAny>>,
     overrides: Option<Vec<String>>,
+    reward: Option<&str>,
+    measure: Option<&str>,
+    uncertainty: &str,
+    field: Option<PathBuf>,
 ) -> PyResult<String> {
     let sampler: Sampler = choice("sampler", sampler)?;
     let (kind, est) = (choice::<WorldKind>("world", world)?, choice::<EstimatorKind>("estimator", estimator)?);
-    inputs_exist(&model, nerf_field.as_deref(), mesh.as_deref())?;
+    let online = online_of(reward, measure, uncertainty)?;
+    let checkpoint = Checkpoint::of(model)?;
+    let model = &checkpoint.path;
+    inputs_exist(model, nerf_field.as_deref(), mesh.as_deref())?;
+    field.as_deref().map_or(Ok(()), |p| crate::must_exist(p, "field"))?;
     let cfg = config_with_seed(config.as_deref(), &overrides.unwrap_or_default(), seed)?;
     let mut guard = nerfsv_pipeline::Guard::new()
         .output("out", &out)
-        .input("model", &model)
-        .input_opt("nerf_field", nerf_field.as_deref());
+        .input("model", model)
+        .input_opt("nerf_field", nerf_field.as_deref())
+        .input_opt("field", field.as_deref());
     if let Some(p) = &mesh {
         guard = guard.mesh("mesh", p);
     }
     guard.check().map_err(py_err)?;
     let ground_truth = scene_of(scene, mesh.as_deref())?;
     let remote = executor.map(PyExecutor);
+    let uq_field = field.as_deref().map(|p| UncertaintyField::load(p).map(|f| (p, f))).transpose().map_err(py_err)?;
+    let worlds =
+        py.detach(|| FlightInputs::from_files(model, nerf_field.as_deref(), &ground_truth, 40.0)).map_err(py_err)?;
+    checkpoint.check(&worlds.nerf)?;
     let figures = py
         .detach(|| -> Result<_, Box<nerfsv_pipeline::PipelineError>> {
-            let worlds = FlightInputs::from_files(&model, nerf_field.as_deref(), &ground_truth, 40.0)
-                .map_err(|e| Box::new(e.into()))?;
             run_stress(
                 &StressRequest {
                     config: &cfg,
                     scene: &ground_truth,
                     inputs: &worlds,
-                    model: &model,
+                    model,
                     nerf_field: nerf_field.as_deref(),
                     search: SearchSettings {
                         world: kind,
                         estimator: est,
                         sampler,
                         replay,
-                        online: None,
-                        field: None,
+                        online,
+                        field: uq_field.as_ref().map(|(p, f)| (*p, f)),
                         out: &out,
                         resume,
                         remote: remote.as_ref().map(|r| r as &dyn RemoteRollouts),

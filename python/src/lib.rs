@@ -12,6 +12,7 @@ mod data;
 mod drone;
 mod inputs;
 mod model;
+mod system;
 mod uq;
 
 /// An error of the Rust side as a Python exception: `OSError` when the chain holds an I/O
@@ -83,5 +84,6 @@ fn _nerfsv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(drone::stress, m)?)?;
     m.add_function(wrap_pyfunction!(drone::stress_context, m)?)?;
     m.add_function(wrap_pyfunction!(drone::run_jobs, m)?)?;
+    m.add_function(wrap_pyfunction!(system::stress_system, m)?)?;
     Ok(())
 }

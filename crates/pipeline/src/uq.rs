@@ -3,6 +3,7 @@
 //! offline library ([`nerfsv_uq::offline`]), which `nerfsv uq offline` and `nerfsv uq ause`
 //! call too.
 
+pub(crate) mod config;
 mod report;
 
 use std::fmt::Write as _;
@@ -13,7 +14,7 @@ use nerfsv_uq::offline::*;
 use nerfsv_uq::{mean_ause, Sparsification, UqConfig};
 use serde::{Deserialize, Serialize};
 
-use crate::config::UqOfflineConfig;
+use self::config::UqOfflineConfig;
 use crate::stage::{Stage, StageContext};
 use crate::stages::{load_dataset_split, Dataset, Train};
 use crate::PipelineError;

@@ -12,8 +12,8 @@ use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_scene::validate::in_range;
 use nerfsv_uq::offline::{
-    ause_frames, has_split, method_files, offline_split, write_files, ImageAuse, Method, OfflineSummary, SplitImages,
-    SPLITS,
+    ause_frames, has_split, method_files, offline_split, write_files, ImageAuse, Method, OfflineSummary, SplitFitting,
+    SplitImages, SPLITS,
 };
 use serde::Serialize;
 
@@ -226,15 +226,17 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
         let stage = format!("uq {} {name}", method.name());
         let progress = |done: usize, total: usize| reporter.progress(&stage, done as u64, total as u64, "images");
         let note = |message: &str| reporter.note(&stage, message);
-        rows.extend(offline_split(
+        let fitting = SplitFitting { ga_rays: args.rays, depth_ause: false };
+        let fits = offline_split(
             &nerf,
             method,
             SplitImages { split: &split, name, indices: &indices },
-            args.rays,
+            fitting,
             &cfg,
             &progress,
             &note,
-        )?);
+        )?;
+        rows.extend(fits.rows);
     }
 
     let mut summary = OfflineSummary::new(method, &rows, &present, skipped_splits, cfg.ga_sigma_max);

@@ -385,18 +385,19 @@ impl EstimateErrorFigures {
         if errors.is_empty() {
             return None;
         }
-        let quantile = |i: usize, q: f64| {
+        // Each column sorted once for both of its quantiles.
+        let [position, attitude] = [0, 1].map(|i| {
             let mut v: Vec<f64> = errors.iter().map(|e| e[i]).collect();
             v.sort_by(f64::total_cmp);
-            quantile_sorted(&v, q)
-        };
+            v
+        });
         Some(Self {
             world,
             images: errors.len(),
-            median_position_m: quantile(0, 0.5),
-            p90_position_m: quantile(0, 0.9),
-            median_attitude_deg: quantile(1, 0.5),
-            p90_attitude_deg: quantile(1, 0.9),
+            median_position_m: quantile_sorted(&position, 0.5),
+            p90_position_m: quantile_sorted(&position, 0.9),
+            median_attitude_deg: quantile_sorted(&attitude, 0.5),
+            p90_attitude_deg: quantile_sorted(&attitude, 0.9),
         })
     }
 }

@@ -53,9 +53,10 @@ impl Check for Light {
 
 #[derive(FieldDocs, ValidateTables, Default)]
 #[docs(error = "Bad")]
+#[allow(dead_code)]
 struct Run {
-    /// Not a table: not checked here.
-    steps: u32,
+    /// Not marked a table: not checked here, whatever its own `validate` says.
+    spare: Camera,
     /// The camera.
     #[docs(table)]
     camera: Camera,
@@ -69,7 +70,8 @@ struct Run {
 
 #[test]
 fn every_table_is_checked_in_order_and_its_error_names_table_and_key() {
-    let ok = Run { steps: 0, camera: Camera { width: 4 }, light: None, fill: Light { intensity: 0.5 } };
+    let ok =
+        Run { spare: Camera { width: 0 }, camera: Camera { width: 4 }, light: None, fill: Light { intensity: 0.5 } };
     assert_eq!(ok.validate_tables(), Ok(()));
     let bad_camera = Run { camera: Camera { width: 0 }, fill: Light { intensity: 2.0 }, ..Run::default() };
     assert_eq!(bad_camera.validate_tables(), Err(Bad { key: "camera.width".into(), why: "must be at least 1" }));

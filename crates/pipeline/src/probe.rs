@@ -96,7 +96,7 @@ mod tests {
 
         // Its run line runs it with the table's values.
         let cfg = RunConfig::default().set(&["probe.lines=2".to_owned()]).unwrap();
-        let mut r = Runner::new(&dir.path().join("run"), &Silent).unwrap();
+        let mut r = Runner::new(dir.path().join("run"), &Silent).unwrap();
         assert_eq!(r.run(&Probe { probe: &cfg.probe }).unwrap(), 2);
         let text = std::fs::read_to_string(dir.path().join("run/probe").join(Probe::TXT)).unwrap();
         assert_eq!(text, "line 1\nline 2\n");

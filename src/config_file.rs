@@ -19,6 +19,25 @@ pub struct Sets {
     pub sets: Vec<String>,
 }
 
+/// `--config FILE` and `--set TABLE.KEY=VALUE`, as the `uq` subcommands read them: the `[uq]`
+/// table of the run config.
+#[derive(Args, Clone, Default)]
+pub struct UqSettings {
+    /// A run config (TOML, as `nerfsv config` prints): its `[uq]` table sets the fits (prior
+    /// precision, noise, rays, perturbations, the field's grid …). Default: the embedded one.
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub sets: Sets,
+}
+
+impl UqSettings {
+    /// The `[uq]` table of the file and the overrides ([`uq_config`]).
+    pub fn load(&self) -> anyhow::Result<UqConfig> {
+        uq_config(self.config.as_deref(), &self.sets)
+    }
+}
+
 /// The run config of `nerfsv run`: the embedded default, the file, the overrides.
 pub fn run_config(path: Option<&Path>, sets: &Sets) -> anyhow::Result<RunConfig> {
     Ok(RunConfig::load_with(path, &sets.sets)?)

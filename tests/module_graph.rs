@@ -3,7 +3,7 @@
 //! file is a node, nested modules included (`a/b.rs` and `a/b/mod.rs` are `a::b`; the crate root
 //! is none). A module's imports are the module paths its code names, resolved to the deepest
 //! module file they reach: `crate::…`, `super::…`, `self::…` and a child module's name
-//! (comments and its `#[cfg(test)]` part left out); a name the crate root re-exports
+//! (comments and its `#[cfg(test)]` module left out); a name the crate root re-exports
 //! (`pub use module::{A, B}`) counts as an import of that module.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -50,9 +50,16 @@ fn module_graph(src: &Path) -> BTreeMap<String, BTreeSet<String>> {
         .collect()
 }
 
-/// The code of a file: without `//` comments and without what follows its first `#[cfg(test)]`.
+/// The code of a file: without `//` comments and without what follows its first `#[cfg(test)]`
+/// module (a `#[cfg(test)]` field or item elsewhere is code like any other).
 fn code_of(text: &str) -> String {
-    let text = text.split("#[cfg(test)]").next().unwrap_or("");
+    const TEST: &str = "#[cfg(test)]";
+    let test_module = text.match_indices(TEST).map(|(i, _)| i).find(|&i| {
+        let item = text[i + TEST.len()..].trim_start();
+        let item = item.strip_prefix("pub(crate) ").or_else(|| item.strip_prefix("pub ")).unwrap_or(item);
+        item.starts_with("mod ")
+    });
+    let text = &text[..test_module.unwrap_or(text.len())];
     text.lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n")
 }
 
@@ -279,6 +286,12 @@ fn a_circle_through_a_group_import_or_a_root_reexport_is_found() {
     assert_eq!(graph["a"], BTreeSet::from(["b".to_string()]));
     assert_eq!(graph["b"], BTreeSet::from(["c".to_string()]), "the root's re-export of Gamma is c's");
     assert!(circles(&graph).is_empty(), "the test module's import is not the module's");
+    // A `#[cfg(test)]` field ends nothing: what follows it is still read.
+    write(
+        "b.rs",
+        "pub struct Beta {\n    #[cfg(test)]\n    x: u8,\n    g: crate::Gamma,\n}\n#[cfg(test)]\nmod tests {}\n",
+    );
+    assert_eq!(module_graph(src)["b"], BTreeSet::from(["c".to_string()]));
     write("c.rs", "pub struct Gamma(nerfsv_crate::X);\npub struct Delta(Vec<crate::a::Alpha>);\n");
     assert_eq!(circles(&module_graph(src)), [["a", "b", "c"]]);
 }

@@ -12,12 +12,11 @@ use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
 use nerfsv_scene::validate::in_range;
 use nerfsv_uq::offline::{
-    ause_frames, has_split, method_files, offline_split, write_files, ImageAuse, Method, OfflineSummary, SplitImages,
-    SPLITS,
+    ause_frames, has_split, method_files, offline_split, write_files, ImageAuse, Method, OfflineSummary, SplitFitting,
+    SplitImages, SPLITS,
 };
 use serde::Serialize;
 
-use crate::config_file::uq_config;
 use crate::progress::Reporter;
 
 #[derive(Args)]
@@ -62,12 +61,8 @@ pub struct AuseArgs {
     /// The split scored.
     #[arg(long, default_value = "test")]
     pub split: String,
-    /// A run config (TOML, as `nerfsv config` prints): its `[uq]` table sets the fits (prior
-    /// precision, noise, rays, perturbations, the field's grid …). Default: the embedded one.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
     #[command(flatten)]
-    pub sets: crate::config_file::Sets,
+    pub settings: crate::config_file::UqSettings,
     /// Score only the first N images of the split (default: all; BLA takes seconds per image).
     #[arg(long)]
     pub max_images: Option<usize>,
@@ -93,12 +88,8 @@ pub struct OfflineArgs {
     /// summary) and the figures uq_{method}_*.png / .svg.
     #[arg(long)]
     pub out: PathBuf,
-    /// A run config (TOML, as `nerfsv config` prints): its `[uq]` table sets the fits (prior
-    /// precision, noise, rays, perturbations, the field's grid …). Default: the embedded one.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
     #[command(flatten)]
-    pub sets: crate::config_file::Sets,
+    pub settings: crate::config_file::UqSettings,
     /// Use only the first N images of each split (default: all; BLA takes seconds per image).
     #[arg(long)]
     pub max_images: Option<usize>,
@@ -139,7 +130,7 @@ struct AuseSummary {
 fn ause(args: AuseArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let method = args.method;
-    let cfg = uq_config(args.config.as_deref(), &args.sets)?;
+    let cfg = args.settings.load()?;
     if let Some(n) = args.max_images {
         in_range("--max-images", n, 1, usize::MAX)?;
     }
@@ -187,7 +178,7 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let method = args.method;
     // Everything that can be refused is checked before anything is written.
-    let mut cfg = uq_config(args.config.as_deref(), &args.sets)?;
+    let mut cfg = args.settings.load()?;
     if let Some(n) = args.max_images {
         in_range("--max-images", n, 1, usize::MAX)?;
     }
@@ -226,15 +217,17 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
         let stage = format!("uq {} {name}", method.name());
         let progress = |done: usize, total: usize| reporter.progress(&stage, done as u64, total as u64, "images");
         let note = |message: &str| reporter.note(&stage, message);
-        rows.extend(offline_split(
+        let fitting = SplitFitting { ga_rays: args.rays, depth_ause: false };
+        let fits = offline_split(
             &nerf,
             method,
             SplitImages { split: &split, name, indices: &indices },
-            args.rays,
+            fitting,
             &cfg,
             &progress,
             &note,
-        )?);
+        )?;
+        rows.extend(fits.rows);
     }
 
     let mut summary = OfflineSummary::new(method, &rows, &present, skipped_splits, cfg.ga_sigma_max);

@@ -14,7 +14,6 @@ use nerfsv_uq::offline::{build_field, has_split, save_field_with_slice, Method, 
 use nerfsv_uq::{FieldMethod, UncertaintyField};
 use serde::Serialize;
 
-use crate::config_file::uq_config;
 use crate::progress::Reporter;
 
 #[derive(Args)]
@@ -40,12 +39,8 @@ pub struct FieldArgs {
     /// of the slice at z = 0.3 m is written next to it (`<stem>_z0.30.png`).
     #[arg(long)]
     pub out: PathBuf,
-    /// A run config (TOML, as `nerfsv config` prints): its `[uq]` table sets the fits (prior
-    /// precision, noise, rays, perturbations, the field's grid …). Default: the embedded one.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
     #[command(flatten)]
-    pub sets: crate::config_file::Sets,
+    pub settings: crate::config_file::UqSettings,
     /// Print one JSON object with the field's figures.
     #[arg(long)]
     pub json: bool,
@@ -79,7 +74,7 @@ struct Summary {
 }
 
 pub fn run(args: FieldArgs) -> anyhow::Result<()> {
-    let cfg = uq_config(args.config.as_deref(), &args.sets)?;
+    let cfg = args.settings.load()?;
     let mut guard = Guard::new().dataset("--data", &args.data).input("--model", &args.model);
     for member in &args.members {
         guard = guard.input("--member", member);

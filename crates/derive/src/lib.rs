@@ -1,5 +1,8 @@
 //! Derives for nerfsv's config types.
 //!
+//! `#[derive(ValidateTables)]` checks each `#[docs(table)]` field of a config with its own
+//! `validate`, its errors named `table.key` (see [`macro@ValidateTables`]).
+//!
 //! `#[derive(FieldDocs)]`: a struct's named fields with their doc comments, as data. For a struct with named fields it generates an inherent constant
 //! `FIELD_DOCS: &[(&str, &str)]`: each field's name and its documentation, the doc comment's
 //! lines trimmed and joined by one space, intra-doc link brackets (`` [`x`] ``) dropped, in
@@ -73,6 +76,75 @@ pub fn field_docs(input: TokenStream) -> TokenStream {
             ) {
                 out.push((prefix.to_owned(), #struct_name, Self::FIELD_DOCS));
                 #(#tables)*
+            }
+        }
+    }
+    .into()
+}
+
+/// `#[derive(ValidateTables)]`: every sub-table of a config checked by its own `validate`.
+///
+/// It generates `validate_tables(&self)`, which calls `validate()` (an inherent method or a
+/// trait's in scope) on each field marked `#[docs(table)]` (an `Option<T>` table when it is
+/// set), in declaration order, and returns the first error named within the field's table
+/// (`e.within("field")`: `uq_offline.ga_images_per_split`). The error type is
+/// `nerfsv_scene::InvalidValue` unless the struct says `#[docs(error = "Path")]`; it needs a
+/// `within(self, &str) -> Self`. Checks that join tables stay hand-written beside the call.
+///
+/// ```ignore
+/// #[derive(nerfsv_derive::FieldDocs, nerfsv_derive::ValidateTables)]
+/// pub struct Run {
+///     /// The camera.
+///     #[docs(table)]
+///     pub camera: Camera,
+/// }
+/// // Camera::validate refuses width 0 as "width": the run names it "camera.width".
+/// assert_eq!(run.validate_tables().unwrap_err().field, "camera.width");
+/// ```
+#[proc_macro_derive(ValidateTables, attributes(docs))]
+pub fn validate_tables(input: TokenStream) -> TokenStream {
+    let input = parse_macro_input!(input as DeriveInput);
+    let name = &input.ident;
+    let (impl_generics, ty_generics, where_clause) = input.generics.split_for_impl();
+    let Data::Struct(data) = &input.data else {
+        return syn::Error::new_spanned(name, "ValidateTables is for structs").to_compile_error().into();
+    };
+    let Fields::Named(fields) = &data.fields else {
+        return syn::Error::new_spanned(name, "ValidateTables needs named fields").to_compile_error().into();
+    };
+    let error: syn::Path = match string_attr(&input.attrs, "docs", "error") {
+        Some(path) => match syn::parse_str(&path) {
+            Ok(p) => p,
+            Err(e) => return e.to_compile_error().into(),
+        },
+        None => syn::parse_quote!(::nerfsv_scene::InvalidValue),
+    };
+    let checks = fields.named.iter().filter(|f| is_table(&f.attrs)).map(|f| {
+        let ident = f.ident.as_ref().expect("named field");
+        let table = ident.to_string();
+        // A table's `#[cfg(…)]` holds for its check too.
+        let cfgs = f.attrs.iter().filter(|a| a.path().is_ident("cfg"));
+        match option_inner(&f.ty) {
+            Some(_) => quote! {
+                #(#cfgs)*
+                if let Some(t) = &self.#ident {
+                    t.validate().map_err(|e| e.within(#table))?;
+                }
+            },
+            None => quote! {
+                #(#cfgs)*
+                self.#ident.validate().map_err(|e| e.within(#table))?;
+            },
+        }
+    });
+    quote! {
+        impl #impl_generics #name #ty_generics #where_clause {
+            /// Checks every `#[docs(table)]` field with its own `validate`, in declaration order;
+            /// the first error names its key within the table (`table.key`)
+            /// (`#[derive(ValidateTables)]`).
+            pub fn validate_tables(&self) -> Result<(), #error> {
+                #(#checks)*
+                Ok(())
             }
         }
     }

@@ -11,6 +11,8 @@ use nerfsv_sim::Disturbance;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+pub use crate::online::config::OnlineConfig;
+pub use crate::uq::config::UqOfflineConfig;
 use crate::PipelineError;
 
 /// Fraction of the default run's views taken at drone altitude.
@@ -80,7 +82,7 @@ impl Validate for NerfSettings {
 }
 
 /// Everything `nerfsv run` does, with its defaults.
-#[derive(nerfsv_derive::FieldDocs, Clone, Debug, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, nerfsv_derive::ValidateTables, Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RunConfig {
     /// Built-in scene: stonehenge, monolith or pillars (a `[world]` mesh replaces it).
@@ -140,6 +142,10 @@ pub struct RunConfig {
     /// world with `sim.nerf_world = "ensemble"` (the `[ensemble]` table).
     #[docs(table)]
     pub ensemble: EnsembleConfig,
+    /// The unit tests' probe stage (the `[probe]` table).
+    #[cfg(test)]
+    #[docs(table)]
+    pub probe: crate::probe::ProbeConfig,
 }
 
 /// A user's own world, the `[world]` table. Relative paths are read from the config file's
@@ -170,69 +176,6 @@ pub struct WorldConfig {
 impl Default for WorldConfig {
     fn default() -> Self {
         Self { mesh: None, mesh_scale: 1.0, mesh_up: nerfsv_scene::mesh::UpAxis::Z, dataset: None }
-    }
-}
-
-/// The online uncertainty stage of `nerfsv run`, the `[online]` table: for each method, MC
-/// and CEM measuring every step's uncertainty, and CEM ranked by the method's reward (the rows
-/// with and without reward of Tables 1–2). The CEM populations are `[validation.cem]`'s.
-#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct OnlineConfig {
-    /// Methods whose study runs: `"ga"`, `"bla"` (default both; empty skips them).
-    pub methods: Vec<nerfsv_uq::Method>,
-    /// Monte Carlo rollouts of each study: the first ones of the stress stage's MC (at most as
-    /// many as it flies).
-    pub mc_rollouts: usize,
-    /// Importance samples drawn after each study's CEM (which always ends with a batch); the
-    /// study reports no failure probability from them (the stress stage estimates it), so the
-    /// default is 1.
-    pub is_samples: usize,
-}
-
-impl Default for OnlineConfig {
-    fn default() -> Self {
-        Self { methods: vec![nerfsv_uq::Method::Ga, nerfsv_uq::Method::Bla], mc_rollouts: 50, is_samples: 1 }
-    }
-}
-
-impl Validate for OnlineConfig {
-    fn validate(&self) -> Result<(), InvalidValue> {
-        in_range("mc_rollouts", self.mc_rollouts, 1, 100_000_000)?;
-        in_range("is_samples", self.is_samples, 1, 100_000_000)?;
-        let mut seen = self.methods.clone();
-        seen.dedup();
-        if seen.len() != self.methods.len() {
-            return Err(InvalidValue::new("methods", "must not name a method twice", format!("{:?}", self.methods)));
-        }
-        Ok(())
-    }
-}
-
-/// The offline uncertainty stage of `nerfsv run`: how many images of each split GA and BLA
-/// fit (an even stride through the split), the `[uq_offline]` table. The depth AUSE of each
-/// method is taken over its test images.
-#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct UqOfflineConfig {
-    /// GA: images per split, at most (default 50; about 0.15 s per 100×100 image on two
-    /// cores, so every image of the default dataset would add a minute and a half).
-    pub ga_images_per_split: usize,
-    /// BLA: images per split, at most (default 2; about 5 s per image, twice that for the
-    /// test images, whose depth-uncertainty maps the AUSE needs); 0 skips BLA.
-    pub bla_images_per_split: usize,
-}
-
-impl Default for UqOfflineConfig {
-    fn default() -> Self {
-        Self { ga_images_per_split: 50, bla_images_per_split: 2 }
-    }
-}
-
-impl Validate for UqOfflineConfig {
-    fn validate(&self) -> Result<(), InvalidValue> {
-        in_range("ga_images_per_split", self.ga_images_per_split, 1, 1_000_000)?;
-        in_range("bla_images_per_split", self.bla_images_per_split, 0, 1_000_000)
     }
 }
 
@@ -302,6 +245,8 @@ impl Default for RunConfig {
             online: OnlineConfig::default(),
             world: WorldConfig::default(),
             ensemble: EnsembleConfig { members: DEFAULT_ENSEMBLE_MEMBERS, ..EnsembleConfig::default() },
+            #[cfg(test)]
+            probe: crate::probe::ProbeConfig::default(),
         }
     }
 }
@@ -664,7 +609,19 @@ impl RunConfig {
     }
 }
 
+impl Validate for WorldConfig {
+    fn validate(&self) -> Result<(), InvalidValue> {
+        let scale = self.mesh_scale;
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(InvalidValue::new("mesh_scale", "must be a positive number", scale));
+        }
+        Ok(())
+    }
+}
+
 impl Validate for RunConfig {
+    /// The values of the top level, then every table by its own `validate` (named `table.key`,
+    /// [`RunConfig::validate_tables`]), then the checks that join tables.
     fn validate(&self) -> Result<(), InvalidValue> {
         if self.world.mesh.is_none() && !nerfsv_scene::BUILTIN_SCENES.contains(&self.scene.as_str()) {
             return Err(InvalidValue::new(
@@ -673,23 +630,12 @@ impl Validate for RunConfig {
                 &self.scene,
             ));
         }
-        self.dataset.validate().map_err(|e| e.within("dataset"))?;
         nerfsv_collision::check_cells_per_metre("cells_per_metre", self.cells_per_metre)?;
-        self.nerf_settings().validate()?;
         in_range("train_steps", self.train_steps, 1, MAX_TRAIN_STEPS)?;
-        let scale = self.world.mesh_scale;
-        if !(scale.is_finite() && scale > 0.0) {
-            return Err(InvalidValue::new("world.mesh_scale", "must be a positive number", scale));
-        }
-        self.uq.validate().map_err(|e| e.within("uq"))?;
-        self.uq_offline.validate().map_err(|e| e.within("uq_offline"))?;
-        self.online.validate().map_err(|e| e.within("online"))?;
         if let Some(t) = self.nerf_density_threshold {
             positive("nerf_density_threshold", t as f64)?;
         }
-        self.sim.validate().map_err(|e| e.within("sim"))?;
-        self.validation.validate().map_err(|e| e.within("validation"))?;
-        self.ensemble.validate().map_err(|e| e.within("ensemble"))?;
+        self.validate_tables()?;
         if self.sim.nerf_world == nerfsv_sim::NerfWorldSource::Ensemble && self.ensemble.members < 2 {
             return Err(InvalidValue::new(
                 "sim.nerf_world",
@@ -790,6 +736,9 @@ mod tests {
             ("[sim]\nnerf_world = \"ensemble\"\n[ensemble]\nmembers = 1", "sim.nerf_world", "ensemble"),
             ("[ensemble]\nmembers = 17", "ensemble.members", "17"),
             ("[ensemble]\nsteps = 0", "ensemble.steps", "0"),
+            ("[world]\nmesh_scale = -2.0", "world.mesh_scale", "-2"),
+            ("[dataset]\nwidth = 0", "dataset.width", "0"),
+            ("[sim]\nsteps = 0", "sim.steps", "0"),
         ] {
             std::fs::write(&path, text).unwrap();
             let e = RunConfig::load(&path).unwrap_err().to_string();

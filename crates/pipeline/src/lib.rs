@@ -10,7 +10,10 @@
 //!
 //! # Adding a stage
 //! One module with an `impl Stage` that calls its library function and an `impl Report` that
-//! shows its figures, and one line in [`run`]:
+//! shows its figures, and one line in [`run`]. A config table of its own is a struct beside it
+//! with a `validate`, and one `#[docs(table)]` field of [`RunConfig`] (with its default):
+//! `nerfsv config` documents it and [`RunConfig::validate_tables`] checks it, its errors named
+//! `table.key`.
 //!
 //! ```
 //! use nerfsv_pipeline::report::{Section, Table};
@@ -85,3 +88,8 @@ pub use guard::Guard;
 pub use layout::{summary_path, SUMMARY};
 pub use run::{config_toml, run, run_guard, run_in, StageFigures, Summary, NO_GROUND_TRUTH};
 pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext};
+
+// A stage with a table of its own, for the unit tests (last: a test module ends what
+// `tests/module_graph.rs` reads of a file).
+#[cfg(test)]
+mod probe;

@@ -26,6 +26,7 @@
 //! ground-truth render of the same pixels); `nerfsv stress --uncertainty field` looks it up in
 //! an uncertainty field instead.
 
+pub(crate) mod config;
 mod report;
 
 use std::path::Path;
@@ -39,7 +40,7 @@ use nerfsv_validation::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::config::OnlineConfig;
+use self::config::OnlineConfig;
 use crate::flight::flight_inputs;
 use crate::stage::{Stage, StageContext};
 use crate::stages::{Dataset, GroundTruthField, NerfField, Train};

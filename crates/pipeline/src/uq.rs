@@ -3,6 +3,7 @@
 //! offline library ([`nerfsv_uq::offline`]), which `nerfsv uq offline` and `nerfsv uq ause`
 //! call too.
 
+pub(crate) mod config;
 mod report;
 
 use std::fmt::Write as _;
@@ -13,7 +14,7 @@ use nerfsv_uq::offline::*;
 use nerfsv_uq::{mean_ause, Sparsification, UqConfig};
 use serde::{Deserialize, Serialize};
 
-use crate::config::UqOfflineConfig;
+use self::config::UqOfflineConfig;
 use crate::stage::{Stage, StageContext};
 use crate::stages::{load_dataset_split, Dataset, Train};
 use crate::PipelineError;
@@ -285,46 +286,29 @@ impl Stage for Uncertainty<'_> {
         let note = |message: &str| cx.observer.note(Self::NAME, message);
         let (mut ga, mut bla, mut ause) = (Vec::new(), Vec::new(), Vec::new());
         for (name, split, ga_idx, bla_idx) in &chosen {
-            if *name != "test" {
-                for (method, indices, rows) in [(Method::Ga, ga_idx, &mut ga), (Method::Bla, bla_idx, &mut bla)] {
-                    let status = format!("{} {name}", method.name().to_uppercase());
-                    let progress = |d: usize, _: usize| {
-                        if d > 0 {
-                            tick(&status)
-                        }
-                    };
-                    rows.extend(offline_split(
-                        &nerf,
-                        method,
-                        SplitImages { split, name, indices },
-                        None,
-                        self.uq,
-                        &progress,
-                        &note,
-                    )?);
-                }
-                continue;
-            }
-            // The test split: each image's fit also gives the depth-uncertainty map its AUSE
-            // ranks, so GA and BLA are fitted once per image.
-            nerfsv_nerf::check_bounds(&nerf.config, split)?;
+            // The test split's fits also give the depth-uncertainty maps its AUSE ranks.
+            let depth_ause = *name == "test";
             for (method, indices, rows) in [(Method::Ga, ga_idx, &mut ga), (Method::Bla, bla_idx, &mut bla)] {
-                let status = format!("{} test, depth AUSE", method.name().to_uppercase());
-                for &index in indices {
-                    let frame = &split.frames[index];
-                    let (fit, outcome) = ause_frame(&nerf, method, frame, self.uq)?;
-                    let fit = match fit {
-                        Some(f) => f,
-                        // No ground-truth depth: fitted for its row all the same.
-                        None => fit_frame(&nerf, method, &frame.file_path, frame, None, self.uq)?,
-                    };
-                    if let AuseOutcome::Skipped(e) = &outcome {
-                        note(&format!("{} depth AUSE skipped: {e}", method.name().to_uppercase()));
+                let status = match depth_ause {
+                    true => format!("{} test, depth AUSE", method.name().to_uppercase()),
+                    false => format!("{} {name}", method.name().to_uppercase()),
+                };
+                let progress = |d: usize, _: usize| {
+                    if d > 0 {
+                        tick(&status)
                     }
-                    rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
-                    ause.push((method.name(), index, frame.file_path.clone(), outcome));
-                    tick(&status);
-                }
+                };
+                let fits = offline_split(
+                    &nerf,
+                    method,
+                    SplitImages { split, name, indices },
+                    SplitFitting { ga_rays: None, depth_ause },
+                    self.uq,
+                    &progress,
+                    &note,
+                )?;
+                rows.extend(fits.rows);
+                ause.extend(fits.ause.into_iter().map(|(index, file, outcome)| (method.name(), index, file, outcome)));
             }
         }
         let ensemble_ause = match chosen.iter().find(|(n, ..)| *n == "test") {

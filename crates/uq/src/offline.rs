@@ -311,37 +311,80 @@ pub struct SplitImages<'a> {
     pub indices: &'a [usize],
 }
 
+/// How [`offline_split`] fits each image.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SplitFitting {
+    /// GA on at most this many pixels of each image, an even stride (all when `None`); BLA
+    /// always strides through the rays that composite a sample (at most `max_rays`). Without
+    /// `depth_ause` only: the AUSE fits every pixel.
+    pub ga_rays: Option<usize>,
+    /// Whether each image is also scored by its depth AUSE (its fit gives the depth-uncertainty
+    /// map the AUSE ranks, so each image is fitted once).
+    pub depth_ause: bool,
+}
+
+/// An image's depth AUSE under the method fitted: its index in the split, its file path, the
+/// outcome.
+pub type ImageAuseOutcome = (usize, String, AuseOutcome);
+
+/// The fits of a split's images, and with [`SplitFitting::depth_ause`] their depth AUSE, both in
+/// the order of the indices.
+#[derive(Debug, Default)]
+pub struct SplitFits {
+    pub rows: Vec<Row>,
+    pub ause: Vec<ImageAuseOutcome>,
+}
+
 /// `method` on `images`, after checking that the model's box is in view of the split's
-/// cameras. Reports each image fitted to `progress` (done, total) and each one whose rays all
-/// miss to `note`.
+/// cameras; with `fitting.depth_ause` each image's depth AUSE too (an image without
+/// ground-truth depth is fitted for its row all the same and its AUSE skipped). Reports each
+/// image fitted to `progress` (done, total), and to `note` each one whose rays all miss (without
+/// the AUSE) or whose AUSE is skipped.
 pub fn offline_split(
     nerf: &Nerf,
     method: Method,
     images: SplitImages,
-    ga_rays: Option<usize>,
+    fitting: SplitFitting,
     cfg: &UqConfig,
     progress: &dyn Fn(usize, usize),
     note: &dyn Fn(&str),
-) -> Result<Vec<Row>, UqError> {
+) -> Result<SplitFits, UqError> {
     let SplitImages { split, name, indices } = images;
     nerfsv_nerf::check_bounds(&nerf.config, split)?;
     let total = indices.len();
     progress(0, total);
-    let mut rows = Vec::with_capacity(total);
+    let mut out = SplitFits { rows: Vec::with_capacity(total), ause: Vec::new() };
     for (done, &index) in indices.iter().enumerate() {
         let frame = split
             .frames
             .get(index)
             .ok_or_else(|| UqError::Internal(format!("{}: no frame {index}", split.path.display())))?;
-        let image = format!("{}: frame {index} ({})", split.path.display(), frame.file_path);
-        let fit = fit_frame(nerf, method, &image, frame, ga_rays, cfg)?;
-        if fit.all_rays_miss() {
-            note(&format!("{image}: all rays miss the model; its row is left empty"));
-        }
-        rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
+        let fit = match fitting.depth_ause {
+            true => {
+                let (fit, outcome) = ause_frame(nerf, method, frame, cfg)?;
+                let fit = match fit {
+                    Some(f) => f,
+                    None => fit_frame(nerf, method, &frame.file_path, frame, None, cfg)?,
+                };
+                if let AuseOutcome::Skipped(e) = &outcome {
+                    note(&format!("{} depth AUSE skipped: {e}", method.name().to_uppercase()));
+                }
+                out.ause.push((index, frame.file_path.clone(), outcome));
+                fit
+            }
+            false => {
+                let image = format!("{}: frame {index} ({})", split.path.display(), frame.file_path);
+                let fit = fit_frame(nerf, method, &image, frame, fitting.ga_rays, cfg)?;
+                if fit.all_rays_miss() {
+                    note(&format!("{image}: all rays miss the model; its row is left empty"));
+                }
+                fit
+            }
+        };
+        out.rows.push(Row { split: name, index, file_path: frame.file_path.clone(), fit });
         progress(done + 1, total);
     }
-    Ok(rows)
+    Ok(out)
 }
 
 /// A split's summary (GA fields or BLA fields).

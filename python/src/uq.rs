@@ -9,7 +9,7 @@ use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_scene::validate::in_range;
 use nerfsv_uq::offline::{
     ause_frames, exclusion_name, fit_with_depth_uncertainty, has_split, offline_split, BlaRow, Fit, GaRow,
-    OfflineSummary, Row, SplitImages, BACKGROUND, SPLITS,
+    OfflineSummary, Row, SplitFitting, SplitImages, BACKGROUND, SPLITS,
 };
 use nerfsv_uq::{depth_errors, Method, UqConfig, UqError};
 use numpy::{PyArray1, PyArrayMethods};
@@ -75,7 +75,8 @@ pub fn uncertainty_offline<'py>(
                 let total = max_images.map_or(split.frames.len(), |n| n.min(split.frames.len()));
                 let indices: Vec<usize> = (0..total).collect();
                 let images = SplitImages { split: &split, name, indices: &indices };
-                rows.extend(offline_split(&nerf, method, images, rays, &cfg, &|_, _| {}, &|_| {})?);
+                let fitting = SplitFitting { ga_rays: rays, depth_ause: false };
+                rows.extend(offline_split(&nerf, method, images, fitting, &cfg, &|_, _| {}, &|_| {})?.rows);
             }
             Ok(rows)
         })

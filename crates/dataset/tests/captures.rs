@@ -387,3 +387,31 @@ fn dataset_files_lists_a_colmap_models_files_and_images() {
     let ns = fixtures().join("nerfstudio");
     assert!(dataset_files(&ns).contains(&ns.join("images/frame_04.png")));
 }
+
+#[test]
+fn every_truncation_of_a_binary_model_or_a_jpeg_is_an_error_not_a_panic() {
+    use nerfsv_dataset::colmap::{read_cameras_binary, read_images_binary};
+    let sparse = fixtures().join("colmap_bin/sparse/0");
+    let cameras = std::fs::read(sparse.join("cameras.bin")).unwrap();
+    let images = std::fs::read(sparse.join("images.bin")).unwrap();
+    for n in 0..cameras.len() {
+        let e = read_cameras_binary(Path::new("cameras.bin"), &cameras[..n]).unwrap_err().to_string();
+        assert!(e.starts_with("cameras.bin: byte "), "{n}: {e}");
+    }
+    for n in 0..images.len() {
+        let e = read_images_binary(Path::new("images.bin"), &images[..n]).unwrap_err().to_string();
+        assert!(e.starts_with("images.bin: byte "), "{n}: {e}");
+    }
+    assert_eq!(read_images_binary(Path::new("images.bin"), &images).unwrap().len(), 9);
+    // A count the file cannot hold is refused before anything is allocated for it.
+    let mut huge = images.clone();
+    huge[..8].copy_from_slice(&u64::MAX.to_le_bytes());
+    assert!(read_images_binary(Path::new("images.bin"), &huge).unwrap_err().to_string().contains("at most"));
+    let jpeg = std::fs::read(fixtures().join("nerfstudio/images/frame_01.jpg")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("cut.jpg");
+    for n in (0..jpeg.len()).step_by(7) {
+        std::fs::write(&path, &jpeg[..n]).unwrap();
+        let _ = Image::read(&path);
+    }
+}

@@ -415,3 +415,36 @@ fn every_truncation_of_a_binary_model_or_a_jpeg_is_an_error_not_a_panic() {
         let _ = Image::read(&path);
     }
 }
+
+#[test]
+fn a_frames_own_distortion_overrides_the_top_level_one() {
+    let truth = expected();
+    let ns = &truth["nerfstudio"];
+    let train = load(&fixtures().join("nerfstudio"), "train");
+    let frame = train.frames.iter().find(|f| f.file_path == "images/frame_03.jpg").unwrap();
+    let lens = |d: &Value| OpenCvDistortion { k1: f(&d["k1"]), k2: f(&d["k2"]), p1: f(&d["p1"]), p2: f(&d["p2"]) };
+    let own = lens(&ns["frames"][3]["distortion"]);
+    let top = lens(&ns["frames"][0]["distortion"]);
+    assert_ne!(own, top);
+    let k = frame.camera.intrinsics;
+    // Mean red error, in levels, of the undistorted JPEG against the gradient sampled through a lens,
+    // over pixels far enough out for the two lenses to differ.
+    let error = |d: &OpenCvDistortion| {
+        let (mut sum, mut n) = (0.0, 0);
+        for j in 0..k.height {
+            for i in 0..k.width {
+                let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
+                let r2 = ((u - k.cx as f64) / k.fx as f64).powi(2) + ((v - k.cy as f64) / k.fy as f64).powi(2);
+                let (su, sv) = d.distort_pixel(&k, u, v).unwrap();
+                if r2 > 0.15 && (0.5..=15.5).contains(&su) && (0.5..=11.5).contains(&sv) {
+                    sum += (frame.image.pixel(i, j)[0] as f64 * 255.0 - 16.0 * su).abs();
+                    n += 1;
+                }
+            }
+        }
+        assert!(n >= 10, "{n} pixels");
+        sum / n as f64
+    };
+    let (with_own, with_top) = (error(&own), error(&top));
+    assert!(with_own < 2.0 && with_top > 2.5 * with_own, "own lens {with_own} levels, top-level lens {with_top}");
+}

@@ -15,7 +15,8 @@ use crate::progress::Reporter;
 
 #[derive(Args)]
 pub struct TrainArgs {
-    /// Blender-format dataset folder (transforms_train.json and images).
+    /// Dataset folder: Blender (transforms_train.json), nerfstudio / instant-ngp
+    /// (transforms.json) or COLMAP (sparse/0/ and images/); PNG or JPEG images.
     #[arg(long)]
     pub data: PathBuf,
     /// Output folder: checkpoint.safetensors (model + optimiser state) is kept here.
@@ -54,7 +55,7 @@ pub struct ModelOnData {
     /// Checkpoint written by `nerfsv train`.
     #[arg(long)]
     pub model: PathBuf,
-    /// Blender-format dataset folder.
+    /// Dataset folder: Blender, nerfstudio / instant-ngp or COLMAP (as `train --data`).
     #[arg(long)]
     pub data: PathBuf,
     /// Split: train, val or test.

@@ -1,10 +1,14 @@
-//! Datasets in the canonical Blender/NeRF-synthetic format.
+//! Datasets: the canonical Blender/NeRF-synthetic format read and written, and captures read
+//! as their tools write them (instant-ngp and nerfstudio `transforms.json`, COLMAP models).
 //!
-//! A dataset folder holds `transforms_{train,val,test}.json` (`camera_angle_x` and frames with
-//! `file_path` and a 4×4 camera-to-world `transform_matrix`, OpenGL camera axes), RGBA PNGs and,
-//! per frame, a 16-bit ground-truth depth PNG in millimetres named by `depth_file_path`
-//! (nerfstudio's convention). [`load_split`] reads it, and also the instant-ngp/nerfstudio
-//! variants; [`write_split`] writes it atomically.
+//! A Blender dataset folder holds `transforms_{train,val,test}.json` (`camera_angle_x` and
+//! frames with `file_path` and a 4×4 camera-to-world `transform_matrix`, OpenGL camera axes),
+//! RGBA PNGs and, per frame, a 16-bit ground-truth depth PNG in millimetres named by
+//! `depth_file_path` (nerfstudio's convention). [`load_split`] reads it, a `transforms.json`
+//! (with nerfstudio's `camera_model`, OpenCV distortion and split lists) and a COLMAP folder
+//! ([`colmap`]), PNG or JPEG images, undistorting OpenCV cameras into pinhole ones
+//! ([`distortion`]); [`Placement`] puts a capture in the study's metric, z-up world;
+//! [`write_split`] writes the Blender format atomically.
 //!
 //! ```no_run
 //! use nerfsv_dataset::{load_split, LoadOptions};
@@ -15,15 +19,23 @@
 //! # let _ = (ray, rgba);
 //! ```
 
+pub mod colmap;
+pub mod distortion;
 pub mod error;
+pub mod folder;
 pub mod generate;
+pub mod placement;
+pub mod split;
 pub mod transforms;
 pub mod writer;
 
+pub use distortion::OpenCvDistortion;
 pub use error::DatasetError;
+pub use folder::{dataset_files, dataset_format, load_split, DatasetFormat};
 pub use generate::{generate, sample_cameras, GenerateOptions};
 pub use nerfsv_scene::image::{DepthImage, Image};
-pub use transforms::{dataset_files, load_split, Frame, LoadOptions, Split};
+pub use placement::Placement;
+pub use split::{Frame, LoadOptions, Split};
 pub use writer::{write_split, FrameToWrite};
 
 /// The split names of the Blender format, in the order they are written.

@@ -1,110 +1,37 @@
 //! `transforms_{split}.json`: the Blender/NeRF-synthetic format, plus the instant-ngp and
 //! nerfstudio variants (`fl_x`, `fl_y`, `cx`, `cy`, `w`, `h` at the top level or per frame,
-//! `aabb_scale`, `depth_file_path`).
+//! `aabb_scale`, `depth_file_path`, nerfstudio's `camera_model` with OpenCV distortion and its
+//! `train_filenames` / `val_filenames` / `test_filenames` split lists).
 
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 
 use nalgebra::Matrix4;
-use nerfsv_scene::validate::{bytes_for, InvalidValue, MemoryBudget};
-use nerfsv_scene::{Camera, Intrinsics};
+use nerfsv_scene::image::{image_size, DepthImage, Image};
+use nerfsv_scene::validate::MemoryBudget;
+use nerfsv_scene::Intrinsics;
 use rayon::prelude::*;
 use serde_json::{Map, Value};
 
+use crate::distortion::OpenCvDistortion;
 use crate::error::DatasetError;
-use nerfsv_scene::image::{DepthImage, Image};
-use nerfsv_scene::views::{PosedImages, View};
+use crate::split::{check_inside, held_bytes, in_split, Frame, LoadOptions, RawFrame, Split};
 
-/// One posed image of a split.
-#[derive(Clone, Debug)]
-pub struct Frame {
-    /// `file_path` exactly as the transforms file gives it.
-    pub file_path: String,
-    /// The image file it resolves to.
-    pub image_path: PathBuf,
-    pub camera: Camera,
-    pub image: Image,
-    /// Ground-truth depth, when the frame has a `depth_file_path`.
-    pub depth: Option<DepthImage>,
-}
-
-/// The frames of one split (`train`, `val` or `test`).
-#[derive(Clone, Debug)]
-pub struct Split {
-    pub name: String,
-    /// The transforms file the split was read from.
-    pub path: PathBuf,
-    pub frames: Vec<Frame>,
-    /// instant-ngp's `aabb_scale`, when present.
-    pub aabb_scale: Option<f32>,
-}
-
-/// How to read a split.
-#[derive(Clone, Copy, Debug)]
-pub struct LoadOptions {
-    /// Integer downscaling factor applied to images, depths and intrinsics (1 = full size).
-    pub downscale: u32,
-    /// Read ground-truth depth images when frames name them.
-    pub load_depth: bool,
-}
-
-impl Default for LoadOptions {
-    fn default() -> Self {
-        Self { downscale: 1, load_depth: true }
-    }
-}
-
-impl Split {
-    /// Total pixel count over all frames.
-    pub fn pixels(&self) -> usize {
-        self.frames.iter().map(|f| f.camera.intrinsics.pixels()).sum()
-    }
-}
-
-impl Frame {
-    /// The frame as a posed image.
-    pub fn view(&self) -> View<'_> {
-        View { name: &self.file_path, camera: &self.camera, image: &self.image, depth: self.depth.as_ref() }
-    }
-}
-
-/// The frames in order; the source is the transforms file.
-impl PosedImages for Split {
-    fn source(&self) -> &Path {
-        &self.path
-    }
-
-    fn len(&self) -> usize {
-        self.frames.len()
-    }
-
-    fn view(&self, i: usize) -> View<'_> {
-        self.frames[i].view()
-    }
-
-    fn pixels(&self) -> usize {
-        Split::pixels(self)
-    }
-}
-
-/// Reads `dir/transforms_{split}.json` and its images. If that file does not exist but
-/// `dir/transforms.json` does (instant-ngp, nerfstudio), every 8th frame of it forms the `val`
-/// and `test` splits and the rest `train`.
-pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, DatasetError> {
-    if opts.downscale == 0 {
-        return Err(InvalidValue::new("downscale", "must be at least 1", 0).into());
-    }
-    let mut path = dir.join(format!("transforms_{split}.json"));
-    let mut keep: Option<Box<dyn Fn(usize) -> bool>> = None;
-    if !path.exists() && dir.join("transforms.json").exists() {
-        path = dir.join("transforms.json");
-        keep = Some(if split == "train" { Box::new(|i| i % 8 != 0) } else { Box::new(|i| i % 8 == 0) });
-    }
-    let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::io(&path, e))?;
+/// Reads split `split` from the transforms file `path`: all its frames when it is a
+/// `transforms_{split}.json`; when it is a single `transforms.json` (`single`), the frames its
+/// `{split}_filenames` list names or, without lists, every 8th frame (0, 8, 16, …) as `val` and
+/// `test` and the others as `train`.
+pub(crate) fn load_transforms(
+    path: &Path,
+    split: &str,
+    single: bool,
+    opts: LoadOptions,
+) -> Result<Split, DatasetError> {
+    let text = std::fs::read_to_string(path).map_err(|e| DatasetError::io(path, e))?;
     let root: Value = serde_json::from_str(&quote_non_finite(&text))
-        .map_err(|error| DatasetError::Json { path: path.clone(), error })?;
-    let ctx = Ctx { path: &path, base: path.parent().unwrap_or(Path::new(".")) };
+        .map_err(|error| DatasetError::Json { path: path.to_path_buf(), error })?;
+    let ctx = Ctx { path, base: path.parent().unwrap_or(Path::new(".")) };
     let root = root.as_object().ok_or_else(|| ctx.field(None, "(root)", "expected a JSON object"))?;
-    let top = ctx.partial_intrinsics(None, root)?;
+    let mut top = ctx.partial_intrinsics(None, root)?;
     let depth_scale = match ctx.opt_f32(None, root, "depth_unit_scale_factor")? {
         Some(x) if x <= 0.0 => {
             return Err(ctx.field(None, "depth_unit_scale_factor", format!("must be positive, found {x}")))
@@ -120,7 +47,6 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     if frames.is_empty() {
         return Err(ctx.field(None, "frames", "is empty"));
     }
-    let mut top = top;
     if top.w.is_none() || top.h.is_none() {
         // Blender files give no size: every image must match the first one's.
         if let Some((w, h)) = frames.first().and_then(|f| first_image_size(&ctx, f)) {
@@ -128,22 +54,22 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
             top.h = top.h.or(Some(h as f32));
         }
     }
-    let selected: Vec<(usize, &Value)> =
-        frames.iter().enumerate().filter(|(i, _)| keep.as_ref().is_none_or(|k| k(*i))).collect();
+    let keep = match single {
+        true => ctx.split_selection(root, frames, split)?,
+        false => vec![true; frames.len()],
+    };
+    let selected: Vec<(usize, &Value)> = frames.iter().enumerate().filter(|(i, _)| keep[*i]).collect();
     ctx.check_held_bytes(&selected, opts)?;
-    let frames = selected.par_iter().map(|&(i, v)| ctx.frame(i, v, &top, depth_scale, opts)).collect::<Vec<_>>();
+    let frames = selected.par_iter().map(|&(i, v)| ctx.frame(i, v, root, &top, depth_scale, opts)).collect::<Vec<_>>();
     // Report the first failure in frame order, whichever thread met it first.
     let frames = frames.into_iter().collect::<Result<Vec<_>, _>>()?;
-    Ok(Split { name: split.to_string(), path, frames, aabb_scale })
+    Ok(Split { name: split.to_string(), path: path.to_path_buf(), frames, aabb_scale })
 }
 
-/// The files a dataset folder's loader reads, as far as its transforms files can be parsed:
-/// every `transforms*.json` it would open and the images and depth images their frames name
-/// (resolved as [`load_split`] resolves them, not followed through symbolic links). A guard
-/// against writing over an input needs them: a split folder may be a link to another folder.
-/// A transforms file that cannot be read or parsed lists only itself (loading it fails later,
-/// by name).
-pub fn dataset_files(dir: &Path) -> Vec<PathBuf> {
+/// The files the transforms files of `dir` name, as far as they can be parsed: every
+/// `transforms*.json` and the images and depth images their frames name (resolved as the loader
+/// resolves them). A transforms file that cannot be read or parsed lists only itself.
+pub(crate) fn transforms_files(dir: &Path) -> Vec<PathBuf> {
     let mut files = Vec::new();
     let names = ["transforms_train.json", "transforms_val.json", "transforms_test.json", "transforms.json"];
     for path in names.iter().map(|n| dir.join(n)).filter(|p| p.exists()) {
@@ -249,19 +175,16 @@ impl Ctx<'_> {
         &self,
         i: usize,
         v: &Value,
+        root: &Map<String, Value>,
         top: &PartialIntrinsics,
         depth_scale: f32,
         opts: LoadOptions,
     ) -> Result<Frame, DatasetError> {
         let obj = v.as_object().ok_or_else(|| self.field(Some(i), "(frame)", "expected a JSON object"))?;
-        let file_path = obj
-            .get("file_path")
-            .ok_or_else(|| self.field(Some(i), "file_path", "missing"))?
-            .as_str()
-            .ok_or_else(|| self.field(Some(i), "file_path", "expected a string"))?
-            .to_string();
+        let file_path = frame_file_path(obj).map_err(|m| self.field(Some(i), "file_path", m))?.to_string();
         check_inside(&file_path).map_err(|m| self.field(Some(i), "file_path", m))?;
         let c2w = self.matrix(i, obj)?;
+        let distortion = self.distortion(i, root, obj)?;
         let image_path = resolve_image(self.base, &file_path);
         let image_err = |field: &'static str, file: &Path, message: String| DatasetError::Image {
             path: self.path.to_path_buf(),
@@ -270,7 +193,7 @@ impl Ctx<'_> {
             file: file.to_path_buf(),
             message,
         };
-        let image = Image::read_png(&image_path).map_err(|m| image_err("file_path", &image_path, m))?;
+        let image = Image::read(&image_path).map_err(|m| image_err("file_path", &image_path, m))?;
         let k = top.overridden_by(self.partial_intrinsics(Some(i), obj)?);
         let intr = self.intrinsics(i, &k, image.width, image.height)?;
         if (image.width, image.height) != (intr.width, intr.height) {
@@ -293,7 +216,7 @@ impl Ctx<'_> {
                         format!("depth is {}×{}, image is {}×{}", depth.width, depth.height, intr.width, intr.height),
                     ));
                 }
-                Some(depth.downscaled(opts.downscale))
+                Some(depth)
             }
             _ => None,
         };
@@ -301,13 +224,117 @@ impl Ctx<'_> {
         if intr.width / f == 0 || intr.height / f == 0 {
             return Err(self.field(Some(i), "file_path", format!("downscale {f} leaves an empty image")));
         }
-        Ok(Frame {
-            file_path,
-            image_path,
-            camera: Camera::new(intr.downscaled(f), c2w),
-            image: image.downscaled(f),
-            depth,
-        })
+        Ok(RawFrame { file_path, image_path, intrinsics: intr, distortion, c2w, image, depth }.finish(f))
+    }
+
+    /// The frame's lens: nerfstudio's `camera_model` (`"PINHOLE"` or absent: none; `"OPENCV"`:
+    /// `k1`, `k2`, `p1`, `p2`), each key at the top level or overridden by the frame. Any other
+    /// model is refused by name, and so is a nonzero coefficient the model does not have.
+    fn distortion(
+        &self,
+        i: usize,
+        root: &Map<String, Value>,
+        obj: &Map<String, Value>,
+    ) -> Result<OpenCvDistortion, DatasetError> {
+        let model = match obj.get("camera_model").or_else(|| root.get("camera_model")) {
+            None | Some(Value::Null) => "PINHOLE",
+            Some(Value::String(m)) => m.as_str(),
+            Some(other) => {
+                return Err(self.field(Some(i), "camera_model", format!("expected a string, found {other}")))
+            }
+        };
+        let supported: &[&str] = match model {
+            "PINHOLE" | "SIMPLE_PINHOLE" => &[],
+            "OPENCV" => &["k1", "k2", "p1", "p2"],
+            other => {
+                return Err(self.field(
+                    Some(i),
+                    "camera_model",
+                    format!("{other:?} is not supported: nerfsv reads \"PINHOLE\" and \"OPENCV\" cameras"),
+                ))
+            }
+        };
+        let mut c = [0.0f64; 4];
+        for (n, key) in ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"].into_iter().enumerate() {
+            let value = match self.opt_f32(Some(i), obj, key)? {
+                Some(x) => Some(x),
+                None => self.opt_f32(None, root, key)?,
+            };
+            match value {
+                Some(x) if x != 0.0 && !supported.contains(&key) => {
+                    return Err(self.field(
+                        Some(i),
+                        key,
+                        format!(
+                            "is {x}, but camera_model {model:?} has no such coefficient{}",
+                            if supported.is_empty() {
+                                " (set camera_model to \"OPENCV\")".to_string()
+                            } else {
+                                String::new()
+                            }
+                        ),
+                    ))
+                }
+                Some(x) if n < 4 => c[n] = x as f64,
+                _ => {}
+            }
+        }
+        Ok(OpenCvDistortion { k1: c[0], k2: c[1], p1: c[2], p2: c[3] })
+    }
+
+    /// Which frames form split `split` of a single `transforms.json`: those its
+    /// `{split}_filenames` names (matched on the files the names and the frames' `file_path`s
+    /// resolve to, as nerfstudio matches them), or without any split list every 8th frame as
+    /// `val` and `test`. Once one list is given every split needs its own, as in nerfstudio.
+    fn split_selection(
+        &self,
+        root: &Map<String, Value>,
+        frames: &[Value],
+        split: &str,
+    ) -> Result<Vec<bool>, DatasetError> {
+        let has_lists = ["train", "val", "test"].iter().any(|s| root.contains_key(&format!("{s}_filenames")));
+        if !has_lists {
+            return Ok((0..frames.len()).map(|i| in_split(split, i)).collect());
+        }
+        let key = format!("{split}_filenames");
+        let names = root
+            .get(&key)
+            .ok_or_else(|| {
+                self.field(
+                    None,
+                    &key,
+                    "missing: the file lists the files of other splits, so every split needs its list",
+                )
+            })?
+            .as_array()
+            .ok_or_else(|| self.field(None, &key, "expected an array of file paths"))?;
+        let resolved: Vec<Option<PathBuf>> = frames
+            .iter()
+            .map(|f| {
+                f.as_object().and_then(|o| frame_file_path(o).ok()).map(|p| normalised(&resolve_image(self.base, p)))
+            })
+            .collect();
+        let mut keep = vec![false; frames.len()];
+        for (n, name) in names.iter().enumerate() {
+            let name = name
+                .as_str()
+                .ok_or_else(|| self.field(None, &key, format!("entry {n} is {name}, expected a string")))?;
+            let want = normalised(&resolve_image(self.base, name));
+            let mut found = false;
+            for (i, r) in resolved.iter().enumerate() {
+                if r.as_ref() == Some(&want) {
+                    keep[i] = true;
+                    found = true;
+                }
+            }
+            if !found {
+                return Err(self.field(None, &key, format!("{name:?} is not the file_path of any frame")));
+            }
+        }
+        if !keep.contains(&true) {
+            return Err(self.field(None, &key, "is empty"));
+        }
+        Ok(keep)
     }
 
     fn matrix(&self, i: usize, obj: &Map<String, Value>) -> Result<Matrix4<f32>, DatasetError> {
@@ -393,60 +420,44 @@ impl Ctx<'_> {
     }
 
     /// Refuses a split whose decoded images (RGBA `f32`, plus `f32` depth where read) would
-    /// not fit the memory budget, from the PNG headers, before any image is decoded: each
+    /// not fit the memory budget, from the image headers, before any image is decoded: each
     /// image alone may fit while all of them, held at once, do not.
     fn check_held_bytes(&self, frames: &[(usize, &Value)], opts: LoadOptions) -> Result<(), DatasetError> {
-        let held = frames
-            .iter()
-            .filter_map(|(_, v)| {
-                let (w, h) = png_size(&resolve_image(self.base, v.get("file_path")?.as_str()?))?;
-                let depth = opts.load_depth && v.get("depth_file_path").and_then(Value::as_str).is_some();
-                Some(bytes_for(w as u64 * h as u64, if depth { 20 } else { 16 }))
-            })
-            .fold(0, u64::saturating_add);
+        let held = held_bytes(frames.iter().filter_map(|(_, v)| {
+            let (w, h) = image_size(&resolve_image(self.base, v.get("file_path")?.as_str()?)).ok()?;
+            Some((w, h, opts.load_depth && v.get("depth_file_path").and_then(Value::as_str).is_some()))
+        }));
         MemoryBudget::current()
             .check("frames", held)
             .map_err(|e| self.field(None, "frames", format!("decoded images {}, found {}", e.expected, e.found)))
     }
 }
 
-/// The size of frame 0's image from its PNG header, if it can be read (errors surface later,
-/// with their frame, when the frame itself is loaded).
-fn first_image_size(ctx: &Ctx, frame: &Value) -> Option<(u32, u32)> {
-    png_size(&resolve_image(ctx.base, frame.get("file_path")?.as_str()?))
+/// A frame's `file_path`, or what is wrong with it.
+fn frame_file_path(obj: &Map<String, Value>) -> Result<&str, &'static str> {
+    obj.get("file_path").ok_or("missing")?.as_str().ok_or("expected a string")
 }
 
-/// Width and height from a PNG's header, if it can be read.
-fn png_size(path: &Path) -> Option<(u32, u32)> {
-    let file = std::fs::File::open(path).ok()?;
-    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().ok()?;
-    let info = reader.info();
-    Some((info.width, info.height))
-}
-
-/// The rule for the files a transforms file names: relative paths that stay inside the dataset
-/// folder (`./train/r_0`, `a/../train/r_0`). An absolute path or one that climbs out of the
-/// folder (`../other/r_0`) is refused: a dataset is one folder, and no command that writes into
-/// another folder can then overwrite an image a dataset reads.
-fn check_inside(file_path: &str) -> Result<(), String> {
-    use std::path::Component;
-    let mut depth = 0i64;
-    for c in Path::new(file_path).components() {
+/// `path` with its `.` components dropped and each `..` taken back with the component before it
+/// (lexically: nothing is resolved on disk).
+fn normalised(path: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in path.components() {
         match c {
-            Component::Prefix(_) | Component::RootDir => {
-                return Err(format!("{file_path:?} is an absolute path; files must lie inside the dataset folder"));
-            }
-            Component::ParentDir => {
-                depth -= 1;
-                if depth < 0 {
-                    return Err(format!("{file_path:?} leads out of the dataset folder; files must lie inside it"));
-                }
-            }
-            Component::Normal(_) => depth += 1,
             Component::CurDir => {}
+            Component::ParentDir if out.file_name().is_some() => {
+                out.pop();
+            }
+            other => out.push(other),
         }
     }
-    Ok(())
+    out
+}
+
+/// The size of frame 0's image from its header, if it can be read (errors surface later,
+/// with their frame, when the frame itself is loaded).
+fn first_image_size(ctx: &Ctx, frame: &Value) -> Option<(u32, u32)> {
+    image_size(&resolve_image(ctx.base, frame.get("file_path")?.as_str()?)).ok()
 }
 
 /// Blender writes `./train/r_0` without an extension; instant-ngp and nerfstudio write one.

@@ -166,16 +166,44 @@ pub struct WorldConfig {
     /// Which axis of the mesh file points up: "z", or "y" (glTF, Blender's exports).
     pub mesh_up: nerfsv_scene::mesh::UpAxis,
     /// A dataset folder used as is instead of rendering one: Blender format
-    /// (`transforms_{train,val,test}.json`) or nerfstudio / instant-ngp (`transforms.json`,
-    /// every 8th frame held out). The NeRF trains on it; the drone's camera is still the
-    /// `[dataset]` table's.
+    /// (`transforms_{train,val,test}.json`), nerfstudio / instant-ngp (`transforms.json`; its
+    /// `train_filenames` / `val_filenames` / `test_filenames` when given, else every 8th frame
+    /// held out as val and test) or COLMAP (`sparse/0/` and `images/`, every 8th image by name
+    /// held out); PNG or JPEG images, OpenCV lens distortion undistorted on load. The NeRF
+    /// trains on it; the drone's camera is still the `[dataset]` table's. Its poses are placed
+    /// in the world by `dataset_centre`, then `dataset_up`, then `dataset_scale`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dataset: Option<PathBuf>,
+    /// Metres per unit of the dataset's poses (a reconstruction's units are arbitrary): finite,
+    /// greater than 0. Ground-truth depths scale with it. Applied last.
+    pub dataset_scale: f32,
+    /// Which axis of the dataset's world points up: "z" (Blender's and nerfstudio's), or "y"
+    /// (turned to z: `(x, y, z)` becomes `(x, −z, y)`). Applied after `dataset_centre`.
+    pub dataset_up: nerfsv_scene::mesh::UpAxis,
+    /// The point of the dataset's world, in its own units, that becomes the world origin
+    /// (finite). Applied first.
+    pub dataset_centre: [f32; 3],
 }
 
 impl Default for WorldConfig {
     fn default() -> Self {
-        Self { mesh: None, mesh_scale: 1.0, mesh_up: nerfsv_scene::mesh::UpAxis::Z, dataset: None }
+        Self {
+            mesh: None,
+            mesh_scale: 1.0,
+            mesh_up: nerfsv_scene::mesh::UpAxis::Z,
+            dataset: None,
+            dataset_scale: 1.0,
+            dataset_up: nerfsv_scene::mesh::UpAxis::Z,
+            dataset_centre: [0.0; 3],
+        }
+    }
+}
+
+impl WorldConfig {
+    /// Where the `dataset`'s poses lie in the world (`dataset_centre`, `dataset_up`,
+    /// `dataset_scale`).
+    pub fn placement(&self) -> nerfsv_dataset::Placement {
+        nerfsv_dataset::Placement { scale: self.dataset_scale, up: self.dataset_up, centre: self.dataset_centre }
     }
 }
 
@@ -580,10 +608,10 @@ impl RunConfig {
         let (Some(folder), Some(mesh)) = (&self.world.dataset, scene.mesh()) else { return Ok(()) };
         let bounds = mesh.bounds();
         let options = nerfsv_dataset::LoadOptions { downscale: 1, load_depth: false };
-        let split = nerfsv_dataset::load_split(folder, "train", options).map_err(|error| PipelineError::Dataset {
-            context: format!("loading the train split of {}", folder.display()),
-            error,
+        let mut split = nerfsv_dataset::load_split(folder, "train", options).map_err(|error| {
+            PipelineError::Dataset { context: format!("loading the train split of {}", folder.display()), error }
         })?;
+        self.world.placement().place(&mut split);
         let grown = bounds.expanded(0.1 * bounds.extent().norm());
         let seeing = split
             .frames
@@ -600,7 +628,8 @@ impl RunConfig {
             key: "world.dataset",
             message: format!(
                 "{}: {} of its {} training views look at the mesh (world.mesh): the dataset and the mesh are not of \
-                 one world (a different scale or up axis?)",
+                 one world (a different scale or up axis? world.dataset_scale, dataset_up and dataset_centre place \
+                 the dataset)",
                 folder.display(),
                 seeing,
                 split.frames.len()
@@ -615,7 +644,7 @@ impl Validate for WorldConfig {
         if !(scale.is_finite() && scale > 0.0) {
             return Err(InvalidValue::new("mesh_scale", "must be a positive number", scale));
         }
-        Ok(())
+        self.placement().validate()
     }
 }
 

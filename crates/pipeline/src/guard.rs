@@ -5,8 +5,9 @@
 //!
 //! Paths are compared by identity, not by their text: each is made absolute and resolved
 //! through symbolic links as far as it exists (`./a`, `a/../a`, a link to `a` and `a` are one
-//! path). A dataset folder counts with every file its transforms files name, each resolved on
-//! its own, so a split folder that is a link into another dataset guards that dataset's images.
+//! path). A dataset folder counts with every file its transforms files or COLMAP model name,
+//! each resolved on its own, so a split folder that is a link into another dataset guards that
+//! dataset's images.
 
 use std::path::{Path, PathBuf};
 
@@ -55,8 +56,8 @@ impl Guard {
         self
     }
 
-    /// A dataset folder: the folder, and every file its transforms files name (each resolved
-    /// through links on its own).
+    /// A dataset folder: the folder, and every file its transforms files or COLMAP model name
+    /// (each resolved through links on its own).
     pub fn dataset(mut self, what: &str, dir: &Path) -> Self {
         self.folders.push(Named::new(what, dir));
         for file in nerfsv_dataset::dataset_files(dir) {

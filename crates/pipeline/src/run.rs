@@ -69,7 +69,7 @@ pub fn run_in(
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(&cfg.out, observer)?;
     let source = match (&cfg.world.dataset, scene) {
-        (Some(folder), _) => stages::DatasetSource::Folder(folder),
+        (Some(folder), _) => stages::DatasetSource::Folder { folder, placement: cfg.world.placement() },
         (None, Some(scene)) => stages::DatasetSource::Render { scene, options: &cfg.dataset },
         (None, None) => return Err(PipelineError::Internal("a world needs a dataset or a scene".into())),
     };

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nerfsv_collision::{DensityFieldFigures, GroundTruthFigures, SdfGrid};
-use nerfsv_dataset::{load_split, GenerateOptions, LoadOptions, Split};
+use nerfsv_dataset::{load_split, GenerateOptions, LoadOptions, Placement, Split};
 use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
 use nerfsv_scene::Scene;
 use serde::{Deserialize, Serialize};
@@ -15,19 +15,32 @@ use crate::config::NerfSettings;
 use crate::stage::{write_json, Stage, StageContext};
 use crate::PipelineError;
 
-/// Loads a split of a dataset folder, naming the folder in the error.
+/// Loads a split of a dataset folder, naming the folder in the error. `dir` is a dataset
+/// folder ([`nerfsv_dataset::load_split`]'s formats) or a run's dataset stage folder
+/// ([`Dataset::folder`]): the dataset rendered there, or the user's folder its `source.json`
+/// names, with that dataset's poses placed in the world as the run's `[world]` table placed them.
 pub fn load_dataset_split(dir: &Path, split: &str, downscale: u32) -> Result<Split, PipelineError> {
-    load_split(dir, split, LoadOptions { downscale, load_depth: true }).map_err(|e| PipelineError::Dataset {
-        context: format!("loading the {split} split of {}", dir.display()),
-        error: e,
-    })
+    let source = dir.join(Dataset::SOURCE);
+    let (folder, placement) = match nerfsv_dataset::dataset_format(dir).is_none() && source.is_file() {
+        true => {
+            let f = DatasetFolder::read(&source)?;
+            (f.folder, f.placement)
+        }
+        false => (dir.to_path_buf(), Placement::default()),
+    };
+    let mut s = load_split(&folder, split, LoadOptions { downscale, load_depth: true }).map_err(|e| {
+        PipelineError::Dataset { context: format!("loading the {split} split of {}", folder.display()), error: e }
+    })?;
+    placement.place(&mut s);
+    Ok(s)
 }
 
 // ---------------------------------------------------------------------------------------------
 // 1. The dataset.
 
 /// The dataset the NeRF learns from: the scene's Blender-format dataset rendered into
-/// `RUN/dataset/`, or a user's folder used as is (`RUN/dataset/source.json` names it).
+/// `RUN/dataset/`, or a user's folder used as is (`RUN/dataset/source.json` names it and where
+/// its poses lie in the world).
 pub struct Dataset<'a> {
     pub source: DatasetSource<'a>,
 }
@@ -36,14 +49,25 @@ pub struct Dataset<'a> {
 pub enum DatasetSource<'a> {
     /// Rendered from a scene.
     Render { scene: &'a Scene, options: &'a GenerateOptions },
-    /// A dataset folder (Blender or nerfstudio format), read where it is.
-    Folder(&'a Path),
+    /// A dataset folder (any format [`nerfsv_dataset::load_split`] reads), read where it is,
+    /// its poses placed in the world by `placement`.
+    Folder { folder: &'a Path, placement: Placement },
 }
 
-/// `RUN/dataset/source.json`: the folder a run's dataset is read from.
+/// `RUN/dataset/source.json`: the folder a run's dataset is read from, and where its poses lie
+/// in the world (absent: as they are).
 #[derive(Serialize, Deserialize)]
 struct DatasetFolder {
     folder: PathBuf,
+    #[serde(default, skip_serializing_if = "Placement::is_identity")]
+    placement: Placement,
+}
+
+impl DatasetFolder {
+    fn read(source: &Path) -> Result<Self, PipelineError> {
+        let text = std::fs::read_to_string(source).map_err(|e| PipelineError::io(source, e))?;
+        serde_json::from_str(&text).map_err(|e| PipelineError::Internal(format!("{}: {e}", source.display())))
+    }
 }
 
 /// What the dataset stage reports.
@@ -84,17 +108,16 @@ impl Dataset<'_> {
     /// The file naming a user's dataset folder.
     pub const SOURCE: &'static str = "source.json";
 
-    /// The folder run `root`'s dataset is read from: the user's, or `RUN/dataset/`.
+    /// The folder [`load_dataset_split`] reads run `root`'s dataset from: `RUN/dataset/`, which
+    /// holds the rendered dataset or names the user's folder and its placement.
     pub fn folder(root: &Path) -> Result<PathBuf, PipelineError> {
         let dir = root.join(Dataset::NAME);
         let source = dir.join(Self::SOURCE);
-        if !source.exists() {
-            return Ok(dir);
+        if source.exists() {
+            // A broken record fails here, before a stage opens it.
+            DatasetFolder::read(&source)?;
         }
-        let text = std::fs::read_to_string(&source).map_err(|e| PipelineError::io(&source, e))?;
-        let f: DatasetFolder =
-            serde_json::from_str(&text).map_err(|e| PipelineError::Internal(format!("{}: {e}", source.display())))?;
-        Ok(f.folder)
+        Ok(dir)
     }
 }
 
@@ -106,7 +129,7 @@ impl Stage for Dataset<'_> {
     fn outputs(&self) -> &'static [&'static str] {
         match self.source {
             DatasetSource::Render { .. } => Self::OUTPUTS,
-            DatasetSource::Folder(_) => &[Self::SOURCE],
+            DatasetSource::Folder { .. } => &[Self::SOURCE],
         }
     }
     type Figures = DatasetFigures;
@@ -115,10 +138,14 @@ impl Stage for Dataset<'_> {
         match &self.source {
             DatasetSource::Render { scene, options } => serde_json::json!([scene.key(), options]),
             // The folder's files: a changed image is another dataset. An unreadable folder keys
-            // as 0, and the stage then fails naming it.
-            DatasetSource::Folder(folder) => {
+            // as 0, and the stage then fails naming it. An identity placement keys as none.
+            DatasetSource::Folder { folder, placement } => {
                 let digest = crate::digest::folder_digest(folder).unwrap_or(0);
-                serde_json::json!({"folder": folder, "digest": format!("{digest:016x}")})
+                let mut key = serde_json::json!({"folder": folder, "digest": format!("{digest:016x}")});
+                if !placement.is_identity() {
+                    key["placement"] = serde_json::json!(placement);
+                }
+                key
             }
         }
     }
@@ -129,7 +156,7 @@ impl Stage for Dataset<'_> {
             DatasetSource::Render { scene, options } => render_dataset(scene, &cx.dir, options, &|done, total| {
                 cx.progress(done as u64, total as u64, "views rendered")
             }),
-            DatasetSource::Folder(folder) => {
+            DatasetSource::Folder { folder, placement } => {
                 // Every split is read now, so a broken dataset stops the run before training.
                 let start = Instant::now();
                 let mut views = 0;
@@ -143,7 +170,7 @@ impl Stage for Dataset<'_> {
                     cx.progress(i as u64 + 1, 3, "splits read");
                 }
                 let absolute = std::path::absolute(folder).map_err(|e| PipelineError::io(*folder, e))?;
-                write_json(&cx.dir.join(Self::SOURCE), &DatasetFolder { folder: absolute })?;
+                write_json(&cx.dir.join(Self::SOURCE), &DatasetFolder { folder: absolute, placement: *placement })?;
                 Ok(DatasetFigures {
                     scene: folder.display().to_string(),
                     views,

@@ -1,4 +1,4 @@
-//! RGBA and depth images: PNG decoding/encoding and downscaling.
+//! RGBA and depth images: PNG and JPEG decoding, PNG encoding, downscaling.
 
 use std::io::{BufReader, Write};
 use std::path::Path;
@@ -33,6 +33,41 @@ impl Image {
         [self.rgba[i], self.rgba[i + 1], self.rgba[i + 2], self.rgba[i + 3]]
     }
 
+    /// Decodes a PNG ([`Image::read_png`]) or a JPEG ([`Image::read_jpeg`]), told apart by the
+    /// file's first bytes, not by its name.
+    pub fn read(path: &Path) -> Result<Self, String> {
+        match sniff(path)? {
+            ImageFormat::Png => Self::read_png(path),
+            ImageFormat::Jpeg => Self::read_jpeg(path),
+        }
+    }
+
+    /// Decodes a baseline or progressive JPEG (greyscale, YCbCr or RGB; CMYK converted to RGB).
+    /// JPEG has no alpha: every pixel is opaque. The EXIF orientation tag is not applied (the
+    /// pixels are used as stored, as a camera's intrinsics describe them).
+    pub fn read_jpeg(path: &Path) -> Result<Self, String> {
+        use zune_jpeg::zune_core::{bytestream::ZCursor, colorspace::ColorSpace, options::DecoderOptions};
+        let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+        let mut decoder = zune_jpeg::JpegDecoder::new(ZCursor::new(&bytes));
+        decoder.decode_headers().map_err(|e| format!("cannot decode JPEG: {e}"))?;
+        let (w, h) = decoder.dimensions().ok_or("cannot decode JPEG: no frame header")?;
+        let grey = decoder.input_colorspace() == Some(ColorSpace::Luma);
+        let channels = if grey { 1 } else { 3 };
+        check_decoded_size(w as u32, h as u32, (w * h * channels) as u64, 16)?;
+        let out = if grey { ColorSpace::Luma } else { ColorSpace::RGB };
+        decoder.set_options(DecoderOptions::default().jpeg_set_out_colorspace(out));
+        let buf = decoder.decode().map_err(|e| format!("cannot decode JPEG: {e}"))?;
+        if buf.len() != w * h * channels {
+            return Err(format!("cannot decode JPEG: {} bytes decoded, expected {}", buf.len(), w * h * channels));
+        }
+        let mut rgba = Vec::with_capacity(4 * w * h);
+        for px in buf.chunks_exact(channels) {
+            let v = |c: usize| px[c] as f32 / 255.0;
+            rgba.extend_from_slice(&if grey { [v(0), v(0), v(0), 1.0] } else { [v(0), v(1), v(2), 1.0] });
+        }
+        Ok(Self { width: w as u32, height: h as u32, rgba })
+    }
+
     /// Decodes an 8- or 16-bit grey, grey+alpha, RGB or RGBA PNG. Missing alpha is opaque.
     pub fn read_png(path: &Path) -> Result<Self, String> {
         let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
@@ -40,7 +75,7 @@ impl Image {
         decoder.set_transformations(png::Transformations::EXPAND);
         let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
         let size = reader.output_buffer_size().ok_or("image too large")?;
-        check_decoded_size(reader.info(), size, 16)?;
+        check_decoded_size(reader.info().width, reader.info().height, size as u64, 16)?;
         let mut buf = vec![0; size];
         let info = reader.next_frame(&mut buf).map_err(|e| format!("cannot decode PNG: {e}"))?;
         let (w, h) = (info.width, info.height);
@@ -114,7 +149,7 @@ impl DepthImage {
         let decoder = png::Decoder::new(BufReader::new(file));
         let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
         let size = reader.output_buffer_size().ok_or("image too large")?;
-        check_decoded_size(reader.info(), size, 4)?;
+        check_decoded_size(reader.info().width, reader.info().height, size as u64, 4)?;
         let mut buf = vec![0; size];
         let info = reader.next_frame(&mut buf).map_err(|e| format!("cannot decode PNG: {e}"))?;
         if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
@@ -166,15 +201,57 @@ impl DepthImage {
     }
 }
 
-/// Refuses a PNG whose decoded samples (`buffer` bytes) and result (`per_pixel` bytes a pixel)
-/// would not fit the memory budget, before either is allocated: the header's size is the
-/// file's claim, and a few KiB of deflate can claim gigabytes.
-fn check_decoded_size(info: &png::Info, buffer: usize, per_pixel: u64) -> Result<(), String> {
-    let pixels = info.width as u64 * info.height as u64;
-    let bytes = (buffer as u64).saturating_add(bytes_for(pixels, per_pixel));
-    MemoryBudget::current()
-        .check(&format!("image of {}×{} pixels", info.width, info.height), bytes)
-        .map_err(|e| e.to_string())
+/// The file formats [`Image::read`] decodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum ImageFormat {
+    Png,
+    Jpeg,
+}
+
+const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0D, 0x0A, 0x1A, 0x0A];
+/// A JPEG starts with its SOI marker and the first segment's marker byte.
+const JPEG_SIGNATURE: [u8; 3] = [0xFF, 0xD8, 0xFF];
+
+/// The format of the file at `path`, from its first bytes.
+fn sniff(path: &Path) -> Result<ImageFormat, String> {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(8);
+    std::fs::File::open(path).and_then(|f| f.take(8).read_to_end(&mut head)).map_err(|e| e.to_string())?;
+    if head.starts_with(&PNG_SIGNATURE) {
+        Ok(ImageFormat::Png)
+    } else if head.starts_with(&JPEG_SIGNATURE) {
+        Ok(ImageFormat::Jpeg)
+    } else {
+        let shown: Vec<String> = head.iter().map(|b| format!("{b:02x}")).collect();
+        Err(format!("neither a PNG nor a JPEG file: it starts with the bytes [{}]", shown.join(" ")))
+    }
+}
+
+/// Width and height of a PNG or JPEG from its header, without decoding its pixels.
+pub fn image_size(path: &Path) -> Result<(u32, u32), String> {
+    match sniff(path)? {
+        ImageFormat::Png => {
+            let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
+            let reader = png::Decoder::new(BufReader::new(file)).read_info().map_err(|e| e.to_string())?;
+            Ok((reader.info().width, reader.info().height))
+        }
+        ImageFormat::Jpeg => {
+            let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
+            let mut decoder = zune_jpeg::JpegDecoder::new(BufReader::new(file));
+            decoder.decode_headers().map_err(|e| format!("cannot decode JPEG: {e}"))?;
+            let (w, h) = decoder.dimensions().ok_or("cannot decode JPEG: no frame header")?;
+            Ok((w as u32, h as u32))
+        }
+    }
+}
+
+/// Refuses an image of `width`×`height` whose decoded samples (`buffer` bytes) and result
+/// (`per_pixel` bytes a pixel) would not fit the memory budget, before either is allocated: the
+/// header's size is the file's claim, and a few KiB of compressed data can claim gigabytes.
+fn check_decoded_size(width: u32, height: u32, buffer: u64, per_pixel: u64) -> Result<(), String> {
+    let pixels = width as u64 * height as u64;
+    let bytes = buffer.saturating_add(bytes_for(pixels, per_pixel));
+    MemoryBudget::current().check(&format!("image of {width}×{height} pixels"), bytes).map_err(|e| e.to_string())
 }
 
 fn write_png_bytes<W: Write>(

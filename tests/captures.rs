@@ -1,6 +1,7 @@
 //! Every command that takes a dataset folder takes a capture as its tools write it
 //! (`tests/fixtures/captures/`: nerfstudio, COLMAP text and binary): `nerfsv train --data`, a
-//! run's `[world] dataset` with its placement, and the guard over the files a capture reads.
+//! run's `[world] dataset` with its placement, `nerfsv uq offline --data`, and the guard over the
+//! files a capture reads.
 
 mod common;
 
@@ -13,7 +14,7 @@ fn capture(name: &str) -> PathBuf {
 }
 
 #[test]
-fn train_takes_colmap_and_nerfstudio_folders() {
+fn train_and_uq_take_colmap_and_nerfstudio_folders() {
     let dir = tempfile::tempdir().unwrap();
     for name in ["colmap_bin", "nerfstudio"] {
         let out = dir.path().join(name);
@@ -23,6 +24,17 @@ fn train_takes_colmap_and_nerfstudio_folders() {
         let stats: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("train_stats.json")).unwrap()).unwrap();
         assert_eq!(stats["steps"], 2, "{name}: {stats}");
+        // The offline uncertainty study reads the same folder, every split the loader derives.
+        let uq = dir.path().join(format!("{name}_uq"));
+        let model = out.join("checkpoint.safetensors");
+        let data = capture(name);
+        let args = ["uq", "offline", "--method", "ga", "--model", s(&model), "--data", s(&data)];
+        let (ok, _, err) = nerfsv(&[&args[..], &["--out", s(&uq), "--max-images", "1", "--rays", "16"]].concat());
+        assert!(ok, "{name}: uq offline: {err}");
+        let csv = std::fs::read_to_string(uq.join("uq_ga.csv")).unwrap();
+        for split in ["train", "val", "test"] {
+            assert!(csv.lines().any(|l| l.starts_with(&format!("{split},"))), "{name}: no {split} row in\n{csv}");
+        }
     }
 }
 

@@ -61,8 +61,8 @@ pub fn uncertainty_offline<'py>(
     let (present, skipped): (Vec<&'static str>, Vec<&'static str>) = SPLITS.iter().partition(|s| has_split(&data, s));
     if present.is_empty() {
         return Err(value_error(format!(
-            "{}: no transforms_train.json, transforms_val.json, transforms_test.json or transforms.json: not a \
-             Blender-format dataset",
+            "{}: no transforms_train.json, transforms_val.json, transforms_test.json, transforms.json or COLMAP \
+             model (sparse/0): not a dataset folder",
             data.display()
         )));
     }

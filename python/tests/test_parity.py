@@ -267,7 +267,7 @@ def test_the_study_functions_refuse_bad_arguments_with_the_rust_message(world, t
     with pytest.raises(ValueError, match="rays"):
         nerfsv.uncertainty_offline(model, world["ds"], rays=0)
     (tmp_path / "empty").mkdir()
-    with pytest.raises(ValueError, match="not a Blender-format dataset"):
+    with pytest.raises(ValueError, match="not a dataset folder"):
         nerfsv.uncertainty_offline(model, tmp_path / "empty")
     with pytest.raises(ValueError, match='no transforms file for split "nope"'):
         nerfsv.uncertainty_ause(model, world["ds"], split="nope")

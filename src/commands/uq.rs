@@ -80,8 +80,8 @@ pub struct OfflineArgs {
     /// Checkpoint written by `nerfsv train`.
     #[arg(long)]
     pub model: PathBuf,
-    /// Blender-format dataset folder: every split among train, val and test whose transforms
-    /// file is there is used (those absent are skipped and reported).
+    /// Dataset or capture folder (Blender, nerfstudio, COLMAP): every split among train, val and
+    /// test it holds is used (those absent are skipped and reported).
     #[arg(long)]
     pub data: PathBuf,
     /// Output folder: uq_{method}.csv (a row per image), uq_{method}.json (the per-split
@@ -197,8 +197,8 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
         SPLITS.iter().partition(|s| has_split(&args.data, s));
     if present.is_empty() {
         anyhow::bail!(
-            "{}: no transforms_train.json, transforms_val.json, transforms_test.json or transforms.json: not a \
-             Blender-format dataset",
+            "{}: no transforms_train.json, transforms_val.json, transforms_test.json, transforms.json or COLMAP \
+             model (sparse/0): not a dataset folder",
             args.data.display()
         );
     }

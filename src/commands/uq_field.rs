@@ -31,7 +31,7 @@ pub struct FieldArgs {
     /// another seed (repeat; `nerfsv run` keeps them in `RUN/ensemble/member_K/`).
     #[arg(long = "member")]
     pub members: Vec<PathBuf>,
-    /// Blender-format dataset folder: its train split is used (GA and BLA; the ensemble checks
+    /// Dataset or capture folder (Blender, nerfstudio, COLMAP): its train split is used (GA and BLA; the ensemble checks
     /// only that its cameras see the models).
     #[arg(long)]
     pub data: PathBuf,
@@ -82,7 +82,7 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
     guard.output("--out", &args.out).check()?;
     if !has_split(&args.data, "train") {
         anyhow::bail!(
-            "{}: no transforms_train.json (or transforms.json): not a Blender-format dataset",
+            "{}: no transforms_train.json, transforms.json or COLMAP model (sparse/0): not a dataset folder",
             args.data.display()
         );
     }

@@ -119,9 +119,13 @@ pub struct Row {
     pub fit: Fit,
 }
 
-/// Whether `dir` holds a transforms file for `split` (its own, or instant-ngp's shared one).
+/// Whether [`nerfsv_dataset::load_split`] finds `split` in `dir`: its own
+/// `transforms_{split}.json`, or a single `transforms.json` (instant-ngp, nerfstudio) or a COLMAP
+/// model, whose splits the loader derives.
 pub fn has_split(dir: &Path, split: &str) -> bool {
-    dir.join(format!("transforms_{split}.json")).is_file() || dir.join("transforms.json").is_file()
+    dir.join(format!("transforms_{split}.json")).is_file()
+        || dir.join("transforms.json").is_file()
+        || nerfsv_dataset::dataset_format(dir) == Some(nerfsv_dataset::DatasetFormat::Colmap)
 }
 
 /// The straight colours of `frame` composited on [`BACKGROUND`], `[pixels]`.

@@ -18,47 +18,12 @@ import pytest
 
 import nerfsv
 
-ROOT = Path(__file__).resolve().parents[2]
-BIN = os.environ.get("NERFSV_BIN", str(ROOT / "target" / "release" / "nerfsv"))
-
-# The stress tests' small study (as tests/stress.rs): 6 steps of the vision drone with 16
-# pixels, a wide prior so that some rollouts fail.
-STUDY = """[sim.vision]
-pixels = 16
-iterations = 2
-images_per_step = 2
-[validation]
-seed = 5
-[validation.disturbance]
-std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]
-[validation.monte_carlo]
-rollouts = 8
-[validation.cem]
-m = 6
-m_elite = 2
-k_max = 2
-is_samples = 6
-"""
-
-
-def cli(*args):
-    r = subprocess.run([BIN, *map(str, args)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    return r.stdout
+from common import STUDY, cli, tiny_world
 
 
 @pytest.fixture(scope="session")
 def world(tmp_path_factory):
-    d = tmp_path_factory.mktemp("world")
-    ds = d / "ds"
-    cli("scene", "--scene", "monolith", "--out", ds, "--width", 8, "--height", 8, "--train", 2, "--val", 1,
-        "--test", 1, "--supersample", 1)
-    (d / "nerf.toml").write_text("[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n")
-    cli("train", "--data", ds, "--out", d / "nerf", "--steps", 2, "--config", d / "nerf.toml")
-    cli("collision", "--scene", "monolith", "--out", d / "gt.safetensors")
-    (d / "study.toml").write_text(STUDY)
-    return {"dir": d, "ds": ds, "model": d / "nerf" / "checkpoint.safetensors", "field": d / "gt.safetensors",
-            "study": d / "study.toml", "nerf_toml": d / "nerf.toml"}
+    return tiny_world(tmp_path_factory.mktemp("world"), field=True)
 
 
 def stress_files(out: Path):

@@ -11,10 +11,8 @@ ground-truth depth to be scored) and a 2-step model in a ±1 m box.
 import csv
 import json
 import math
-import os
 import re
 import struct
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -22,26 +20,14 @@ import pytest
 
 import nerfsv
 
-ROOT = Path(__file__).resolve().parents[2]
-BIN = os.environ.get("NERFSV_BIN", str(ROOT / "target" / "release" / "nerfsv"))
+from common import ROOT, cli, tiny_world
+
 SIZE = 16
-
-
-def cli(*args):
-    r = subprocess.run([BIN, *map(str, args)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    return r.stdout
 
 
 @pytest.fixture(scope="session")
 def world(tmp_path_factory):
-    d = tmp_path_factory.mktemp("parity")
-    ds = d / "ds"
-    cli("scene", "--scene", "monolith", "--out", ds, "--width", SIZE, "--height", SIZE, "--train", 2, "--val", 1,
-        "--test", 2, "--supersample", 1)
-    (d / "nerf.toml").write_text("[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n")
-    cli("train", "--data", ds, "--out", d / "nerf", "--steps", 2, "--config", d / "nerf.toml")
-    return {"dir": d, "ds": ds, "model": d / "nerf" / "checkpoint.safetensors"}
+    return tiny_world(tmp_path_factory.mktemp("parity"), size=SIZE, test=2)
 
 
 def read_safetensors(path):

@@ -10,8 +10,6 @@ binary (NERFSV_BIN, else the workspace's target/release/nerfsv).
 
 import json
 import math
-import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +17,7 @@ import pytest
 
 import nerfsv
 
-ROOT = Path(__file__).resolve().parents[2]
-BIN = os.environ.get("NERFSV_BIN", str(ROOT / "target" / "release" / "nerfsv"))
+from common import cli, tiny_world
 
 
 def p_fail(threshold, steps=10):
@@ -274,41 +271,9 @@ def test_an_exception_in_run_propagates_as_itself(sampler, system):
 
 
 # The drone: the small study of test_nerfsv.py.
-STUDY = """[sim.vision]
-pixels = 16
-iterations = 2
-images_per_step = 2
-[validation]
-seed = 5
-[validation.disturbance]
-std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]
-[validation.monte_carlo]
-rollouts = 8
-[validation.cem]
-m = 6
-m_elite = 2
-k_max = 2
-is_samples = 6
-"""
-
-
-def cli(*args):
-    r = subprocess.run([BIN, *map(str, args)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    return r.stdout
-
-
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    d = tmp_path_factory.mktemp("world")
-    ds = d / "ds"
-    cli("scene", "--scene", "monolith", "--out", ds, "--width", 8, "--height", 8, "--train", 2, "--val", 1,
-        "--test", 1, "--supersample", 1)
-    (d / "nerf.toml").write_text("[nerf]\naabb_min = [-1.0, -1.0, -1.0]\naabb_max = [1.0, 1.0, 1.0]\n")
-    cli("train", "--data", ds, "--out", d / "nerf", "--steps", 2, "--config", d / "nerf.toml")
-    cli("collision", "--scene", "monolith", "--out", d / "gt.safetensors")
-    (d / "study.toml").write_text(STUDY)
-    return {"model": d / "nerf" / "checkpoint.safetensors", "field": d / "gt.safetensors", "study": d / "study.toml"}
+    return tiny_world(tmp_path_factory.mktemp("world"), field=True)
 
 
 def outputs(folder):

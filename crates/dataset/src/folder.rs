@@ -62,6 +62,14 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     }
 }
 
+/// Whether [`load_split`] finds split `split` in `dir`: its own `transforms_{split}.json`, or a
+/// `transforms.json` or a COLMAP model, whose splits the loader derives.
+pub fn has_split(dir: &Path, split: &str) -> bool {
+    dir.join(format!("transforms_{split}.json")).exists()
+        || dir.join("transforms.json").exists()
+        || model_files(dir).is_some()
+}
+
 /// The files a dataset folder's loader reads, as far as its transforms files or COLMAP model
 /// can be parsed: every `transforms*.json` it would open and the images and depth images their
 /// frames name, or the COLMAP model files and the images they name (resolved as [`load_split`]

@@ -119,14 +119,9 @@ pub struct Row {
     pub fit: Fit,
 }
 
-/// Whether [`nerfsv_dataset::load_split`] finds `split` in `dir`: its own
-/// `transforms_{split}.json`, or a single `transforms.json` (instant-ngp, nerfstudio) or a COLMAP
-/// model, whose splits the loader derives.
-pub fn has_split(dir: &Path, split: &str) -> bool {
-    dir.join(format!("transforms_{split}.json")).is_file()
-        || dir.join("transforms.json").is_file()
-        || nerfsv_dataset::dataset_format(dir) == Some(nerfsv_dataset::DatasetFormat::Colmap)
-}
+/// Whether the dataset loader finds a split in a folder (the uq commands skip the splits it
+/// does not).
+pub use nerfsv_dataset::has_split;
 
 /// The straight colours of `frame` composited on [`BACKGROUND`], `[pixels]`.
 pub fn reference(frame: &Frame) -> Vec<[f32; 3]> {

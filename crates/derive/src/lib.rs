@@ -3,6 +3,9 @@
 //! `#[derive(ValidateTables)]` checks each `#[docs(table)]` field of a config with its own
 //! `validate`, its errors named `table.key` (see [`macro@ValidateTables`]).
 //!
+//! `#[derive(Defaults)]` writes a config's `Default` from its fields: each field's value is its
+//! `#[docs(default = EXPR)]` or its type's own default (see [`macro@Defaults`]).
+//!
 //! `#[derive(FieldDocs)]`: a struct's named fields with their doc comments, as data. For a struct with named fields it generates an inherent constant
 //! `FIELD_DOCS: &[(&str, &str)]`: each field's name and its documentation, the doc comment's
 //! lines trimmed and joined by one space, intra-doc link brackets (`` [`x`] ``) dropped, in
@@ -151,6 +154,73 @@ pub fn validate_tables(input: TokenStream) -> TokenStream {
     .into()
 }
 
+/// `#[derive(Defaults)]`: `impl Default` from the fields, each field's default beside its
+/// declaration.
+///
+/// A field marked `#[docs(default = EXPR)]` starts as `EXPR`; every other field as its type's
+/// `Default::default()`. So a table added to a config is its field alone: its type's default is
+/// the config's. A field's `#[cfg(…)]` holds for its value too.
+///
+/// ```ignore
+/// #[derive(nerfsv_derive::Defaults)]
+/// pub struct Run {
+///     /// Scene name.
+///     #[docs(default = "stonehenge".into())]
+///     pub scene: String,
+///     /// The camera (its own default).
+///     pub camera: Camera,
+/// }
+/// assert_eq!(Run::default().scene, "stonehenge");
+/// ```
+#[proc_macro_derive(Defaults, attributes(docs))]
+pub fn defaults(input: TokenStream) -> TokenStream {
+    let input = parse_macro_input!(input as DeriveInput);
+    let name = &input.ident;
+    let (impl_generics, ty_generics, where_clause) = input.generics.split_for_impl();
+    let Data::Struct(data) = &input.data else {
+        return syn::Error::new_spanned(name, "Defaults is for structs").to_compile_error().into();
+    };
+    let Fields::Named(fields) = &data.fields else {
+        return syn::Error::new_spanned(name, "Defaults needs named fields").to_compile_error().into();
+    };
+    let mut values = Vec::new();
+    for f in &fields.named {
+        let ident = f.ident.as_ref().expect("named field");
+        let cfgs = f.attrs.iter().filter(|a| a.path().is_ident("cfg"));
+        let value = match default_attr(&f.attrs) {
+            Ok(Some(expr)) => quote! { #expr },
+            Ok(None) => quote! { ::std::default::Default::default() },
+            Err(e) => return e.to_compile_error().into(),
+        };
+        values.push(quote! { #(#cfgs)* #ident: #value, });
+    }
+    quote! {
+        impl #impl_generics ::std::default::Default for #name #ty_generics #where_clause {
+            /// Each field's `#[docs(default = …)]`, else its type's default (`#[derive(Defaults)]`).
+            fn default() -> Self {
+                Self { #(#values)* }
+            }
+        }
+    }
+    .into()
+}
+
+/// The expression of a field's `#[docs(default = EXPR)]`, if it has one.
+fn default_attr(attrs: &[Attribute]) -> syn::Result<Option<Expr>> {
+    let mut found = None;
+    for a in attrs.iter().filter(|a| a.path().is_ident("docs")) {
+        a.parse_nested_meta(|m| {
+            if m.path.is_ident("default") {
+                found = Some(m.value()?.parse::<Expr>()?);
+            } else if m.input.peek(syn::Token![=]) {
+                m.value()?.parse::<Expr>()?;
+            }
+            Ok(())
+        })?;
+    }
+    Ok(found)
+}
+
 /// `#[derive(Choice)]`: a fieldless enum chosen by name in config files, on the command line and
 /// from Python.
 ///
@@ -234,6 +304,9 @@ fn is_table(attrs: &[Attribute]) -> bool {
     for a in attrs.iter().filter(|a| a.path().is_ident("docs")) {
         let _ = a.parse_nested_meta(|m| {
             table |= m.path.is_ident("table");
+            if m.input.peek(syn::Token![=]) {
+                m.value()?.parse::<Expr>()?;
+            }
             Ok(())
         });
     }

@@ -82,17 +82,31 @@ impl Validate for NerfSettings {
 }
 
 /// Everything `nerfsv run` does, with its defaults.
-#[derive(nerfsv_derive::FieldDocs, nerfsv_derive::ValidateTables, Clone, Debug, Serialize, Deserialize)]
+#[derive(
+    nerfsv_derive::FieldDocs,
+    nerfsv_derive::ValidateTables,
+    nerfsv_derive::Defaults,
+    Clone,
+    Debug,
+    Serialize,
+    Deserialize,
+)]
 #[serde(default, deny_unknown_fields)]
 pub struct RunConfig {
     /// Built-in scene: stonehenge, monolith or pillars (a `[world]` mesh replaces it).
+    #[docs(default = "stonehenge".into())]
     pub scene: String,
     /// Run folder; every artifact goes below it.
+    #[docs(default = PathBuf::from("runs/stonehenge"))]
     pub out: PathBuf,
     /// Dataset rendering (views, size, field of view, seed).
     #[docs(table)]
+    // A third of the views at drone altitude, so the NeRF knows what the drone's camera sees
+    // (hemisphere views alone leave it blurry there).
+    #[docs(default = GenerateOptions { close_up_fraction: DEFAULT_CLOSE_UP_FRACTION, ..GenerateOptions::default() })]
     pub dataset: GenerateOptions,
     /// Collision field resolution in cells per metre (the paper's 40).
+    #[docs(default = 40.0)]
     pub cells_per_metre: f32,
     /// NeRF model settings (hash grid, networks, occupancy grid, ray marching).
     #[docs(table)]
@@ -102,12 +116,15 @@ pub struct RunConfig {
     pub train: TrainConfig,
     /// Training length in optimiser steps. A step count, not a time budget, so the same config
     /// and seed give the same model on any machine.
+    #[docs(default = DEFAULT_TRAIN_STEPS)]
     pub train_steps: u64,
     /// Density (1/m) above which the NeRF counts as solid in its collision field; default
     /// ln 2 / cell size.
     pub nerf_density_threshold: Option<f32>,
     /// The drone, its path, controller and estimator (the `[sim]` table).
     #[docs(table)]
+    // NeRF-sim's world is the ensemble's other members: the estimator's map is not the world.
+    #[docs(default = nerfsv_sim::SimConfig { nerf_world: nerfsv_sim::NerfWorldSource::Ensemble, ..Default::default() })]
     pub sim: nerfsv_sim::SimConfig,
     /// Seed of the flight's random choices (the vision estimator's pixels).
     pub flight_seed: u64,
@@ -121,6 +138,7 @@ pub struct RunConfig {
     /// the stage's Monte Carlo rollouts, so it costs about `samples·(1 − p0)` more NeRF-sim
     /// rollouts per level beyond them (180 by default; 2 levels at the default study's
     /// failure rate); false leaves it out.
+    #[docs(default = true)]
     pub stress_subset: bool,
     /// Uncertainty quantification: GA and BLA settings, the online rewards, the uncertainty
     /// field (the `[uq]` table).
@@ -141,6 +159,7 @@ pub struct RunConfig {
     /// More NeRFs of the same data with other seeds: the world's model uncertainty, NeRF-sim's
     /// world with `sim.nerf_world = "ensemble"` (the `[ensemble]` table).
     #[docs(table)]
+    #[docs(default = EnsembleConfig { members: DEFAULT_ENSEMBLE_MEMBERS, ..EnsembleConfig::default() })]
     pub ensemble: EnsembleConfig,
     /// The unit tests' probe stage (the `[probe]` table).
     #[cfg(test)]
@@ -247,35 +266,6 @@ impl EnsembleConfig {
     /// The training seed of member `k` of an ensemble whose deployed model has `seed`.
     pub fn member_seed(seed: u64, k: usize) -> u64 {
         seed.wrapping_add(k as u64)
-    }
-}
-
-impl Default for RunConfig {
-    fn default() -> Self {
-        Self {
-            scene: "stonehenge".into(),
-            out: PathBuf::from("runs/stonehenge"),
-            // A third of the views at drone altitude, so the NeRF knows what the drone's camera
-            // sees (hemisphere views alone leave it blurry there).
-            dataset: GenerateOptions { close_up_fraction: DEFAULT_CLOSE_UP_FRACTION, ..GenerateOptions::default() },
-            cells_per_metre: 40.0,
-            nerf: NerfConfig::default(),
-            train: TrainConfig::default(),
-            train_steps: DEFAULT_TRAIN_STEPS,
-            nerf_density_threshold: None,
-            // NeRF-sim's world is the ensemble's other members: the estimator's map is not the world.
-            sim: nerfsv_sim::SimConfig { nerf_world: nerfsv_sim::NerfWorldSource::Ensemble, ..Default::default() },
-            flight_seed: 0,
-            validation: nerfsv_validation::ValidationConfig::default(),
-            stress_subset: true,
-            uq: nerfsv_uq::UqConfig::default(),
-            uq_offline: UqOfflineConfig::default(),
-            online: OnlineConfig::default(),
-            world: WorldConfig::default(),
-            ensemble: EnsembleConfig { members: DEFAULT_ENSEMBLE_MEMBERS, ..EnsembleConfig::default() },
-            #[cfg(test)]
-            probe: crate::probe::ProbeConfig::default(),
-        }
     }
 }
 

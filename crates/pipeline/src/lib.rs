@@ -11,9 +11,10 @@
 //! # Adding a stage
 //! One module with an `impl Stage` that calls its library function and an `impl Report` that
 //! shows its figures, and one line in [`run`]. A config table of its own is a struct beside it
-//! with a `validate`, and one `#[docs(table)]` field of [`RunConfig`] (with its default):
-//! `nerfsv config` documents it and [`RunConfig::validate_tables`] checks it, its errors named
-//! `table.key`.
+//! with a `Default` and a `validate`, and one `#[docs(table)]` field of [`RunConfig`]:
+//! `nerfsv config` documents it, [`RunConfig::default`] starts it at its type's default (or at
+//! the field's `#[docs(default = …)]`) and [`RunConfig::validate_tables`] checks it, its errors
+//! named `table.key`.
 //!
 //! ```
 //! use nerfsv_pipeline::report::{Section, Table};

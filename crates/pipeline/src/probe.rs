@@ -1,7 +1,7 @@
 //! A stage with a config table of its own, compiled only into the pipeline's unit tests: it
 //! holds the recipe of "How to add a stage" to account. Its table is its struct here, its
 //! `RunConfig` field (`probe`) and its run line (in the test); `nerfsv config`'s tables,
-//! `RunConfig::validate`, `--set` and the run reach it through those alone.
+//! `RunConfig::default`, `RunConfig::validate`, `--set` and the run reach it through those alone.
 
 use serde::{Deserialize, Serialize};
 

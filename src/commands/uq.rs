@@ -7,15 +7,11 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use nerfsv_dataset::{load_split, LoadOptions};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
-use nerfsv_scene::validate::in_range;
-use nerfsv_uq::offline::{
-    ause_frames, has_split, method_files, offline_split, write_files, ImageAuse, Method, OfflineSummary, SplitFitting,
-    SplitImages, SPLITS,
-};
-use serde::Serialize;
+use nerfsv_uq::folder::{ause_folder, check_max_images, folder_splits, offline_folder, FolderAuse, FolderStudy};
+use nerfsv_uq::offline::{has_split, method_files, write_files, Method, OfflineSummary};
+use nerfsv_uq::UqError;
 
 use crate::progress::Reporter;
 
@@ -114,47 +110,25 @@ pub fn run(args: UqArgs) -> anyhow::Result<()> {
     }
 }
 
-#[derive(Serialize)]
-struct AuseSummary {
-    method: &'static str,
-    split: String,
-    images: usize,
-    /// Images skipped, with the reason (no ground-truth depth, every ray missing the model,
-    /// fewer than 100 pixels with both a ground-truth depth and a finite uncertainty).
-    skipped: Vec<String>,
-    mean_ause: Option<f64>,
-    per_image: Vec<ImageAuse>,
-    seconds: f64,
+/// A study's count named as its flag: `max_images` → `--max-images`.
+fn as_flag(e: nerfsv_scene::InvalidValue) -> nerfsv_scene::InvalidValue {
+    nerfsv_scene::InvalidValue { field: format!("--{}", e.field.replace('_', "-")), ..e }
 }
 
 fn ause(args: AuseArgs) -> anyhow::Result<()> {
     let start = Instant::now();
-    let method = args.method;
     let cfg = args.settings.load()?;
-    if let Some(n) = args.max_images {
-        in_range("--max-images", n, 1, usize::MAX)?;
-    }
+    check_max_images(args.max_images).map_err(as_flag)?;
     if !has_split(&args.data, &args.split) {
-        anyhow::bail!("{}: no transforms file for split {:?}", args.data.display(), args.split);
+        return Err(UqError::NoSplit { folder: args.data.clone(), split: args.split.clone() }.into());
     }
     let nerf = Nerf::load(&args.model).with_context(|| format!("loading the model {}", args.model.display()))?;
-    let split = load_split(&args.data, &args.split, LoadOptions::default())?;
-    // A model whose box the cameras mostly miss is refused, as `uq offline` refuses it.
-    nerfsv_nerf::check_bounds(&nerf.config, &split)?;
-    let frames = &split.frames[..args.max_images.unwrap_or(usize::MAX).min(split.frames.len())];
     let reporter = Reporter::new(args.json);
     let progress = |done: usize, total: usize| reporter.progress("ause", done as u64, total as u64, "images scored");
     let note = |message: &str| reporter.note("ause", message);
-    let result = ause_frames(&nerf, method, frames, &cfg, &progress, &note)?;
-    let summary = AuseSummary {
-        method: method.name(),
-        split: args.split.clone(),
-        images: result.per_image.len(),
-        skipped: result.skipped,
-        mean_ause: result.mean_ause,
-        per_image: result.per_image,
-        seconds: start.elapsed().as_secs_f64(),
-    };
+    let ause = FolderAuse { method: args.method, split: &args.split, max_images: args.max_images };
+    let mut summary = ause_folder(&nerf, &ause, &args.data, &cfg, &progress, &note)?;
+    summary.seconds = start.elapsed().as_secs_f64();
     if args.json {
         println!("{}", serde_json::to_string(&summary)?);
     } else {
@@ -178,61 +152,30 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let method = args.method;
     // Everything that can be refused is checked before anything is written.
-    let mut cfg = args.settings.load()?;
-    if let Some(n) = args.max_images {
-        in_range("--max-images", n, 1, usize::MAX)?;
-    }
-    if let Some(n) = args.rays {
-        in_range("--rays", n, 1, 1 << 20)?;
-        if method == Method::Bla {
-            cfg.max_rays = n;
-        }
-    }
+    let cfg = args.settings.load()?;
+    let study = FolderStudy { method, max_images: args.max_images, rays: args.rays, downscale: args.downscale };
+    study.validate().map_err(as_flag)?;
     Guard::new().dataset("--data", &args.data).input("--model", &args.model).output("--out", &args.out).check()?;
     if !args.data.is_dir() {
         anyhow::bail!("{}: no such dataset folder", args.data.display());
     }
     let nerf = Nerf::load(&args.model).with_context(|| format!("loading the model {}", args.model.display()))?;
-    let (present, skipped_splits): (Vec<&'static str>, Vec<&'static str>) =
-        SPLITS.iter().partition(|s| has_split(&args.data, s));
-    if present.is_empty() {
-        anyhow::bail!(
-            "{}: no transforms_train.json, transforms_val.json, transforms_test.json, transforms.json or COLMAP \
-             model (sparse/0): not a dataset folder",
-            args.data.display()
-        );
-    }
+    let splits = folder_splits(&args.data)?;
     let reporter = Reporter::new(args.json);
-    for s in &skipped_splits {
+    for s in &splits.skipped {
         reporter.note("uq", &format!("no transforms_{s}.json in {}: the {s} split is skipped", args.data.display()));
     }
-    // One split in memory at a time (an 800×800 dataset's three splits would not fit); nothing
-    // is written before the last split has been read and fitted.
-    let mut rows = Vec::new();
-    for name in &present {
-        let split = load_split(&args.data, name, LoadOptions { downscale: args.downscale, load_depth: false })
-            .with_context(|| format!("loading the {name} split of {}", args.data.display()))?;
-        let total = args.max_images.map_or(split.frames.len(), |n| n.min(split.frames.len()));
-        let indices: Vec<usize> = (0..total).collect();
-        let stage = format!("uq {} {name}", method.name());
-        let progress = |done: usize, total: usize| reporter.progress(&stage, done as u64, total as u64, "images");
-        let note = |message: &str| reporter.note(&stage, message);
-        let fitting = SplitFitting { ga_rays: args.rays, depth_ause: false };
-        let fits = offline_split(
-            &nerf,
-            method,
-            SplitImages { split: &split, name, indices: &indices },
-            fitting,
-            &cfg,
-            &progress,
-            &note,
-        )?;
-        rows.extend(fits.rows);
-    }
+    let stage = |split: &str| format!("uq {} {split}", method.name());
+    let progress =
+        |split: &str, done: usize, total: usize| reporter.progress(&stage(split), done as u64, total as u64, "images");
+    let note = |split: &str, message: &str| reporter.note(&stage(split), message);
+    // Nothing is written before the last split has been read and fitted.
+    let rows = offline_folder(&nerf, &study, &args.data, &splits.present, &cfg, &progress, &note)?;
 
-    let mut summary = OfflineSummary::new(method, &rows, &present, skipped_splits, cfg.ga_sigma_max);
+    let cfg = study.config(&cfg);
+    let mut summary = OfflineSummary::new(method, &rows, &splits.present, splits.skipped, cfg.ga_sigma_max);
     // Every file is made in memory first, so a failure leaves nothing half written.
-    let mut files = method_files(&rows, &present, method, &cfg)?;
+    let mut files = method_files(&rows, &splits.present, method, &cfg)?;
     summary.seconds = start.elapsed().as_secs_f64();
     files.push((format!("uq_{}.json", method.name()), serde_json::to_vec_pretty(&summary)?));
     // All or nothing: the files this call has written are removed again if one fails.

@@ -61,6 +61,24 @@ pub enum UqError {
     Nerf(#[from] Box<nerfsv_nerf::NerfError>),
     #[error(transparent)]
     Plot(#[from] nerfsv_plot::PlotError),
+    /// A folder in which the dataset loader finds no split.
+    #[error(
+        "{}: no transforms_train.json, transforms_val.json, transforms_test.json, transforms.json or COLMAP model \
+         (sparse/0): not a dataset folder",
+        folder.display()
+    )]
+    NotADataset { folder: std::path::PathBuf },
+    /// A split the folder does not hold.
+    #[error("{}: no transforms file for split {split:?}", folder.display())]
+    NoSplit { folder: std::path::PathBuf, split: String },
+    /// A split that could not be loaded.
+    #[error("loading the {split} split of {}: {error}", folder.display())]
+    Dataset {
+        folder: std::path::PathBuf,
+        split: String,
+        #[source]
+        error: Box<nerfsv_dataset::DatasetError>,
+    },
     /// A frame index outside its split.
     #[error("{0}")]
     Internal(String),

@@ -52,6 +52,7 @@ mod config;
 pub mod ensemble;
 mod error;
 pub mod field;
+pub mod folder;
 pub mod ga;
 pub mod maps;
 pub mod offline;

@@ -560,51 +560,121 @@ pub fn exclusion_name(e: Option<GaExclusion>) -> &'static str {
     }
 }
 
-/// One row per image. An image whose rays all miss has empty values (GA: `excluded` is
-/// `all_rays_miss`; BLA: `note` is).
-pub fn csv(rows: &[Row], method: Method) -> String {
-    let mut out = String::new();
+/// A column of the offline study's CSV after `split`, `index` and `file_path`: its name and
+/// whether it holds text or numbers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Column {
+    pub name: &'static str,
+    pub text: bool,
+}
+
+const fn number(name: &'static str) -> Column {
+    Column { name, text: false }
+}
+
+const fn text(name: &'static str) -> Column {
+    Column { name, text: true }
+}
+
+/// GA's columns, in the CSV's order.
+const GA_COLUMNS: [Column; 8] = [
+    number("mu_d"),
+    number("sigma_d"),
+    text("excluded"),
+    number("objective"),
+    number("rays"),
+    number("rays_without_samples"),
+    number("floored_mu_d"),
+    number("floored_sigma_d"),
+];
+
+/// BLA's columns, in the CSV's order.
+const BLA_COLUMNS: [Column; 10] = [
+    number("normalized_trace"),
+    number("rmv"),
+    number("information_gain"),
+    number("map_loss"),
+    number("initial_loss"),
+    number("perturbation"),
+    number("prior_precision"),
+    number("log_evidence"),
+    number("rays"),
+    text("note"),
+];
+
+/// The method's columns after `split`, `index` and `file_path`, in the CSV's order.
+pub fn columns(method: Method) -> &'static [Column] {
     match method {
-        Method::Ga => out.push_str(
-            "split,index,file_path,mu_d,sigma_d,excluded,objective,rays,rays_without_samples,floored_mu_d,\
-             floored_sigma_d\n",
-        ),
-        Method::Bla => out.push_str(
-            "split,index,file_path,normalized_trace,rmv,information_gain,map_loss,initial_loss,perturbation,\
-             prior_precision,log_evidence,rays,note\n",
-        ),
+        Method::Ga => &GA_COLUMNS,
+        Method::Bla => &BLA_COLUMNS,
     }
+}
+
+/// One value of a row, in a [`Column`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Cell {
+    /// A text column's value (`""` for none).
+    Text(&'static str),
+    Number(f64),
+    /// A number column of an image whose rays all miss.
+    Empty,
+}
+
+impl Fit {
+    /// The row's values, one per column of [`columns`] for its method. An image whose rays all
+    /// miss has empty numbers and `all_rays_miss` in GA's `excluded` or BLA's `note`.
+    pub fn cells(&self) -> Vec<Cell> {
+        use Cell::{Empty, Number, Text};
+        match self {
+            Fit::Ga(Some(g)) => vec![
+                Number(g.mu_d),
+                Number(g.sigma_d),
+                Text(exclusion_name(g.excluded)),
+                Number(g.objective),
+                Number(g.rays as f64),
+                Number(g.rays_without_samples as f64),
+                Number(g.floored_mu_d),
+                Number(g.floored_sigma_d),
+            ],
+            Fit::Ga(None) => GA_COLUMNS.iter().map(|c| if c.text { Text(ALL_RAYS_MISS) } else { Empty }).collect(),
+            Fit::Bla(Some(b)) => vec![
+                Number(b.normalized_trace),
+                Number(b.rmv),
+                Number(b.information_gain),
+                Number(b.map_loss),
+                Number(b.initial_loss),
+                Number(b.perturbation as f64),
+                Number(b.prior_precision),
+                Number(b.log_evidence),
+                Number(b.rays as f64),
+                Text(""),
+            ],
+            Fit::Bla(None) => BLA_COLUMNS.iter().map(|c| if c.text { Text(ALL_RAYS_MISS) } else { Empty }).collect(),
+        }
+    }
+}
+
+/// The text value of an image whose rays all miss the model.
+pub const ALL_RAYS_MISS: &str = "all_rays_miss";
+
+/// One row per image under [`columns`]. An image whose rays all miss has empty values (GA:
+/// `excluded` is `all_rays_miss`; BLA: `note` is).
+pub fn csv(rows: &[Row], method: Method) -> String {
+    let mut out = String::from("split,index,file_path");
+    for c in columns(method) {
+        let _ = write!(out, ",{}", c.name);
+    }
+    out.push('\n');
     for r in rows {
-        let _ = write!(out, "{},{},{},", r.split, r.index, csv_field(&r.file_path));
-        let _ = match &r.fit {
-            Fit::Ga(Some(g)) => writeln!(
-                out,
-                "{},{},{},{},{},{},{},{}",
-                g.mu_d,
-                g.sigma_d,
-                exclusion_name(g.excluded),
-                g.objective,
-                g.rays,
-                g.rays_without_samples,
-                g.floored_mu_d,
-                g.floored_sigma_d
-            ),
-            Fit::Ga(None) => writeln!(out, ",,all_rays_miss,,,,,"),
-            Fit::Bla(Some(b)) => writeln!(
-                out,
-                "{},{},{},{},{},{},{},{},{},",
-                b.normalized_trace,
-                b.rmv,
-                b.information_gain,
-                b.map_loss,
-                b.initial_loss,
-                b.perturbation,
-                b.prior_precision,
-                b.log_evidence,
-                b.rays
-            ),
-            Fit::Bla(None) => writeln!(out, ",,,,,,,,,all_rays_miss"),
-        };
+        let _ = write!(out, "{},{},{}", r.split, r.index, csv_field(&r.file_path));
+        for cell in r.fit.cells() {
+            let _ = match cell {
+                Cell::Text(t) => write!(out, ",{}", csv_field(t)),
+                Cell::Number(v) => write!(out, ",{v}"),
+                Cell::Empty => write!(out, ","),
+            };
+        }
+        out.push('\n');
     }
     out
 }
@@ -1085,6 +1155,37 @@ mod tests {
         }
         let many: Vec<Row> = (0..FEW_FOR_A_HISTOGRAM).map(|k| ga("test", 0.1 * k as f64, false)).collect();
         assert!(matches!(&figures(&many, &["test"], Method::Ga, &cfg)[0].1, Figure::Histogram(_)));
+    }
+
+    #[test]
+    fn every_row_has_a_value_for_each_column_and_the_header_names_them() {
+        let ga = ga("test", 0.5, false);
+        let bla = Fit::Bla(Some(BlaRow {
+            normalized_trace: 1.0,
+            rmv: 2.0,
+            information_gain: 3.0,
+            map_loss: 4.0,
+            initial_loss: 5.0,
+            perturbation: 1,
+            prior_precision: 6.0,
+            log_evidence: 7.0,
+            rays: 256,
+        }));
+        for (method, fits) in [(Method::Ga, [ga.fit.clone(), Fit::Ga(None)]), (Method::Bla, [bla, Fit::Bla(None)])] {
+            for fit in &fits {
+                let cells = fit.cells();
+                assert_eq!(cells.len(), columns(method).len(), "{method}");
+                for (cell, column) in cells.iter().zip(columns(method)) {
+                    assert_eq!(matches!(cell, Cell::Text(_)), column.text, "{method} {}", column.name);
+                }
+            }
+            let rows: Vec<Row> = fits.into_iter().map(|fit| Row { fit, ..ga.clone() }).collect();
+            let text = csv(&rows, method);
+            let widths: Vec<usize> = text.lines().map(|l| l.split(',').count()).collect();
+            assert_eq!(widths, [3 + columns(method).len(); 3], "{text}");
+        }
+        let text = csv(&[Row { fit: Fit::Ga(None), ..ga }], Method::Ga);
+        assert_eq!(text.lines().nth(1), Some("test,0,r_0,,,all_rays_miss,,,,,"), "{text}");
     }
 
     #[test]

@@ -161,8 +161,8 @@ def stress(
     float64 and ``seed`` an int for the system's own randomness, and returns ``(failed,
     miss_distance)``: ``failed`` a bool, ``miss_distance`` a finite float, a pass's distance to
     failure (≥ 0). Optionally ``obj.run_batch(disturbances [n, steps, dim], seeds [n])`` returns
-    a sequence of ``n`` such pairs: then each batch of rollouts a sampler flies is one call (and
-    ``run`` is called only by subset simulation's chains), else ``run`` is called for each.
+    a sequence of ``n`` such pairs: then each batch of rollouts a sampler flies is one call (subset
+    simulation: one per level 0 and per move of every chain), else ``run`` is called for each.
     ``run`` must be a function of its arguments alone (a recorded rollout is not run again).
 
     The samplers' score is ``miss_distance`` for a pass (0 counts as the smallest positive

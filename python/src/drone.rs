@@ -220,9 +220,9 @@ impl RemoteRollouts for PyExecutor {
 /// Runs `nerfsv stress` into `out` and returns its figures (`stress.json`'s, as JSON text):
 /// one `sampler` (`"mc"`, `"cem"` or `"subset"`) flying in `world` with `estimator`, replayed
 /// in the other world with `replay`, with the config's `[validation]` (its seed replaced by
-/// `seed`). With `executor` (see `nerfsv.distributed`), the Monte Carlo and CEM rollouts and
-/// the replays fly wherever it sends them (subset simulation's chains fly here); the files
-/// are the same bytes. `reward` or `measure` (`"ga"`, `"bla"`) measures that method's
+/// `seed`). With `executor` (see `nerfsv.distributed`), the Monte Carlo and CEM rollouts,
+/// subset simulation's levels (one batch per chain move) and the replays fly wherever it sends
+/// them; the files are the same bytes. `reward` or `measure` (`"ga"`, `"bla"`) measures that method's
 /// uncertainty at every step, `reward` also ranking CEM's samples by its reward, measured as
 /// `uncertainty` says (`"exact"`, or `"field"` from the uncertainty field `field`): the command
 /// line's `--reward`, `--measure`, `--uncertainty` and `--field`. `model` is a checkpoint's

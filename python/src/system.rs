@@ -5,7 +5,7 @@
 //!
 //! The object becomes a [`System`] ([`PySystem`]): every batch of jobs a sampler flies through
 //! [`System::run_all`] is one Python call (`run_batch` with all of them, or `run` for each in
-//! turn), the GIL held only for it; subset simulation's chains call `run` one rollout at a time.
+//! turn), the GIL held only for it; subset simulation's chains are one batch per move (every chain's next move together).
 //!
 //! The samplers' score of `(failed, miss_distance)` ([`score_of`]): a failure scores
 //! `min(miss_distance, 0)` (the flag decides: a positive miss distance of a failure counts as 0,

@@ -10,7 +10,8 @@ ROOT = Path(__file__).resolve().parents[2]
 BIN = os.environ.get("NERFSV_BIN", str(ROOT / "target" / "release" / "nerfsv"))
 
 # The stress tests' small study (as tests/stress.rs): 6 steps of the vision drone with 16
-# pixels, a wide prior so that some rollouts fail.
+# pixels, a wide prior so that some rollouts fail, subset simulation's levels of 20
+# (chains of 2, so that its second level flies at the wide prior's failure rate).
 STUDY = """[sim.vision]
 pixels = 16
 iterations = 2
@@ -26,6 +27,10 @@ m = 6
 m_elite = 2
 k_max = 2
 is_samples = 6
+[validation.subset]
+samples = 20
+p0 = 0.5
+max_levels = 2
 """
 
 

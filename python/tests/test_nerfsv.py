@@ -118,7 +118,7 @@ def local_ray():
     ray.shutdown()
 
 
-@pytest.mark.parametrize("sampler", ["mc", "cem"])
+@pytest.mark.parametrize("sampler", ["mc", "cem", "subset"])
 def test_a_distributed_run_equals_nerfsv_stress_byte_for_byte(world, tmp_path, local_ray, sampler):
     from nerfsv import distributed
 
@@ -127,6 +127,9 @@ def test_a_distributed_run_equals_nerfsv_stress_byte_for_byte(world, tmp_path, l
     distributed.stress(world["model"], tmp_path / "ray", sampler=sampler, replay=True, config=world["study"],
                        scene="monolith", nerf_field=world["field"], chunk=3)
     assert stress_files(tmp_path / "ray") == stress_files(tmp_path / "cli")
+    if sampler == "subset":  # its chains flew as tasks too
+        estimator = json.loads((tmp_path / "ray" / "stress.json").read_text())["samplers"][0]["p_fail_estimator"]
+        assert "2 levels" in estimator, estimator
 
 
 def test_a_worker_killed_mid_task_is_retried_and_the_results_are_unchanged(world, tmp_path, local_ray):

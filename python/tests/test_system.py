@@ -194,6 +194,15 @@ def test_run_batch_is_one_call_per_population_with_the_results_of_run(sampler):
     assert_same(b, stress(Toy(), sampler, seed=2))
 
 
+def test_subset_simulation_flies_level_zero_and_each_move_of_every_chain_as_one_batch():
+    batched = BatchToy(3.0)
+    b = stress(batched, "subset", seed=2)
+    assert b["levels"] == 2 and batched.calls == 0 and batched.batched == b["rollouts"]
+    # Level 0 in one batch, then level 1's 20 chains of 10 states: 9 moves, each one batch.
+    assert batched.batches == 1 + 9
+    assert_same(b, stress(Toy(3.0), "subset", seed=2))
+
+
 def test_the_rollouts_csv_is_the_command_lines_layout(tmp_path):
     r = nerfsv.stress(system=Toy(), sampler="mc", std=1.0, seed=1, out=tmp_path,
                       overrides=["validation.monte_carlo.rollouts=50"])

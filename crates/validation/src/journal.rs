@@ -20,23 +20,6 @@ pub trait Recorder: Sync {
     fn record(&self, record: &RolloutRecord) -> Result<(), ValidationError>;
 }
 
-/// The rollout (sampler, population, index) flown with `seed`: recalled from `recorder` when
-/// one with that seed finished earlier (then `true`), else `run` and kept in it. Every sampler
-/// and the replays go through here, so a resumed run flies exactly what it had not finished.
-pub(crate) fn recall_or_run(
-    recorder: &dyn Recorder,
-    (sampler, population, index): (Label, usize, usize),
-    seed: u64,
-    run: impl FnOnce() -> RolloutRecord,
-) -> Result<(RolloutRecord, bool), ValidationError> {
-    if let Some(done) = recorder.recall(sampler, population, index).filter(|d| d.seed == seed) {
-        return Ok((done, true));
-    }
-    let record = run();
-    recorder.record(&record)?;
-    Ok((record, false))
-}
-
 /// One rollout a sampler asks for: its key in the journal, its seed, its disturbances.
 pub(crate) struct Planned {
     pub sampler: Label,
@@ -46,10 +29,12 @@ pub(crate) struct Planned {
     pub disturbances: Trajectory,
 }
 
-/// [`recall_or_run`] for a batch: the rollouts `recorder` recalls (with the same seed) come back
-/// as they were (`true`); the others fly together through [`System::run_all`] (in parallel, or
-/// wherever the system runs them), each made into its record by `make(job index, disturbances,
-/// outcome)` and kept in `recorder` as it finishes (`false`). In the order of `planned`.
+/// The rollouts `planned`: each one `recorder` finished earlier with the same key and seed comes
+/// back as it was (`true`); the others fly together through [`System::run_all`] (in parallel,
+/// or wherever the system runs them), each made into its record by `make(job index,
+/// disturbances, outcome)` and kept in `recorder` as it finishes (`false`). In the order of
+/// `planned`. Every sampler and the replays go through here, so a resumed run flies exactly what
+/// it had not finished.
 pub(crate) fn recall_or_run_all<S: System + ?Sized>(
     system: &S,
     recorder: &dyn Recorder,

@@ -17,7 +17,10 @@
 //!
 //! Every flown trajectory is a [`RolloutRecord`] (sampler [`Label::Subset`](crate::Label::Subset), population =
 //! level, rollouts of a level's chains in chain order), seeded by [`rollout_seed`], so the run is
-//! deterministic, resumes from a [`Recorder`] and replays on another system.
+//! deterministic, resumes from a [`Recorder`] and replays on another system. Level 0 flies as
+//! one batch and each later level as one batch per move (every chain's l-th move together),
+//! through [`System::run_all`], so a system that runs rollouts elsewhere runs the chains there
+//! too.
 
 use std::ops::Range;
 
@@ -31,7 +34,7 @@ use nerfsv_scene::InvalidValue;
 use crate::config::SubsetConfig;
 use crate::error::ValidationError;
 use crate::gaussian::Prior;
-use crate::journal::{recall_or_run, Recorder};
+use crate::journal::{recall_or_run_all, Planned, Recorder};
 use crate::label::Label;
 use crate::record::{RolloutId, RolloutRecord};
 use crate::sampler::{check_shapes, most_likely_failure, record_of, wilson, ImportanceEstimate};
@@ -121,22 +124,31 @@ fn trajectory(prior: &Prior, z: &[f64]) -> Trajectory {
     Trajectory::from_rows(prior.dim(), rows).expect("the prior's step maps a row to a row")
 }
 
-/// Flies (or recalls) the rollout (level, index) at whitened coordinates `z`.
-fn fly<S: System + ?Sized>(
+/// Flies (or recalls) the rollouts of `level` at whitened coordinates `z` with their indices and
+/// seeds, together through [`System::run_all`] (one batch: in parallel, or wherever the system
+/// runs them). Their records in the order given.
+fn fly_all<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
     level: usize,
-    index: usize,
-    z: &[f64],
-    seed: u64,
+    rollouts: &[(usize, u64, &[f64])],
     recorder: &dyn Recorder,
-) -> Result<RolloutRecord, ValidationError> {
-    let run = || {
-        let x = trajectory(prior, z);
-        let outcome = system.run(&x, seed);
+) -> Result<Vec<RolloutRecord>, ValidationError> {
+    let planned = rollouts
+        .iter()
+        .map(|&(index, seed, z)| Planned {
+            sampler: Label::Subset,
+            population: level,
+            index,
+            seed,
+            disturbances: trajectory(prior, z),
+        })
+        .collect();
+    let make = |i: usize, x: Trajectory, outcome| {
+        let (index, seed, _) = rollouts[i];
         record_of(prior, None, x, RolloutId { sampler: Label::Subset, population: level, index, seed }, outcome)
     };
-    Ok(recall_or_run(recorder, (Label::Subset, level, index), seed, run)?.0)
+    Ok(recall_or_run_all(system, recorder, planned, &make)?.into_iter().map(|(r, _)| r).collect())
 }
 
 /// The correlation factor γ of a level's indicator chains (Au & Beck 2001, eq. 27–29):
@@ -372,23 +384,25 @@ impl<S: System + ?Sized> Chains<'_, S> {
         (0..self.prior.steps() * self.prior.dim()).map(|_| StandardNormal.sample(&mut rng)).collect()
     }
 
-    /// Level 0's draws `indices` from the prior, in parallel: their states and records.
+    /// Level 0's draws `indices` from the prior, flown as one batch: their states and records.
     fn level_zero(&self, indices: Range<usize>) -> Result<(Vec<State>, Vec<RolloutRecord>), ValidationError> {
-        let first: Vec<(State, RolloutRecord)> = indices
-            .into_par_iter()
+        let draws: Vec<(usize, u64, Vec<f64>)> = indices
             .map(|i| {
                 let seed = rollout_seed(self.run_seed, Label::Subset.name(), 0, i);
-                let z = self.normals(seed);
-                let record = fly(self.system, self.prior, 0, i, &z, seed, self.recorder)?;
-                Ok((State { z, score: rank_score(&record) }, record))
+                (i, seed, self.normals(seed))
             })
-            .collect::<Result<_, ValidationError>>()?;
-        Ok(first.into_iter().unzip())
+            .collect();
+        let batch: Vec<(usize, u64, &[f64])> = draws.iter().map(|(i, s, z)| (*i, *s, z.as_slice())).collect();
+        let records = fly_all(self.system, self.prior, 0, &batch, self.recorder)?;
+        let states = draws.into_iter().zip(&records).map(|((_, _, z), r)| State { z, score: rank_score(r) }).collect();
+        Ok((states, records))
     }
 
     /// Level `next`: a chain from each of `starts`, its moves kept while they stay inside
-    /// `event`, the chains in parallel. Returns the level's states (chain by chain), the
-    /// rollouts flown and the share of moves accepted.
+    /// `event`. Every chain's l-th move flies in one batch (the chains are independent: each
+    /// move depends only on its own chain's state and its rollout's seed). Returns the level's
+    /// states (chain by chain), the rollouts flown (chain by chain) and the share of moves
+    /// accepted.
     fn next_level(
         &self,
         next: usize,
@@ -396,47 +410,38 @@ impl<S: System + ?Sized> Chains<'_, S> {
         event: f64,
     ) -> Result<(Vec<State>, Vec<RolloutRecord>, f64), ValidationError> {
         let (seeds, chain_len) = (starts.len(), self.chain_len);
-        let chains: Vec<(Vec<State>, Vec<RolloutRecord>, usize)> = starts
-            .into_par_iter()
-            .enumerate()
-            .map(|(c, start)| {
-                let mut chain = Vec::with_capacity(chain_len);
-                chain.push(start);
-                let mut flown = Vec::with_capacity(chain_len - 1);
-                let mut accepted = 0;
-                for l in 1..chain_len {
+        let mut chains: Vec<Vec<State>> = starts.into_iter().map(|start| vec![start]).collect();
+        let mut flown: Vec<Vec<RolloutRecord>> = (0..seeds).map(|_| Vec::with_capacity(chain_len - 1)).collect();
+        let mut accepted = 0;
+        for l in 1..chain_len {
+            let moves: Vec<(usize, u64, Vec<f64>)> = chains
+                .par_iter()
+                .enumerate()
+                .map(|(c, chain)| {
                     let index = c * (chain_len - 1) + l - 1;
                     let seed = rollout_seed(self.run_seed, Label::Subset.name(), next, index);
                     let current = chain.last().expect("a chain starts with its seed");
-                    let z: Vec<f64> = current
-                        .z
-                        .iter()
-                        .zip(self.normals(seed))
-                        .map(|(z, xi)| self.rho * z + self.spread * xi)
-                        .collect();
-                    let record = fly(self.system, self.prior, next, index, &z, seed, self.recorder)?;
-                    let score = rank_score(&record);
-                    flown.push(record);
-                    let state = if score <= event {
-                        accepted += 1;
-                        State { z, score }
-                    } else {
-                        current.clone()
-                    };
-                    chain.push(state);
-                }
-                Ok((chain, flown, accepted))
-            })
-            .collect::<Result<_, ValidationError>>()?;
-        let moves = seeds * (chain_len - 1);
-        let mut level = Vec::with_capacity(seeds * chain_len);
-        let mut records = Vec::new();
-        let mut accepted_total = 0;
-        for (chain, flown, accepted) in chains {
-            level.extend(chain);
-            records.extend(flown);
-            accepted_total += accepted;
+                    let z = current.z.iter().zip(self.normals(seed)).map(|(z, xi)| self.rho * z + self.spread * xi);
+                    (index, seed, z.collect())
+                })
+                .collect();
+            let batch: Vec<(usize, u64, &[f64])> = moves.iter().map(|(i, s, z)| (*i, *s, z.as_slice())).collect();
+            let records = fly_all(self.system, self.prior, next, &batch, self.recorder)?;
+            for (c, ((_, _, z), record)) in moves.into_iter().zip(records).enumerate() {
+                let score = rank_score(&record);
+                flown[c].push(record);
+                let state = if score <= event {
+                    accepted += 1;
+                    State { z, score }
+                } else {
+                    chains[c].last().expect("a chain starts with its seed").clone()
+                };
+                chains[c].push(state);
+            }
         }
-        Ok((level, records, if moves > 0 { accepted_total as f64 / moves as f64 } else { 0.0 }))
+        let moves = seeds * (chain_len - 1);
+        let level = chains.into_iter().flatten().collect();
+        let records = flown.into_iter().flatten().collect();
+        Ok((level, records, if moves > 0 { accepted as f64 / moves as f64 } else { 0.0 }))
     }
 }

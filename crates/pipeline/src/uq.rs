@@ -6,12 +6,13 @@
 pub(crate) mod config;
 mod report;
 
-use std::fmt::Write as _;
 use std::time::Instant;
 
 use nerfsv_nerf::Nerf;
+use nerfsv_uq::comparison::AuseTable;
+pub use nerfsv_uq::comparison::{AuseComparison, AuseOnCommonImages, EnsembleAuse};
 use nerfsv_uq::offline::*;
-use nerfsv_uq::{mean_ause, Sparsification, UqConfig};
+use nerfsv_uq::UqConfig;
 use serde::{Deserialize, Serialize};
 
 use self::config::UqOfflineConfig;
@@ -21,9 +22,6 @@ use crate::PipelineError;
 
 // ---------------------------------------------------------------------------------------------
 // The stage.
-
-/// The seed of the random ordering the ensemble's AUSE is compared with.
-const RANDOM_ORDER_SEED: u64 = 0;
 
 /// The offline uncertainty stage of `nerfsv run`: GA on the images of every split (at most
 /// `ga_images_per_split` each, an even stride), BLA on `bla_images_per_split` of each, and the
@@ -68,74 +66,6 @@ pub struct UqFigures {
     pub seconds: f64,
 }
 
-/// One method's depth AUSE on [`AuseComparison`]'s images.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct AuseOnCommonImages {
-    /// `ga`, `bla`, `ensemble` or `random` (the same errors in a seeded random order).
-    pub method: String,
-    pub mean: f64,
-    /// The standard error of the mean from a bootstrap over the images.
-    pub bootstrap_se: f64,
-}
-
-/// Every method's depth AUSE on the same test images (those every method scored), each with a
-/// bootstrap standard error, beside a random ordering (with an ensemble) and the oracle's scale.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct AuseComparison {
-    pub images: usize,
-    pub methods: Vec<AuseOnCommonImages>,
-    /// The mean area under the oracle's curve on these images (as normalised for the first
-    /// method listed: each method's curves share their own maximum): a perfect ranking's AUSE
-    /// is 0, the oracle's own; this is the scale an AUSE is read against.
-    pub oracle_area: f64,
-}
-
-/// The seed of [`AuseComparison`]'s bootstrap.
-const AUSE_BOOTSTRAP_SEED: u64 = 0xA05E;
-
-/// [`AuseComparison`] of the scored rows of `ause.csv`; `None` when no image was scored by every
-/// method present.
-fn compare_on_common_images(ause: &[(&'static str, usize, String, AuseOutcome)]) -> Option<AuseComparison> {
-    let scored = |m: &str| -> std::collections::BTreeMap<usize, &Sparsification> {
-        ause.iter()
-            .filter(|(method, ..)| *method == m)
-            .filter_map(|(_, i, _, o)| if let AuseOutcome::Scored(c) = o { Some((*i, c)) } else { None })
-            .collect()
-    };
-    let methods: Vec<&str> =
-        ["ga", "bla", "ensemble", "random"].into_iter().filter(|m| ause.iter().any(|(x, ..)| x == m)).collect();
-    let per_method: Vec<_> = methods.iter().map(|m| scored(m)).collect();
-    let common: Vec<usize> =
-        per_method.first()?.keys().copied().filter(|i| per_method.iter().all(|s| s.contains_key(i))).collect();
-    if common.is_empty() {
-        return None;
-    }
-    let rows = methods
-        .iter()
-        .zip(&per_method)
-        .map(|(m, s)| {
-            let values: Vec<f64> = common.iter().map(|i| s[i].ause).collect();
-            let (mean, bootstrap_se) = nerfsv_uq::ause::bootstrap_mean(&values, AUSE_BOOTSTRAP_SEED)?;
-            Some(AuseOnCommonImages { method: m.to_string(), mean, bootstrap_se })
-        })
-        .collect::<Option<Vec<_>>>()?;
-    let oracle_area = common.iter().map(|i| per_method[0][i].oracle_area()).sum::<f64>() / common.len() as f64;
-    Some(AuseComparison { images: common.len(), methods: rows, oracle_area })
-}
-
-/// The ensemble's depth AUSE on the images GA and BLA were scored on, with a random ordering's
-/// (the baseline any uncertainty must beat) on the same images.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct EnsembleAuse {
-    pub members: usize,
-    pub on_ga_images: Option<f64>,
-    pub random_on_ga_images: Option<f64>,
-    pub ga_images: usize,
-    pub on_bla_images: Option<f64>,
-    pub random_on_bla_images: Option<f64>,
-    pub bla_images: usize,
-}
-
 impl Uncertainty<'_> {
     pub const GA_CSV: &'static str = csv_name(Method::Ga);
     pub const BLA_CSV: &'static str = csv_name(Method::Bla);
@@ -143,19 +73,6 @@ impl Uncertainty<'_> {
     /// With an ensemble: its uncertainty field (`nerfsv uq field --method ensemble` writes the
     /// same), with its slice at flight altitude beside it.
     pub const ENSEMBLE_FIELD: &'static str = "ensemble_field.safetensors";
-}
-
-/// `ause.csv`: a row per (method, test image): its AUSE and pixels, or why it was skipped.
-fn ause_csv(rows: &[(&str, usize, String, AuseOutcome)]) -> String {
-    let mut out = String::from("method,split,index,file_path,ause,pixels,unscored_pixels,skipped\n");
-    for (method, index, file_path, outcome) in rows {
-        let _ = write!(out, "{method},test,{index},{},", csv_field(file_path));
-        let _ = match outcome {
-            AuseOutcome::Scored(c) => writeln!(out, "{},{},{},", c.ause, c.pixels, c.unscored),
-            AuseOutcome::Skipped(e) => writeln!(out, ",,,{}", csv_field(&e.to_string())),
-        };
-    }
-    out
 }
 
 /// A split the offline study fits: its name, its frames, the indices GA and BLA fit.
@@ -189,36 +106,6 @@ impl Uncertainty<'_> {
         field.figures.seconds = 0.0;
         save_field_with_slice(&field, &cx.dir.join(Self::ENSEMBLE_FIELD))?;
         Ok(figures)
-    }
-}
-
-/// An image's depth AUSE under a method: (method, image index, file, outcome).
-type AuseEntry = (&'static str, usize, String, AuseOutcome);
-
-/// The mean depth AUSE of `method`'s scored images among `ause` (only those of `indices`, when
-/// given), and how many it averages.
-fn mean_ause_of(ause: &[AuseEntry], method: &str, indices: Option<&[usize]>) -> (Option<f64>, usize) {
-    let scored: Vec<Sparsification> = ause
-        .iter()
-        .filter(|(m, index, ..)| *m == method && indices.is_none_or(|i| i.contains(index)))
-        .filter_map(|(.., o)| if let AuseOutcome::Scored(c) = o { Some(c.clone()) } else { None })
-        .collect();
-    (mean_ause(&scored), scored.len())
-}
-
-/// The ensemble's depth AUSE (of `members` NeRFs) and a random order's on the test images GA
-/// and BLA scored.
-fn ensemble_ause_of(ause: &[AuseEntry], members: usize, ga_idx: &[usize], bla_idx: &[usize]) -> EnsembleAuse {
-    let (on_ga_images, ga_images) = mean_ause_of(ause, "ensemble", Some(ga_idx));
-    let (on_bla_images, bla_images) = mean_ause_of(ause, "ensemble", Some(bla_idx));
-    EnsembleAuse {
-        members,
-        on_ga_images,
-        random_on_ga_images: mean_ause_of(ause, "random", Some(ga_idx)).0,
-        ga_images,
-        on_bla_images,
-        random_on_bla_images: mean_ause_of(ause, "random", Some(bla_idx)).0,
-        bla_images,
     }
 }
 
@@ -284,7 +171,7 @@ impl Stage for Uncertainty<'_> {
             cx.progress(done.get(), total, status);
         };
         let note = |message: &str| cx.observer.note(Self::NAME, message);
-        let (mut ga, mut bla, mut ause) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut ga, mut bla, mut ause) = (Vec::new(), Vec::new(), AuseTable::default());
         for (name, split, ga_idx, bla_idx) in &chosen {
             // The test split's fits also give the depth-uncertainty maps its AUSE ranks.
             let depth_ause = *name == "test";
@@ -308,27 +195,27 @@ impl Stage for Uncertainty<'_> {
                     &note,
                 )?;
                 rows.extend(fits.rows);
-                ause.extend(fits.ause.into_iter().map(|(index, file, outcome)| (method.name(), index, file, outcome)));
+                ause.extend(method.name(), fits.ause);
             }
         }
+        // The ensemble's and a random order's depth AUSE on the test images GA and BLA scored.
         let ensemble_ause = match chosen.iter().find(|(n, ..)| *n == "test") {
             Some((_, split, ga_idx, bla_idx)) if self.ensemble => {
-                Some(self.ensemble_ause(cx, &all, split, ga_idx, bla_idx, &mut ause)?)
+                let indices: Vec<usize> = ga_idx.iter().chain(bla_idx).copied().collect();
+                let progress =
+                    |n: usize, total: usize| cx.progress(n as u64, total as u64, "ensemble test, depth AUSE");
+                ause.add_ensemble(&all, split, &indices, &progress)?;
+                Some(ause.ensemble(all.len(), ga_idx, bla_idx))
             }
             _ => None,
         };
-        let mean_of = |method: &str, indices: Option<&[usize]>| mean_ause_of(&ause, method, indices);
-        let ((ause_ga, ause_ga_images), (ause_bla, ause_bla_images)) = (mean_of("ga", None), mean_of("bla", None));
-        let ensemble_ause = ensemble_ause.map(|members| {
-            let (_, _, ga_idx, bla_idx) = chosen.iter().find(|(n, ..)| *n == "test").expect("the test split");
-            ensemble_ause_of(&ause, members, ga_idx, bla_idx)
-        });
-
-        let ause_on_common_images = compare_on_common_images(&ause);
+        let ((ause_ga, ause_ga_images), (ause_bla, ause_bla_images)) =
+            (ause.mean_of("ga", None), ause.mean_of("bla", None));
+        let ause_on_common_images = ause.on_common_images();
 
         let mut files = method_files(&ga, &SPLITS, Method::Ga, self.uq)?;
         files.extend(method_files(&bla, &SPLITS, Method::Bla, self.uq)?);
-        files.push((Self::AUSE_CSV.to_string(), ause_csv(&ause).into_bytes()));
+        files.push((Self::AUSE_CSV.to_string(), ause.csv("test").into_bytes()));
         // The maps of the first test image BLA fitted (else GA's first).
         if let Some((_, split, ga_idx, bla_idx)) = chosen.iter().find(|(n, ..)| *n == "test") {
             if let Some(&index) = bla_idx.first().or(ga_idx.first()) {
@@ -370,41 +257,5 @@ impl Stage for Uncertainty<'_> {
         } else {
             Self::INPUTS
         }
-    }
-}
-
-impl Uncertainty<'_> {
-    /// The ensemble's (deployed model and members) depth AUSE and a random ordering's on the
-    /// test images GA and BLA were scored on, as rows `ensemble` and `random` of `ause`;
-    /// returns the ensemble's size.
-    fn ensemble_ause(
-        &self,
-        cx: &StageContext,
-        all: &[&Nerf],
-        split: &nerfsv_dataset::Split,
-        ga_idx: &[usize],
-        bla_idx: &[usize],
-        ause: &mut Vec<(&'static str, usize, String, AuseOutcome)>,
-    ) -> Result<usize, PipelineError> {
-        let mut indices: Vec<usize> = ga_idx.iter().chain(bla_idx).copied().collect();
-        indices.sort_unstable();
-        indices.dedup();
-        for (n, &index) in indices.iter().enumerate() {
-            cx.progress(n as u64, indices.len() as u64, "ensemble test, depth AUSE");
-            let frame = &split.frames[index];
-            let depth = frame.depth.as_ref().map(|d| &d.metres[..]);
-            let name = frame.file_path.as_str();
-            match nerfsv_uq::ensemble::depth_ause(all, name, &frame.camera, depth, BACKGROUND, RANDOM_ORDER_SEED) {
-                Ok((ours, random)) => {
-                    ause.push(("ensemble", index, frame.file_path.clone(), AuseOutcome::Scored(ours)));
-                    ause.push(("random", index, frame.file_path.clone(), AuseOutcome::Scored(random)));
-                }
-                Err(e @ (nerfsv_uq::UqError::NoGroundTruthDepth { .. } | nerfsv_uq::UqError::TooFewPixels { .. })) => {
-                    ause.push(("ensemble", index, frame.file_path.clone(), AuseOutcome::Skipped(e)));
-                }
-                Err(e) => return Err(e.into()),
-            }
-        }
-        Ok(all.len())
     }
 }

@@ -48,6 +48,7 @@
 
 pub mod ause;
 pub mod bla;
+pub mod comparison;
 mod config;
 pub mod ensemble;
 mod error;

@@ -11,9 +11,8 @@ use std::path::{Path, PathBuf};
 
 use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
-use nerfsv_scene::views::{PosedImages, View};
+use nerfsv_scene::views::{Bootstrap, PosedImages};
 use nerfsv_study::flight::WorldMember;
-use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
 
 use crate::config::{EnsembleConfig, NerfSettings};
@@ -107,41 +106,6 @@ impl EnsembleStage<'_> {
                 })
             })
             .collect()
-    }
-}
-
-/// A bootstrap of a set of views: as many views, drawn with replacement.
-struct Bootstrap<'a, P: PosedImages> {
-    views: &'a P,
-    picks: Vec<usize>,
-}
-
-impl<'a, P: PosedImages> Bootstrap<'a, P> {
-    fn new(views: &'a P, seed: u64) -> Self {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let picks = (0..views.len()).map(|_| rng.random_range(0..views.len())).collect();
-        Self { views, picks }
-    }
-
-    fn distinct(&self) -> usize {
-        let mut p = self.picks.clone();
-        p.sort_unstable();
-        p.dedup();
-        p.len()
-    }
-}
-
-impl<P: PosedImages> PosedImages for Bootstrap<'_, P> {
-    fn source(&self) -> &Path {
-        self.views.source()
-    }
-
-    fn len(&self) -> usize {
-        self.picks.len()
-    }
-
-    fn view(&self, i: usize) -> View<'_> {
-        self.views.view(self.picks[i])
     }
 }
 

@@ -33,11 +33,9 @@ pub fn field_docs(input: TokenStream) -> TokenStream {
     let input = parse_macro_input!(input as DeriveInput);
     let name = &input.ident;
     let (impl_generics, ty_generics, where_clause) = input.generics.split_for_impl();
-    let Data::Struct(data) = &input.data else {
-        return syn::Error::new_spanned(&input.ident, "FieldDocs is for structs").to_compile_error().into();
-    };
-    let Fields::Named(fields) = &data.fields else {
-        return syn::Error::new_spanned(&input.ident, "FieldDocs needs named fields").to_compile_error().into();
+    let fields = match named_fields(&input, "FieldDocs") {
+        Ok(f) => f,
+        Err(e) => return e.to_compile_error().into(),
     };
     let entries = fields.named.iter().map(|f| {
         let field = f.ident.as_ref().map(|i| i.to_string()).unwrap_or_default();
@@ -109,11 +107,9 @@ pub fn validate_tables(input: TokenStream) -> TokenStream {
     let input = parse_macro_input!(input as DeriveInput);
     let name = &input.ident;
     let (impl_generics, ty_generics, where_clause) = input.generics.split_for_impl();
-    let Data::Struct(data) = &input.data else {
-        return syn::Error::new_spanned(name, "ValidateTables is for structs").to_compile_error().into();
-    };
-    let Fields::Named(fields) = &data.fields else {
-        return syn::Error::new_spanned(name, "ValidateTables needs named fields").to_compile_error().into();
+    let fields = match named_fields(&input, "ValidateTables") {
+        Ok(f) => f,
+        Err(e) => return e.to_compile_error().into(),
     };
     let error: syn::Path = match string_attr(&input.attrs, "docs", "error") {
         Some(path) => match syn::parse_str(&path) {
@@ -177,11 +173,9 @@ pub fn defaults(input: TokenStream) -> TokenStream {
     let input = parse_macro_input!(input as DeriveInput);
     let name = &input.ident;
     let (impl_generics, ty_generics, where_clause) = input.generics.split_for_impl();
-    let Data::Struct(data) = &input.data else {
-        return syn::Error::new_spanned(name, "Defaults is for structs").to_compile_error().into();
-    };
-    let Fields::Named(fields) = &data.fields else {
-        return syn::Error::new_spanned(name, "Defaults needs named fields").to_compile_error().into();
+    let fields = match named_fields(&input, "Defaults") {
+        Ok(f) => f,
+        Err(e) => return e.to_compile_error().into(),
     };
     let mut values = Vec::new();
     for f in &fields.named {
@@ -285,6 +279,17 @@ pub fn choice(input: TokenStream) -> TokenStream {
         }
     }
     .into()
+}
+
+/// The named fields of the struct `input`, or the error `derive` gives for anything else.
+fn named_fields<'a>(input: &'a DeriveInput, derive: &str) -> syn::Result<&'a syn::FieldsNamed> {
+    match &input.data {
+        Data::Struct(data) => match &data.fields {
+            Fields::Named(fields) => Ok(fields),
+            _ => Err(syn::Error::new_spanned(&input.ident, format!("{derive} needs named fields"))),
+        },
+        _ => Err(syn::Error::new_spanned(&input.ident, format!("{derive} is for structs"))),
+    }
 }
 
 /// `T` of a field typed `Option<T>` (a table that is unset by default).

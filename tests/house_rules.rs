@@ -2,7 +2,7 @@
 //! examples (the workspace's and each crate's): no function longer than [`MAX_LINES`] lines and
 //! no `too_many_arguments` allowance, outside the NeRF's fused kernels (one pass over a chunk of
 //! rays each, kept whole for speed) and the Python functions (whose arguments are Python's
-//! keyword arguments).
+//! keyword arguments: each such allowance sits under its `#[pyo3(signature = …)]`).
 
 use std::path::{Path, PathBuf};
 
@@ -110,8 +110,33 @@ fn no_function_is_longer_than_a_reader_can_hold_and_none_takes_too_many_argument
         if text.contains("clippy::too_many_arguments") && !MANY_ARGUMENTS.contains(&name.as_str()) {
             bad.push(format!("{name}: allows too_many_arguments; pass a request struct"));
         }
+        if name.starts_with("python/") {
+            for line in allowed_without_python_signature(&text) {
+                bad.push(format!("{name}:{line}: allows too_many_arguments on a function Python does not call"));
+            }
+        }
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+/// Lines (1-based) of `text` allowing `too_many_arguments` without a `#[pyo3(signature = …)]`
+/// among the four lines above: in the Python crate only a function whose arguments are Python's
+/// keyword arguments may take many.
+fn allowed_without_python_signature(text: &str) -> Vec<usize> {
+    let lines: Vec<&str> = text.lines().collect();
+    (0..lines.len())
+        .filter(|&i| lines[i].contains("clippy::too_many_arguments"))
+        .filter(|&i| !lines[i.saturating_sub(4)..i].iter().any(|l| l.contains("#[pyo3(signature")))
+        .map(|i| i + 1)
+        .collect()
+}
+
+#[test]
+fn only_a_python_signature_excuses_many_arguments_in_the_python_crate() {
+    let python = "#[pyfunction]\n#[pyo3(signature = (a, b = None,\n    c = None))]\n#[allow(clippy::too_many_arguments)]\nfn f() {}\n";
+    assert!(allowed_without_python_signature(python).is_empty());
+    let helper = "/// A helper.\n#[allow(clippy::too_many_arguments)]\nfn g() {}\n";
+    assert_eq!(allowed_without_python_signature(helper), [2]);
 }
 
 #[test]

@@ -14,7 +14,8 @@ On a laptop::
         --sampler mc --out stress_mc
 
 On a cluster: the same with ``--address ray://HEAD:10001`` (or ``auto`` on a node of it).
-Subset simulation's chains fly as tasks too: level 0 in one batch, then every chain's next move together.
+Subset simulation's chains fly as tasks too: level 0 in one batch, then every chain's next
+move together.
 """
 
 from __future__ import annotations

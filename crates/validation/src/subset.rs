@@ -124,19 +124,19 @@ fn trajectory(prior: &Prior, z: &[f64]) -> Trajectory {
     Trajectory::from_rows(prior.dim(), rows).expect("the prior's step maps a row to a row")
 }
 
-/// Flies (or recalls) the rollouts of `level` at whitened coordinates `z` with their indices and
-/// seeds, together through [`System::run_all`] (one batch: in parallel, or wherever the system
-/// runs them). Their records in the order given.
+/// Flies (or recalls) the rollouts `(index, seed, z)` of `level`, `z` their whitened coordinates,
+/// together through [`System::run_all`] (one batch: in parallel, or wherever the system runs
+/// them). Their records in the order given.
 fn fly_all<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
     level: usize,
-    rollouts: &[(usize, u64, &[f64])],
+    rollouts: &[(usize, u64, Vec<f64>)],
     recorder: &dyn Recorder,
 ) -> Result<Vec<RolloutRecord>, ValidationError> {
     let planned = rollouts
         .iter()
-        .map(|&(index, seed, z)| Planned {
+        .map(|&(index, seed, ref z)| Planned {
             sampler: Label::Subset,
             population: level,
             index,
@@ -145,7 +145,7 @@ fn fly_all<S: System + ?Sized>(
         })
         .collect();
     let make = |i: usize, x: Trajectory, outcome| {
-        let (index, seed, _) = rollouts[i];
+        let (index, seed) = (rollouts[i].0, rollouts[i].1);
         record_of(prior, None, x, RolloutId { sampler: Label::Subset, population: level, index, seed }, outcome)
     };
     Ok(recall_or_run_all(system, recorder, planned, &make)?.into_iter().map(|(r, _)| r).collect())
@@ -392,8 +392,7 @@ impl<S: System + ?Sized> Chains<'_, S> {
                 (i, seed, self.normals(seed))
             })
             .collect();
-        let batch: Vec<(usize, u64, &[f64])> = draws.iter().map(|(i, s, z)| (*i, *s, z.as_slice())).collect();
-        let records = fly_all(self.system, self.prior, 0, &batch, self.recorder)?;
+        let records = fly_all(self.system, self.prior, 0, &draws, self.recorder)?;
         let states = draws.into_iter().zip(&records).map(|((_, _, z), r)| State { z, score: rank_score(r) }).collect();
         Ok((states, records))
     }
@@ -425,8 +424,7 @@ impl<S: System + ?Sized> Chains<'_, S> {
                     (index, seed, z.collect())
                 })
                 .collect();
-            let batch: Vec<(usize, u64, &[f64])> = moves.iter().map(|(i, s, z)| (*i, *s, z.as_slice())).collect();
-            let records = fly_all(self.system, self.prior, next, &batch, self.recorder)?;
+            let records = fly_all(self.system, self.prior, next, &moves, self.recorder)?;
             for (c, ((_, _, z), record)) in moves.into_iter().zip(records).enumerate() {
                 let score = rank_score(&record);
                 flown[c].push(record);

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use nerfsv_uq::folder::{ause_folder, check_max_images, folder_splits, offline_folder, FolderAuse, FolderStudy};
+use nerfsv_uq::folder::{ause_folder, folder_splits, offline_folder, FolderAuse, FolderStudy};
 use nerfsv_uq::offline::{
     columns as offline_columns, fit_with_depth_uncertainty, Cell, Fit, OfflineSummary, Row, BACKGROUND,
 };
@@ -54,8 +54,7 @@ pub fn uncertainty_offline<'py>(
     let rows = py
         .detach(|| offline_folder(&nerf, &study, &data, &splits.present, &cfg, &|_, _, _| {}, &|_, _| {}))
         .map_err(py_err)?;
-    let sigma_max = study.config(&cfg).ga_sigma_max;
-    let mut summary = OfflineSummary::new(method, &rows, &splits.present, splits.skipped, sigma_max);
+    let mut summary = OfflineSummary::new(method, &rows, &splits.present, splits.skipped, cfg.ga_sigma_max);
     summary.seconds = start.elapsed().as_secs_f64();
     Ok((columns(py, &rows, method)?, to_json(&summary)?))
 }
@@ -103,10 +102,10 @@ pub fn uncertainty_ause(
     let start = Instant::now();
     let method: Method = crate::choice("method", method)?;
     let cfg = uq_config(config, overrides)?;
-    check_max_images(max_images).map_err(py_err)?;
+    let ause = FolderAuse { method, split, max_images };
+    ause.validate().map_err(py_err)?;
     must_exist(&data, "data")?;
     let nerf = model.nerf.clone();
-    let ause = FolderAuse { method, split, max_images };
     let mut summary = py.detach(|| ause_folder(&nerf, &ause, &data, &cfg, &|_, _| {}, &|_| {})).map_err(py_err)?;
     summary.seconds = start.elapsed().as_secs_f64();
     to_json(&summary)

@@ -9,9 +9,8 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use nerfsv_nerf::Nerf;
 use nerfsv_pipeline::{Guard, Observer};
-use nerfsv_uq::folder::{ause_folder, check_max_images, folder_splits, offline_folder, FolderAuse, FolderStudy};
-use nerfsv_uq::offline::{has_split, method_files, write_files, Method, OfflineSummary};
-use nerfsv_uq::UqError;
+use nerfsv_uq::folder::{ause_folder, folder_splits, offline_folder, FolderAuse, FolderStudy};
+use nerfsv_uq::offline::{method_files, write_files, Method, OfflineSummary};
 
 use crate::progress::Reporter;
 
@@ -118,15 +117,12 @@ fn as_flag(e: nerfsv_scene::InvalidValue) -> nerfsv_scene::InvalidValue {
 fn ause(args: AuseArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let cfg = args.settings.load()?;
-    check_max_images(args.max_images).map_err(as_flag)?;
-    if !has_split(&args.data, &args.split) {
-        return Err(UqError::NoSplit { folder: args.data.clone(), split: args.split.clone() }.into());
-    }
+    let ause = FolderAuse { method: args.method, split: &args.split, max_images: args.max_images };
+    ause.validate().map_err(as_flag)?;
     let nerf = Nerf::load(&args.model).with_context(|| format!("loading the model {}", args.model.display()))?;
     let reporter = Reporter::new(args.json);
     let progress = |done: usize, total: usize| reporter.progress("ause", done as u64, total as u64, "images scored");
     let note = |message: &str| reporter.note("ause", message);
-    let ause = FolderAuse { method: args.method, split: &args.split, max_images: args.max_images };
     let mut summary = ause_folder(&nerf, &ause, &args.data, &cfg, &progress, &note)?;
     summary.seconds = start.elapsed().as_secs_f64();
     if args.json {
@@ -172,7 +168,6 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     // Nothing is written before the last split has been read and fitted.
     let rows = offline_folder(&nerf, &study, &args.data, &splits.present, &cfg, &progress, &note)?;
 
-    let cfg = study.config(&cfg);
     let mut summary = OfflineSummary::new(method, &rows, &splits.present, splits.skipped, cfg.ga_sigma_max);
     // Every file is made in memory first, so a failure leaves nothing half written.
     let mut files = method_files(&rows, &splits.present, method, &cfg)?;

@@ -50,7 +50,7 @@ impl FolderStudy {
 }
 
 /// `max_images`, when given, is at least 1.
-pub fn check_max_images(max_images: Option<usize>) -> Result<(), InvalidValue> {
+fn check_max_images(max_images: Option<usize>) -> Result<(), InvalidValue> {
     match max_images {
         Some(n) => in_range("max_images", n, 1, usize::MAX),
         None => Ok(()),
@@ -73,7 +73,7 @@ pub fn folder_splits(folder: &Path) -> Result<FolderSplits, UqError> {
     Ok(FolderSplits { present, skipped })
 }
 
-/// `study` on each of `splits` of `folder`, one split in memory at a time (an 800×800
+/// `study` (as [`FolderStudy::validate`] accepts it) on each of `splits` of `folder`, one split in memory at a time (an 800×800
 /// dataset's three splits would not fit), the rows in split order. Reports each split's
 /// progress to `progress` (split, done, total) and its notes (an image whose rays all miss) to
 /// `note` (split, message).
@@ -136,8 +136,16 @@ pub struct FolderAuse<'a> {
     pub max_images: Option<usize>,
 }
 
-/// The depth AUSE of `ause.method` on `ause.split` of `folder`, after refusing a model whose
-/// box the split's cameras mostly miss. Reports each image scored to `progress` (done, total)
+impl FolderAuse<'_> {
+    /// The first count out of range, named as the field here names it (`max_images`).
+    pub fn validate(&self) -> Result<(), InvalidValue> {
+        check_max_images(self.max_images)
+    }
+}
+
+/// The depth AUSE of `ause.method` (as [`FolderAuse::validate`] accepts it) on `ause.split` of
+/// `folder`, after refusing a split the folder does not hold and a model whose box the split's
+/// cameras mostly miss. Reports each image scored to `progress` (done, total)
 /// and each one skipped to `note`.
 pub fn ause_folder(
     nerf: &Nerf,
@@ -148,7 +156,6 @@ pub fn ause_folder(
     note: &dyn Fn(&str),
 ) -> Result<AuseSummary, UqError> {
     let FolderAuse { method, split, max_images } = *ause;
-    check_max_images(max_images)?;
     if !has_split(folder, split) {
         return Err(UqError::NoSplit { folder: folder.into(), split: split.to_owned() });
     }

@@ -139,10 +139,12 @@ pub fn render_dataset(
         };
         py_err(e)
     })?;
+    let mut guard = nerfsv_pipeline::Guard::new().folder("out", &out, nerfsv_pipeline::OutputKind::Dataset);
     if let Some(mesh) = &mesh {
         crate::must_exist(mesh, "mesh")?;
-        nerfsv_pipeline::Guard::new().mesh("mesh", mesh).output("out", &out).check().map_err(py_err)?;
+        guard = guard.mesh("mesh", mesh);
     }
+    guard.check().map_err(py_err)?;
     let world = scene_of(scene, mesh.as_deref())?;
     let figures = py
         .detach(|| nerfsv_pipeline::stages::render_dataset(&world, &out, &opts, &|_, _| {}).map_err(Box::new))

@@ -262,14 +262,14 @@ pub fn stress(
     field.as_deref().map_or(Ok(()), |p| crate::must_exist(p, "field"))?;
     let cfg = config_with_seed(config.as_deref(), &overrides.unwrap_or_default(), seed)?;
     let mut guard = nerfsv_pipeline::Guard::new()
-        .output("out", &out)
+        .folder("out", &out, nerfsv_pipeline::OutputKind::Stress)
         .input("model", model)
         .input_opt("nerf_field", nerf_field.as_deref())
         .input_opt("field", field.as_deref());
     if let Some(p) = &mesh {
         guard = guard.mesh("mesh", p);
     }
-    guard.check().map_err(py_err)?;
+    let claimed = guard.claim().map_err(py_err)?;
     let ground_truth = scene_of(scene, mesh.as_deref())?;
     let remote = executor.map(PyExecutor);
     let uq_field = field.as_deref().map(|p| UncertaintyField::load(p).map(|f| (p, f))).transpose().map_err(py_err)?;
@@ -302,6 +302,7 @@ pub fn stress(
             .map_err(Box::new)
         })
         .map_err(py_err)?;
+    claimed.keep();
     to_json(&figures)
 }
 

@@ -314,8 +314,11 @@ pub fn train(
         (None, None) => Budget::Steps(cfg.train_steps),
     };
     must_exist(&data, "data")?;
-    nerfsv_pipeline::Guard::new().dataset("data", &data).output("out", &out).check().map_err(py_err)?;
+    let guard =
+        nerfsv_pipeline::Guard::new().dataset("data", &data).folder("out", &out, nerfsv_pipeline::OutputKind::Training);
+    guard.check().map_err(py_err)?;
     let split = py.detach(|| load_dataset_split(&data, "train", 1).map_err(Box::new)).map_err(py_err)?;
+    let claimed = guard.claim().map_err(py_err)?;
     let mut failed: Option<PyErr> = None;
     let trained = py.detach(|| {
         nerfsv_nerf::train(&split, &out, budget, resume, s.nerf, s.train, |p| {
@@ -337,6 +340,7 @@ pub fn train(
         })
     });
     let (nerf, _) = trained.map_err(py_err)?;
+    claimed.keep();
     if let Some(e) = failed {
         return Err(e);
     }

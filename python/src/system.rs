@@ -440,6 +440,16 @@ pub fn stress_system<'py>(
         validation,
         proposal,
     };
+    // The folder is nerfsv's (absent, empty or an earlier search's) before its journal is made.
+    let claimed = match &out {
+        Some(dir) => Some(
+            nerfsv_pipeline::Guard::new()
+                .folder("out", dir, nerfsv_pipeline::OutputKind::Stress)
+                .claim()
+                .map_err(py_err)?,
+        ),
+        None => None,
+    };
     let journal = match &out {
         Some(dir) => Some(Journal::open(&dir.join(JOURNAL), &plan.key()?, resume).map_err(py_err)?),
         None => None,
@@ -456,6 +466,9 @@ pub fn stress_system<'py>(
     if let Some(dir) = &out {
         let path = dir.join(ROLLOUTS_CSV);
         write_csv_file(&path, found.records()).map_err(|e| py_err(crate::inputs::io_at(&path, e)))?;
+    }
+    if let Some(claimed) = claimed {
+        claimed.keep();
     }
     figures(py, &found, &plan, out.as_deref())
 }

@@ -52,7 +52,7 @@ pub struct CollisionArgs {
 pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
     check_cells_per_metre("--cells-per-metre", args.cells_per_metre)?;
     let mesh = args.mesh.as_deref();
-    let mut guard = Guard::new().output("--out", &args.out).output_opt("--mesh-out", mesh);
+    let mut guard = Guard::new().file("--out", &args.out).file_opt("--mesh-out", mesh);
     if let Some(path) = &args.gt_mesh {
         guard = guard.mesh("--gt-mesh", path);
     }

@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use nerfsv_pipeline::Guard;
+use nerfsv_pipeline::{Guard, OutputKind};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{read_disturbances, EstimatorKind, WorldKind};
 use nerfsv_study::drone_disturbances;
@@ -91,11 +91,10 @@ pub struct FlyArgs {
 
 pub fn run(args: FlyArgs) -> anyhow::Result<()> {
     let cfg = one_model(args.config.as_deref(), &args.sets)?;
-    let guard = args.drone.inputs(Guard::new().output("--out", &args.out));
-    guard
-        .input_opt("--disturbances", args.disturbances.as_deref())
-        .input_opt("--config", args.config.as_deref())
-        .check()?;
+    let guard = args.drone.inputs(Guard::new().folder("--out", &args.out, OutputKind::Flight));
+    let guard =
+        guard.input_opt("--disturbances", args.disturbances.as_deref()).input_opt("--config", args.config.as_deref());
+    guard.check()?;
 
     // Everything that can be refused is checked before anything is written.
     let disturbances = match (&args.disturbances, args.random_seed) {
@@ -114,9 +113,11 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         disturbances: &disturbances,
         seed: args.seed.or(args.random_seed).unwrap_or(0),
     };
+    let claimed = guard.claim()?;
     let figures = fly_into(&args.out, &request).map_err(|e| match e {
         nerfsv_study::StudyError::Sim(_) => anyhow::Error::from(e).context("planning the flight"),
         e => e.into(),
     })?;
+    claimed.keep();
     crate::commands::report(args.json, &figures, || figures.describe())
 }

@@ -8,7 +8,7 @@ use nerfsv_dataset::Split;
 use nerfsv_nerf::{evaluate_with_progress, render_split, Budget, EvalOptions, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
 use nerfsv_pipeline::stages::{load_dataset_split, train_status, EvalFigures};
-use nerfsv_pipeline::{Guard, Observer};
+use nerfsv_pipeline::{Guard, Observer, OutputKind};
 use nerfsv_scene::validate::{in_range, positive};
 
 use crate::progress::Reporter;
@@ -117,14 +117,17 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         }
         (None, None) => Budget::Steps(cfg.train_steps),
     };
-    Guard::new()
-        .dataset("--data", &args.data)
-        .input_opt("--config", args.config.as_deref())
-        .output("--out", &args.out)
-        .check()?;
+    let guard = Guard::new().dataset("--data", &args.data).input_opt("--config", args.config.as_deref()).folder(
+        "--out",
+        &args.out,
+        OutputKind::Training,
+    );
+    guard.check()?;
     let data = load_dataset_split(&args.data, "train", args.downscale)?;
+    // A failed training leaves no folder it made (a divergence keeps the checkpoint it had
+    // written, so the folder stays if it holds anything but the marker).
+    let claimed = guard.claim()?;
     nerfsv_scene::io::remove_stale_temporaries_in(&args.out);
-    let created = !args.out.exists();
     let reporter = Reporter::new(args.json);
     let mut show = |p: &nerfsv_nerf::Progress| {
         let (done, total) = match budget {
@@ -134,12 +137,8 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         reporter.progress("training", done, total, &train_status(p));
     };
     let trained = nerfsv_nerf::train(&data, &args.out, budget, args.resume, s.nerf, s.train, &mut show);
-    if trained.is_err() && created {
-        // Nothing of a failed training is kept in a folder it created (a divergence keeps the
-        // checkpoint it had written, so the folder is removed only if it holds nothing else).
-        let _ = std::fs::remove_dir(&args.out);
-    }
     let (_, stats) = trained.with_context(|| format!("training into {}", args.out.display()))?;
+    claimed.keep();
     crate::commands::report(args.json, &stats, || {
         format!(
             "trained {} steps in {:.0} s → {}",
@@ -178,15 +177,18 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_render(args: RenderArgs) -> anyhow::Result<()> {
-    Guard::new()
-        .dataset("--data", &args.input.data)
-        .input("--model", &args.input.model)
-        .output("--out", &args.out)
-        .check()?;
+    let guard = Guard::new().dataset("--data", &args.input.data).input("--model", &args.input.model).folder(
+        "--out",
+        &args.out,
+        OutputKind::Renders,
+    );
+    guard.check()?;
     let (nerf, split) = args.input.load()?;
+    let claimed = guard.claim()?;
     nerfsv_scene::io::remove_stale_temporaries_in(&args.out);
     render_split(&nerf, &split, &args.out, [1.0, 1.0, 1.0])
         .with_context(|| format!("rendering into {}", args.out.display()))?;
+    claimed.keep();
     eprintln!("rendered {} views into {}", split.frames.len(), args.out.display());
     Ok(())
 }

@@ -23,7 +23,9 @@ pub struct ReplicateArgs {
 }
 
 pub fn run(args: ReplicateArgs) -> anyhow::Result<()> {
+    let out_name = crate::commands::run::out_name(args.out.is_some());
     let cfg = crate::commands::run::load_config(args.config.as_deref(), &args.sets, args.out)?;
+    nerfsv_pipeline::replicate::replicate_guard(&cfg, out_name).check()?;
     let reporter = Reporter::new(args.json);
     let r = nerfsv_pipeline::replicate::replicate(&cfg, args.seeds, &reporter)?;
     crate::commands::report(args.json, &r, || {

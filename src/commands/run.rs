@@ -24,6 +24,15 @@ pub struct RunArgs {
     pub check: bool,
 }
 
+/// How messages name the run folder: the flag if it was given, else the config's key.
+pub fn out_name(flag: bool) -> &'static str {
+    if flag {
+        "--out"
+    } else {
+        "out"
+    }
+}
+
 /// The run config at `config` (the embedded default without one), its run folder replaced by
 /// `out` if given.
 pub fn load_config(config: Option<&std::path::Path>, sets: &Sets, out: Option<PathBuf>) -> anyhow::Result<RunConfig> {
@@ -35,6 +44,7 @@ pub fn load_config(config: Option<&std::path::Path>, sets: &Sets, out: Option<Pa
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
+    let out_name = out_name(args.out.is_some());
     let cfg = load_config(args.config.as_deref(), &args.sets, args.out)?;
     let reporter = Reporter::new(args.json);
     let named = |e: nerfsv_pipeline::PipelineError| match (&args.config, e) {
@@ -52,7 +62,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     // Before any stage writes: every value, the flight's ends, the grid's memory, the paths.
     cfg.preflight(scene.as_ref()).map_err(named)?;
-    nerfsv_pipeline::run_guard(&cfg).check()?;
+    nerfsv_pipeline::run_guard(&cfg, out_name).check()?;
     if args.check {
         let name = args.config.as_ref().map_or("the default config".into(), |p| p.display().to_string());
         eprintln!("{name}: ready to run into {} (nothing written)", cfg.out.display());

@@ -85,10 +85,13 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
         }
         e
     })?;
+    // The mesh's textures sit beside it: they are inputs too. The dataset's folder is replaced
+    // whole, so it must be nerfsv's dataset (or absent, or empty).
+    let mut guard = nerfsv_pipeline::Guard::new().folder("--out", &args.out, nerfsv_pipeline::OutputKind::Dataset);
     if let Some(mesh) = &args.world.mesh {
-        // The mesh's textures sit beside it: they are inputs too.
-        nerfsv_pipeline::Guard::new().mesh("--mesh", mesh).output("--out", &args.out).check()?;
+        guard = guard.mesh("--mesh", mesh);
     }
+    guard.check()?;
     let scene = args.world.load()?;
     let reporter = Reporter::new(args.json);
     let figures = render_dataset(&scene, &args.out, &args.options(), &|done, total| {

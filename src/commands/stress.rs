@@ -2,7 +2,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use nerfsv_pipeline::stress::{run_stress, StressRequest};
-use nerfsv_pipeline::Guard;
+use nerfsv_pipeline::{Guard, OutputKind};
 use nerfsv_study::stress::{journal_dir, OnlineSettings, Sampler, SearchSettings};
 use nerfsv_study::UqMode;
 use nerfsv_uq::{Method, UncertaintyField};
@@ -70,8 +70,9 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         cfg.validation.seed = seed;
     }
     let d = &args.drone;
-    let guard = d.inputs(Guard::new().output("--out", &args.out));
-    guard.input_opt("--field", args.field.as_deref()).input_opt("--config", args.config.as_deref()).check()?;
+    let guard = d.inputs(Guard::new().folder("--out", &args.out, OutputKind::Stress));
+    let guard = guard.input_opt("--field", args.field.as_deref()).input_opt("--config", args.config.as_deref());
+    guard.check()?;
     let online = args
         .reward
         .map(|m| (m, true))
@@ -89,6 +90,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let (scene, worlds) = d.load()?;
     let field = args.field.as_deref().map(|p| UncertaintyField::load(p).map(|f| (p, f))).transpose()?;
     let reporter = crate::progress::Reporter::new(args.json);
+    let claimed = guard.claim()?;
     let figures = run_stress(
         &StressRequest {
             config: &cfg,
@@ -110,6 +112,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         },
         &reporter,
     )?;
+    claimed.keep();
     let one = &figures.samplers[0];
     crate::commands::report(args.json, one, || figures.describe())
 }

@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::{Guard, Observer};
+use nerfsv_pipeline::{Guard, Observer, OutputKind};
 use nerfsv_uq::folder::{ause_folder, folder_splits, offline_folder, FolderAuse, FolderStudy};
 use nerfsv_uq::offline::{method_files, write_files, Method, OfflineSummary};
 
@@ -151,7 +151,9 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     let cfg = args.settings.load()?;
     let study = FolderStudy { method, max_images: args.max_images, rays: args.rays, downscale: args.downscale };
     study.validate().map_err(as_flag)?;
-    Guard::new().dataset("--data", &args.data).input("--model", &args.model).output("--out", &args.out).check()?;
+    let guard = Guard::new().dataset("--data", &args.data).input("--model", &args.model);
+    let guard = guard.folder("--out", &args.out, OutputKind::Uncertainty);
+    guard.check()?;
     if !args.data.is_dir() {
         anyhow::bail!("{}: no such dataset folder", args.data.display());
     }
@@ -174,6 +176,8 @@ fn offline(args: OfflineArgs) -> anyhow::Result<()> {
     summary.seconds = start.elapsed().as_secs_f64();
     files.push((format!("uq_{}.json", method.name()), serde_json::to_vec_pretty(&summary)?));
     // All or nothing: the files this call has written are removed again if one fails.
+    let claimed = guard.claim()?;
     write_files(&args.out, &files)?;
+    claimed.keep();
     crate::commands::report(args.json, &summary, || summary.describe(&args.out))
 }

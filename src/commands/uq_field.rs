@@ -79,7 +79,8 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
     for member in &args.members {
         guard = guard.input("--member", member);
     }
-    guard.output("--out", &args.out).check()?;
+    let slice = nerfsv_uq::offline::field_slice_path(&args.out);
+    guard.file("--out", &args.out).file_beside("--out's slice picture", &slice, &args.out).check()?;
     if !has_split(&args.data, "train") {
         anyhow::bail!(
             "{}: no transforms_train.json, transforms.json or COLMAP model (sparse/0): not a dataset folder",

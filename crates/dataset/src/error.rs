@@ -19,9 +19,10 @@ pub enum DatasetError {
     /// An option value out of range, or a size over the memory budget.
     #[error(transparent)]
     Invalid(#[from] InvalidValue),
-    /// The output folder of [`crate::generate()`] holds something other than a dataset.
-    #[error("{path}: exists and is not a dataset folder; refusing to overwrite it")]
-    NotADataset { path: PathBuf },
+    /// The output folder of [`crate::generate()`] is not nerfsv's to replace (a user's files,
+    /// another kind of nerfsv folder, a file, …).
+    #[error(transparent)]
+    Folder(#[from] nerfsv_scene::folder::FolderError),
 }
 
 impl DatasetError {

@@ -4,6 +4,7 @@ use std::f32::consts::TAU;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Point3, Vector3};
+use nerfsv_scene::folder::OutputKind;
 use nerfsv_scene::validate::{bytes_for, in_range, InvalidValue, MemoryBudget};
 use nerfsv_scene::{Camera, Intrinsics, RenderSettings, Scene};
 use rand::{RngExt, SeedableRng};
@@ -182,8 +183,9 @@ fn close_up_camera(rng: &mut ChaCha8Rng, scene: &Scene, k: Intrinsics) -> Camera
 /// Renders every split of `scene` into the dataset folder `out`.
 ///
 /// The dataset is built in a sibling temporary folder and renamed into place when complete,
-/// so a failure or a kill never leaves a half-written dataset at `out`. An existing `out` is
-/// replaced only if it is empty or holds a previous dataset (a `transforms_train.json`).
+/// so a failure or a kill never leaves a half-written dataset at `out`, which carries nerfsv's
+/// marker ([`nerfsv_scene::folder`]). An existing `out` is replaced only if it is empty or a
+/// dataset nerfsv rendered (its marker, or an earlier version's `scene.json`).
 /// `progress(done, total)` is called after each rendered view.
 pub fn generate(
     scene: &Scene,
@@ -192,17 +194,13 @@ pub fn generate(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<(), DatasetError> {
     opts.validate()?;
-    if out.exists() {
-        let is_dataset = out.join("transforms_train.json").exists();
-        let is_empty = std::fs::read_dir(out).map_err(|e| DatasetError::io(out, e))?.next().is_none();
-        if !out.is_dir() || !(is_dataset || is_empty) {
-            return Err(DatasetError::NotADataset { path: out.to_path_buf() });
-        }
-    }
+    // Only a dataset nerfsv rendered is replaced; a user's capture or files are refused.
+    nerfsv_scene::folder::check_folder("the dataset folder", out, OutputKind::Dataset)?;
     remove_stale_partials(out);
     let tmp = partial_dir(out);
     std::fs::create_dir_all(&tmp).map_err(|e| DatasetError::io(&tmp, e))?;
     let result = (|| {
+        nerfsv_scene::folder::claim_folder("the dataset folder", &tmp, OutputKind::Dataset)?;
         let settings = opts.render_settings();
         let total = opts.train + opts.val + opts.test;
         let mut done = 0;

@@ -33,12 +33,19 @@ pub enum PipelineError {
     Study(#[from] nerfsv_study::StudyError),
     #[error("stage {stage} reads stage {input}, which has not run before it")]
     MissingInput { stage: &'static str, input: &'static str },
-    #[error("{}: is or lies inside {option} {}; refusing to write over an input", .output.display(), .input.display())]
-    OutputInsideInput { output: PathBuf, option: String, input: PathBuf },
-    #[error("{}: holds {option} {}; refusing to write over or delete an input", .output.display(), .input.display())]
-    OutputHoldsInput { output: PathBuf, option: String, input: PathBuf },
-    #[error("{first} and {second} are one path or one lies inside the other; two outputs must be apart")]
-    OutputsOverlap { first: String, second: String },
+    #[error(
+        "{what} {}: {problem}; nerfsv never writes over what it reads: choose another path for {what}, \
+         outside {input_what}",
+        .output.display()
+    )]
+    OutputOverInput { what: String, output: PathBuf, problem: String, input_what: String },
+    #[error(
+        "{first} and {second}: are one path or one lies inside the other, and two outputs must be apart; \
+         choose another path for {change}"
+    )]
+    OutputsOverlap { first: String, second: String, change: String },
+    #[error(transparent)]
+    Folder(#[from] nerfsv_scene::folder::FolderError),
     #[error("{key}: {message}")]
     World { key: &'static str, message: String },
     /// A command line's `--set TABLE.KEY=VALUE` that names no key or gives a value out of range.

@@ -1,7 +1,10 @@
-//! The one guard against writing over an input: every command and `nerfsv run` name what they
-//! will read and what they will write, and [`Guard::check`] refuses, before anything is
-//! written, any output that is, contains or lies inside an input, and any two outputs that
-//! coincide or nest.
+//! The one guard against writing over an input or a user's files: every command and `nerfsv
+//! run` name what they will read and what they will write, and [`Guard::check`] refuses, before
+//! anything is written, any output that is, contains or lies inside an input, any two outputs
+//! that coincide or nest, an output folder that is not nerfsv's to write (a folder holding a
+//! user's files, a regular file, the current or home folder, the root: see
+//! [`nerfsv_scene::folder`]) and an output file nerfsv did not write. [`Guard::claim`] then
+//! creates and marks the output folders.
 //!
 //! Paths are compared by identity, not by their text: each is made absolute and resolved
 //! through symbolic links as far as it exists (`./a`, `a/../a`, a link to `a` and `a` are one
@@ -10,6 +13,8 @@
 //! dataset's images.
 
 use std::path::{Path, PathBuf};
+
+use nerfsv_scene::folder::{self, resolve, OutputKind};
 
 use crate::PipelineError;
 
@@ -24,7 +29,7 @@ pub struct Guard {
     folders: Vec<Named>,
     /// Files read: nothing may be written at them or over a folder holding them.
     files: Vec<Named>,
-    outputs: Vec<Named>,
+    outputs: Vec<Output>,
 }
 
 #[derive(Debug)]
@@ -38,6 +43,22 @@ impl Named {
     fn new(what: &str, path: &Path) -> Self {
         Self { what: what.to_string(), given: path.to_path_buf(), real: resolve(path) }
     }
+}
+
+/// An output: a folder of one kind (claimed and marked), a file, or a file beside another.
+#[derive(Debug)]
+struct Output {
+    named: Named,
+    form: Form,
+}
+
+#[derive(Debug)]
+enum Form {
+    Folder(OutputKind),
+    File,
+    /// A file without a header of its own (a picture), written beside this main output file:
+    /// replaced only if the main file is nerfsv's.
+    Beside(PathBuf),
 }
 
 impl Guard {
@@ -90,81 +111,156 @@ impl Guard {
         }
     }
 
-    /// A file or folder the command writes (a folder may be replaced whole).
-    pub fn output(mut self, what: &str, path: &Path) -> Self {
-        self.outputs.push(Named::new(what, path));
+    /// A folder the command writes, of `kind`: it must be absent, empty or nerfsv's folder of that
+    /// kind ([`folder::check_folder`]); it may be replaced whole.
+    pub fn folder(mut self, what: &str, path: &Path, kind: OutputKind) -> Self {
+        self.outputs.push(Output { named: Named::new(what, path), form: Form::Folder(kind) });
         self
     }
 
-    /// An output that may be absent (`None` adds nothing).
-    pub fn output_opt(self, what: &str, path: Option<&Path>) -> Self {
+    /// A file the command writes: it must be absent or one nerfsv wrote ([`folder::check_file`]).
+    pub fn file(mut self, what: &str, path: &Path) -> Self {
+        self.outputs.push(Output { named: Named::new(what, path), form: Form::File });
+        self
+    }
+
+    /// A file the command writes beside its output file `main` (a picture of it, which has no
+    /// header to say who wrote it): it must be absent, or `main` must be a file nerfsv wrote.
+    pub fn file_beside(mut self, what: &str, path: &Path, main: &Path) -> Self {
+        self.outputs.push(Output { named: Named::new(what, path), form: Form::Beside(main.to_path_buf()) });
+        self
+    }
+
+    /// An output file that may be absent (`None` adds nothing).
+    pub fn file_opt(self, what: &str, path: Option<&Path>) -> Self {
         match path {
-            Some(p) => self.output(what, p),
+            Some(p) => self.file(what, p),
             None => self,
         }
     }
 
-    /// The first conflict, naming both paths as the user gave them and what they are.
+    /// The first refusal, naming the flag or key and the path as the user gave it, what is wrong
+    /// and what to do. Reads only.
     pub fn check(&self) -> Result<(), PipelineError> {
         let inputs = self.folders.iter().map(|f| (f, true)).chain(self.files.iter().map(|f| (f, false)));
-        for out in &self.outputs {
-            for (input, folder) in inputs.clone() {
-                if out.real == input.real || (folder && out.real.starts_with(&input.real)) {
-                    return Err(PipelineError::OutputInsideInput {
-                        output: out.given.clone(),
-                        option: format!("{} ({})", input.what, out.what),
-                        input: shown(input),
-                    });
-                }
-                if input.real.starts_with(&out.real) {
-                    return Err(PipelineError::OutputHoldsInput {
-                        output: out.given.clone(),
-                        option: format!("{} ({})", input.what, out.what),
-                        input: shown(input),
-                    });
-                }
+        for Output { named: out, .. } in &self.outputs {
+            for (input, is_folder) in inputs.clone() {
+                let problem = if out.real == input.real {
+                    format!("is what {} reads ({})", input.what, shown(input))
+                } else if is_folder && out.real.starts_with(&input.real) {
+                    format!("lies inside {} {}, which nerfsv reads", input.what, shown(input))
+                } else if input.real.starts_with(&out.real) {
+                    format!(
+                        "holds {} {}, which nerfsv reads, and an output may be replaced whole",
+                        input.what,
+                        shown(input)
+                    )
+                } else {
+                    continue;
+                };
+                return Err(PipelineError::OutputOverInput {
+                    what: out.what.clone(),
+                    output: out.given.clone(),
+                    problem,
+                    input_what: input.what.clone(),
+                });
             }
         }
-        for (i, a) in self.outputs.iter().enumerate() {
-            for b in &self.outputs[i + 1..] {
+        for (i, Output { named: a, .. }) in self.outputs.iter().enumerate() {
+            for Output { named: b, .. } in &self.outputs[i + 1..] {
                 if a.real.starts_with(&b.real) || b.real.starts_with(&a.real) {
                     return Err(PipelineError::OutputsOverlap {
                         first: format!("{} {}", a.what, a.given.display()),
                         second: format!("{} {}", b.what, b.given.display()),
+                        change: b.what.clone(),
                     });
                 }
             }
         }
+        // Then each output on its own: a folder nerfsv may write, a file it may replace.
+        for out in &self.outputs {
+            let (what, given) = (&out.named.what, &out.named.given);
+            match &out.form {
+                Form::Folder(kind) => folder::check_folder(what, given, *kind).map(drop),
+                Form::File => folder::check_file(what, given),
+                Form::Beside(main) if given.exists() && !folder::written_by_nerfsv(main) => {
+                    Err(folder::FolderError::ForeignFile { what: what.clone(), given: given.clone() })
+                }
+                Form::Beside(_) => folder::check_file(what, given).or_else(|e| match e {
+                    folder::FolderError::ForeignFile { .. } => Ok(()),
+                    e => Err(e),
+                }),
+            }?;
+        }
         Ok(())
+    }
+
+    /// [`Guard::check`], then creates each output folder that is not there yet and marks each as
+    /// nerfsv's ([`folder::claim_folder`]). Call it right before the command writes, and
+    /// [`Claimed::keep`] what it returns once the command has written: a command that fails
+    /// before leaves no folder it made and no marker in a folder that was empty.
+    pub fn claim(&self) -> Result<Claimed, PipelineError> {
+        self.check()?;
+        let mut claimed = Claimed::default();
+        for out in &self.outputs {
+            if let Form::Folder(kind) = out.form {
+                let found = folder::claim_folder(&out.named.what, &out.named.given, kind)?;
+                match found {
+                    folder::Found::Absent => claimed.made.push(out.named.given.clone()),
+                    folder::Found::Empty => claimed.marked.push(out.named.given.clone()),
+                    folder::Found::Marked | folder::Found::Legacy => {}
+                }
+            }
+        }
+        Ok(claimed)
+    }
+}
+
+/// The output folders a [`Guard::claim`] made or marked. Dropped without [`Claimed::keep`] (the
+/// command failed), each is left as it was found if the command wrote nothing into it: a folder
+/// it made is removed, an empty folder it marked loses its marker.
+#[derive(Debug, Default)]
+#[must_use = "a claim dropped without `keep` undoes itself"]
+pub struct Claimed {
+    made: Vec<PathBuf>,
+    marked: Vec<PathBuf>,
+    kept: bool,
+}
+
+impl Claimed {
+    /// The command has written its outputs: the folders stay nerfsv's.
+    pub fn keep(mut self) {
+        self.kept = true;
+    }
+}
+
+impl Drop for Claimed {
+    fn drop(&mut self) {
+        if self.kept {
+            return;
+        }
+        let only_marker = |dir: &Path| {
+            std::fs::read_dir(dir)
+                .is_ok_and(|entries| entries.flatten().all(|e| e.file_name().to_str() == Some(folder::MARKER)))
+        };
+        for dir in self.made.iter().chain(&self.marked) {
+            if only_marker(dir) {
+                let _ = std::fs::remove_file(dir.join(folder::MARKER));
+            }
+        }
+        for dir in &self.made {
+            let _ = std::fs::remove_dir(dir);
+        }
     }
 }
 
 /// An input as the user gave it, with the file it really is where a link leads elsewhere.
-fn shown(input: &Named) -> PathBuf {
+fn shown(input: &Named) -> String {
     let given = std::path::absolute(&input.given).unwrap_or_else(|_| input.given.clone());
     if given == input.real {
-        input.given.clone()
+        input.given.display().to_string()
     } else {
-        PathBuf::from(format!("{} (really {})", input.given.display(), input.real.display()))
-    }
-}
-
-/// `path` made absolute with symbolic links resolved, as far as it exists (the rest appended).
-fn resolve(path: &Path) -> PathBuf {
-    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
-    let mut existing = absolute.as_path();
-    let mut rest = Vec::new();
-    loop {
-        if let Ok(real) = existing.canonicalize() {
-            return rest.iter().rev().fold(real, |p, c| p.join(c));
-        }
-        match (existing.parent(), existing.file_name()) {
-            (Some(parent), Some(name)) => {
-                rest.push(name.to_os_string());
-                existing = parent;
-            }
-            _ => return absolute,
-        }
+        format!("{} (really {})", input.given.display(), input.real.display())
     }
 }
 
@@ -182,15 +278,16 @@ mod tests {
         let guard = || Guard::new().input("--data", &data).input("--model", &model);
         for out in [data.join("test"), data.join("new/deeper"), data.join("test/../test"), data.clone(), model.clone()]
         {
-            let e = guard().output("--out", &out).check().unwrap_err().to_string();
-            assert!(e.contains("refusing to write over an input"), "{e}");
+            let e = guard().folder("--out", &out, OutputKind::Run).check().unwrap_err().to_string();
+            assert!(e.starts_with(&format!("--out {}: ", out.display())), "{e}");
+            assert!(e.contains("nerfsv never writes over what it reads"), "{e}");
         }
         for out in [root.path().to_path_buf(), root.path().join("data/..")] {
-            let e = guard().output("--out", &out).check().unwrap_err().to_string();
-            assert!(e.contains("holds --data"), "{e}");
+            let e = guard().folder("--out", &out, OutputKind::Run).check().unwrap_err().to_string();
+            assert!(e.contains("holds --data") || e.contains("files nerfsv did not write"), "{e}");
         }
-        assert!(guard().output("--out", &root.path().join("renders")).check().is_ok());
-        assert!(guard().output("--out", &root.path().join("data2")).check().is_ok());
+        assert!(guard().folder("--out", &root.path().join("renders"), OutputKind::Renders).check().is_ok());
+        assert!(guard().folder("--out", &root.path().join("data2"), OutputKind::Run).check().is_ok());
     }
 
     #[test]
@@ -200,12 +297,17 @@ mod tests {
         std::fs::create_dir_all(mesh.parent().unwrap()).unwrap();
         std::fs::write(&mesh, b"ply").unwrap();
         // A sibling of a file input is free; the file itself and a folder holding it are not.
-        assert!(Guard::new().mesh("--mesh", &mesh).output("--out", &root.path().join("w/ds")).check().is_ok());
-        assert!(Guard::new().mesh("--mesh", &mesh).output("--out", &mesh).check().is_err());
+        assert!(Guard::new()
+            .mesh("--mesh", &mesh)
+            .folder("--out", &root.path().join("w/ds"), OutputKind::Dataset)
+            .check()
+            .is_ok());
+        assert!(Guard::new().mesh("--mesh", &mesh).file("--out", &mesh).check().is_err());
         let x = root.path().join("x");
-        let e = Guard::new().output("--out", &x).output("--mesh", &x).check().unwrap_err().to_string();
+        let e = Guard::new().file("--out", &x).file("--mesh", &x).check().unwrap_err().to_string();
         assert!(e.contains("--out") && e.contains("--mesh") && e.contains("one path or one lies inside"), "{e}");
-        assert!(Guard::new().output("--out", &x).output("--mesh", &root.path().join("y")).check().is_ok());
+        assert!(e.ends_with("choose another path for --mesh"), "{e}");
+        assert!(Guard::new().file("--out", &x).file("--mesh", &root.path().join("y")).check().is_ok());
     }
 
     #[cfg(unix)]
@@ -223,8 +325,12 @@ mod tests {
             r#"{"camera_angle_x": 0.8, "frames": [{"file_path": "./test/r_0", "transform_matrix": []}]}"#,
         )
         .unwrap();
-        let e =
-            Guard::new().dataset("--data", &sym).output("--out", &other.join("test")).check().unwrap_err().to_string();
+        let e = Guard::new()
+            .dataset("--data", &sym)
+            .folder("--out", &other.join("test"), OutputKind::Renders)
+            .check()
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("really") && e.contains("other/test/r_0.png"), "{e}");
     }
 }

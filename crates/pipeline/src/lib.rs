@@ -85,8 +85,9 @@ pub use config::{
     load_toml, EnsembleConfig, NerfSettings, OnlineConfig, RunConfig, UqOfflineConfig, Validate, WorldConfig,
 };
 pub use error::PipelineError;
-pub use guard::Guard;
+pub use guard::{Claimed, Guard};
 pub use layout::{summary_path, SUMMARY};
+pub use nerfsv_scene::folder::OutputKind;
 pub use run::{config_toml, run, run_guard, run_in, StageFigures, Summary, NO_GROUND_TRUTH};
 pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext};
 

@@ -96,6 +96,12 @@ pub fn replicate_seed(base: u64, i: usize) -> u64 {
     base.wrapping_add((i * MAX_MEMBERS) as u64)
 }
 
+/// What a replication reads (the config's world) and writes (its folder, named `out` in
+/// messages: the key, or the flag that set it).
+pub fn replicate_guard(cfg: &RunConfig, out: &str) -> crate::Guard {
+    crate::run::world_inputs(cfg, crate::Guard::new().folder(out, &cfg.out, crate::OutputKind::Replication))
+}
+
 /// Runs `cfg` with `seeds` training seeds into `seed_S/` folders below `cfg.out` (sharing the
 /// first's dataset and ground truth), then writes the figures side by side.
 pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Result<Replication, PipelineError> {
@@ -105,6 +111,9 @@ pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Resu
     for w in &warnings {
         observer.note("world", &format!("warning: {w}"));
     }
+    // The replication's folder is nerfsv's (absent, empty or an earlier replication) before any
+    // seed's run folder is made in it.
+    replicate_guard(cfg, "out").claim()?.keep();
     let mut rows = Vec::with_capacity(seeds);
     let mut first: Option<PathBuf> = None;
     for i in 0..seeds {
@@ -113,6 +122,7 @@ pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Resu
         run.train.seed = seed;
         run.out = seed_folder(&cfg.out, seed);
         observer.note("replicate", &format!("training seed {seed} ({} of {seeds}) into {}", i + 1, run.out.display()));
+        nerfsv_scene::folder::claim_folder("out", &run.out, nerfsv_scene::folder::OutputKind::Run)?;
         if let Some(first) = &first {
             for stage in SHARED_STAGES {
                 share_stage(&first.join(stage), &run.out.join(stage))?;

@@ -39,10 +39,15 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
     run_in(cfg, scene.as_ref(), observer)
 }
 
-/// What a run reads (the `[world]` table's dataset and mesh) and writes (its run folder), for
-/// the guard against writing over an input.
-pub fn run_guard(cfg: &RunConfig) -> Guard {
-    let mut guard = Guard::new().output("the run folder", &cfg.out);
+/// What a run reads (the `[world]` table's dataset and mesh) and writes (its run folder, named
+/// `out` in messages: the key, or the flag that set it), for the guard against writing over an
+/// input or a user's files.
+pub fn run_guard(cfg: &RunConfig, out: &str) -> Guard {
+    world_inputs(cfg, Guard::new().folder(out, &cfg.out, crate::OutputKind::Run))
+}
+
+/// `guard` with what the config's world reads: the `[world]` table's dataset and mesh.
+pub fn world_inputs(cfg: &RunConfig, mut guard: Guard) -> Guard {
     if let Some(dataset) = &cfg.world.dataset {
         guard = guard.dataset("world.dataset", dataset);
     }
@@ -65,7 +70,7 @@ pub fn run_in(
     observer: &dyn Observer,
 ) -> Result<Summary, PipelineError> {
     cfg.preflight(scene)?;
-    run_guard(cfg).check()?;
+    run_guard(cfg, "out").check()?;
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(&cfg.out, observer)?;
     let source = match (&cfg.world.dataset, scene) {

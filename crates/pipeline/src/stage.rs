@@ -1,7 +1,9 @@
 //! The stage abstraction: a [`Stage`] says what it is computed from and what it writes; the
 //! [`Runner`] decides whether it is up to date, runs it if not, and records its typed figures.
 //!
-//! A stage's folder `RUN/NAME/` holds its outputs and `stage.json`, the record
+//! The run folder carries nerfsv's marker ([`nerfsv_scene::folder`]): a runner starts only in
+//! an absent or empty folder or one nerfsv made, so a stage that clears its folder never clears
+//! a user's. A stage's folder `RUN/NAME/` holds its outputs and `stage.json`, the record
 //! `{"key": …, "figures": …}` written (atomically) after every output. The key hashes the
 //! stage's name, the digest of the code it runs ([`Stage::CODE`], computed from the sources at
 //! build time: see [`crate::digest`]), its config slice and the keys of the stages it reads, so
@@ -191,9 +193,12 @@ pub struct Runner<'a> {
 }
 
 impl<'a> Runner<'a> {
+    /// A runner into the run folder `root`, which must be absent, empty or a run folder nerfsv
+    /// made ([`nerfsv_scene::folder::check_folder`]): it is created if needed and marked as a run
+    /// folder, and only then does a stage clear its own folder in it.
     pub fn new(root: impl Into<PathBuf>, observer: &'a dyn Observer) -> Result<Self, PipelineError> {
         let root = root.into();
-        std::fs::create_dir_all(&root).map_err(|e| PipelineError::io(&root, e))?;
+        nerfsv_scene::folder::claim_folder("out", &root, nerfsv_scene::folder::OutputKind::Run)?;
         nerfsv_scene::io::remove_stale_temporaries_in(&root);
         Ok(Self { root, observer, keys: BTreeMap::new(), figures: Vec::new(), outcomes: Vec::new() })
     }

@@ -14,6 +14,7 @@
 //! ```
 
 pub mod camera;
+pub mod folder;
 pub mod geometry;
 pub mod image;
 pub mod io;

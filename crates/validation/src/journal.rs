@@ -92,8 +92,20 @@ pub struct Journal {
 }
 
 impl Journal {
-    /// A fresh journal for the run `key` in `dir`: whatever `dir` held is removed.
+    /// A fresh journal for the run `key` in `dir`: whatever `dir` held is removed if it is a
+    /// journal (it holds a key file) or empty; any other folder is refused, so a user's files
+    /// are never cleared.
     pub fn create(dir: &Path, key: &str) -> Result<Self, ValidationError> {
+        let empty = std::fs::read_dir(dir).is_ok_and(|mut e| e.next().is_none());
+        if dir.exists() && !empty && !Self::exists(dir) {
+            return Err(ValidationError::Journal {
+                path: dir.to_owned(),
+                message: format!(
+                    "holds files that are not a journal of rollouts (no {KEY_FILE} file); nerfsv clears only its \
+                     own journals: move them away or choose another output folder"
+                ),
+            });
+        }
         if dir.exists() {
             std::fs::remove_dir_all(dir).map_err(|e| ValidationError::io(dir, e))?;
         }

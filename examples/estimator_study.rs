@@ -91,7 +91,7 @@ fn main() -> anyhow::Result<()> {
     let mode = args.first().map_or("mc", String::as_str).to_string();
     let n: usize = args.get(1).and_then(|v| v.parse().ok()).unwrap_or(40);
     let out = PathBuf::from(env("RUN", "runs/stonehenge".to_string()));
-    let mut cfg = RunConfig { out: out.clone(), ..RunConfig::default() };
+    let mut cfg = RunConfig { out: Some(out.clone()), ..RunConfig::default() };
     let v = &mut cfg.sim.vision;
     v.images_per_step = env("IMAGES", v.images_per_step);
     v.iterations = env("ITERATIONS", v.iterations);

@@ -97,7 +97,7 @@ fn main() -> anyhow::Result<()> {
     let runs: u64 = env("RUNS", 100);
     let ref_seed: u64 = env("REF_SEED", 0x5EF);
     let verbose = std::env::var("VERBOSE").is_ok_and(|v| v == "1");
-    let cfg = RunConfig { out: out.clone(), ..RunConfig::default() };
+    let cfg = RunConfig { out: Some(out.clone()), ..RunConfig::default() };
     let scene = Scene::builtin(&cfg.scene)?;
     let inputs = FlightInputs::load(
         &Train::checkpoint(&out),

@@ -66,6 +66,11 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // Environment variables are checked like flags: a bad value is refused, never ignored.
+    if let Err(e) = nerfsv_scene::MemoryBudget::from_env() {
+        eprintln!("error: {e}");
+        return ExitCode::FAILURE;
+    }
     if let Some(gib) = cli.memory_budget_gib {
         if let Err(e) = nerfsv_scene::validate::positive("--memory-budget-gib", gib) {
             eprintln!("error: {e}");

@@ -36,7 +36,7 @@ fn default_run() -> &'static DefaultRun {
     static RUN: OnceLock<DefaultRun> = OnceLock::new();
     RUN.get_or_init(|| {
         let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("default_run");
-        let cfg = RunConfig { out: out.clone(), ..RunConfig::default() };
+        let cfg = RunConfig { out: Some(out.clone()), ..RunConfig::default() };
         let scene = Scene::builtin(&cfg.scene).unwrap();
         let settings = cfg.nerf_settings();
         let mut r = Runner::new(&out, &Silent).unwrap();

@@ -25,7 +25,9 @@ pub fn load_dataset<'py>(
     downscale: u32,
     depth: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let s = py.detach(|| load_split(&path, split, LoadOptions { downscale, load_depth: depth })).map_err(py_err)?;
+    let s = py
+        .detach(|| load_split(&path, split, LoadOptions { downscale, load_depth: depth, ..Default::default() }))
+        .map_err(py_err)?;
     let n = s.frames.len();
     let (w, h) = s.frames.first().map_or((0, 0), |f| (f.image.width as usize, f.image.height as usize));
     if let Some(f) = s.frames.iter().find(|f| (f.image.width as usize, f.image.height as usize) != (w, h)) {

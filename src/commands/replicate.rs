@@ -36,8 +36,8 @@ pub fn run(args: ReplicateArgs) -> anyhow::Result<()> {
         }
         s.push_str(&format!(
             "figures: {}, page: {}",
-            cfg.out.join(nerfsv_pipeline::replicate::CSV).display(),
-            cfg.out.join(nerfsv_pipeline::replicate::PAGE).display()
+            cfg.run_folder().join(nerfsv_pipeline::replicate::CSV).display(),
+            cfg.run_folder().join(nerfsv_pipeline::replicate::PAGE).display()
         ));
         s
     })

@@ -38,7 +38,7 @@ pub fn out_name(flag: bool) -> &'static str {
 pub fn load_config(config: Option<&std::path::Path>, sets: &Sets, out: Option<PathBuf>) -> anyhow::Result<RunConfig> {
     let mut cfg = run_config(config, sets)?;
     if let Some(out) = out {
-        cfg.out = out;
+        cfg.out = Some(out);
     }
     Ok(cfg)
 }
@@ -65,15 +65,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     nerfsv_pipeline::run_guard(&cfg, out_name).check()?;
     if args.check {
         let name = args.config.as_ref().map_or("the default config".into(), |p| p.display().to_string());
-        eprintln!("{name}: ready to run into {} (nothing written)", cfg.out.display());
+        eprintln!("{name}: ready to run into {} (nothing written)", cfg.run_folder().display());
         return Ok(());
     }
     let summary = nerfsv_pipeline::run_in(&cfg, scene.as_ref(), &reporter)?;
-    let index = cfg.out.join(nerfsv_pipeline::report::REPORT).join(nerfsv_pipeline::report::INDEX);
+    let index = cfg.run_folder().join(nerfsv_pipeline::report::REPORT).join(nerfsv_pipeline::report::INDEX);
     crate::commands::report(args.json, &summary, || {
         format!(
             "run folder: {} (figures in {})\nreport: {}",
-            cfg.out.display(),
+            cfg.run_folder().display(),
             nerfsv_pipeline::SUMMARY,
             index.display()
         )

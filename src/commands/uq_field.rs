@@ -89,7 +89,7 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
     }
     let load = |path: &PathBuf| Nerf::load(path).with_context(|| format!("loading the model {}", path.display()));
     let nerf = load(&args.model)?;
-    let split = load_split(&args.data, "train", LoadOptions { downscale: 1, load_depth: false })
+    let split = load_split(&args.data, "train", LoadOptions { downscale: 1, load_depth: false, ..Default::default() })
         .with_context(|| format!("loading the train split of {}", args.data.display()))?;
     let reporter = Reporter::new(args.json);
     let method = match args.method {

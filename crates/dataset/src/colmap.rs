@@ -352,8 +352,20 @@ pub(crate) fn load_colmap(dir: &Path, split: &str, opts: LoadOptions) -> Result<
         return Err(field(&model.images_path, "images", "no registered images"));
     }
     images.sort_by(|a, b| a.name.cmp(&b.name));
-    let selected: Vec<(usize, &ColmapImage)> =
+    let registered = images.len();
+    let mut selected: Vec<(usize, &ColmapImage)> =
         images.into_iter().enumerate().filter(|(i, _)| in_split(split, *i)).collect();
+    if selected.is_empty() {
+        return Err(field(
+            &model.images_path,
+            "images",
+            format!(
+                "the {split} split has no frames: of the model's {registered} registered image(s), every 8th from the \
+                 first is held out as val and test; a capture needs at least 2 images"
+            ),
+        ));
+    }
+    selected.truncate(opts.max_frames.unwrap_or(usize::MAX));
     let held = held_bytes(selected.iter().filter_map(|(_, im)| {
         let c = model.cameras.get(&im.camera_id)?;
         Some((c.width.min(u32::MAX as u64) as u32, c.height.min(u32::MAX as u64) as u32, false))

@@ -62,6 +62,33 @@ pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, D
     }
 }
 
+/// Opens the dataset folder `dir` as a run would, reading one frame: the folder exists, its
+/// format is recognised, its train split is not empty and its first frame decodes. The error
+/// says what is wrong with the folder and what to do, for the caller to prefix with the key or
+/// flag and the path as the user gave it.
+pub fn probe(dir: &Path) -> Result<DatasetFormat, String> {
+    const FORMATS: &str = "transforms_train.json (Blender), transforms.json (instant-ngp, nerfstudio) or a COLMAP \
+                           model (sparse/0/cameras and images, .bin or .txt)";
+    match std::fs::metadata(dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(format!("no such file or folder; give the folder of a capture holding {FORMATS}"));
+        }
+        Err(e) => return Err(format!("cannot be read ({e})")),
+        Ok(m) if !m.is_dir() => {
+            return Err(format!("is a file, not a dataset folder; give the folder holding {FORMATS}"))
+        }
+        Ok(_) => {}
+    }
+    let format = dataset_format(dir)
+        .ok_or_else(|| format!("is not a dataset folder: it holds none of {FORMATS}; give the folder of a capture"))?;
+    let opts = LoadOptions { downscale: 1, load_depth: false, max_frames: Some(1) };
+    let split = load_split(dir, "train", opts).map_err(|e| format!("cannot be read as a dataset: {e}"))?;
+    if split.frames.is_empty() {
+        return Err("its train split has no frames; a capture needs frames to train on".into());
+    }
+    Ok(format)
+}
+
 /// Whether [`load_split`] finds split `split` in `dir`: its own `transforms_{split}.json`, or a
 /// `transforms.json` or a COLMAP model, whose splits the loader derives.
 pub fn has_split(dir: &Path, split: &str) -> bool {

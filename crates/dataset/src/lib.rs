@@ -31,7 +31,7 @@ pub mod writer;
 
 pub use distortion::OpenCvDistortion;
 pub use error::DatasetError;
-pub use folder::{dataset_files, dataset_format, has_split, load_split, DatasetFormat};
+pub use folder::{dataset_files, dataset_format, has_split, load_split, probe, DatasetFormat};
 pub use generate::{generate, sample_cameras, GenerateOptions};
 pub use nerfsv_scene::image::{DepthImage, Image};
 pub use placement::Placement;

@@ -41,11 +41,13 @@ pub struct LoadOptions {
     pub downscale: u32,
     /// Read ground-truth depth images when frames name them.
     pub load_depth: bool,
+    /// Read at most this many of the split's frames (the first ones); all when `None`.
+    pub max_frames: Option<usize>,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        Self { downscale: 1, load_depth: true }
+        Self { downscale: 1, load_depth: true, max_frames: None }
     }
 }
 

@@ -58,7 +58,19 @@ pub(crate) fn load_transforms(
         true => ctx.split_selection(root, frames, split)?,
         false => vec![true; frames.len()],
     };
-    let selected: Vec<(usize, &Value)> = frames.iter().enumerate().filter(|(i, _)| keep[*i]).collect();
+    let mut selected: Vec<(usize, &Value)> = frames.iter().enumerate().filter(|(i, _)| keep[*i]).collect();
+    if single && selected.is_empty() {
+        return Err(ctx.field(
+            None,
+            "frames",
+            format!(
+                "the {split} split has no frames: of the file's {} frame(s), every 8th from the first is held out as val \
+                 and test; a capture needs at least 2 frames",
+                frames.len()
+            ),
+        ));
+    }
+    selected.truncate(opts.max_frames.unwrap_or(usize::MAX));
     ctx.check_held_bytes(&selected, opts)?;
     let frames = selected.par_iter().map(|&(i, v)| ctx.frame(i, v, root, &top, depth_scale, opts)).collect::<Vec<_>>();
     // Report the first failure in frame order, whichever thread met it first.

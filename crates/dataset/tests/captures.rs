@@ -369,8 +369,12 @@ fn a_placed_y_up_colmap_world_stands_z_up_at_scale() {
 #[test]
 fn downscaling_a_colmap_split_halves_its_intrinsics() {
     let full = load(&fixtures().join("colmap_text"), "val");
-    let half =
-        load_split(&fixtures().join("colmap_text"), "val", LoadOptions { downscale: 2, load_depth: true }).unwrap();
+    let half = load_split(
+        &fixtures().join("colmap_text"),
+        "val",
+        LoadOptions { downscale: 2, load_depth: true, ..Default::default() },
+    )
+    .unwrap();
     let (a, b) = (full.frames[0].camera.intrinsics, half.frames[0].camera.intrinsics);
     assert_eq!((b.width, b.height, b.fx, b.cx), (8, 6, a.fx / 2.0, a.cx / 2.0));
     assert_eq!((half.frames[0].image.width, half.frames[0].image.height), (8, 6));

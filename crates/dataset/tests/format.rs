@@ -149,7 +149,8 @@ fn reads_nerfstudio_style_transforms_with_per_frame_intrinsics() {
     let k1 = train.frames[0].camera.intrinsics;
     assert_eq!((k1.fx, k1.fy, k1.cx), (40.0, 31.0, 15.0));
     // Downscaling halves the intrinsics and the image.
-    let half = load_split(dir.path(), "test", LoadOptions { downscale: 2, load_depth: true }).unwrap();
+    let half =
+        load_split(dir.path(), "test", LoadOptions { downscale: 2, load_depth: true, ..Default::default() }).unwrap();
     let k = half.frames[0].camera.intrinsics;
     assert_eq!((k.width, k.height, k.fx, k.cx), (16, 12, 15.0, 8.25));
     assert_eq!(half.frames[0].image.rgba.len(), 16 * 12 * 4);
@@ -317,7 +318,8 @@ fn generate_options_whose_images_cannot_fit_in_memory_are_refused_naming_the_key
 #[test]
 fn a_zero_downscale_is_a_typed_error_naming_downscale() {
     let dir = tempfile::tempdir().unwrap();
-    let err = load_split(dir.path(), "train", LoadOptions { downscale: 0, load_depth: true }).unwrap_err();
+    let err = load_split(dir.path(), "train", LoadOptions { downscale: 0, load_depth: true, ..Default::default() })
+        .unwrap_err();
     assert_eq!(err.to_string(), "downscale: must be at least 1, found 0");
 }
 

@@ -558,7 +558,11 @@ fn check_load(dir: &Path, split: &str, opts: LoadOptions) -> Result<(), TestCase
 fn load_options() -> impl Strategy<Value = LoadOptions> {
     let downscale =
         prop_oneof![24 => Just(1u32), 4 => 2..=3u32, 1 => Just(0u32), 1 => Just(u32::MAX), 1 => Just(65_536u32)];
-    (downscale, any::<bool>()).prop_map(|(downscale, load_depth)| LoadOptions { downscale, load_depth })
+    (downscale, any::<bool>()).prop_map(|(downscale, load_depth)| LoadOptions {
+        downscale,
+        load_depth,
+        ..Default::default()
+    })
 }
 
 #[test]

@@ -81,6 +81,11 @@ impl Validate for NerfSettings {
     }
 }
 
+/// `path` resolved (a dataset given as `.` or `..` is named by the folder it is).
+fn folder_resolve(path: &Path) -> PathBuf {
+    nerfsv_scene::folder::resolve(path)
+}
+
 /// Everything `nerfsv run` does, with its defaults.
 #[derive(
     nerfsv_derive::FieldDocs,
@@ -96,9 +101,10 @@ pub struct RunConfig {
     /// Built-in scene: stonehenge, monolith or pillars (a `[world]` mesh replaces it).
     #[docs(default = "stonehenge".into())]
     pub scene: String,
-    /// Run folder; every artifact goes below it.
-    #[docs(default = PathBuf::from("runs/stonehenge"))]
-    pub out: PathBuf,
+    /// Run folder; every artifact goes below it. Unset, it follows the world: `runs/<scene>` for
+    /// a built-in scene, `runs/<file stem>` of the `[world]` mesh, else of the dataset folder, so
+    /// two worlds never share a run folder by default.
+    pub out: Option<PathBuf>,
     /// Dataset rendering (views, size, field of view, seed).
     #[docs(table)]
     // A third of the views at drone altitude, so the NeRF knows what the drone's camera sees
@@ -395,6 +401,23 @@ impl RunConfig {
         Ok(cfg)
     }
 
+    /// The run folder: `out`, or the world's own folder under `runs/` (see the key's docs).
+    pub fn run_folder(&self) -> PathBuf {
+        if let Some(out) = &self.out {
+            return out.clone();
+        }
+        let stem = |p: &Path| {
+            let named = if p.file_name().is_some() { p.to_path_buf() } else { folder_resolve(p) };
+            named.file_stem().map(|s| s.to_string_lossy().into_owned()).filter(|s| !s.is_empty())
+        };
+        let name = match (&self.world.mesh, &self.world.dataset) {
+            (Some(mesh), _) => stem(mesh),
+            (None, Some(dataset)) => stem(dataset),
+            (None, None) => Some(self.scene.clone()),
+        };
+        Path::new("runs").join(name.unwrap_or_else(|| "world".into()))
+    }
+
     /// The ground truth: the `[world]` table's mesh (with what its reader noticed), else the
     /// built-in `scene`; none for a `[world]` dataset without a mesh (a world known only by its
     /// images).
@@ -517,6 +540,7 @@ impl RunConfig {
     /// of its own, seen by that dataset's cameras.
     pub fn preflight(&self, scene: Option<&nerfsv_scene::Scene>) -> Result<(), PipelineError> {
         self.validate()?;
+        self.check_dataset()?;
         // The world first: a mesh of the wrong scale or axis explains what the checks of the
         // flight's ends would find wrong.
         if let Some(scene) = scene {
@@ -592,12 +616,22 @@ impl RunConfig {
         Ok(())
     }
 
+    /// The `[world]` dataset opened as the run will read it, one frame of it
+    /// ([`nerfsv_dataset::probe`]), with or without a mesh.
+    fn check_dataset(&self) -> Result<(), PipelineError> {
+        let Some(folder) = &self.world.dataset else { return Ok(()) };
+        nerfsv_dataset::probe(folder).map(drop).map_err(|message| PipelineError::World {
+            key: "world.dataset",
+            message: format!("{}: {message}", folder.display()),
+        })
+    }
+
     /// A user's dataset must show the user's mesh: the principal ray of at least half of its
     /// training views crosses the mesh's box (grown by a tenth of its size).
     fn check_cameras_see(&self, scene: &nerfsv_scene::Scene) -> Result<(), PipelineError> {
         let (Some(folder), Some(mesh)) = (&self.world.dataset, scene.mesh()) else { return Ok(()) };
         let bounds = mesh.bounds();
-        let options = nerfsv_dataset::LoadOptions { downscale: 1, load_depth: false };
+        let options = nerfsv_dataset::LoadOptions { downscale: 1, load_depth: false, ..Default::default() };
         let mut split = nerfsv_dataset::load_split(folder, "train", options).map_err(|error| {
             PipelineError::Dataset { context: format!("loading the train split of {}", folder.display()), error }
         })?;

@@ -99,10 +99,10 @@ pub fn replicate_seed(base: u64, i: usize) -> u64 {
 /// What a replication reads (the config's world) and writes (its folder, named `out` in
 /// messages: the key, or the flag that set it).
 pub fn replicate_guard(cfg: &RunConfig, out: &str) -> crate::Guard {
-    crate::run::world_inputs(cfg, crate::Guard::new().folder(out, &cfg.out, crate::OutputKind::Replication))
+    crate::run::world_inputs(cfg, crate::Guard::new().folder(out, &cfg.run_folder(), crate::OutputKind::Replication))
 }
 
-/// Runs `cfg` with `seeds` training seeds into `seed_S/` folders below `cfg.out` (sharing the
+/// Runs `cfg` with `seeds` training seeds into `seed_S/` folders below its run folder (sharing the
 /// first's dataset and ground truth), then writes the figures side by side.
 pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Result<Replication, PipelineError> {
     nerfsv_scene::validate::in_range("--seeds", seeds, 1, 1000)?;
@@ -114,31 +114,33 @@ pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Resu
     // The replication's folder is nerfsv's (absent, empty or an earlier replication) before any
     // seed's run folder is made in it.
     replicate_guard(cfg, "out").claim()?.keep();
+    let root = cfg.run_folder();
     let mut rows = Vec::with_capacity(seeds);
     let mut first: Option<PathBuf> = None;
     for i in 0..seeds {
         let seed = replicate_seed(cfg.train.seed, i);
         let mut run = cfg.clone();
         run.train.seed = seed;
-        run.out = seed_folder(&cfg.out, seed);
-        observer.note("replicate", &format!("training seed {seed} ({} of {seeds}) into {}", i + 1, run.out.display()));
-        nerfsv_scene::folder::claim_folder("out", &run.out, nerfsv_scene::folder::OutputKind::Run)?;
+        let folder = seed_folder(&root, seed);
+        run.out = Some(folder.clone());
+        observer.note("replicate", &format!("training seed {seed} ({} of {seeds}) into {}", i + 1, folder.display()));
+        nerfsv_scene::folder::claim_folder("out", &folder, nerfsv_scene::folder::OutputKind::Run)?;
         if let Some(first) = &first {
             for stage in SHARED_STAGES {
-                share_stage(&first.join(stage), &run.out.join(stage))?;
+                share_stage(&first.join(stage), &folder.join(stage))?;
             }
         }
         let summary = crate::run_in(&run, scene.as_ref(), observer)?;
         let value = serde_json::to_value(&summary).map_err(|e| PipelineError::Internal(e.to_string()))?;
         rows.push(SeedRow {
             train_seed: seed,
-            folder: run.out.clone(),
+            folder: folder.clone(),
             values: HEADLINES.iter().map(|(_, read)| read(&value)).collect(),
         });
-        first.get_or_insert(run.out);
+        first.get_or_insert(folder);
     }
     let replication = Replication { headlines: spreads(&rows), seeds: rows };
-    write(&cfg.out, &replication)?;
+    write(&root, &replication)?;
     Ok(replication)
 }
 

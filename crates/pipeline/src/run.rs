@@ -29,7 +29,7 @@ impl Serialize for StageFigures {
     }
 }
 
-/// Runs the whole pipeline of `cfg` into `cfg.out` and writes `summary.json`.
+/// Runs the whole pipeline of `cfg` into its run folder and writes `summary.json`.
 pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, PipelineError> {
     cfg.validate()?;
     let (scene, warnings) = cfg.ground_truth()?;
@@ -43,7 +43,7 @@ pub fn run(cfg: &RunConfig, observer: &dyn Observer) -> Result<Summary, Pipeline
 /// `out` in messages: the key, or the flag that set it), for the guard against writing over an
 /// input or a user's files.
 pub fn run_guard(cfg: &RunConfig, out: &str) -> Guard {
-    world_inputs(cfg, Guard::new().folder(out, &cfg.out, crate::OutputKind::Run))
+    world_inputs(cfg, Guard::new().folder(out, &cfg.run_folder(), crate::OutputKind::Run))
 }
 
 /// `guard` with what the config's world reads: the `[world]` table's dataset and mesh.
@@ -72,7 +72,7 @@ pub fn run_in(
     cfg.preflight(scene)?;
     run_guard(cfg, "out").check()?;
     let settings = cfg.nerf_settings();
-    let mut r = Runner::new(&cfg.out, observer)?;
+    let mut r = Runner::new(cfg.run_folder(), observer)?;
     let source = match (&cfg.world.dataset, scene) {
         (Some(folder), _) => stages::DatasetSource::Folder { folder, placement: cfg.world.placement() },
         (None, Some(scene)) => stages::DatasetSource::Render { scene, options: &cfg.dataset },

@@ -28,9 +28,10 @@ pub fn load_dataset_split(dir: &Path, split: &str, downscale: u32) -> Result<Spl
         }
         false => (dir.to_path_buf(), Placement::default()),
     };
-    let mut s = load_split(&folder, split, LoadOptions { downscale, load_depth: true }).map_err(|e| {
-        PipelineError::Dataset { context: format!("loading the {split} split of {}", folder.display()), error: e }
-    })?;
+    let mut s =
+        load_split(&folder, split, LoadOptions { downscale, load_depth: true, ..Default::default() }).map_err(|e| {
+            PipelineError::Dataset { context: format!("loading the {split} split of {}", folder.display()), error: e }
+        })?;
     placement.place(&mut s);
     Ok(s)
 }

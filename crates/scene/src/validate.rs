@@ -124,13 +124,34 @@ impl MemoryBudget {
         if set > 0 {
             return Self { bytes: set };
         }
-        if let Some(gib) = std::env::var("NERFSV_MEMORY_BUDGET_GIB").ok().and_then(|v| v.trim().parse::<f64>().ok()) {
-            if gib.is_finite() && gib > 0.0 {
-                return Self { bytes: (gib * (1u64 << 30) as f64) as u64 };
-            }
+        if let Ok(Some(bytes)) = Self::from_env() {
+            return Self { bytes };
         }
         Self { bytes: (physical_memory().unwrap_or(Self::FALLBACK_TOTAL) as f64 * Self::DEFAULT_FRACTION) as u64 }
     }
+
+    /// The budget `NERFSV_MEMORY_BUDGET_GIB` sets, in bytes (`None` when it is unset), refused
+    /// like the flag when it is not a positive number of GiB. The binary checks it at start, so a
+    /// bad value is never silently ignored.
+    pub fn from_env() -> Result<Option<u64>, InvalidValue> {
+        let Some(raw) = std::env::var_os(Self::ENV) else { return Ok(None) };
+        let text = raw.to_string_lossy();
+        let refuse = || {
+            InvalidValue::new(
+                format!("the environment variable {}", Self::ENV),
+                "must be a positive number of GiB (e.g. 8), or unset",
+                format!("{text:?}"),
+            )
+        };
+        let gib: f64 = text.trim().parse().map_err(|_| refuse())?;
+        if !(gib.is_finite() && gib > 0.0) {
+            return Err(refuse());
+        }
+        Ok(Some((gib * (1u64 << 30) as f64) as u64))
+    }
+
+    /// The environment variable that sets the budget in GiB.
+    pub const ENV: &'static str = "NERFSV_MEMORY_BUDGET_GIB";
 
     /// Sets the process-wide budget (bytes, > 0).
     pub fn set(bytes: u64) {

@@ -30,8 +30,12 @@ fn main() {
     let run = args.next().map_or_else(|| PathBuf::from("runs/stonehenge"), PathBuf::from);
     let samples: usize = args.next().and_then(|s| s.parse().ok()).unwrap_or(2000);
     let nerf = Nerf::load(&run.join("nerf/checkpoint.safetensors")).expect("checkpoint");
-    let split = load_split(&run.join("dataset"), "train", LoadOptions { downscale: 1, load_depth: false })
-        .expect("train split");
+    let split = load_split(
+        &run.join("dataset"),
+        "train",
+        LoadOptions { downscale: 1, load_depth: false, ..Default::default() },
+    )
+    .expect("train split");
     let refs: Vec<Vec<[f32; 3]>> = split
         .frames
         .iter()

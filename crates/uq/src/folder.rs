@@ -89,9 +89,16 @@ pub fn offline_folder(
     let cfg = study.config(cfg);
     let mut rows = Vec::new();
     for &name in splits {
-        let split = load_split(folder, name, LoadOptions { downscale: study.downscale, load_depth: false }).map_err(
-            |error| UqError::Dataset { folder: folder.into(), split: name.to_owned(), error: Box::new(error) },
-        )?;
+        let split = load_split(
+            folder,
+            name,
+            LoadOptions { downscale: study.downscale, load_depth: false, ..Default::default() },
+        )
+        .map_err(|error| UqError::Dataset {
+            folder: folder.into(),
+            split: name.to_owned(),
+            error: Box::new(error),
+        })?;
         let total = study.max_images.map_or(split.frames.len(), |n| n.min(split.frames.len()));
         let indices: Vec<usize> = (0..total).collect();
         let images = SplitImages { split: &split, name, indices: &indices };

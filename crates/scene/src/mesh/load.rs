@@ -66,10 +66,30 @@ pub fn load_mesh(path: &Path, options: MeshOptions) -> Result<LoadedMesh, LoadEr
         return Err(read_error(path, format!("scale must be a positive number, found {}", options.scale)));
     }
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
+    // One wording for a file that is not there or not a file, whichever reader would open it.
+    match std::fs::metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(read_error(path, "no such file or folder; give the path of an OBJ, PLY, glTF or GLB file"));
+        }
+        Err(e) => return Err(read_error(path, format!("cannot be read ({e})"))),
+        Ok(m) if m.is_dir() => {
+            return Err(read_error(
+                path,
+                "is a folder, not a mesh file; give the path of an OBJ, PLY, glTF or GLB file",
+            ));
+        }
+        Ok(_) => {}
+    }
+    let not_a = |format: &str, e: &dyn std::fmt::Display| {
+        read_error(path, format!("is not a readable {format} file ({e}); export the mesh again or check its extension"))
+    };
     let mut loaded = match ext.as_str() {
         "obj" => load_obj(path)?,
         "ply" => load_ply(path)?,
-        "gltf" | "glb" => load_gltf(path)?,
+        "gltf" | "glb" => load_gltf(path).map_err(|e| match e {
+            LoadError::Read { message, .. } => not_a("glTF 2.0", &message),
+            e => e,
+        })?,
         _ => return Err(read_error(path, "unknown mesh format: expected .obj, .ply, .gltf or .glb")),
     };
     for p in &mut loaded.mesh.positions {

@@ -69,6 +69,6 @@ fn the_guard_keeps_outputs_out_of_a_colmap_folders_images() {
     }
     let out = data.join("images/img_03.jpg");
     let (ok, _, err) = nerfsv(&["train", "--data", s(&data), "--out", s(&out), "--steps", "2"]);
-    assert!(!ok && err.contains("--data") && err.contains("refusing to write over"), "{err}");
+    assert!(!ok && err.contains("--data") && err.contains("nerfsv never writes over what it reads"), "{err}");
     assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(capture("colmap_bin/images/img_03.jpg")).unwrap());
 }

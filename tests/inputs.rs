@@ -67,7 +67,7 @@ fn a_run_refuses_a_dataset_inside_its_run_folder_and_deletes_nothing() {
     let cfg = config(dir.path(), "[world]\ndataset = \"R/dataset\"\n");
     let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&run)]);
     assert!(!ok);
-    assert!(err.contains("world.dataset") && err.contains("refusing to write over"), "{err}");
+    assert!(err.contains("world.dataset") && err.contains("nerfsv never writes over what it reads"), "{err}");
     assert_eq!(snapshot(&run), before, "the dataset is untouched");
 }
 

@@ -149,7 +149,7 @@ fn nonsense_options_are_refused_and_no_command_writes_over_its_inputs() {
     let (ok, _, err) =
         nerfsv(&["render", "--model", s(&model), "--data", s(&ds), "--split", "test", "--out", s(&ds.join("test"))]);
     assert!(!ok);
-    assert!(err.contains("refusing to write over an input") && err.contains("--data"), "{err}");
+    assert!(err.contains("nerfsv never writes over what it reads") && err.contains("--data"), "{err}");
     assert_eq!(std::fs::read(ds.join("test/r_0.png")).unwrap(), before);
 
     let out = dir.path().join("other");

@@ -13,7 +13,9 @@ pub struct RunArgs {
     pub config: Option<PathBuf>,
     #[command(flatten)]
     pub sets: Sets,
-    /// Override the run folder.
+    /// The run folder (default: the config's `out`, else `runs/<scene>` or `runs/<mesh or
+    /// dataset name>`). It must be new, empty or a run folder nerfsv made (its
+    /// `nerfsv-folder.json`); anything else is refused before any work.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Print one JSON object with the figures instead of progress.

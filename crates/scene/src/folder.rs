@@ -64,14 +64,17 @@ impl OutputKind {
     }
 
     /// Whether `dir`, which has no marker, is this kind's folder as an earlier nerfsv (before
-    /// markers) wrote it: every entry is one the kind's command writes (hidden temporaries of a
-    /// killed writer aside), and there is at least one. A run folder's entries are
-    /// `summary.json` and stage folders that hold their record (`stage.json`) or the mark of a
-    /// resumable stage (`started.json`); a folder a killed stage left without either is not
-    /// recognised, and is refused like a user's.
+    /// markers) wrote it, told by records only nerfsv writes: a run folder holds `summary.json`
+    /// and stage folders, each with its record (`stage.json` with a key and figures) or a
+    /// resumable stage's mark (`started.json` with a key); a replication holds such run folders
+    /// (`seed_S/`) and its figures; a dataset holds the `scene.json` nerfsv writes; a training
+    /// holds a checkpoint whose header says nerfsv wrote it. Every entry must be such (hidden
+    /// temporaries of a killed writer aside). The other kinds' folders (renders, flights, stress
+    /// tests, uncertainty studies) carry nothing that tells them from a user's files: without a
+    /// marker they are refused, and the command writes into a new folder.
     pub fn legacy(self, dir: &Path) -> bool {
         let Ok(entries) = std::fs::read_dir(dir) else { return false };
-        let mut any = false;
+        let (mut any, mut seeds) = (false, false);
         for entry in entries.flatten() {
             let name = entry.file_name().to_string_lossy().into_owned();
             if name.starts_with('.') && name.contains(".tmp-") {
@@ -82,50 +85,34 @@ impl OutputKind {
             if !self.writes(&name, &path) {
                 return false;
             }
+            seeds |= path.is_dir() && name.starts_with("seed_");
         }
-        any
+        any && (self != Self::Replication || seeds)
     }
 
-    /// Whether `name` (at `path`, inside a folder of this kind) is one of the entries the
-    /// kind's command writes.
+    /// Whether `name` (at `path`, inside a folder of this kind without a marker) is an entry
+    /// only nerfsv writes there.
     fn writes(self, name: &str, path: &Path) -> bool {
         let file = path.is_file();
-        let numbered = |prefix: &str, suffix: &str| {
-            name.strip_prefix(prefix)
-                .and_then(|r| r.strip_suffix(suffix))
-                .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+        let json =
+            |p: &Path| std::fs::read_to_string(p).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
+        let record = |dir: &Path| {
+            json(&dir.join("stage.json")).is_some_and(|v| v.get("key").is_some() && v.get("figures").is_some())
+                || json(&dir.join("started.json")).is_some_and(|v| v.get("key").is_some())
         };
         match self {
-            Self::Run => {
-                (file && name == "summary.json")
-                    || (path.is_dir() && (path.join("stage.json").is_file() || path.join("started.json").is_file()))
-            }
+            Self::Run => (file && name == "summary.json") || (path.is_dir() && record(path)),
             Self::Replication => {
                 (file && matches!(name, "replicate.csv" | "replicate.json" | "index.html"))
                     || (path.is_dir() && name.starts_with("seed_") && Self::Run.legacy(path))
             }
             Self::Dataset => {
                 // Only nerfsv's own renders: a user's capture has no scene.json written by nerfsv.
-                let ours = std::fs::read_to_string(path.with_file_name("scene.json"))
-                    .ok()
-                    .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-                    .is_some_and(|v| v["generator"] == "nerfsv");
+                let ours = json(&path.with_file_name("scene.json")).is_some_and(|v| v["generator"] == "nerfsv");
                 ours && (file || matches!(name, "train" | "val" | "test"))
             }
-            Self::Training => file && name == "checkpoint.safetensors",
-            Self::Renders => file && (numbered("r_", ".png") || numbered("r_", "_depth.png")),
-            Self::Flight => {
-                file && matches!(name, "trajectory.csv" | "trajectory.png" | "disturbances.csv" | "flight.json")
-            }
-            Self::Stress => {
-                (path.is_dir() && (name == "journal" || name.starts_with("journal_")) && path.join("key").is_file())
-                    || (file
-                        && (name.ends_with(".csv")
-                            || name.ends_with(".png")
-                            || name.ends_with(".svg")
-                            || name.ends_with(".json")))
-            }
-            Self::Uncertainty => file && name.starts_with("uq_"),
+            Self::Training => file && name == "checkpoint.safetensors" && written_by_nerfsv(path),
+            Self::Renders | Self::Flight | Self::Stress | Self::Uncertainty => false,
         }
     }
 }
@@ -432,39 +419,49 @@ mod tests {
     }
 
     #[test]
-    fn earlier_versions_folders_are_recognised_by_their_files_and_only_then() {
+    fn earlier_versions_folders_are_recognised_by_their_records_and_only_then() {
         let root = tree(&[
             "run/summary.json",
-            "run/nerf/stage.json",
             "run/nerf/checkpoint.safetensors",
-            "run/dataset/started.json",
-            "killed/nerf/stage.json",
+            "killed/nerf/x",
             "killed/flight/trajectory.csv",
+            "fake/nerf/stage.json",
             "renders/r_0.png",
-            "renders/r_0_depth.png",
-            "renders2/r_0.png",
-            "renders2/notes.txt",
-            "data/scene.json",
             "data/transforms_train.json",
             "capture/transforms_train.json",
+            "capture/scene.json",
             "fly/trajectory.csv",
-            "fly/flight.json",
-            "uq/uq_ga.csv",
             "train/checkpoint.safetensors",
+            "rep/replicate.csv",
         ]);
-        std::fs::write(root.path().join("data/scene.json"), br#"{"generator": "nerfsv"}"#).unwrap();
         let p = |n: &str| root.path().join(n);
+        std::fs::write(p("run/nerf/stage.json"), br#"{"key": "k", "seconds": 1.0, "figures": {}}"#).unwrap();
+        std::fs::create_dir_all(p("run/dataset")).unwrap();
+        std::fs::write(p("run/dataset/started.json"), br#"{"key": "k"}"#).unwrap();
+        std::fs::write(p("killed/nerf/stage.json"), br#"{"key": "k", "seconds": 1.0, "figures": {}}"#).unwrap();
+        std::fs::write(p("data/scene.json"), br#"{"generator": "nerfsv"}"#).unwrap();
         assert_eq!(check_folder("--out", &p("run"), OutputKind::Run).unwrap(), Found::Legacy);
+        // A stage folder without its record (a killed stage) or with a record that is not one.
         assert!(check_folder("--out", &p("killed"), OutputKind::Run).is_err());
-        assert_eq!(check_folder("--out", &p("renders"), OutputKind::Renders).unwrap(), Found::Legacy);
-        assert!(check_folder("--out", &p("renders2"), OutputKind::Renders).is_err());
+        assert!(check_folder("--out", &p("fake"), OutputKind::Run).is_err());
+        // What carries no record of nerfsv is a user's, whatever its names.
+        assert!(check_folder("--out", &p("renders"), OutputKind::Renders).is_err());
+        assert!(check_folder("--out", &p("fly"), OutputKind::Flight).is_err());
         assert_eq!(check_folder("--out", &p("data"), OutputKind::Dataset).unwrap(), Found::Legacy);
         let e = check_folder("--out", &p("capture"), OutputKind::Dataset).unwrap_err().to_string();
-        assert!(e.contains("transforms_train.json"), "{e}");
-        assert_eq!(check_folder("--out", &p("fly"), OutputKind::Flight).unwrap(), Found::Legacy);
-        assert_eq!(check_folder("--out", &p("uq"), OutputKind::Uncertainty).unwrap(), Found::Legacy);
+        assert!(e.contains("scene.json, transforms_train.json"), "{e}");
+        // A checkpoint whose header is not nerfsv's.
+        assert!(check_folder("--out", &p("train"), OutputKind::Training).is_err());
+        let mut meta = std::collections::BTreeMap::new();
+        meta.insert("format".to_string(), "nerfsv-checkpoint".to_string());
+        std::fs::write(p("train/checkpoint.safetensors"), crate::io::safetensors_bytes(&[], &meta)).unwrap();
         assert_eq!(check_folder("--out", &p("train"), OutputKind::Training).unwrap(), Found::Legacy);
         assert!(check_folder("--out", &p("train"), OutputKind::Run).is_err());
+        // A replication needs its seeds' run folders, not only a file of its name.
+        assert!(check_folder("--out", &p("rep"), OutputKind::Replication).is_err());
+        std::fs::create_dir_all(p("rep/seed_0")).unwrap();
+        std::fs::copy(p("run/summary.json"), p("rep/seed_0/summary.json")).unwrap();
+        assert_eq!(check_folder("--out", &p("rep"), OutputKind::Replication).unwrap(), Found::Legacy);
     }
 
     #[test]

@@ -64,7 +64,10 @@ fn a_users_folder_sharing_stage_names_is_refused_untouched_and_a_folder_nerfsv_m
         let (ok, _, err) = nerfsv(&args);
         assert!(!ok, "{err}");
         assert!(
-            err.contains(&format!("--out {}: the folder already holds files nerfsv did not write (dataset/, nerf/", s(&foreign))),
+            err.contains(&format!(
+                "--out {}: the folder already holds files nerfsv did not write (dataset/, nerf/",
+                s(&foreign)
+            )),
             "{err}"
         );
         assert!(err.contains("give the name of a new folder"), "{err}");
@@ -74,8 +77,23 @@ fn a_users_folder_sharing_stage_names_is_refused_untouched_and_a_folder_nerfsv_m
     let ds = dir.path().join("ds");
     let scene = |out: &Path| {
         nerfsv(&[
-            "scene", "--scene", "monolith", "--out", s(out), "--width", "4", "--height", "4", "--train", "1", "--val",
-            "1", "--test", "1", "--supersample", "1",
+            "scene",
+            "--scene",
+            "monolith",
+            "--out",
+            s(out),
+            "--width",
+            "4",
+            "--height",
+            "4",
+            "--train",
+            "1",
+            "--val",
+            "1",
+            "--test",
+            "1",
+            "--supersample",
+            "1",
         ])
     };
     for _ in 0..2 {
@@ -149,10 +167,18 @@ fn environment_variables_are_checked_like_flags() {
 fn the_check_opens_a_dataset_world_without_a_mesh() {
     let dir = tempfile::tempdir().unwrap();
     let p = |n: &str| dir.path().join(n);
-    let check = |dataset: &Path| nerfsv(&["run", "--check", "--out", s(&p("out")), "--set", &format!("world.dataset={}", s(dataset))]);
+    let check = |dataset: &Path| {
+        nerfsv(&["run", "--check", "--out", s(&p("out")), "--set", &format!("world.dataset={}", s(dataset))])
+    };
     let (ok, _, err) = check(&p("nowhere"));
     assert!(!ok, "{err}");
-    assert!(err.contains(&format!("world.dataset: {}: no such file or folder; give the folder of a capture", s(&p("nowhere")))), "{err}");
+    assert!(
+        err.contains(&format!(
+            "world.dataset: {}: no such file or folder; give the folder of a capture",
+            s(&p("nowhere"))
+        )),
+        "{err}"
+    );
     std::fs::create_dir(p("empty")).unwrap();
     let (ok, _, err) = check(&p("empty"));
     assert!(!ok && err.contains("is not a dataset folder") && err.contains("transforms_train.json"), "{err}");
@@ -164,7 +190,10 @@ fn the_check_opens_a_dataset_world_without_a_mesh() {
     );
     let (ok, _, err) = check(&p("text"));
     assert!(!ok, "{err}");
-    assert!(err.contains("world.dataset") && err.contains("cannot be read as a dataset") && err.contains("a.jpg"), "{err}");
+    assert!(
+        err.contains("world.dataset") && err.contains("cannot be read as a dataset") && err.contains("a.jpg"),
+        "{err}"
+    );
     // A one-image COLMAP capture: its single image is held out, and the message says so.
     let col = p("colmap");
     write(&col.join("sparse/0/cameras.txt"), b"1 PINHOLE 4 4 4 4 2 2\n");
@@ -178,7 +207,10 @@ fn the_check_opens_a_dataset_world_without_a_mesh() {
     write(&col.join("images/a.png"), &png);
     let (ok, _, err) = check(&col);
     assert!(!ok, "{err}");
-    assert!(err.contains("the train split has no frames") && err.contains("held out") && err.contains("1 registered image"), "{err}");
+    assert!(
+        err.contains("the train split has no frames") && err.contains("held out") && err.contains("1 registered image"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -221,12 +253,14 @@ fn path_guard_and_mesh_messages_read_as_sentences() {
     );
     // One wording for a missing mesh of any format, naming the key.
     for name in ["missing.obj", "missing.glb", "missing.ply"] {
-        let (ok, _, err) = nerfsv(&["run", "--check", "--out", s(&p("o")), "--set", &format!("world.mesh={}", s(&p(name)))]);
+        let (ok, _, err) =
+            nerfsv(&["run", "--check", "--out", s(&p("o")), "--set", &format!("world.mesh={}", s(&p(name)))]);
         assert!(!ok, "{err}");
         assert!(err.contains(&format!("world.mesh: {}: no such file or folder", s(&p(name)))), "{err}");
     }
     write(&p("text.glb"), b"hello");
-    let (ok, _, err) = nerfsv(&["run", "--check", "--out", s(&p("o")), "--set", &format!("world.mesh={}", s(&p("text.glb")))]);
+    let (ok, _, err) =
+        nerfsv(&["run", "--check", "--out", s(&p("o")), "--set", &format!("world.mesh={}", s(&p("text.glb")))]);
     assert!(!ok && err.contains("is not a readable glTF 2.0 file") && err.contains("export the mesh again"), "{err}");
 }
 
@@ -327,10 +361,14 @@ fn attempt(root: &Path, inputs: &Path, cmd: Cmd, out: Out, kill_ms: u64) {
         Cmd::Run => vec!["run".into(), s(&cfg).into(), "--out".into()],
         Cmd::RunCheck => vec!["run".into(), s(&cfg).into(), "--check".into(), "--out".into()],
         Cmd::Collision => "collision --scene monolith --cells-per-metre 5 --out".split(' ').map(String::from).collect(),
-        Cmd::Train => vec!["train".into(), "--data".into(), s(&ds).into(), "--steps".into(), "2".into(), "--out".into()],
+        Cmd::Train => {
+            vec!["train".into(), "--data".into(), s(&ds).into(), "--steps".into(), "2".into(), "--out".into()]
+        }
     };
     let out_path = match cmd {
-        Cmd::Collision if matches!(out, Out::New | Out::NestedNew | Out::LinkedNew) => format!("{}.safetensors", out.path()),
+        Cmd::Collision if matches!(out, Out::New | Out::NestedNew | Out::LinkedNew) => {
+            format!("{}.safetensors", out.path())
+        }
         _ => out.path().to_string(),
     };
     let mut child = Command::new(env!("CARGO_BIN_EXE_nerfsv"))

@@ -22,7 +22,13 @@ pub enum DatasetError {
     /// The output folder of [`crate::generate()`] is not nerfsv's to replace (a user's files,
     /// another kind of nerfsv folder, a file, …).
     #[error(transparent)]
-    Folder(#[from] nerfsv_scene::folder::FolderError),
+    Folder(Box<nerfsv_scene::folder::FolderError>),
+}
+
+impl From<nerfsv_scene::folder::FolderError> for DatasetError {
+    fn from(error: nerfsv_scene::folder::FolderError) -> Self {
+        Self::Folder(Box::new(error))
+    }
 }
 
 impl DatasetError {

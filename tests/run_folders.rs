@@ -251,6 +251,17 @@ fn path_guard_and_mesh_messages_read_as_sentences() {
             && err.contains("choose another path for --out, outside --gt-mesh"),
         "{err}"
     );
+    // A run folder inside the capture it reads: the key, the path, where it lies, the fix.
+    let cap = common::tiny_dataset(&p("sub"), "2", "1");
+    let run = cap.join("run");
+    let (ok, _, err) = nerfsv(&["run", "--check", "--out", s(&run), "--set", &format!("world.dataset={}", s(&cap))]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains(&format!("--out {}: lies inside world.dataset {}, which nerfsv reads", s(&run), s(&cap)))
+            && err.contains("choose another path for --out, outside world.dataset"),
+        "{err}"
+    );
+    assert!(!run.exists(), "the check wrote nothing");
     // One wording for a missing mesh of any format, naming the key.
     for name in ["missing.obj", "missing.glb", "missing.ply"] {
         let (ok, _, err) =

@@ -8,7 +8,9 @@ use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{Flight, WorldKind};
 use nerfsv_study::flight::{FlightInputs, Mission};
-use nerfsv_study::stress::{journal_dir, measure_recorded, stress, Flown, OnlineSettings, Sampler, StressSetup};
+use nerfsv_study::stress::{
+    journal_dir, measure_recorded, replay_csv, replay_journal_dir, stress, Flown, OnlineSettings, Sampler, StressSetup,
+};
 use nerfsv_study::UqMode;
 use nerfsv_uq::Method;
 use nerfsv_validation::{parse_csv, write_csv, Label};
@@ -75,10 +77,11 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
 }
 
 /// The online stage's rewarded CEM takes its first population from the stress stage's CEM (the
-/// same seeds, drawn from the prior): with those rollouts given as flown before, it writes the
-/// same records bit for bit and does not fly them again (its journal lacks them).
+/// same seeds, drawn from the prior), and their GT-sim replays from the stress stage's replays:
+/// with those given as flown before, it writes the same records and replays bit for bit and
+/// flies neither again (its journals lack them).
 #[test]
-fn a_rewarded_cem_takes_its_first_population_from_rollouts_flown_before() {
+fn a_rewarded_cem_takes_its_first_population_and_its_replays_from_rollouts_flown_before() {
     let dir = tempfile::tempdir().unwrap();
     let (model, field) = common::tiny_model_and_field(dir.path());
     let inputs = FlightInputs::load(&model, &field, Some(&field)).unwrap();
@@ -90,29 +93,54 @@ fn a_rewarded_cem_takes_its_first_population_from_rollouts_flown_before() {
     let flight = inputs.plan(&cfg.sim).unwrap();
     let drone = drone(&inputs, &flight, &scene, &cfg);
     let setup = |reward: bool| StressSetup {
-        replay: false,
         online: Some(OnlineSettings { method: Method::Ga, mode: UqMode::Exact, reward }),
         ..StressSetup::new(drone, &cfg.validation, &prior, &[Sampler::Cem], &cfg.uq)
     };
+    let csv_files = |journal: &std::path::Path| {
+        std::fs::read_dir(journal)
+            .unwrap()
+            .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "csv"))
+            .count()
+    };
+    struct Ran {
+        records: Vec<nerfsv_validation::RolloutRecord>,
+        bytes: Vec<u8>,
+        replays: Vec<u8>,
+        flown: usize,
+        replayed: usize,
+        out: std::path::PathBuf,
+    }
     let run = |name: &str, setup: &StressSetup| {
         let out = dir.path().join(name);
         std::fs::create_dir_all(&out).unwrap();
         let (_, records) = stress(setup, &out, "k", false, &Silent).unwrap();
         let mut bytes = Vec::new();
         write_csv(&mut bytes, &records).unwrap();
-        let journal = journal_dir(&out, WorldKind::Nerf);
-        let flown_files = std::fs::read_dir(&journal)
-            .unwrap()
-            .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "csv"));
-        (records, bytes, flown_files.count(), journal)
+        let replays = std::fs::read(out.join(replay_csv(WorldKind::Gt))).unwrap();
+        let flown = csv_files(&journal_dir(&out, WorldKind::Nerf));
+        let replayed = csv_files(&replay_journal_dir(&out, WorldKind::Gt));
+        Ran { records, bytes, replays, flown, replayed, out }
     };
-    // The plain search flies the first population; the rewarded one, alone and with it given.
-    let (plain, _, _, plain_journal) = run("plain", &setup(false));
-    let (_, alone, flown_alone, _) = run("alone", &setup(true));
-    let first: Vec<_> = plain.iter().filter(|r| r.sampler == Label::Cem && r.population == 0).cloned().collect();
+    // The plain search flies and replays the first population; the rewarded one, alone and with
+    // them given.
+    let plain = run("plain", &setup(false));
+    let alone = run("alone", &setup(true));
+    let first: Vec<_> =
+        plain.records.iter().filter(|r| r.sampler == Label::Cem && r.population == 0).cloned().collect();
     assert_eq!(first.len(), 4);
-    let given = StressSetup { flown: Some(Flown { records: &first, journal: &plain_journal }), ..setup(true) };
-    let (_, reused, flown_reused, _) = run("reused", &given);
-    assert_eq!(alone, reused, "the same records bit for bit");
-    assert_eq!(flown_alone, flown_reused + 4, "the first population is not flown again");
+    let plain_replays = parse_csv(std::str::from_utf8(&plain.replays).unwrap()).unwrap();
+    let first_replays: Vec<_> = plain_replays.iter().filter(|r| r.population == 0).cloned().collect();
+    assert_eq!(first_replays.len(), 4);
+    let (plain_journal, plain_replay_journal) =
+        (journal_dir(&plain.out, WorldKind::Nerf), replay_journal_dir(&plain.out, WorldKind::Gt));
+    let given = StressSetup {
+        flown: Some(Flown { records: &first, journal: &plain_journal }),
+        replayed: Some(Flown { records: &first_replays, journal: &plain_replay_journal }),
+        ..setup(true)
+    };
+    let reused = run("reused", &given);
+    assert_eq!(alone.bytes, reused.bytes, "the same records bit for bit");
+    assert_eq!(alone.replays, reused.replays, "the same replays bit for bit");
+    assert_eq!(alone.flown, reused.flown + 4, "the first population is not flown again");
+    assert_eq!(alone.replayed, reused.replayed + 4, "nor replayed again");
 }

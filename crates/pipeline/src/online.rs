@@ -14,7 +14,8 @@
 //!   second flight of the same rollouts.
 //! - The per-step uncertainty of `plain/` against the stress stage's GT-sim replay of the same
 //!   rollouts: the AUROC of a disagreeing step (and trajectory).
-//! - The CEM ranked by the reward is replayed in GT-sim (`reward/replay_gt.csv`): its
+//! - The CEM ranked by the reward is replayed in GT-sim (`reward/replay_gt.csv`; the first
+//!   population's replays are the stress stage's, not flown again): its
 //!   failures' precision there beside the stress stage's CEM's (no reward), each with its Wilson
 //!   interval: whether the failures the reward leads to transfer.
 //! - The CEM ranked by the reward ends with an importance-sampling batch (`[online]
@@ -250,7 +251,13 @@ impl Stage for OnlineStage<'_> {
                     plain_records.iter().filter(|r| r.sampler == Label::Cem && r.population == 0).cloned().collect();
                 let stress_journal = nerfsv_study::stress::journal_dir(&stress_dir, WorldKind::Nerf);
                 let flown = Flown { records: &first, journal: &stress_journal };
-                let setup = StressSetup { flown: Some(flown), ..setup(&[Sampler::Cem], true) };
+                // And so are their GT-sim replays, flown by the stress stage.
+                let first_replays: Vec<RolloutRecord> =
+                    cem_replays.iter().filter(|r| r.population == 0).cloned().collect();
+                let replay_journal = nerfsv_study::stress::replay_journal_dir(&stress_dir, WorldKind::Gt);
+                let replayed = Flown { records: &first_replays, journal: &replay_journal };
+                let setup =
+                    StressSetup { flown: Some(flown), replayed: Some(replayed), ..setup(&[Sampler::Cem], true) };
                 stress(&setup, &out, &key, cx.resume, cx.observer)?
             };
             let scorer = UncertaintyReward::new(method, self.uq);

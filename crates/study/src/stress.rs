@@ -482,6 +482,13 @@ pub struct StressSetup<'a> {
     /// populations reuse the seeds with other proposals). With the journal folder that keeps
     /// their estimator errors.
     pub flown: Option<Flown<'a>>,
+    /// Replays flown before in the other world, taken instead of replaying one of this search's
+    /// rollouts again where sampler, population, index and seed match: a replay flies only the
+    /// rollout's disturbances from its seed, so the same rollout replays to the same record
+    /// whichever search drew it (the online stage's rewarded CEM gets the stress stage's GT-sim
+    /// replays of the CEM's first population it shares). With the replay journal folder that
+    /// keeps their estimator errors ([`replay_journal_dir`]).
+    pub replayed: Option<Flown<'a>>,
 }
 
 /// Rollouts flown before ([`StressSetup::flown`]) and the journal folder of their estimator
@@ -518,6 +525,7 @@ impl<'a> StressSetup<'a> {
             remote: None,
             reports_p_fail: true,
             flown: None,
+            replayed: None,
         }
     }
 }
@@ -533,6 +541,11 @@ pub const JOURNAL: &str = "journal";
 /// resume needs to find).
 pub fn journal_dir(out: &Path, world: WorldKind) -> PathBuf {
     out.join(JOURNAL).join(world.name())
+}
+
+/// The journal folder of the replays flown in `world` in the stress folder `out`.
+pub fn replay_journal_dir(out: &Path, world: WorldKind) -> PathBuf {
+    out.join(JOURNAL).join(format!("replay_{}", world.name()))
 }
 /// The name progress and notes are reported under.
 pub const STAGE: &str = "stress";
@@ -1151,7 +1164,7 @@ impl Replay<'_> {
         searching: &Counting,
     ) -> Result<Vec<RolloutRecord>, StudyError> {
         let (setup, kind) = (self.setup, self.world.kind());
-        let journal = Journal::open(&out.join(JOURNAL).join(format!("replay_{}", kind.name())), self.key, self.resume)?;
+        let journal = Journal::open(&replay_journal_dir(out, kind), self.key, self.resume)?;
         let replaying = Counting {
             journal: &journal,
             estimates: self.log,
@@ -1161,8 +1174,8 @@ impl Replay<'_> {
             observer: searching.observer,
             stage: setup.stage,
             status: format!("replaying in {}-sim", kind.name()),
-            // Replays fly in the other world: nothing flown before stands for them.
-            flown: None,
+            // Only replays flown before stand for replays.
+            flown: setup.replayed,
         };
         searching.observer.progress(setup.stage, replaying.done.load(Ordering::Relaxed), self.total, &replaying.status);
         let system = DroneSystem {

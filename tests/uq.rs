@@ -124,6 +124,7 @@ fn ga_offline_writes_a_csv_row_per_image_the_figures_and_finite_split_summaries(
     assert_eq!(
         names,
         [
+            "nerfsv-folder.json",
             "uq_ga.csv",
             "uq_ga.json",
             "uq_ga_mu_sigma.png",

@@ -18,7 +18,7 @@
 //! (photometric σ), `STOP_MM` (stop step in mm, with 0.06° per mm), `CANDIDATES`, `PIXELS`,
 //! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both), `RELOCALISE_AFTER`
 //! (`relocalise_after`), `MODEL_M` and `MODEL_DEG` (`model_error_per_rmse`), `REFUSED`
-//! (`max_refused`), `STOP_COST` (`stop_cost_decrease`), `JACOBIAN_MIN_WEIGHT`, `FINEST` (the
+//! (`max_refused`), `STOP_COST` (`stop_cost_decrease`), `JACOBIAN_MIN_WEIGHT`, `COARSEST` and `FINEST` (the coarsest and the
 //! finest pyramid level); `CHECKPOINT` flies another model than the run folder's, `PER_STEP`
 //! sets `scatter`'s poses per step (default 1). `DIAG=1` adds, for the vision
 //! estimator's Monte Carlo, what the gate refused, the relocalisations and the largest accepted errors;
@@ -104,6 +104,7 @@ fn main() -> anyhow::Result<()> {
     v.jacobian_min_weight = env("JACOBIAN_MIN_WEIGHT", v.jacobian_min_weight);
     v.stop_cost_decrease = env("STOP_COST", v.stop_cost_decrease);
     v.model_error_per_rmse = [env("MODEL_M", v.model_error_per_rmse[0]), env("MODEL_DEG", v.model_error_per_rmse[1])];
+    v.levels[0] = env("COARSEST", v.levels[0]);
     v.levels[1] = env("FINEST", v.levels[1]).min(v.levels[0]);
     let stop_mm: f64 = env("STOP_MM", v.stop_step[0] * 1e3);
     v.stop_step = [stop_mm * 1e-3, stop_mm * 0.06];

@@ -45,6 +45,11 @@ pub enum NerfWorldSource {
     /// Each rollout flies in another member of the ensemble (member `1 + seed mod (K − 1)` of
     /// the rollout's seed) while the estimator keeps localising against the deployed NeRF.
     Ensemble,
+    /// The ensemble's members seen through the perception error model measured on calibration
+    /// views: each rollout's camera images are rendered by a member from the true pose displaced
+    /// by one draw of the model's error function ([`crate::CalibratedWorld`]), so the estimator
+    /// meets the bias a real camera shows it.
+    Calibrated,
 }
 
 impl NerfWorldSource {
@@ -52,6 +57,7 @@ impl NerfWorldSource {
         match self {
             NerfWorldSource::Deployed => "deployed",
             NerfWorldSource::Ensemble => "ensemble",
+            NerfWorldSource::Calibrated => "calibrated",
         }
     }
 }
@@ -96,9 +102,11 @@ pub struct SimConfig {
     /// Background colour the camera sees where nothing is (the NeRF's render background).
     pub background: [f32; 3],
     /// NeRF-sim's world: `"deployed"` (the estimator's own NeRF renders the camera and gives the
-    /// collision field, the paper's NeRF-sim) or `"ensemble"` (each stress rollout flies in
+    /// collision field, the paper's NeRF-sim), `"ensemble"` (each stress rollout flies in
     /// member `1 + seed mod (K − 1)` of the `[ensemble]`, K ≥ 2, while the estimator keeps the
-    /// deployed NeRF). The nominal flights fly the deployed NeRF either way.
+    /// deployed NeRF) or `"calibrated"` (the ensemble's members, their camera images displaced
+    /// by draws of the perception error model the `[perception]` table measures). The nominal
+    /// flights fly the deployed NeRF either way.
     pub nerf_world: NerfWorldSource,
 }
 

@@ -285,7 +285,8 @@ impl Simulator<'_> {
     /// ends at the substep of the first collision.
     pub fn fly(&self, world: &dyn World, estimator: EstimatorKind, disturbances: &[Disturbance], seed: u64) -> Rollout {
         // An ensemble world flies each rollout in one of its members, chosen by the seed.
-        let world = world.for_rollout(seed).unwrap_or(world);
+        let own = world.for_rollout(seed);
+        let world = own.as_deref().unwrap_or(world);
         let field = world.field();
         let mut truth = self.initial_state();
         let mut belief = Belief::new(truth, &self.vision.initial_std);

@@ -34,13 +34,15 @@ pub trait World: Sync {
     fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]>;
 
     /// The world the rollout of `seed` flies in when it is not this one: for an
-    /// [`EnsembleWorld`], one of its members.
-    fn for_rollout(&self, _seed: u64) -> Option<&dyn World> {
+    /// [`EnsembleWorld`], one of its members; for a [`crate::CalibratedWorld`], a member seen
+    /// through one draw of the perception error model.
+    fn for_rollout(&self, _seed: u64) -> Option<Box<dyn World + '_>> {
         None
     }
 }
 
 /// NeRF-sim: the NeRF is both the camera and the world.
+#[derive(Clone, Copy)]
 pub struct NerfWorld<'a> {
     pub nerf: &'a Nerf,
     pub field: &'a SdfGrid,
@@ -125,8 +127,9 @@ impl World for EnsembleWorld<'_> {
         self.members[0].observe(camera, pixels, background)
     }
 
-    fn for_rollout(&self, seed: u64) -> Option<&dyn World> {
-        Some(&self.members[self.member_of(seed)])
+    fn for_rollout(&self, seed: u64) -> Option<Box<dyn World + '_>> {
+        let m = &self.members[self.member_of(seed)];
+        Some(Box::new(NerfWorld { nerf: m.nerf, field: m.field }))
     }
 }
 

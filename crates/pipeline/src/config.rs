@@ -129,8 +129,9 @@ pub struct RunConfig {
     pub nerf_density_threshold: Option<f32>,
     /// The drone, its path, controller and estimator (the `[sim]` table).
     #[docs(table)]
-    // NeRF-sim's world is the ensemble's other members: the estimator's map is not the world.
-    #[docs(default = nerfsv_sim::SimConfig { nerf_world: nerfsv_sim::NerfWorldSource::Ensemble, ..Default::default() })]
+    // NeRF-sim's world is the ensemble's other members seen through the perception error model
+    // measured on calibration views: the estimator's map is not the world.
+    #[docs(default = nerfsv_sim::SimConfig { nerf_world: nerfsv_sim::NerfWorldSource::Calibrated, ..Default::default() })]
     pub sim: nerfsv_sim::SimConfig,
     /// Seed of the flight's random choices (the vision estimator's pixels).
     pub flight_seed: u64,
@@ -167,6 +168,10 @@ pub struct RunConfig {
     #[docs(table)]
     #[docs(default = EnsembleConfig { members: DEFAULT_ENSEMBLE_MEMBERS, ..EnsembleConfig::default() })]
     pub ensemble: EnsembleConfig,
+    /// The calibration views and the calibrated world's draws (the `[perception]` table):
+    /// NeRF-sim's world with `sim.nerf_world = "calibrated"`.
+    #[docs(table)]
+    pub perception: nerfsv_study::calibration::PerceptionConfig,
     /// The unit tests' probe stage (the `[probe]` table).
     #[cfg(test)]
     #[docs(table)]
@@ -292,16 +297,17 @@ impl RunConfig {
     /// Refuses a config whose NeRF-sim world is the ensemble for a study of one model (`path`,
     /// the config file, names it).
     fn check_one_model(&self, path: &Path) -> Result<(), PipelineError> {
-        if self.sim.nerf_world != nerfsv_sim::NerfWorldSource::Ensemble {
+        let world = self.sim.nerf_world;
+        if world == nerfsv_sim::NerfWorldSource::Deployed {
             return Ok(());
         }
         Err(PipelineError::InvalidConfig {
             path: path.into(),
             error: InvalidValue::new(
                 "sim.nerf_world",
-                "must be \"deployed\" for a study of one model: the ensemble's world is `nerfsv run`'s, which trains \
-                 the ensemble",
-                "\"ensemble\"",
+                "must be \"deployed\" for a study of one model: the ensemble's and the calibrated world are \
+                 `nerfsv run`'s, which trains the ensemble and calibrates",
+                format!("\"{}\"", world.name()),
             ),
         })
     }
@@ -689,16 +695,18 @@ impl Validate for RunConfig {
             positive("nerf_density_threshold", t as f64)?;
         }
         self.validate_tables()?;
-        if self.sim.nerf_world == nerfsv_sim::NerfWorldSource::Ensemble && self.ensemble.members < 2 {
+        let world = self.sim.nerf_world;
+        if world != nerfsv_sim::NerfWorldSource::Deployed && self.ensemble.members < 2 {
             return Err(InvalidValue::new(
                 "sim.nerf_world",
                 format!(
-                    "\"ensemble\" flies NeRF-sim in the ensemble's members after the deployed NeRF, and \
+                    "\"{}\" flies NeRF-sim in the ensemble's members after the deployed NeRF, and \
                      ensemble.members = {} has none: set ensemble.members to 2 or more, or sim.nerf_world = \
                      \"deployed\"",
+                    world.name(),
                     self.ensemble.members
                 ),
-                "\"ensemble\"",
+                format!("\"{}\"", world.name()),
             ));
         }
         let d = self.validation.disturbance.mean.len();

@@ -65,6 +65,7 @@
 //! # Ok::<(), PipelineError>(())
 //! ```
 
+pub mod calibration;
 pub mod config;
 pub mod digest;
 pub mod ensemble;

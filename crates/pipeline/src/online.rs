@@ -178,8 +178,16 @@ impl OnlineStage<'_> {
 
 impl Stage for OnlineStage<'_> {
     const NAME: &'static str = "online";
-    const CODE: &'static [&'static str] =
-        &["nerfsv-study", "online.rs", "stress.rs", "flight.rs", "stages.rs", "config.rs"];
+    const CODE: &'static [&'static str] = &[
+        "nerfsv-study",
+        "online.rs",
+        "stress.rs",
+        "flight.rs",
+        "stages.rs",
+        "config.rs",
+        "ensemble.rs",
+        "calibration.rs",
+    ];
     const OUTPUTS: &'static [&'static str] = &[ONLINE_TABLE_CSV];
     const INPUTS: &'static [&'static str] =
         &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, nerfsv_study::stress::STAGE];
@@ -188,7 +196,8 @@ impl Stage for OnlineStage<'_> {
 
     fn config(&self) -> impl Serialize {
         let s = self.search;
-        (s.drone.key(), self.validation(), self.uq, self.online)
+        let draws = s.calibrated().then_some(s.perception.draws_per_member);
+        (s.drone.key(), self.validation(), self.uq, self.online, draws)
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
@@ -197,6 +206,10 @@ impl Stage for OnlineStage<'_> {
         if s.ensemble {
             // Its rewarded searches fly in the stress stage's NeRF world.
             inputs.members = crate::ensemble::EnsembleStage::load_members(cx.root)?;
+        }
+        if s.calibrated() {
+            let seed = s.validation.seed;
+            inputs.calibration = Some(crate::calibration::CalibrationStage::load(cx.root, s.perception, seed)?);
         }
         let flight = inputs.plan(s.drone.sim)?;
         let validation = self.validation();

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::layout::summary_path;
 use crate::stage::{self, Observer, Runner};
-use crate::{ensemble, flight, online, report, stages, stress, uq};
+use crate::{calibration, ensemble, flight, online, report, stages, stress, uq};
 use crate::{Guard, PipelineError, RunConfig, Validate};
 
 /// What `summary.json` holds: the run folder, then each stage's figures under its name, in
@@ -100,6 +100,13 @@ pub fn run_in(
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
     })?;
     r.run(&flight::FlightStage { drone: cfg.drone(scene), seed: cfg.flight_seed })?;
+    if cfg.sim.nerf_world == nerfsv_sim::NerfWorldSource::Calibrated {
+        r.run(&calibration::CalibrationStage {
+            drone: cfg.drone(scene),
+            perception: &cfg.perception,
+            seed: cfg.validation.seed,
+        })?;
+    }
     let prior = cfg.disturbance_prior()?;
     let search = stress::StressStage {
         ensemble: cfg.ensemble.members > 1,
@@ -107,6 +114,7 @@ pub fn run_in(
         validation: &cfg.validation,
         prior: &prior,
         subset: cfg.stress_subset,
+        perception: &cfg.perception,
     };
     r.run(&search)?;
     if scene.is_some() {

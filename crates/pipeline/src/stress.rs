@@ -7,7 +7,8 @@ use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_scene::Scene;
-use nerfsv_sim::{Flight, NerfWorldSource, SimConfig, WorldKind};
+use nerfsv_sim::{CalibratedWorld, Flight, NerfWorldSource, SimConfig, WorldKind};
+use nerfsv_study::calibration::PerceptionConfig;
 use nerfsv_study::flight::{Drone, FlightInputs, Mission};
 use nerfsv_study::stress::{
     measure_at_poses, replay_csv, search_into, searched, stress, Sampler, SearchRequest, SearchSettings,
@@ -18,6 +19,7 @@ use nerfsv_uq::UqConfig;
 use nerfsv_validation::{read_csv_file, Label, Prior, RolloutRecord, ValidationConfig};
 use serde::Serialize;
 
+use crate::calibration::CalibrationStage;
 use crate::ensemble::EnsembleStage;
 use crate::flight::{drone_inputs, flight_inputs};
 use crate::stage::{stage_key, Observer, Stage, StageContext};
@@ -38,6 +40,8 @@ pub struct StressStage<'a> {
     pub validation: &'a ValidationConfig,
     pub prior: &'a Prior,
     pub subset: bool,
+    /// The calibrated world's draws (with `sim.nerf_world = "calibrated"`).
+    pub perception: &'a PerceptionConfig,
 }
 
 impl StressStage<'_> {
@@ -57,7 +61,8 @@ impl StressStage<'_> {
 
 impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
-    const CODE: &'static [&'static str] = &["nerfsv-study", "stress.rs", "flight.rs", "stages.rs"];
+    const CODE: &'static [&'static str] =
+        &["nerfsv-study", "stress.rs", "flight.rs", "stages.rs", "ensemble.rs", "calibration.rs"];
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = drone_inputs(true);
     const RESUMABLE: bool = true;
@@ -72,21 +77,29 @@ impl Stage for StressStage<'_> {
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        match (self.drone.scene.is_some(), self.ensemble) {
-            (_, false) => drone_inputs(self.drone.scene.is_some()),
-            (true, true) => &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
-            (false, true) => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
+        const GT: &str = GroundTruthField::NAME;
+        const CAL: &str = CalibrationStage::NAME;
+        match (self.drone.scene.is_some(), self.ensemble, self.calibrated()) {
+            (_, false, _) => drone_inputs(self.drone.scene.is_some()),
+            (true, true, false) => &[Dataset::NAME, GT, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
+            (false, true, false) => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
+            (true, true, true) => &[Dataset::NAME, GT, Train::NAME, NerfField::NAME, EnsembleStage::NAME, CAL],
+            (false, true, true) => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME, CAL],
         }
     }
 
     fn config(&self) -> impl Serialize {
-        (self.drone.key(), self.validation, self.samplers())
+        let draws = self.calibrated().then_some(self.perception.draws_per_member);
+        (self.drone.key(), self.validation, self.samplers(), draws)
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
         let mut inputs = flight_inputs(cx.root, self.drone.scene.is_some())?;
         if self.ensemble {
             inputs.members = EnsembleStage::load_members(cx.root)?;
+        }
+        if self.calibrated() {
+            inputs.calibration = Some(CalibrationStage::load(cx.root, self.perception, self.validation.seed)?);
         }
         let flight = inputs.plan(self.drone.sim)?;
         let uq = UqConfig::default();
@@ -108,8 +121,22 @@ impl StressStage<'_> {
     /// The searched rollouts with the ensemble's uncertainty of each step's view.
     pub const STEP_UNCERTAINTY_CSV: &'static str = "ensemble_step_uncertainty.csv";
 
-    /// The search's Monte Carlo flown again in the other NeRF world (deployed or ensemble) with
-    /// the same disturbances and seeds, and both compared with GT-sim's replays of it.
+    /// Whether NeRF-sim's world is the calibrated one (with an ensemble to draw members from).
+    pub fn calibrated(&self) -> bool {
+        self.ensemble && self.drone.sim.nerf_world == NerfWorldSource::Calibrated
+    }
+
+    /// The NeRF worlds the search's Monte Carlo flies in besides its own, for the transfer
+    /// table: the deployed NeRF and the ensemble, whichever the search did not fly.
+    fn other_worlds(&self) -> Vec<NerfWorldSource> {
+        [NerfWorldSource::Deployed, NerfWorldSource::Ensemble]
+            .into_iter()
+            .filter(|&w| w != self.drone.sim.nerf_world)
+            .collect()
+    }
+
+    /// The search's Monte Carlo flown again in the other NeRF worlds with the same disturbances
+    /// and seeds (into `nerf_{world}/`), and each compared with GT-sim's replays of it.
     fn transfer(
         &self,
         cx: &StageContext,
@@ -117,48 +144,60 @@ impl StressStage<'_> {
         flight: &Flight,
         records: &[RolloutRecord],
     ) -> Result<TransferFigures, PipelineError> {
-        let other = match self.drone.sim.nerf_world {
-            NerfWorldSource::Deployed => NerfWorldSource::Ensemble,
-            NerfWorldSource::Ensemble => NerfWorldSource::Deployed,
-        };
-        let sim = SimConfig { nerf_world: other, ..self.drone.sim.clone() };
-        let uq = UqConfig::default();
-        let mission = Mission { drone: Drone { sim: &sim, ..self.drone }, inputs, flight };
-        let setup = StressSetup {
-            replay: false,
-            reports_p_fail: false,
-            ..StressSetup::new(mission, self.validation, self.prior, &[Sampler::Mc], &uq)
-        };
-        let dir = cx.dir.join(format!("nerf_{}", other.name()));
-        std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
-        let (_, others) = stress(&setup, &dir, Self::NAME, cx.resume, cx.observer)?;
         let replay_path = cx.dir.join(replay_csv(WorldKind::Gt));
         let replays = read_csv_file(&replay_path)?;
         // The search's Monte Carlo rollouts come first among the records and their replays.
         let mc = |rs: &[RolloutRecord]| -> Vec<RolloutRecord> {
             rs.iter().filter(|r| r.sampler == Label::Mc).cloned().collect()
         };
-        let (ours, others, gt) = (mc(records), mc(&others), mc(&replays));
-        let paired = ours.len() == others.len()
-            && ours.len() == gt.len()
-            && ours.iter().zip(&others).zip(&gt).all(|((a, b), c)| a.seed == b.seed && a.seed == c.seed);
-        if !paired {
-            return Err(PipelineError::Internal(format!(
-                "the transfer table pairs the same Monte Carlo rollouts in three worlds, but they differ ({} in NeRF-sim \
-                 {}, {} in NeRF-sim {}, {} in GT-sim)",
-                ours.len(),
-                self.drone.sim.nerf_world.name(),
-                others.len(),
-                other.name(),
-                gt.len()
-            )));
+        let (ours, gt) = (mc(records), mc(&replays));
+        let mut outcomes = vec![(self.drone.sim.nerf_world, ours.clone())];
+        for other in self.other_worlds() {
+            let sim = SimConfig { nerf_world: other, ..self.drone.sim.clone() };
+            let uq = UqConfig::default();
+            let mission = Mission { drone: Drone { sim: &sim, ..self.drone }, inputs, flight };
+            let setup = StressSetup {
+                replay: false,
+                reports_p_fail: false,
+                ..StressSetup::new(mission, self.validation, self.prior, &[Sampler::Mc], &uq)
+            };
+            let dir = cx.dir.join(format!("nerf_{}", other.name()));
+            std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
+            let (_, others) = stress(&setup, &dir, Self::NAME, cx.resume, cx.observer)?;
+            outcomes.push((other, mc(&others)));
         }
-        let failed = |rs: &[RolloutRecord]| rs.iter().map(|r| r.failed).collect::<Vec<bool>>();
-        let (deployed, ensemble) = match self.drone.sim.nerf_world {
-            NerfWorldSource::Deployed => (failed(&ours), failed(&others)),
-            NerfWorldSource::Ensemble => (failed(&others), failed(&ours)),
+        for (world, rs) in &outcomes {
+            let paired = rs.len() == gt.len() && rs.iter().zip(&gt).all(|(a, c)| a.seed == c.seed);
+            if !paired {
+                return Err(PipelineError::Internal(format!(
+                    "the transfer table pairs the same Monte Carlo rollouts in every world, but they differ ({} in \
+                     NeRF-sim {}, {} in GT-sim)",
+                    rs.len(),
+                    world.name(),
+                    gt.len()
+                )));
+            }
+        }
+        let failed = |w: NerfWorldSource| -> Vec<bool> {
+            outcomes
+                .iter()
+                .find(|(x, _)| *x == w)
+                .map(|(_, rs)| rs.iter().map(|r| r.failed).collect())
+                .unwrap_or_default()
         };
-        let mut figures = TransferFigures::new(&deployed, &ensemble, &failed(&gt), self.validation.seed);
+        let gt_failed: Vec<bool> = gt.iter().map(|r| r.failed).collect();
+        let seed = self.validation.seed;
+        let mut figures = TransferFigures::new(
+            &failed(NerfWorldSource::Deployed),
+            &failed(NerfWorldSource::Ensemble),
+            &gt_failed,
+            seed,
+        );
+        if self.calibrated() {
+            let worlds = inputs.members.len() * self.perception.draws_per_member;
+            let world: Vec<usize> = ours.iter().map(|r| CalibratedWorld::world_of(r.seed, worlds)).collect();
+            figures = figures.with_calibrated(&failed(NerfWorldSource::Calibrated), &world, worlds, &gt_failed, seed);
+        }
         figures.step_auroc = self.step_auroc(cx, inputs, flight, records, &replays)?;
         Ok(figures)
     }

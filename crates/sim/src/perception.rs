@@ -46,7 +46,8 @@ impl ViewPose {
     /// The squared distance between two views in units of the length scales.
     fn distance2(&self, other: &ViewPose, kernel: &AxisKernel) -> f64 {
         let d = |a: [f64; 3], b: [f64; 3], l: f64| (0..3).map(|i| ((a[i] - b[i]) / l).powi(2)).sum::<f64>();
-        d(self.position, other.position, kernel.length_position_m) + d(self.forward, other.forward, kernel.length_direction)
+        d(self.position, other.position, kernel.length_position_m)
+            + d(self.forward, other.forward, kernel.length_direction)
     }
 }
 
@@ -137,7 +138,9 @@ impl TryFrom<ModelFile> for ErrorModel {
             .kernels
             .iter()
             .enumerate()
-            .map(|(a, k)| AxisFit::new(&f.samples, a, *k).ok_or_else(|| format!("kernel {} is not positive definite", AXES[a])))
+            .map(|(a, k)| {
+                AxisFit::new(&f.samples, a, *k).ok_or_else(|| format!("kernel {} is not positive definite", AXES[a]))
+            })
             .collect::<Result<_, _>>()?;
         Ok(Self { samples: f.samples, axes })
     }
@@ -179,13 +182,22 @@ impl AxisFit {
         let n = samples.len() as f64;
         let mean = samples.iter().map(|s| s.error[axis]).sum::<f64>() / n;
         let y = DVector::from_iterator(samples.len(), samples.iter().map(|s| s.error[axis] - mean));
-        let mut best = (f64::NEG_INFINITY, AxisKernel { length_position_m: spread, length_direction: 1.0, signal_var: 0.0, noise_var: 0.0, mean });
+        let mut best = (
+            f64::NEG_INFINITY,
+            AxisKernel { length_position_m: spread, length_direction: 1.0, signal_var: 0.0, noise_var: 0.0, mean },
+        );
         if y.norm_squared() == 0.0 {
             return best.1;
         }
         for &lp in &LENGTH_POSITION {
             for &ld in &LENGTH_DIRECTION {
-                let shape = AxisKernel { length_position_m: lp * spread, length_direction: ld, signal_var: 1.0, noise_var: 0.0, mean };
+                let shape = AxisKernel {
+                    length_position_m: lp * spread,
+                    length_direction: ld,
+                    signal_var: 1.0,
+                    noise_var: 0.0,
+                    mean,
+                };
                 let base = Self::correlation_matrix(samples, &shape, 0.0);
                 for &r in &NOISE_RATIO {
                     let mut k = base.clone();
@@ -229,8 +241,12 @@ fn position_spread(samples: &[ErrorSample]) -> f64 {
 impl ErrorModel {
     /// No error anywhere: a calibrated world with this model is the ensemble world.
     pub fn zero() -> Self {
-        let kernel = AxisKernel { length_position_m: 1.0, length_direction: 1.0, signal_var: 0.0, noise_var: 0.0, mean: 0.0 };
-        Self { samples: Vec::new(), axes: (0..6).map(|_| AxisFit { kernel, chol: None, alpha: DVector::zeros(0) }).collect() }
+        let kernel =
+            AxisKernel { length_position_m: 1.0, length_direction: 1.0, signal_var: 0.0, noise_var: 0.0, mean: 0.0 };
+        Self {
+            samples: Vec::new(),
+            axes: (0..6).map(|_| AxisFit { kernel, chol: None, alpha: DVector::zeros(0) }).collect(),
+        }
     }
 
     /// Fits each axis to `samples` by marginal likelihood (none: the zero model).
@@ -290,7 +306,8 @@ impl ErrorModel {
                         weight: normal(&mut rng),
                     })
                     .collect();
-                let mut draw = AxisDraw { kernel: k, features, constant: normal(&mut rng), correction: DVector::zeros(0) };
+                let mut draw =
+                    AxisDraw { kernel: k, features, constant: normal(&mut rng), correction: DVector::zeros(0) };
                 // Pathwise conditioning: f = f₀ + k(·, X)(K + σ²I)⁻¹(y − f₀(X) − ε), where
                 // k = s²·k₀ and K + σ²I = s²·(K₀ + r·I), so the s² cancel.
                 let residual = DVector::from_iterator(
@@ -362,7 +379,8 @@ impl ErrorDraw {
             if d.features.is_empty() {
                 return d.kernel.mean;
             }
-            let data: f64 = self.samples.iter().zip(d.correction.iter()).map(|(s, c)| d.kernel.correlation(view, s) * c).sum();
+            let data: f64 =
+                self.samples.iter().zip(d.correction.iter()).map(|(s, c)| d.kernel.correlation(view, s) * c).sum();
             d.kernel.mean + d.prior(view) + data
         })
     }
@@ -482,7 +500,11 @@ mod tests {
             .enumerate()
             .map(|(i, at)| {
                 let b = bias(&at);
-                ErrorSample { view: i / fits, at, error: std::array::from_fn(|a| b[a] + sd * normal(&mut rng) * (b[a] != 0.0) as u8 as f64) }
+                ErrorSample {
+                    view: i / fits,
+                    at,
+                    error: std::array::from_fn(|a| b[a] + sd * normal(&mut rng) * (b[a] != 0.0) as u8 as f64),
+                }
             })
             .collect()
     }
@@ -520,7 +542,11 @@ mod tests {
             let mean = values.iter().sum::<f64>() / n as f64;
             let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
             let sd = p.latent_sd;
-            assert!((mean - p.mean).abs() < 4.0 * sd / (n as f64).sqrt() + 1e-6, "{position:?}: mean {mean} vs {}", p.mean);
+            assert!(
+                (mean - p.mean).abs() < 4.0 * sd / (n as f64).sqrt() + 1e-6,
+                "{position:?}: mean {mean} vs {}",
+                p.mean
+            );
             assert!((var.sqrt() / sd - 1.0).abs() < 0.15, "{position:?}: sd {} vs {sd}", var.sqrt());
         }
     }

@@ -393,6 +393,20 @@ pub struct FlightInputs {
     /// The ensemble's members after the deployed model: NeRF-sim's world with
     /// `sim.nerf_world = "ensemble"`; empty without an ensemble.
     pub members: Vec<WorldMember>,
+    /// The perception error model and how the calibrated world draws from it: NeRF-sim's world
+    /// with `sim.nerf_world = "calibrated"`; none without a calibration.
+    pub calibration: Option<Calibration>,
+}
+
+/// What NeRF-sim's calibrated world draws its errors from.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    pub model: nerfsv_sim::ErrorModel,
+    /// Error functions per member ([`crate::calibration::PerceptionConfig::draws_per_member`]).
+    pub draws_per_member: usize,
+    /// Seeds the draws (the validation seed: a rollout's world is a function of it and the
+    /// rollout's own seed).
+    pub seed: u64,
 }
 
 /// One member of an ensemble as a world: its NeRF and its signed field.
@@ -408,6 +422,7 @@ impl FlightInputs {
             nerf_field: SdfGrid::load(nerf_field)?,
             gt_field: gt_field.map(SdfGrid::load).transpose()?,
             members: Vec::new(),
+            calibration: None,
         })
     }
 
@@ -429,7 +444,7 @@ impl FlightInputs {
                 nerfsv_collision::model_field(gt.sdf.geometry, None, density)?.1.sdf
             }
         };
-        Ok(Self { nerf, nerf_field, gt_field: Some(gt.sdf), members: Vec::new() })
+        Ok(Self { nerf, nerf_field, gt_field: Some(gt.sdf), members: Vec::new(), calibration: None })
     }
 
     pub fn plan(&self, cfg: &SimConfig) -> Result<Flight, StudyError> {
@@ -439,7 +454,8 @@ impl FlightInputs {
 
 /// The world the drone's rollouts fly in: [`world`], except that NeRF-sim with `source`
 /// [`NerfWorldSource::Ensemble`] is the ensemble's members ([`EnsembleWorld`]: each rollout in
-/// the member of its seed), refused without members.
+/// the member of its seed), and with [`NerfWorldSource::Calibrated`] those members seen through
+/// the perception error model ([`nerfsv_sim::CalibratedWorld`]); both refused without members.
 pub fn drone_world<'a>(
     kind: WorldKind,
     source: NerfWorldSource,
@@ -448,7 +464,14 @@ pub fn drone_world<'a>(
     render: RenderSettings,
 ) -> Result<Box<dyn World + 'a>, StudyError> {
     match (kind, source) {
-        (WorldKind::Nerf, NerfWorldSource::Ensemble) if inputs.members.is_empty() => Err(StudyError::NoEnsemble),
+        (WorldKind::Nerf, NerfWorldSource::Ensemble | NerfWorldSource::Calibrated) if inputs.members.is_empty() => {
+            Err(StudyError::NoEnsemble)
+        }
+        (WorldKind::Nerf, NerfWorldSource::Calibrated) => {
+            let c = inputs.calibration.as_ref().ok_or(StudyError::NoCalibration)?;
+            let members = inputs.members.iter().map(|m| NerfWorld { nerf: &m.nerf, field: &m.field }).collect();
+            Ok(Box::new(nerfsv_sim::CalibratedWorld::new(members, &c.model, c.draws_per_member, c.seed)))
+        }
         (WorldKind::Nerf, NerfWorldSource::Ensemble) => Ok(Box::new(EnsembleWorld {
             members: inputs.members.iter().map(|m| NerfWorld { nerf: &m.nerf, field: &m.field }).collect(),
         })),

@@ -19,6 +19,7 @@
 //! The stages of `nerfsv run`, the subcommands and the Python package call these functions;
 //! progress goes to an [`Observer`].
 
+pub mod calibration;
 mod drone;
 pub mod flight;
 pub mod remote;
@@ -66,10 +67,15 @@ pub enum StudyError {
     #[error("GT-sim needs a ground truth (a scene or mesh and its signed field), and this world has none")]
     NoGroundTruth,
     #[error(
-        "sim.nerf_world = \"ensemble\" flies NeRF-sim in the ensemble's other members, and there are none: \
-         train them with [ensemble] members = 2 or more, or set sim.nerf_world = \"deployed\""
+        "sim.nerf_world = \"ensemble\" or \"calibrated\" flies NeRF-sim in the ensemble's other members, and there \
+         are none: train them with [ensemble] members = 2 or more, or set sim.nerf_world = \"deployed\""
     )]
     NoEnsemble,
+    #[error(
+        "sim.nerf_world = \"calibrated\" draws NeRF-sim's camera errors from the perception error model, and this \
+         run has none: run the calibration stage (nerfsv run) or set sim.nerf_world = \"ensemble\""
+    )]
+    NoCalibration,
     /// A request refused before anything is written: `key` names what was asked (`stress`).
     #[error("{key}: {message}")]
     Refused { key: &'static str, message: String },

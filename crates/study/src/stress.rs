@@ -278,6 +278,21 @@ impl From<Rate> for RateFigure {
     }
 }
 
+/// NeRF-sim's failure rate in the calibrated world: the binomial 95 % interval of the rate over
+/// the worlds flown (each rollout a draw of member and error function), and the 95 % predictive
+/// interval of the rate of one world drawn like them ([`nerfsv_validation::predictive_rate_interval`]:
+/// a world is a member and one error function, `worlds` of them, the rollouts spread over them by
+/// seed).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibratedRateFigure {
+    pub rate: f64,
+    pub ci95: [f64; 2],
+    pub predictive95: [f64; 2],
+    pub failures: usize,
+    pub rollouts: usize,
+    pub worlds: usize,
+}
+
 /// Whether NeRF-sim's failures transfer to the world: the same Monte Carlo rollouts (same
 /// disturbances and seeds) flown in NeRF-sim with the deployed NeRF as the world, in NeRF-sim
 /// with the ensemble's other members as the world, and in GT-sim. Each NeRF-sim world is
@@ -299,6 +314,20 @@ pub struct TransferFigures {
     pub mcnemar_p_ensemble: f64,
     pub deployed: Transfer,
     pub ensemble: Transfer,
+    /// NeRF-sim's calibrated world (`sim.nerf_world = "calibrated"`) on the same rollouts, when
+    /// it flew them: its rate with the predictive interval over worlds, and its comparison.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nerf_calibrated: Option<CalibratedRateFigure>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recall_calibrated: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub precision_calibrated: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mcc_calibrated: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mcnemar_p_calibrated: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibrated: Option<Transfer>,
     /// Per sampler, how well the ensemble's per-step uncertainty of the drone's view (measured
     /// at each searched rollout's recorded poses, no ground-truth image) predicts the steps where
     /// the search's NeRF world and GT-sim disagree.
@@ -363,8 +392,52 @@ impl TransferFigures {
             mcnemar_p_ensemble: e.mcnemar_p,
             deployed: d,
             ensemble: e,
+            nerf_calibrated: None,
+            recall_calibrated: None,
+            precision_calibrated: None,
+            mcc_calibrated: None,
+            mcnemar_p_calibrated: None,
+            calibrated: None,
             step_auroc: Vec::new(),
         }
+    }
+
+    /// These figures with the calibrated world's outcomes of the same rollouts: `calibrated[i]`
+    /// and `gt[i]` are rollout i's, flown in world `world[i]` of `worlds`.
+    pub fn with_calibrated(
+        mut self,
+        calibrated: &[bool],
+        world: &[usize],
+        worlds: usize,
+        gt: &[bool],
+        seed: u64,
+    ) -> Self {
+        let c = Transfer::of(calibrated, gt, seed);
+        let mut per_world = vec![(0usize, 0usize); worlds.max(1)];
+        for (&failed, &w) in calibrated.iter().zip(world) {
+            let slot = &mut per_world[w.min(worlds.max(1) - 1)];
+            slot.0 += usize::from(failed);
+            slot.1 += 1;
+        }
+        let rate: RateFigure = c.nerf.into();
+        self.nerf_calibrated = Some(CalibratedRateFigure {
+            rate: rate.rate,
+            ci95: rate.ci95,
+            predictive95: nerfsv_validation::predictive_rate_interval(
+                &per_world,
+                nerfsv_validation::BOOTSTRAP_RESAMPLES,
+                nerfsv_scene::seed::mix(seed, 0x9ed1c7, 0),
+            ),
+            failures: rate.failures,
+            rollouts: rate.rollouts,
+            worlds,
+        });
+        self.recall_calibrated = c.recall.map(|x| x.value);
+        self.precision_calibrated = c.precision.map(|x| x.value);
+        self.mcc_calibrated = c.mcc.map(|x| x.value);
+        self.mcnemar_p_calibrated = Some(c.mcnemar_p);
+        self.calibrated = Some(c);
+        self
     }
 }
 

@@ -72,4 +72,4 @@ pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusin
 pub use system::{run_here, Finished, Job, Outcome, System};
 pub use table::{table_row, TableRow};
 pub use trajectory::{RaggedRow, Trajectory};
-pub use transfer::{matthews, mcnemar_exact, Estimate, Rate, Transfer, BOOTSTRAP_RESAMPLES};
+pub use transfer::{matthews, mcnemar_exact, predictive_rate_interval, Estimate, Rate, Transfer, BOOTSTRAP_RESAMPLES};

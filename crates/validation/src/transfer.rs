@@ -216,3 +216,79 @@ mod tests {
         assert_eq!(t.recall.unwrap().value, 0.0);
     }
 }
+
+/// The 95 % predictive interval of the failure rate of a *new* world drawn like the `worlds`
+/// flown, each `(failures, rollouts)`: a beta-binomial random-effects model. Per resample of the
+/// worlds (with replacement, `resamples` times, seeded by `seed`), the mean rate is drawn from
+/// its Jeffreys posterior `Beta(k + ½, n − k + ½)` of the resample's totals and the between-world
+/// variance estimated by moments (the observed variance of the worlds' rates less the
+/// binomial variance expected of them, at least 0); a new world's rate is then drawn from the
+/// beta distribution of that mean and variance. The interval holds the draws' 2.5 % and 97.5 %
+/// quantiles: the binomial interval's uncertainty plus the spread between worlds.
+pub fn predictive_rate_interval(worlds: &[(usize, usize)], resamples: usize, seed: u64) -> [f64; 2] {
+    use rand_distr::{Beta, Distribution};
+    let worlds: Vec<(usize, usize)> = worlds.iter().copied().filter(|&(_, n)| n > 0).collect();
+    if worlds.is_empty() {
+        return [0.0, 1.0];
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let m = worlds.len();
+    let mut draws = Vec::with_capacity(resamples);
+    for _ in 0..resamples.max(1) {
+        let pick: Vec<(usize, usize)> = (0..m).map(|_| worlds[rng.random_range(0..m)]).collect();
+        let (k, n) = pick.iter().fold((0, 0), |(k, n), &(a, b)| (k + a, n + b));
+        let Ok(posterior) = Beta::new(k as f64 + 0.5, (n - k) as f64 + 0.5) else { continue };
+        let mean: f64 = posterior.sample(&mut rng);
+        let pooled = k as f64 / n as f64;
+        let rates: Vec<f64> = pick.iter().map(|&(a, b)| a as f64 / b as f64).collect();
+        let between = if m > 1 {
+            let observed = rates.iter().map(|r| (r - pooled).powi(2)).sum::<f64>() / (m - 1) as f64;
+            let binomial = pick.iter().map(|&(_, b)| pooled * (1.0 - pooled) / b as f64).sum::<f64>() / m as f64;
+            (observed - binomial).max(0.0)
+        } else {
+            0.0
+        };
+        // Beta(α, β) of mean μ and variance v: α + β = μ(1 − μ)/v − 1 (v below μ(1 − μ)).
+        let spread = mean * (1.0 - mean);
+        let draw = if between <= 0.0 || spread <= 0.0 {
+            mean
+        } else {
+            let total = (spread / between.min(0.999 * spread) - 1.0).max(1e-3);
+            match Beta::new((mean * total).max(1e-9), ((1.0 - mean) * total).max(1e-9)) {
+                Ok(b) => b.sample(&mut rng),
+                Err(_) => mean,
+            }
+        };
+        draws.push(draw);
+    }
+    draws.sort_by(f64::total_cmp);
+    [quantile_sorted(&draws, 0.025), quantile_sorted(&draws, 0.975)]
+}
+
+#[cfg(test)]
+mod predictive_tests {
+    use super::*;
+
+    #[test]
+    fn worlds_alike_give_about_the_binomial_interval_and_worlds_apart_a_wider_one() {
+        // Ten worlds of ten rollouts, all at 20 %: about Jeffreys' interval of 20 of 100.
+        let alike = predictive_rate_interval(&[(2, 10); 10], 4000, 1);
+        assert!(alike[0] > 0.1 && alike[0] < 0.15 && alike[1] > 0.26 && alike[1] < 0.31, "{alike:?}");
+        // Half the worlds never fail, half fail 40 %: the same pooled rate, a new world anywhere
+        // from 0 to about 0.5.
+        let apart: Vec<(usize, usize)> = (0..10).map(|i| if i % 2 == 0 { (0, 10) } else { (4, 10) }).collect();
+        let wide = predictive_rate_interval(&apart, 4000, 1);
+        assert!(wide[0] < 0.02 && wide[1] > 0.4, "{wide:?}");
+        // The population of worlds is recovered: rates drawn from Beta(2, 8) (sd 0.12), 40
+        // worlds of 50 rollouts; the interval holds about 95 % of new worlds' rates.
+        use rand_distr::{Beta, Binomial, Distribution};
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let beta = Beta::new(2.0, 8.0).unwrap();
+        let worlds: Vec<(usize, usize)> = (0..40)
+            .map(|_| (Binomial::new(50, beta.sample(&mut rng)).unwrap().sample(&mut rng) as usize, 50))
+            .collect();
+        let [lo, hi] = predictive_rate_interval(&worlds, 4000, 2);
+        let inside = (0..4000).filter(|_| (lo..=hi).contains(&beta.sample(&mut rng))).count() as f64 / 4000.0;
+        assert!((0.88..=0.99).contains(&inside), "{inside} of new worlds inside [{lo}, {hi}]");
+    }
+}

@@ -65,20 +65,53 @@ fn transfer_table(t: &nerfsv_study::stress::TransferFigures) -> Table {
         }
         row
     };
-    Table::new(&[
+    let mut table = Table::new(&[
         "world",
         "MC crashes",
         "crash rate [95 %]",
+        "predictive 95 % over worlds",
         "only NeRF / only GT",
         "McNemar exact p",
         "precision",
         "recall",
         "Matthews correlation",
         "accuracy",
-    ])
-    .row(world("NeRF-sim, deployed NeRF as the world", &t.nerf_deployed, Some(&t.deployed)))
-    .row(world("NeRF-sim, the ensemble as the world", &t.nerf_ensemble, Some(&t.ensemble)))
-    .row(world("GT-sim", &t.gt, None))
+    ]);
+    let with_predictive = |mut row: Vec<String>, predictive: String| {
+        row.insert(3, predictive);
+        row
+    };
+    if let (Some(r), Some(x)) = (&t.nerf_calibrated, &t.calibrated) {
+        let rate =
+            nerfsv_study::stress::RateFigure { rate: r.rate, ci95: r.ci95, failures: r.failures, rollouts: r.rollouts };
+        let predictive = format!("[{}, {}] ({} worlds)", pct(r.predictive95[0]), pct(r.predictive95[1]), r.worlds);
+        table = table.row(with_predictive(world("NeRF-sim, calibrated world", &rate, Some(x)), predictive));
+    }
+    table
+        .row(with_predictive(
+            world("NeRF-sim, the ensemble as the world", &t.nerf_ensemble, Some(&t.ensemble)),
+            "–".into(),
+        ))
+        .row(with_predictive(
+            world("NeRF-sim, deployed NeRF as the world", &t.nerf_deployed, Some(&t.deployed)),
+            "–".into(),
+        ))
+        .row(with_predictive(world("GT-sim", &t.gt, None), "–".into()))
+}
+
+/// Of each replayed search's NeRF-sim failures, how many crash in GT-sim too.
+fn searched_precision(f: &StressFigures) -> Table {
+    Table::new(&["sampler", "NeRF-sim failures replayed", "crash in GT-sim too", "precision [95 %]"]).rows(
+        f.samplers.iter().filter_map(|x| {
+            let t = &x.confusion.as_ref()?.trajectories;
+            Some(vec![
+                x.sampler.name().to_uppercase(),
+                t.nerf_failures().to_string(),
+                t.true_positive.to_string(),
+                proportion(t.true_positive, t.nerf_failures()),
+            ])
+        }),
+    )
 }
 
 /// The study's answer from the stress stage: how likely the drone fails under the disturbance
@@ -171,6 +204,13 @@ impl Report for StressStage<'_> {
         if let Some(t) = &f.transfer {
             transfer_part(&mut s, t);
         }
+        if f.samplers.iter().any(|x| x.confusion.is_some() && x.sampler != Sampler::Mc) {
+            s.paragraph(
+                "Searched failures replayed: of each search's NeRF-sim failures, how many crash in GT-sim with the same \
+                 disturbances (subset simulation's rollouts are not replayed).",
+            );
+            s.table(searched_precision(f));
+        }
         sampler_tables(&mut s, f);
         confusion_table(&mut s, f);
         estimator_errors_and_failures(&mut s, f);
@@ -189,14 +229,34 @@ fn transfer_part(s: &mut Section, t: &TransferFigures) {
         5,
         format!(
             "<b>Do failures found in a NeRF predict failures in the world?</b> The same {} Monte Carlo rollouts \
-             (disturbances and seeds) in NeRF-sim with the deployed NeRF as the world, in NeRF-sim with the \
-             ensemble's other members as the world, and in GT-sim; each NeRF world against GT-sim, failure \
-             positive, 95 % intervals (rates and proportions Wilson, correlation bootstrap over rollouts):\n{}",
+             (disturbances and seeds) in each NeRF-sim world and in GT-sim: {}the ensemble's other members as the \
+             world, and the deployed NeRF as the world; each NeRF world against GT-sim, failure positive, 95 % \
+             intervals (rates and proportions Wilson, correlation bootstrap over rollouts){}:\n{}",
             t.gt.rollouts,
+            if t.nerf_calibrated.is_some() {
+                "the calibrated world (the ensemble's members, each rollout's camera images displaced by a draw of the \
+                 perception error model measured on calibration views), "
+            } else {
+                ""
+            },
+            if let Some(c) = &t.nerf_calibrated {
+                format!(
+                    "; the calibrated world's predictive interval is the rate of one world (a member and one error \
+                     function) drawn like its {} worlds, a beta-binomial over them; GT-sim's rate {} it",
+                    c.worlds,
+                    if (c.predictive95[0]..=c.predictive95[1]).contains(&t.gt.rate) {
+                        "lies inside"
+                    } else {
+                        "lies outside"
+                    }
+                )
+            } else {
+                String::new()
+            },
             table.html()
         ),
     );
-    s.paragraph("The transfer table: the Monte Carlo rollouts in both NeRF worlds against GT-sim.");
+    s.paragraph("The transfer table: the Monte Carlo rollouts in each NeRF world against GT-sim.");
     s.table(table);
     if !t.step_auroc.is_empty() {
         s.paragraph(

@@ -1,0 +1,412 @@
+//! Calibration of NeRF-sim against the world: the vision estimator's fit measured on images of
+//! the world at known poses that the deployed NeRF never trained on (the dataset's held-out
+//! split, and a *route capture*: views along the planned route at the drone's altitude, with
+//! the drone's camera), and the perception error model ([`nerfsv_sim::ErrorModel`]) fitted to
+//! those errors, with its coverage on views held out of the fit.
+//!
+//! Each view is fitted as an image in flight is: the same pixels, levels, iterations and
+//! stopping rules, from the prior the first image after a step's disturbance has (the start's
+//! covariance plus the disturbance's), once centred at the true pose and `fits − 1` times
+//! centred at a start drawn from that prior, with the start candidates of such an image.
+
+use std::io::Write;
+use std::path::Path;
+
+use nalgebra::{Matrix3, Vector3};
+use nerfsv_nerf::Nerf;
+use nerfsv_scene::{Image, Intrinsics};
+use nerfsv_sim::camera::{body_to_camera_axes, drone_camera};
+use nerfsv_sim::estimator::{refine_pose, stratified_pixels, Observation, Starts};
+use nerfsv_sim::filter::pose_difference;
+use nerfsv_sim::perception::{AxisPrediction, AXES};
+use nerfsv_sim::{Belief, ErrorModel, ErrorSample, Flight, PosePrior, State, ViewPose, VisionConfig, World};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::StudyError;
+
+/// The `[perception]` table: the calibration views and the calibrated world's draws.
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PerceptionConfig {
+    /// Views of the route capture: ground-truth images along the planned route (built-in scenes
+    /// and meshes; none for a world known only by a dataset). 0: the held-out split only.
+    pub route_views: usize,
+    /// `[metres, degrees]`: the standard deviation per axis by which each route view is moved off
+    /// the route (position) and turned (attitude), as a disturbed drone is.
+    pub route_jitter: [f64; 2],
+    /// Calibrate on the dataset's held-out `test` split as well.
+    pub held_out_split: bool,
+    /// Fits per view: one from the true pose, the others from starts drawn from the prior of the
+    /// first image after a disturbance (each with its own pixels).
+    pub fits_per_view: usize,
+    /// Error functions drawn per ensemble member: the calibrated world's rollouts fall into
+    /// `members × draws_per_member` worlds.
+    pub draws_per_member: usize,
+}
+
+impl Default for PerceptionConfig {
+    fn default() -> Self {
+        Self { route_views: 50, route_jitter: [0.05, 2.0], held_out_split: true, fits_per_view: 3, draws_per_member: 5 }
+    }
+}
+
+impl PerceptionConfig {
+    pub fn validate(&self) -> Result<(), nerfsv_scene::InvalidValue> {
+        use nerfsv_scene::validate::in_range;
+        in_range("route_views", self.route_views, 0, 10_000)?;
+        in_range("route_jitter[0]", self.route_jitter[0], 0.0, 10.0)?;
+        in_range("route_jitter[1]", self.route_jitter[1], 0.0, 90.0)?;
+        in_range("fits_per_view", self.fits_per_view, 1, 100)?;
+        in_range("draws_per_member", self.draws_per_member, 1, 10_000)
+    }
+}
+
+/// Where a calibration view comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewSource {
+    /// The route capture.
+    Route,
+    /// The dataset's held-out split.
+    HeldOut,
+}
+
+/// What a calibration view's image is: a world rendered at the view (the ground truth) or a
+/// recorded image (composited on the background where it is transparent).
+#[derive(Clone, Copy)]
+pub enum ViewImage<'a> {
+    World(&'a dyn World),
+    Image(&'a Image),
+}
+
+/// One calibration view: the drone's true pose (body to world), its camera and its image.
+#[derive(Clone, Copy)]
+pub struct CalibrationView<'a> {
+    pub source: ViewSource,
+    /// Where along the route, `[0, 1]` (route views only).
+    pub route_fraction: Option<f64>,
+    pub position: Vector3<f64>,
+    pub rotation: Matrix3<f64>,
+    pub intrinsics: Intrinsics,
+    pub image: ViewImage<'a>,
+}
+
+impl CalibrationView<'_> {
+    /// The drone's pose of a camera whose camera-to-world rotation is `camera` (OpenGL axes).
+    pub fn body_rotation(camera: &Matrix3<f64>) -> Matrix3<f64> {
+        camera * body_to_camera_axes().transpose()
+    }
+}
+
+/// The poses of a route capture: `n` views at evenly spread times of the planned flight, each
+/// moved and turned off the route by `jitter` (`[m, °]` standard deviations) from `seed`.
+pub fn route_poses(flight: &Flight, n: usize, jitter: [f64; 2], seed: u64) -> Vec<(f64, Vector3<f64>, Matrix3<f64>)> {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let duration = flight.reference.duration();
+    (0..n)
+        .map(|i| {
+            let fraction = (i as f64 + 0.5) / n as f64;
+            let at = flight.reference.at_rest(fraction * duration);
+            let dp = Vector3::from_fn(|_, _| jitter[0] * normal(&mut rng));
+            let dr = Vector3::from_fn(|_, _| jitter[1].to_radians() * normal(&mut rng));
+            let rotation = nerfsv_sim::dynamics::reorthonormalise(&(nerfsv_sim::dynamics::so3_exp(&dr) * at.rotation));
+            (fraction, at.position + dp, rotation)
+        })
+        .collect()
+}
+
+fn normal(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
+    use rand::RngExt;
+    let u: f64 = 1.0 - rng.random::<f64>();
+    let v: f64 = rng.random();
+    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+}
+
+/// One fit of one calibration view.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationRecord {
+    pub source: ViewSource,
+    pub view: usize,
+    pub fit: usize,
+    pub route_fraction: Option<f64>,
+    pub at: ViewPose,
+    /// The fit's pose minus the true pose, [`AXES`]' order.
+    pub error: [f64; 6],
+    /// The fit's colour RMSE, variance factor and renders.
+    pub rmse: f64,
+    pub variance_factor: f64,
+    pub renders: usize,
+}
+
+impl CalibrationRecord {
+    pub fn sample(&self) -> ErrorSample {
+        ErrorSample { view: self.view, at: self.at, error: self.error }
+    }
+
+    pub fn position_error_m(&self) -> f64 {
+        Vector3::new(self.error[0], self.error[1], self.error[2]).norm()
+    }
+
+    pub fn rotation_error_deg(&self) -> f64 {
+        Vector3::new(self.error[3], self.error[4], self.error[5]).norm().to_degrees()
+    }
+}
+
+/// Fits every view `fits` times against `nerf` as the estimator `vision` fits an image in
+/// flight; view `v`'s fit `f` draws its pixels and start from `seed`, `v` and `f`.
+pub fn measure(
+    views: &[CalibrationView],
+    nerf: &Nerf,
+    vision: &VisionConfig,
+    background: [f32; 3],
+    fits: usize,
+    seed: u64,
+) -> Vec<CalibrationRecord> {
+    let jobs: Vec<(usize, usize)> = (0..views.len()).flat_map(|v| (0..fits).map(move |f| (v, f))).collect();
+    jobs.par_iter()
+        .map(|&(v, f)| {
+            let view = &views[v];
+            let fit_seed = nerfsv_scene::seed::mix(seed, v as u64 + 1, f as u64);
+            let truth = State { rotation: view.rotation, ..State::at_rest(view.position, 0.0) };
+            let mut belief = Belief::new(truth, &vision.initial_std);
+            belief.disturb(&vision.disturbance_std);
+            let information = belief.pose_information();
+            // Fit 0 from the truth, the others from a start drawn from the prior.
+            let (position, rotation) = if f == 0 {
+                (truth.position, truth.rotation)
+            } else {
+                use rand::SeedableRng;
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(nerfsv_scene::seed::mix(fit_seed, 0x57a7, 0));
+                let cov = belief.pose_covariance();
+                let d: [f64; 6] = std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt() * normal(&mut rng));
+                let turned = nerfsv_sim::dynamics::so3_exp(&Vector3::new(d[3], d[4], d[5])) * truth.rotation;
+                (truth.position + Vector3::new(d[0], d[1], d[2]), nerfsv_sim::dynamics::reorthonormalise(&turned))
+            };
+            let prior = PosePrior { position, rotation, information };
+            let pixels = stratified_pixels(&view.intrinsics, vision.pixels, fit_seed);
+            let camera = drone_camera(view.intrinsics, &truth.position, &truth.rotation);
+            let colours: Vec<[f32; 3]> = match view.image {
+                ViewImage::World(world) => world.observe(&camera, &pixels, background),
+                ViewImage::Image(image) => pixels
+                    .iter()
+                    .map(|&[i, j]| {
+                        let p = image.pixel(i, j);
+                        std::array::from_fn(|c| p[c] * p[3] + background[c] * (1.0 - p[3]))
+                    })
+                    .collect(),
+            };
+            let observation = Observation { pixels: &pixels, colours: &colours, background };
+            let fit = refine_pose(
+                nerf,
+                view.intrinsics,
+                &prior,
+                observation,
+                vision,
+                Starts::one_sigma(vision.start_candidates),
+            );
+            let e = pose_difference(&fit.position, &fit.rotation, &truth);
+            CalibrationRecord {
+                source: view.source,
+                view: v,
+                fit: f,
+                route_fraction: view.route_fraction,
+                at: ViewPose::of_camera(&camera),
+                error: std::array::from_fn(|i| e[i]),
+                rmse: fit.rmse,
+                variance_factor: fit.variance_factor,
+                renders: fit.renders,
+            }
+        })
+        .collect()
+}
+
+/// The CSV of the calibration fits: one row per fit.
+pub fn write_records_csv(path: &Path, records: &[CalibrationRecord]) -> Result<(), StudyError> {
+    let header = format!(
+        "source,view,fit,route_fraction,x_m,y_m,z_m,forward_x,forward_y,forward_z,{},rmse,variance_factor,renders\n",
+        AXES.join(",")
+    );
+    nerfsv_scene::io::atomic_write(path, |w| {
+        w.write_all(header.as_bytes())?;
+        for r in records {
+            let source = match r.source {
+                ViewSource::Route => "route",
+                ViewSource::HeldOut => "held_out",
+            };
+            let fraction = r.route_fraction.map_or(String::new(), |f| f.to_string());
+            let at: Vec<String> = r.at.position.iter().chain(&r.at.forward).map(f64::to_string).collect();
+            let e: Vec<String> = r.error.iter().map(f64::to_string).collect();
+            writeln!(
+                w,
+                "{source},{},{},{fraction},{},{},{},{},{}",
+                r.view,
+                r.fit,
+                at.join(","),
+                e.join(","),
+                r.rmse,
+                r.variance_factor,
+                r.renders
+            )?;
+        }
+        Ok(())
+    })
+    .map_err(|e| StudyError::io(path, e))
+}
+
+/// How well a model's 90 % predictive interval covers fits of views held out of its fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Coverage {
+    /// Per axis ([`AXES`]), the fraction of held-out fits inside the 90 % interval.
+    pub coverage90: [f64; 6],
+    /// Mean log predictive density per held-out fit, summed over the axes (nats).
+    pub log_density: f64,
+    pub held_out_fits: usize,
+}
+
+/// The two models compared on views held out of their fit, `folds`-fold by view.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CrossValidation {
+    pub folds: usize,
+    /// The Gaussian process over the view (the model the calibrated world draws from).
+    pub gaussian_process: Coverage,
+    /// The alternative without spatial correlation: each axis one Gaussian (mean and spread of
+    /// the fold's fits), the same at every view.
+    pub independent: Coverage,
+}
+
+const Z90: f64 = 1.644_853_626_951_472_2;
+
+fn log_normal(x: f64, mean: f64, sd: f64) -> f64 {
+    let sd = sd.max(1e-12);
+    -0.5 * ((x - mean) / sd).powi(2) - sd.ln() - 0.5 * (std::f64::consts::TAU).ln()
+}
+
+/// [`CrossValidation`] of `samples`: view `v` is held out in fold `v mod folds`.
+pub fn cross_validate(samples: &[ErrorSample], folds: usize) -> CrossValidation {
+    let folds = folds.max(2);
+    let per_fold: Vec<(Coverage, Coverage)> = (0..folds)
+        .into_par_iter()
+        .map(|k| {
+            let (test, train): (Vec<ErrorSample>, Vec<ErrorSample>) = samples.iter().partition(|s| s.view % folds == k);
+            let mut gp = Coverage { held_out_fits: test.len(), ..Default::default() };
+            let mut iid = gp;
+            if train.len() < 2 || test.is_empty() {
+                return (gp, iid);
+            }
+            let model = ErrorModel::fit(&train);
+            let n = train.len() as f64;
+            let moments: [(f64, f64); 6] = std::array::from_fn(|a| {
+                let mean = train.iter().map(|s| s.error[a]).sum::<f64>() / n;
+                let var = train.iter().map(|s| (s.error[a] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+                (mean, (var * (1.0 + 1.0 / n)).sqrt())
+            });
+            for s in &test {
+                let p: [AxisPrediction; 6] = model.predict(&s.at);
+                for a in 0..6 {
+                    let (m, sd) = (p[a].mean, p[a].predictive_sd());
+                    gp.coverage90[a] += f64::from(u8::from((s.error[a] - m).abs() <= Z90 * sd));
+                    gp.log_density += log_normal(s.error[a], m, sd);
+                    let (m, sd) = moments[a];
+                    iid.coverage90[a] += f64::from(u8::from((s.error[a] - m).abs() <= Z90 * sd));
+                    iid.log_density += log_normal(s.error[a], m, sd);
+                }
+            }
+            (gp, iid)
+        })
+        .collect();
+    let total = |pick: fn(&(Coverage, Coverage)) -> &Coverage| {
+        let n: usize = per_fold.iter().map(|c| pick(c).held_out_fits).sum();
+        let d = n.max(1) as f64;
+        Coverage {
+            coverage90: std::array::from_fn(|a| per_fold.iter().map(|c| pick(c).coverage90[a]).sum::<f64>() / d),
+            log_density: per_fold.iter().map(|c| pick(c).log_density).sum::<f64>() / d,
+            held_out_fits: n,
+        }
+    };
+    CrossValidation { folds, gaussian_process: total(|c| &c.0), independent: total(|c| &c.1) }
+}
+
+/// What the calibration measured, for `summary.json` and the report.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationFigures {
+    pub route_views: usize,
+    pub held_out_views: usize,
+    pub fits: usize,
+    /// Median and 90th percentile of the fits' position (mm) and rotation (°) errors.
+    pub position_error_mm: [f64; 2],
+    pub rotation_error_deg: [f64; 2],
+    /// Mean renders per fit.
+    pub renders_per_fit: f64,
+    /// The mean error over the fits per axis ([`AXES`]): the bias every view shares.
+    pub mean_error: [f64; 6],
+    /// The fitted model's kernels per axis.
+    pub kernels: Vec<nerfsv_sim::perception::AxisKernel>,
+    pub cross_validation: CrossValidation,
+    /// Seconds spent fitting views, and fitting and validating the model.
+    pub measure_seconds: f64,
+    pub model_seconds: f64,
+}
+
+impl CalibrationFigures {
+    pub fn of(records: &[CalibrationRecord], model: &ErrorModel, cv: CrossValidation) -> Self {
+        let count = |s: ViewSource| {
+            let mut v: Vec<usize> = records.iter().filter(|r| r.source == s).map(|r| r.view).collect();
+            v.dedup();
+            v.len()
+        };
+        let q = |mut v: Vec<f64>| -> [f64; 2] {
+            if v.is_empty() {
+                return [f64::NAN; 2];
+            }
+            v.sort_by(f64::total_cmp);
+            [nerfsv_scene::stats::quantile_sorted(&v, 0.5), nerfsv_scene::stats::quantile_sorted(&v, 0.9)]
+        };
+        let n = records.len().max(1) as f64;
+        Self {
+            route_views: count(ViewSource::Route),
+            held_out_views: count(ViewSource::HeldOut),
+            fits: records.len(),
+            position_error_mm: q(records.iter().map(|r| r.position_error_m() * 1e3).collect()),
+            rotation_error_deg: q(records.iter().map(CalibrationRecord::rotation_error_deg).collect()),
+            renders_per_fit: records.iter().map(|r| r.renders as f64).sum::<f64>() / n,
+            mean_error: std::array::from_fn(|a| records.iter().map(|r| r.error[a]).sum::<f64>() / n),
+            kernels: model.kernels().to_vec(),
+            cross_validation: cv,
+            measure_seconds: 0.0,
+            model_seconds: 0.0,
+        }
+    }
+}
+
+/// The figure of the position errors along the route: each route fit's error per axis (mm)
+/// against where along the route it was taken, and the model's mean and 90 % predictive band
+/// along the un-moved route.
+pub fn route_figure(
+    records: &[CalibrationRecord],
+    model: &ErrorModel,
+    route: &[(f64, ViewPose)],
+) -> nerfsv_plot::ScatterFigure {
+    let mut groups = Vec::new();
+    for (a, name) in ["x", "y", "z"].iter().enumerate() {
+        groups.push(nerfsv_plot::PointGroup {
+            label: format!("δ{name} measured"),
+            points: records.iter().filter_map(|r| r.route_fraction.map(|f| [f, r.error[a] * 1e3])).collect(),
+        });
+        let mut band = Vec::new();
+        for (f, at) in route {
+            let p = model.predict(at)[a];
+            band.push([*f, p.mean * 1e3]);
+            band.push([*f, (p.mean + Z90 * p.predictive_sd()) * 1e3]);
+            band.push([*f, (p.mean - Z90 * p.predictive_sd()) * 1e3]);
+        }
+        groups.push(nerfsv_plot::PointGroup { label: format!("δ{name} model: mean and 90 % band"), points: band });
+    }
+    nerfsv_plot::ScatterFigure {
+        title: "The estimator's fit error along the route (ground-truth images against the deployed NeRF)".into(),
+        x_title: "fraction of the route".into(),
+        y_title: "position error, mm".into(),
+        groups,
+    }
+}

@@ -157,7 +157,7 @@ const LENGTH_POSITION: [f64; 7] = [1.0 / 32.0, 1.0 / 16.0, 1.0 / 8.0, 0.25, 0.5,
 /// Direction length scales tried (unit vectors: 2 is opposite).
 const LENGTH_DIRECTION: [f64; 4] = [0.25, 0.5, 1.0, 2.0];
 /// Noise-to-signal variance ratios tried.
-const NOISE_RATIO: [f64; 7] = [0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0];
+const NOISE_RATIO: [f64; 9] = [0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0];
 
 impl AxisFit {
     fn correlation_matrix(samples: &[ErrorSample], kernel: &AxisKernel, ratio: f64) -> DMatrix<f64> {

@@ -10,6 +10,9 @@
 //!   the paper's rewards of eqs. 10–11 ([`UncertaintyReward`]) for CEM's ranking.
 //! - [`remote`]: rollouts flown in other processes (the Python package's Ray executor), and
 //!   the exact encodings of what crosses to them.
+//! - [`calibration`]: the estimator's fit measured on calibration views (a route capture and the
+//!   held-out split), the perception error model fitted to it and its coverage on views held out
+//!   of the fit.
 //! - [`flight`]: one flight planned, flown, written and plotted ([`flight::fly_and_write`]).
 //! - [`stress`]: the searches over the drone's disturbances in one world, replayed in the other,
 //!   with the paper's tables, the confusion matrices and the most likely failures

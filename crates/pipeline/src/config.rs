@@ -752,7 +752,7 @@ mod tests {
         let cfg = RunConfig::load(&path).unwrap();
         let default = RunConfig::default();
         assert_eq!(cfg.sim.start, [0.3, -0.9, 0.2]);
-        assert_eq!(cfg.sim.nerf_world, nerfsv_sim::NerfWorldSource::Ensemble);
+        assert_eq!(cfg.sim.nerf_world, nerfsv_sim::NerfWorldSource::Calibrated);
         assert_eq!((cfg.ensemble.members, cfg.ensemble.bootstrap), (DEFAULT_ENSEMBLE_MEMBERS, true));
         assert_eq!(cfg.dataset.train, 200);
         assert_eq!(cfg.dataset.close_up_fraction, default.dataset.close_up_fraction);
@@ -771,8 +771,8 @@ mod tests {
         let cfg = RunConfig::load_one_model(&path).unwrap();
         assert_eq!(cfg.sim.vision.pixels, 16);
         assert_eq!(cfg.sim.nerf_world, nerfsv_sim::NerfWorldSource::Deployed);
-        // The same file read as a run's config keeps the run's ensemble world.
-        assert_eq!(RunConfig::load(&path).unwrap().sim.nerf_world, nerfsv_sim::NerfWorldSource::Ensemble);
+        // The same file read as a run's config keeps the run's calibrated world.
+        assert_eq!(RunConfig::load(&path).unwrap().sim.nerf_world, nerfsv_sim::NerfWorldSource::Calibrated);
         std::fs::write(&path, "[sim]\nnerf_world = \"ensemble\"\n").unwrap();
         let error = RunConfig::load_one_model(&path).unwrap_err().to_string();
         assert!(error.contains("sim.nerf_world") && error.contains("study.toml"), "{error}");
@@ -793,7 +793,8 @@ mod tests {
             ("[uq_offline]\nga_images_per_split = 0", "uq_offline.ga_images_per_split", "0"),
             ("[online]\nmc_rollouts = 0", "online.mc_rollouts", "0"),
             ("[online]\nmethods = [\"ga\", \"ga\"]", "online.methods", "Ga"),
-            ("[ensemble]\nmembers = 1", "sim.nerf_world", "ensemble"),
+            ("[ensemble]\nmembers = 1", "sim.nerf_world", "calibrated"),
+            ("[perception]\nfits_per_view = 0", "perception.fits_per_view", "0"),
             ("[sim]\nnerf_world = \"ensemble\"\n[ensemble]\nmembers = 1", "sim.nerf_world", "ensemble"),
             ("[ensemble]\nmembers = 17", "ensemble.members", "17"),
             ("[ensemble]\nsteps = 0", "ensemble.steps", "0"),

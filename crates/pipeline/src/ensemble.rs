@@ -69,6 +69,10 @@ pub struct EnsembleFigures {
     pub bootstrap: bool,
     /// Members 1..K.
     pub trained: Vec<MemberFigures>,
+    /// The deployed model's PSNR on the same [`EnsembleStage::EVAL_VIEWS`] test views as the
+    /// members', dB (the eval stage's figure is over every test view).
+    #[serde(default)]
+    pub deployed_test_psnr: Option<f64>,
 }
 
 impl EnsembleStage<'_> {
@@ -114,13 +118,13 @@ impl Stage for EnsembleStage<'_> {
     const CODE: &'static [&'static str] = &["nerfsv-nerf", "nerfsv-collision", "ensemble.rs", "stages.rs"];
     const OUTPUTS: &'static [&'static str] = &[Self::MEMBERS];
     const RESUMABLE: bool = true;
-    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME];
+    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, crate::stages::Train::NAME];
     type Figures = EnsembleFigures;
 
     fn inputs(&self) -> &'static [&'static str] {
         match self.own_grid {
             None => Self::INPUTS,
-            Some(_) => &[Dataset::NAME],
+            Some(_) => &[Dataset::NAME, crate::stages::Train::NAME],
         }
     }
 
@@ -131,6 +135,7 @@ impl Stage for EnsembleStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<EnsembleFigures, PipelineError> {
         let steps = self.steps();
         let mut trained = Vec::new();
+        let mut deployed_test_psnr = None;
         if self.ensemble.members > 1 {
             let folder = Dataset::folder(cx.root)?;
             let data = load_dataset_split(&folder, "train", 1)?;
@@ -138,6 +143,9 @@ impl Stage for EnsembleStage<'_> {
             for k in 1..self.ensemble.members {
                 trained.push(self.member(cx, k, steps, &data, &test)?);
             }
+            let deployed = Nerf::load(&crate::stages::Train::checkpoint(cx.root))?;
+            let options = EvalOptions { max_images: Some(Self::EVAL_VIEWS), ..EvalOptions::default() };
+            deployed_test_psnr = Some(nerfsv_nerf::evaluate_with_progress(&deployed, &test, options, &|_, _| {})?.psnr);
         }
         // The list later stages read: what each member is, no timings (the same bytes on any
         // machine; the figures with their timings are the stage's record).
@@ -146,7 +154,13 @@ impl Stage for EnsembleStage<'_> {
             .map(|m| MemberEntry { member: m.member, seed: m.seed, distinct_views: m.distinct_views })
             .collect();
         write_json(&cx.dir.join(Self::MEMBERS), &list)?;
-        Ok(EnsembleFigures { members: self.ensemble.members, steps, bootstrap: self.ensemble.bootstrap, trained })
+        Ok(EnsembleFigures {
+            members: self.ensemble.members,
+            steps,
+            bootstrap: self.ensemble.bootstrap,
+            trained,
+            deployed_test_psnr,
+        })
     }
 }
 

@@ -15,7 +15,9 @@ impl Report for crate::ensemble::EnsembleStage<'_> {
             return "one member, the deployed model: no other trained".into();
         }
         let psnr: Vec<String> = f.trained.iter().map(|m| format!("{:.2}", m.test_psnr)).collect();
-        format!("{} more members of {} steps (test PSNR {} dB)", f.trained.len(), f.steps, psnr.join(", "))
+        let deployed =
+            f.deployed_test_psnr.map_or(String::new(), |p| format!("; the deployed model {p:.2} dB on the same views"));
+        format!("{} more members of {} steps (test PSNR {} dB{deployed})", f.trained.len(), f.steps, psnr.join(", "))
     }
 
     fn report(f: &crate::ensemble::EnsembleFigures, _: &ReportContext) -> Option<Section> {
@@ -34,6 +36,13 @@ impl Report for crate::ensemble::EnsembleStage<'_> {
             if f.bootstrap { ", each on a bootstrap of the training views" } else { "" },
             f.trained.len()
         ));
+        if let Some(p) = f.deployed_test_psnr {
+            s.paragraph(format!(
+                "The deployed model (member 0) scores {} dB on the same {} test views.",
+                num(p, 2),
+                crate::ensemble::EnsembleStage::EVAL_VIEWS
+            ));
+        }
         s.table(
             Table::new(&[
                 "member",

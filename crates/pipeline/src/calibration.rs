@@ -12,17 +12,18 @@ use std::time::Instant;
 use nalgebra::{Matrix3, Vector3};
 use nerfsv_scene::seed::mix;
 use nerfsv_sim::camera::drone_camera;
-use nerfsv_sim::{ErrorModel, GroundTruthWorld, NerfWorldSource, SimConfig, ViewPose};
+use nerfsv_sim::{ErrorModel, GroundTruthWorld, NerfWorld, NerfWorldSource, SimConfig, ViewPose};
 use nerfsv_study::calibration::{
-    cross_validate, measure, route_figure, route_poses, write_records_csv, CalibrationFigures, CalibrationView,
-    PerceptionConfig, ViewImage, ViewSource,
+    cross_validate, differences, measure, route_figure, route_poses, write_records_csv, CalibrationFigures,
+    CalibrationView, ErrorModels, PerceptionConfig, ViewImage, ViewSource,
 };
 use nerfsv_study::flight::{Calibration, Drone};
 use serde::Serialize;
 
-use crate::flight::{drone_inputs, flight_inputs};
+use crate::ensemble::EnsembleStage;
+use crate::flight::flight_inputs;
 use crate::stage::{Stage, StageContext};
-use crate::stages::{load_dataset_split, Dataset};
+use crate::stages::{load_dataset_split, Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
 /// The calibration stage.
@@ -36,8 +37,9 @@ pub struct CalibrationStage<'a> {
 impl CalibrationStage<'_> {
     /// One row per fit ([`nerfsv_study::calibration::CalibrationRecord`]).
     pub const VIEWS_CSV: &'static str = "calibration_fits.csv";
-    /// The fitted model ([`ErrorModel`]'s samples and kernels).
-    pub const MODEL_JSON: &'static str = "error_model.json";
+    /// The fitted models ([`ErrorModels`]: the real error's and one per member, each as its
+    /// samples and kernels).
+    pub const MODEL_JSON: &'static str = "error_models.json";
     /// The errors along the route and the model's band.
     pub const ROUTE_PNG: &'static str = "route_errors.png";
     /// Folds of the cross-validation by view.
@@ -47,9 +49,9 @@ impl CalibrationStage<'_> {
     pub fn load(root: &Path, perception: &PerceptionConfig, seed: u64) -> Result<Calibration, PipelineError> {
         let path = root.join(<Self as Stage>::NAME).join(Self::MODEL_JSON);
         let text = std::fs::read_to_string(&path).map_err(|e| PipelineError::io(&path, e))?;
-        let model: ErrorModel = serde_json::from_str(&text)
-            .map_err(|e| PipelineError::Internal(format!("{}: not an error model: {e}", path.display())))?;
-        Ok(Calibration { model, draws_per_member: perception.draws_per_member, seed })
+        let models: ErrorModels = serde_json::from_str(&text)
+            .map_err(|e| PipelineError::Internal(format!("{}: not error models: {e}", path.display())))?;
+        Ok(Calibration { models: models.members, draws_per_member: perception.draws_per_member, seed })
     }
 }
 
@@ -60,13 +62,17 @@ fn view_of(intrinsics: nerfsv_scene::Intrinsics, position: &Vector3<f64>, rotati
 
 impl Stage for CalibrationStage<'_> {
     const NAME: &'static str = "calibration";
-    const CODE: &'static [&'static str] = &["nerfsv-study", "calibration.rs", "flight.rs", "stages.rs"];
+    const CODE: &'static [&'static str] = &["nerfsv-study", "calibration.rs", "flight.rs", "stages.rs", "ensemble.rs"];
     const OUTPUTS: &'static [&'static str] = &[Self::VIEWS_CSV, Self::MODEL_JSON, Self::ROUTE_PNG];
-    const INPUTS: &'static [&'static str] = drone_inputs(true);
+    const INPUTS: &'static [&'static str] =
+        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME];
     type Figures = CalibrationFigures;
 
     fn inputs(&self) -> &'static [&'static str] {
-        drone_inputs(self.drone.scene.is_some())
+        match self.drone.scene.is_some() {
+            true => Self::INPUTS,
+            false => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
+        }
     }
 
     fn config(&self) -> impl Serialize {
@@ -126,16 +132,35 @@ impl Stage for CalibrationStage<'_> {
         cx.progress(0, 2, &format!("fitting {} views {} times each", views.len(), p.fits_per_view));
         let start = Instant::now();
         let records = measure(&views, &inputs.nerf, &sim.vision, sim.background, p.fits_per_view, self.seed);
-        let measure_seconds = start.elapsed().as_secs_f64();
         write_records_csv(&cx.dir.join(Self::VIEWS_CSV), &records)?;
+        // Each member's own images at the same views, pixels and starts.
+        let members = EnsembleStage::load_members(cx.root)?;
+        let mut member_records = Vec::new();
+        for (k, m) in members.iter().enumerate() {
+            cx.progress(0, 2, &format!("fitting member {}'s images of the same views", k + 1));
+            let world = NerfWorld { nerf: &m.nerf, field: &m.field };
+            let own: Vec<CalibrationView> =
+                views.iter().map(|v| CalibrationView { image: ViewImage::World(&world), ..*v }).collect();
+            let rs = measure(&own, &inputs.nerf, &sim.vision, sim.background, p.fits_per_view, self.seed);
+            write_records_csv(&cx.dir.join(format!("calibration_fits_member_{}.csv", k + 1)), &rs)?;
+            member_records.push(rs);
+        }
+        let measure_seconds = start.elapsed().as_secs_f64();
         cx.progress(1, 2, "fitting the error model");
         let start = Instant::now();
         let samples: Vec<_> = records.iter().map(|r| r.sample()).collect();
         let model = ErrorModel::fit(&samples);
         let cv = cross_validate(&samples, Self::FOLDS);
+        let member_samples: Vec<Vec<_>> = member_records.iter().map(|rs| differences(&records, rs)).collect();
+        let models =
+            ErrorModels { real: model.clone(), members: member_samples.iter().map(|d| ErrorModel::fit(d)).collect() };
+        let member_mean_difference = member_samples
+            .iter()
+            .map(|d| std::array::from_fn(|a| d.iter().map(|s| s.error[a]).sum::<f64>() / d.len().max(1) as f64))
+            .collect();
         let model_seconds = start.elapsed().as_secs_f64();
         let path = cx.dir.join(Self::MODEL_JSON);
-        nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer(w, &model).map_err(std::io::Error::other))
+        nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer(w, &models).map_err(std::io::Error::other))
             .map_err(|e| PipelineError::io(&path, e))?;
         let duration = flight.reference.duration();
         let route: Vec<(f64, ViewPose)> = (0..100)
@@ -150,7 +175,12 @@ impl Stage for CalibrationStage<'_> {
             .map_err(|e| PipelineError::Internal(format!("the route's error figure: {e}")))?;
         let path = cx.dir.join(Self::ROUTE_PNG);
         nerfsv_scene::io::atomic_write(&path, |w| w.write_all(&png)).map_err(|e| PipelineError::io(&path, e))?;
-        Ok(CalibrationFigures { measure_seconds, model_seconds, ..CalibrationFigures::of(&records, &model, cv) })
+        Ok(CalibrationFigures {
+            measure_seconds,
+            model_seconds,
+            member_mean_difference,
+            ..CalibrationFigures::of(&records, &model, cv)
+        })
     }
 }
 

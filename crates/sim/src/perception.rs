@@ -403,8 +403,10 @@ pub fn displaced(camera: &Camera, e: &[f64; 6]) -> Camera {
 }
 
 /// NeRF-sim's calibrated world: [`crate::EnsembleWorld`]'s members, each rollout's camera
-/// images rendered from the true pose displaced by its world's draw from the perception error
-/// model. Rollout seed `s` flies world `w = s mod (members · draws_per_member)`: member
+/// images rendered from the true pose displaced by its world's draw from its member's
+/// perception error model (for a member, the real images' fit error less that member's own
+/// images' fit error at the same views: the member's rendering plus the displacement then errs
+/// the way the real camera does). Rollout seed `s` flies world `w = s mod (members · draws_per_member)`: member
 /// `w mod members` (the ensemble world's member of `s`) with draw `w`, so the rollouts fall into
 /// worlds of several rollouts each, over which NeRF-sim's rate has a predictive interval.
 pub struct CalibratedWorld<'a> {
@@ -413,11 +415,19 @@ pub struct CalibratedWorld<'a> {
 }
 
 impl<'a> CalibratedWorld<'a> {
-    /// `members` (at least one) with `draws_per_member` (at least one) draws each from `model`,
-    /// draw `w` seeded by `seed` and `w`.
-    pub fn new(members: Vec<NerfWorld<'a>>, model: &ErrorModel, draws_per_member: usize, seed: u64) -> Self {
-        let worlds = members.len().max(1) * draws_per_member.max(1);
-        let draws = (0..worlds).map(|w| model.draw(nerfsv_scene::seed::mix(seed, 0xca11b, w as u64))).collect();
+    /// `members` (at least one) with `draws_per_member` (at least one) draws each, member `m`'s
+    /// from `models[m]` (the last model for members beyond them; none: no error), draw `w`
+    /// seeded by `seed` and `w`.
+    pub fn new(members: Vec<NerfWorld<'a>>, models: &[ErrorModel], draws_per_member: usize, seed: u64) -> Self {
+        let m = members.len().max(1);
+        let worlds = m * draws_per_member.max(1);
+        let zero = ErrorModel::zero();
+        let draws = (0..worlds)
+            .map(|w| {
+                let model = models.get(w % m).or(models.last()).unwrap_or(&zero);
+                model.draw(nerfsv_scene::seed::mix(seed, 0xca11b, w as u64))
+            })
+            .collect();
         Self { members, draws }
     }
 

@@ -255,6 +255,29 @@ pub fn write_records_csv(path: &Path, records: &[CalibrationRecord]) -> Result<(
     .map_err(|e| StudyError::io(path, e))
 }
 
+/// The perception error models a calibration fits: `real`, the estimator's fit error on the
+/// world's images (what the report shows and the cross-validation scores), and one per ensemble
+/// member, the real error less that member's at the same views (what the calibrated world draws
+/// from, so that a member's own rendering errors are not counted twice).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ErrorModels {
+    pub real: ErrorModel,
+    pub members: Vec<ErrorModel>,
+}
+
+/// The paired differences `real − member` of fits of the same views with the same pixels and
+/// starts (matched on view and fit).
+pub fn differences(real: &[CalibrationRecord], member: &[CalibrationRecord]) -> Vec<ErrorSample> {
+    let by_key: std::collections::HashMap<(usize, usize), &CalibrationRecord> =
+        member.iter().map(|r| ((r.view, r.fit), r)).collect();
+    real.iter()
+        .filter_map(|r| {
+            let m = by_key.get(&(r.view, r.fit))?;
+            Some(ErrorSample { view: r.view, at: r.at, error: std::array::from_fn(|a| r.error[a] - m.error[a]) })
+        })
+        .collect()
+}
+
 /// How well a model's 90 % predictive interval covers fits of views held out of its fit.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Coverage {
@@ -344,6 +367,10 @@ pub struct CalibrationFigures {
     /// The fitted model's kernels per axis.
     pub kernels: Vec<nerfsv_sim::perception::AxisKernel>,
     pub cross_validation: CrossValidation,
+    /// Per ensemble member, the mean over the fits of the real error less the member's own
+    /// ([`AXES`]): the correction the calibrated world's draws for that member are centred near.
+    #[serde(default)]
+    pub member_mean_difference: Vec<[f64; 6]>,
     /// Seconds spent fitting views, and fitting and validating the model.
     pub measure_seconds: f64,
     pub model_seconds: f64,
@@ -374,6 +401,7 @@ impl CalibrationFigures {
             mean_error: std::array::from_fn(|a| records.iter().map(|r| r.error[a]).sum::<f64>() / n),
             kernels: model.kernels().to_vec(),
             cross_validation: cv,
+            member_mean_difference: Vec::new(),
             measure_seconds: 0.0,
             model_seconds: 0.0,
         }

@@ -401,7 +401,9 @@ pub struct FlightInputs {
 /// What NeRF-sim's calibrated world draws its errors from.
 #[derive(Clone, Debug)]
 pub struct Calibration {
-    pub model: nerfsv_sim::ErrorModel,
+    /// One per member of the ensemble, in order
+    /// ([`crate::calibration::ErrorModels::members`]).
+    pub models: Vec<nerfsv_sim::ErrorModel>,
     /// Error functions per member ([`crate::calibration::PerceptionConfig::draws_per_member`]).
     pub draws_per_member: usize,
     /// Seeds the draws (the validation seed: a rollout's world is a function of it and the
@@ -470,7 +472,7 @@ pub fn drone_world<'a>(
         (WorldKind::Nerf, NerfWorldSource::Calibrated) => {
             let c = inputs.calibration.as_ref().ok_or(StudyError::NoCalibration)?;
             let members = inputs.members.iter().map(|m| NerfWorld { nerf: &m.nerf, field: &m.field }).collect();
-            Ok(Box::new(nerfsv_sim::CalibratedWorld::new(members, &c.model, c.draws_per_member, c.seed)))
+            Ok(Box::new(nerfsv_sim::CalibratedWorld::new(members, &c.models, c.draws_per_member, c.seed)))
         }
         (WorldKind::Nerf, NerfWorldSource::Ensemble) => Ok(Box::new(EnsembleWorld {
             members: inputs.members.iter().map(|m| NerfWorld { nerf: &m.nerf, field: &m.field }).collect(),

@@ -136,7 +136,7 @@ fn a_calibrated_world_without_error_is_the_ensemble_world_byte_for_byte() {
     let field = free_field();
     let sim = simulator(&nerfs()[0]);
     let ensemble = EnsembleWorld { members: members(&field) };
-    let calibrated = CalibratedWorld::new(members(&field), &ErrorModel::zero(), 3, 11);
+    let calibrated = CalibratedWorld::new(members(&field), &[ErrorModel::zero(), ErrorModel::zero()], 3, 11);
     for seed in [0, 1, 5, 17] {
         let a = sim.fly(&ensemble, EstimatorKind::Vision, &kicks(), seed);
         let b = sim.fly(&calibrated, EstimatorKind::Vision, &kicks(), seed);
@@ -157,7 +157,8 @@ fn a_rollouts_world_is_a_function_of_the_seeds_and_its_error_reaches_the_estimat
         })
         .collect();
     let model = ErrorModel::fit(&samples);
-    let build = || CalibratedWorld::new(members(&field), &model, 3, 11);
+    let models = [model.clone(), model.clone()];
+    let build = || CalibratedWorld::new(members(&field), &models, 3, 11);
     let (one, two) = (build(), build());
     let ensemble = EnsembleWorld { members: members(&field) };
     // Even seeds fly member 0, the estimator's own NeRF: its images differ from the

@@ -90,6 +90,21 @@ impl Report for CalibrationStage<'_> {
                 ]
             })),
         );
+        if !f.member_mean_difference.is_empty() {
+            s.paragraph(
+                "The calibrated world does not draw the real error itself: each ensemble member's own images of the same \
+                 views (same pixels, same starts) are fitted too, and that member's model is of the real error less the \
+                 member's, so that a member's rendering errors are not counted twice. The mean of that difference per \
+                 member (mm and mrad):",
+            );
+            s.table(Table::new(&["member", AXES[0], AXES[1], AXES[2], AXES[3], AXES[4], AXES[5]]).rows(
+                f.member_mean_difference.iter().enumerate().map(|(k, d)| {
+                    let mut row = vec![(k + 1).to_string()];
+                    row.extend(d.iter().map(|v| num(v * 1e3, 2)));
+                    row
+                }),
+            ));
+        }
         s.csv(CalibrationStage::VIEWS_CSV, "calibration_fits.csv");
         Some(s)
     }

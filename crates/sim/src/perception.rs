@@ -177,42 +177,71 @@ impl AxisFit {
         Some(Self { kernel, chol: Some(chol), alpha })
     }
 
-    /// The kernel of `axis` with the largest marginal likelihood over the grid (`s²` profiled out).
-    fn best(samples: &[ErrorSample], axis: usize, spread: f64) -> AxisKernel {
+    /// Each axis' kernel with the largest marginal likelihood over the grid (`s²` profiled
+    /// out; ties to the grid's first). The axes share the grid's factorisations: a grid point's
+    /// correlation matrix does not depend on the axis.
+    fn best(samples: &[ErrorSample], spread: f64) -> [AxisKernel; 6] {
+        use rayon::prelude::*;
         let n = samples.len() as f64;
-        let mean = samples.iter().map(|s| s.error[axis]).sum::<f64>() / n;
-        let y = DVector::from_iterator(samples.len(), samples.iter().map(|s| s.error[axis] - mean));
-        let mut best = (
-            f64::NEG_INFINITY,
-            AxisKernel { length_position_m: spread, length_direction: 1.0, signal_var: 0.0, noise_var: 0.0, mean },
-        );
-        if y.norm_squared() == 0.0 {
-            return best.1;
-        }
-        for &lp in &LENGTH_POSITION {
-            for &ld in &LENGTH_DIRECTION {
+        let means: [f64; 6] = std::array::from_fn(|a| samples.iter().map(|s| s.error[a]).sum::<f64>() / n);
+        let ys: Vec<DVector<f64>> = (0..6)
+            .map(|a| DVector::from_iterator(samples.len(), samples.iter().map(|s| s.error[a] - means[a])))
+            .collect();
+        let grid: Vec<(f64, f64, f64)> = LENGTH_POSITION
+            .iter()
+            .flat_map(|&lp| LENGTH_DIRECTION.iter().flat_map(move |&ld| NOISE_RATIO.iter().map(move |&r| (lp, ld, r))))
+            .collect();
+        // Per grid point, each axis' (log-likelihood, s²).
+        let scored: Vec<Option<[(f64, f64); 6]>> = grid
+            .par_iter()
+            .map(|&(lp, ld, r)| {
                 let shape = AxisKernel {
                     length_position_m: lp * spread,
                     length_direction: ld,
                     signal_var: 1.0,
                     noise_var: 0.0,
-                    mean,
+                    mean: 0.0,
                 };
-                let base = Self::correlation_matrix(samples, &shape, 0.0);
-                for &r in &NOISE_RATIO {
-                    let mut k = base.clone();
-                    k.set_diagonal(&base.diagonal().add_scalar(r));
-                    let Some(chol) = Cholesky::new(k) else { continue };
-                    let s2 = y.dot(&chol.solve(&y)) / n;
-                    let log_det: f64 = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
-                    let log_l = -0.5 * (log_det + n * s2.ln());
-                    if log_l > best.0 {
-                        best = (log_l, AxisKernel { signal_var: s2, noise_var: s2 * r, ..shape });
-                    }
+                let chol = Cholesky::new(Self::correlation_matrix(samples, &shape, r))?;
+                let log_det: f64 = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
+                Some(std::array::from_fn(|a| {
+                    let s2 = ys[a].dot(&chol.solve(&ys[a])) / n;
+                    (-0.5 * (log_det + n * s2.ln()), s2)
+                }))
+            })
+            .collect();
+        std::array::from_fn(|a| {
+            let mut best = (
+                f64::NEG_INFINITY,
+                AxisKernel {
+                    length_position_m: spread,
+                    length_direction: 1.0,
+                    signal_var: 0.0,
+                    noise_var: 0.0,
+                    mean: means[a],
+                },
+            );
+            if ys[a].norm_squared() == 0.0 {
+                return best.1;
+            }
+            for (&(lp, ld, r), score) in grid.iter().zip(&scored) {
+                let Some(score) = score else { continue };
+                let (log_l, s2) = score[a];
+                if log_l > best.0 {
+                    best = (
+                        log_l,
+                        AxisKernel {
+                            length_position_m: lp * spread,
+                            length_direction: ld,
+                            signal_var: s2,
+                            noise_var: s2 * r,
+                            mean: means[a],
+                        },
+                    );
                 }
             }
-        }
-        best.1
+            best.1
+        })
     }
 
     fn predict(&self, samples: &[ErrorSample], at: &ViewPose) -> AxisPrediction {
@@ -255,10 +284,7 @@ impl ErrorModel {
             return Self::zero();
         }
         let spread = position_spread(samples);
-        let kernels: Vec<AxisKernel> = {
-            use rayon::prelude::*;
-            (0..6).into_par_iter().map(|a| AxisFit::best(samples, a, spread)).collect()
-        };
+        let kernels = AxisFit::best(samples, spread);
         let axes = kernels
             .iter()
             .enumerate()

@@ -29,19 +29,24 @@ const SHARED_STAGES: [&str; 2] = [crate::stages::Dataset::NAME, crate::stages::G
 
 /// The headline figures, as (label, how to read it from a run's `summary.json`). A figure a run
 /// does not have (a stage skipped, a world without a ground truth) is left empty in its row.
-const HEADLINES: [(&str, Headline); 11] = [
+const HEADLINES: [(&str, Headline); 15] = [
     ("test PSNR (dB)", |s| s.pointer("/eval/psnr")?.as_f64()),
     ("NeRF-sim MC failure rate, deployed model", |s| s.pointer("/stress/transfer/nerf_deployed/rate")?.as_f64()),
     ("NeRF-sim MC failure rate, ensemble world", |s| s.pointer("/stress/transfer/nerf_ensemble/rate")?.as_f64()),
+    ("NeRF-sim MC failure rate, calibrated world", |s| s.pointer("/stress/transfer/nerf_calibrated/rate")?.as_f64()),
     ("GT-sim failure rate (same disturbances)", |s| s.pointer("/stress/transfer/gt/rate")?.as_f64()),
-    ("NeRF-sim / GT-sim rate ratio (ensemble world, else deployed)", |s| {
+    ("NeRF-sim / GT-sim rate ratio (calibrated world, else ensemble, else deployed)", |s| {
         let gt = s.pointer("/stress/transfer/gt/rate")?.as_f64()?;
         let nerf = s
-            .pointer("/stress/transfer/nerf_ensemble/rate")
+            .pointer("/stress/transfer/nerf_calibrated/rate")
+            .or_else(|| s.pointer("/stress/transfer/nerf_ensemble/rate"))
             .or_else(|| s.pointer("/stress/transfer/nerf_deployed/rate"))?
             .as_f64()?;
         (gt > 0.0).then(|| nerf / gt)
     }),
+    ("recall of GT-sim failures, calibrated world", |s| s.pointer("/stress/transfer/recall_calibrated")?.as_f64()),
+    ("precision, calibrated world", |s| s.pointer("/stress/transfer/precision_calibrated")?.as_f64()),
+    ("McNemar p, calibrated world", |s| s.pointer("/stress/transfer/mcnemar_p_calibrated")?.as_f64()),
     ("recall of GT-sim failures, ensemble world", |s| s.pointer("/stress/transfer/recall_ensemble")?.as_f64()),
     ("precision, ensemble world", |s| s.pointer("/stress/transfer/precision_ensemble")?.as_f64()),
     ("Matthews correlation, ensemble world", |s| s.pointer("/stress/transfer/mcc_ensemble")?.as_f64()),

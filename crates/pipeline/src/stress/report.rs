@@ -69,7 +69,6 @@ fn transfer_table(t: &nerfsv_study::stress::TransferFigures) -> Table {
         "world",
         "MC crashes",
         "crash rate [95 %]",
-        "predictive 95 % over worlds",
         "only NeRF / only GT",
         "McNemar exact p",
         "precision",
@@ -77,26 +76,15 @@ fn transfer_table(t: &nerfsv_study::stress::TransferFigures) -> Table {
         "Matthews correlation",
         "accuracy",
     ]);
-    let with_predictive = |mut row: Vec<String>, predictive: String| {
-        row.insert(3, predictive);
-        row
-    };
     if let (Some(r), Some(x)) = (&t.nerf_calibrated, &t.calibrated) {
         let rate =
             nerfsv_study::stress::RateFigure { rate: r.rate, ci95: r.ci95, failures: r.failures, rollouts: r.rollouts };
-        let predictive = format!("[{}, {}] ({} worlds)", pct(r.predictive95[0]), pct(r.predictive95[1]), r.worlds);
-        table = table.row(with_predictive(world("NeRF-sim, calibrated world", &rate, Some(x)), predictive));
+        table = table.row(world("NeRF-sim, calibrated world", &rate, Some(x)));
     }
     table
-        .row(with_predictive(
-            world("NeRF-sim, the ensemble as the world", &t.nerf_ensemble, Some(&t.ensemble)),
-            "–".into(),
-        ))
-        .row(with_predictive(
-            world("NeRF-sim, deployed NeRF as the world", &t.nerf_deployed, Some(&t.deployed)),
-            "–".into(),
-        ))
-        .row(with_predictive(world("GT-sim", &t.gt, None), "–".into()))
+        .row(world("NeRF-sim, the ensemble as the world", &t.nerf_ensemble, Some(&t.ensemble)))
+        .row(world("NeRF-sim, deployed NeRF as the world", &t.nerf_deployed, Some(&t.deployed)))
+        .row(world("GT-sim", &t.gt, None))
 }
 
 /// Of each replayed search's NeRF-sim failures, how many crash in GT-sim too.
@@ -241,14 +229,13 @@ fn transfer_part(s: &mut Section, t: &TransferFigures) {
             },
             if let Some(c) = &t.nerf_calibrated {
                 format!(
-                    "; the calibrated world's predictive interval is the rate of one world (a member and one error \
-                     function) drawn like its {} worlds, a beta-binomial over them; GT-sim's rate {} it",
+                    "; the calibrated world's 95 % predictive interval, the rate of one world (a member and one error \
+                     function) drawn like its {} worlds (a beta-binomial over them), is [{}, {}], and GT-sim's rate \
+                     lies {} it",
                     c.worlds,
-                    if (c.predictive95[0]..=c.predictive95[1]).contains(&t.gt.rate) {
-                        "lies inside"
-                    } else {
-                        "lies outside"
-                    }
+                    pct(c.predictive95[0]),
+                    pct(c.predictive95[1]),
+                    if (c.predictive95[0]..=c.predictive95[1]).contains(&t.gt.rate) { "inside" } else { "outside" }
                 )
             } else {
                 String::new()

@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dynamics::{reorthonormalise, so3_exp};
 use crate::estimator::standard_normal as normal;
-use crate::world::{NerfWorld, World, WorldKind};
+use crate::world::{EnsembleWorld, NerfWorld, World, WorldKind};
 
 /// The error axes, in order: position error along world x, y, z (metres), then rotation error
 /// about world x, y, z (radians).
@@ -436,7 +436,8 @@ pub fn displaced(camera: &Camera, e: &[f64; 6]) -> Camera {
 /// `w mod members` (the ensemble world's member of `s`) with draw `w`, so the rollouts fall into
 /// worlds of several rollouts each, over which NeRF-sim's rate has a predictive interval.
 pub struct CalibratedWorld<'a> {
-    pub members: Vec<NerfWorld<'a>>,
+    /// The members, each rollout in the member the ensemble world gives its seed.
+    pub ensemble: EnsembleWorld<'a>,
     draws: Vec<ErrorDraw>,
 }
 
@@ -454,7 +455,7 @@ impl<'a> CalibratedWorld<'a> {
                 model.draw(nerfsv_scene::seed::mix(seed, 0xca11b, w as u64))
             })
             .collect();
-        Self { members, draws }
+        Self { ensemble: EnsembleWorld { members }, draws }
     }
 
     /// How many worlds the rollouts are spread over.
@@ -492,23 +493,24 @@ impl World for Displaced<'_> {
     }
 }
 
-/// Read directly, a calibrated world is its first member, undisplaced.
+/// Read directly, a calibrated world is its ensemble world, undisplaced.
 impl World for CalibratedWorld<'_> {
     fn kind(&self) -> WorldKind {
-        WorldKind::Nerf
+        self.ensemble.kind()
     }
 
     fn field(&self) -> &SdfGrid {
-        self.members[0].field
+        self.ensemble.field()
     }
 
     fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]> {
-        self.members[0].observe(camera, pixels, background)
+        self.ensemble.observe(camera, pixels, background)
     }
 
     fn for_rollout(&self, seed: u64) -> Option<Box<dyn World + '_>> {
-        let w = Self::world_of(seed, self.worlds());
-        Some(Box::new(Displaced { member: &self.members[w % self.members.len()], draw: &self.draws[w] }))
+        // World w = seed mod (members · draws) flies member w mod members = seed mod members.
+        let member = &self.ensemble.members[self.ensemble.member_of(seed)];
+        Some(Box::new(Displaced { member, draw: &self.draws[Self::world_of(seed, self.worlds())] }))
     }
 }
 

@@ -76,8 +76,8 @@ impl Report for CalibrationStage<'_> {
                 "mean error (mm or mrad)",
                 "length scale, position (m)",
                 "length scale, direction",
-                "signal sd",
-                "noise sd",
+                "signal sd (mm or mrad)",
+                "noise sd (mm or mrad)",
             ])
             .rows(f.kernels.iter().zip(AXES).zip(f.mean_error).map(|((k, axis), mean)| {
                 vec![

@@ -36,8 +36,8 @@ use nerfsv_sim::WorldKind;
 use nerfsv_study::{UncertaintyReward, UqMode};
 use nerfsv_uq::{Method, UqConfig};
 use nerfsv_validation::{
-    compare, disagreement_auroc, read_csv_file, table_row, Confusion, DisagreementAuroc, Label, RolloutRecord,
-    TableRow, ValidationConfig,
+    compare, disagreement_auroc, read_csv_file, step_auroc_table, table_row, Confusion, DisagreementAuroc, Label,
+    Measured, RolloutRecord, StepAurocRow, TableRow, ValidationConfig, BOOTSTRAP_RESAMPLES,
 };
 use serde::{Deserialize, Serialize};
 
@@ -109,6 +109,11 @@ pub struct OnlineFigures {
     pub ga_measure: String,
     pub bla_measure: String,
     pub studies: Vec<MethodStudy>,
+    /// Every per-step measure (each method's, and the ensemble's spread from the stress stage)
+    /// against the two baselines that need no uncertainty (the step index, NeRF-sim's
+    /// clearance), pooled and matched by step index, per sampler, on the plain rollouts.
+    #[serde(default)]
+    pub step_auroc: Vec<StepAurocRow>,
 }
 
 impl OnlineFigures {
@@ -223,7 +228,12 @@ impl Stage for OnlineStage<'_> {
             .map(|(r, g)| (r.clone(), g.clone()))
             .unzip();
         let cem_confusion = compare(&cem, &cem_replays).map_err(PipelineError::Internal)?.trajectories;
+        let mode = s.prior.mode_step_log_pdf();
         let mut studies = Vec::new();
+        let mut measured: Vec<(&'static str, Vec<RolloutRecord>)> = Vec::new();
+        let studied = |r: &RolloutRecord| {
+            (r.sampler == Label::Mc && r.index < validation.monte_carlo.rollouts) || r.sampler == Label::Cem
+        };
         for &method in &self.online.methods {
             let dir = cx.dir.join(method.name());
             let setup = |samplers: &'static [Sampler], reward: bool| StressSetup {
@@ -237,20 +247,16 @@ impl Stage for OnlineStage<'_> {
             };
             let (plain_records, plain_views, plain_seconds) = {
                 let setup = setup(&[], false);
-                let flown: Vec<RolloutRecord> = stress_records
-                    .iter()
-                    .filter(|r| {
-                        (r.sampler == Label::Mc && r.index < validation.monte_carlo.rollouts) || r.sampler == Label::Cem
-                    })
-                    .cloned()
-                    .collect();
+                let flown: Vec<RolloutRecord> = stress_records.iter().filter(|r| studied(r)).cloned().collect();
                 let (records, views, seconds) = measure_recorded(&setup, flown, cx.observer)?;
                 let out = dir.join("plain");
                 std::fs::create_dir_all(&out).map_err(|e| PipelineError::io(&out, e))?;
                 let path = out.join(ROLLOUTS_CSV);
                 nerfsv_validation::write_csv_file(&path, &records).map_err(|e| PipelineError::io(&path, e))?;
-                let rows: Vec<TableRow> =
-                    [Label::Mc, Label::Cem].into_iter().filter_map(|sampler| table_row(sampler, &records)).collect();
+                let rows: Vec<TableRow> = [Label::Mc, Label::Cem]
+                    .into_iter()
+                    .filter_map(|sampler| table_row(sampler, &records, mode))
+                    .collect();
                 write_stress_table(&out.join(TABLE_CSV), WorldKind::Nerf, setup.online, &rows)?;
                 (records, views, seconds)
             };
@@ -273,7 +279,7 @@ impl Stage for OnlineStage<'_> {
                     StressSetup { flown: Some(flown), replayed: Some(replayed), ..setup(&[Sampler::Cem], true) };
                 stress(&setup, &out, &key, cx.resume, cx.observer)?
             };
-            let scorer = UncertaintyReward::new(method, self.uq);
+            let scorer = UncertaintyReward::new(method, self.uq, s.prior);
             let scored: Vec<RolloutRecord> =
                 plain_records.iter().map(|r| RolloutRecord { reward: Some(scorer.reward(r)), ..r.clone() }).collect();
             let mut rows = Vec::new();
@@ -283,7 +289,7 @@ impl Stage for OnlineStage<'_> {
                 (&scored, Label::Cem, false),
                 (&reward_records, Label::Cem, true),
             ] {
-                if let Some(row) = table_row(sampler, records) {
+                if let Some(row) = table_row(sampler, records, mode) {
                     rows.push(OnlineRow { method, reward, row });
                 }
             }
@@ -308,12 +314,23 @@ impl Stage for OnlineStage<'_> {
                     .collect(),
                 transfer,
             });
+            measured.push((method.name(), plain_records));
         }
+        // The ensemble's spread at the same rollouts' steps, as the stress stage measured it.
+        let ensemble = stress_dir.join(StressStage::STEP_UNCERTAINTY_CSV);
+        if ensemble.is_file() {
+            measured.push(("ensemble", read_records(&ensemble)?.into_iter().filter(|r| studied(r)).collect()));
+        }
+        let measures: Vec<Measured> =
+            measured.iter().map(|(measure, rollouts)| Measured { measure, rollouts }).collect();
+        let step_auroc =
+            step_auroc_table(&measures, &replays, &[Label::Mc, Label::Cem], BOOTSTRAP_RESAMPLES, validation.seed);
         let figures = OnlineFigures {
             mode: UqMode::Exact,
             ga_measure: self.uq.ga_measure.name().to_owned(),
             bla_measure: self.uq.bla_measure.name().to_owned(),
             studies,
+            step_auroc,
         };
         write_table(&cx.dir.join(ONLINE_TABLE_CSV), &figures)?;
         Ok(figures)

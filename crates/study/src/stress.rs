@@ -1107,7 +1107,7 @@ fn planned_rollouts(setup: &StressSetup) -> (usize, u64) {
 /// The reward CEM ranks by under `setup.online` (none without, or when it only records).
 fn reward_scorer(setup: &StressSetup) -> Option<UncertaintyReward> {
     setup.online.filter(|o| o.reward).map(|o| {
-        let s = UncertaintyReward::new(o.method, setup.uq);
+        let s = UncertaintyReward::new(o.method, setup.uq, setup.prior);
         if o.mode == UqMode::Field {
             s.for_field()
         } else {
@@ -1283,10 +1283,11 @@ fn sampler_figures(
     replays: Option<&[RolloutRecord]>,
     worlds: (&dyn World, Option<&dyn World>),
 ) -> Result<SamplerFigures, StudyError> {
+    let mode = setup.prior.mode_step_log_pdf();
     let rows: Vec<TableRow> = match sampler {
-        Sampler::Mc => vec![table_row(Label::Mc, records)],
-        Sampler::Cem => vec![table_row(Label::Cem, records), table_row(Label::CemIs, records)],
-        Sampler::Subset => vec![table_row(Label::Subset, records)],
+        Sampler::Mc => vec![table_row(Label::Mc, records, mode)],
+        Sampler::Cem => vec![table_row(Label::Cem, records, mode), table_row(Label::CemIs, records, mode)],
+        Sampler::Subset => vec![table_row(Label::Subset, records, mode)],
     }
     .into_iter()
     .flatten()

@@ -126,7 +126,11 @@ impl ViewUncertainty for EnsembleUncertainty<'_> {
 }
 
 /// The paper's rewards for CEM's ranking: the trajectory log-likelihood less a penalty on the
-/// rollout's mean per-step uncertainty `ū` (steps without a value left out):
+/// rollout's mean per-step uncertainty `ū` (steps without a value left out). The
+/// log-likelihood is over every step, a failure's steps after its crash at the prior's mode
+/// ([`RolloutRecord::completed_log_p`]): the paper's sum over the steps up to the crash grows
+/// with the crash step (each of the drone's small disturbances adds ≈ 34 nats), so it would rank
+/// a late crash above an equally likely early one.
 /// - eq. 10 (GA): `log p − penalty · ū` (ū the mean σ_d);
 /// - eq. 11 (BLA): `log p − penalty · ū · n` (ū the mean `rmv · trace`, n the number of
 ///   spatial perturbations).
@@ -146,12 +150,19 @@ pub struct UncertaintyReward {
     pub method: Method,
     pub penalty: f64,
     pub perturbations: usize,
+    /// ln p of one step at the prior's mode ([`nerfsv_validation::Prior::mode_step_log_pdf`]).
+    pub mode_log_p: f64,
 }
 
 impl UncertaintyReward {
-    /// The reward of `cfg`'s penalty and perturbations for `method`.
-    pub fn new(method: Method, cfg: &UqConfig) -> Self {
-        Self { method, penalty: cfg.reward_penalty, perturbations: cfg.perturbations }
+    /// The reward of `cfg`'s penalty and perturbations for `method` under `prior`.
+    pub fn new(method: Method, cfg: &UqConfig, prior: &nerfsv_validation::Prior) -> Self {
+        Self {
+            method,
+            penalty: cfg.reward_penalty,
+            perturbations: cfg.perturbations,
+            mode_log_p: prior.mode_step_log_pdf(),
+        }
     }
 
     /// The reward for a field-mode measure: no multiplication by the perturbation count.
@@ -167,7 +178,7 @@ impl UncertaintyReward {
             Method::Ga => 1.0,
             Method::Bla => self.perturbations as f64,
         };
-        record.log_p - self.penalty * u * scale
+        record.completed_log_p(self.mode_log_p) - self.penalty * u * scale
     }
 }
 
@@ -194,7 +205,7 @@ mod tests {
             rec(-9.0, vec![]),
         ];
         for method in [Method::Ga, Method::Bla] {
-            let r = UncertaintyReward::new(method, &UqConfig::default());
+            let r = UncertaintyReward::new(method, &UqConfig::default(), &nerfsv_validation::Prior::drone(4));
             let rewards: Vec<f64> = records.iter().map(|x| r.reward(x)).collect();
             assert!(rewards[0].is_finite() && rewards[2].is_finite());
             assert_eq!((rewards[1], rewards[3]), (f64::NEG_INFINITY, f64::NEG_INFINITY));
@@ -206,5 +217,40 @@ mod tests {
             let expected = if method == Method::Bla { r.perturbations as f64 } else { 1.0 };
             approx::assert_relative_eq!(r.reward(&one) / field.reward(&one), expected, max_relative = 1e-12);
         }
+    }
+
+    /// Two failures alike before their crash (the later one's extra steps at the prior's mode)
+    /// are equally likely failures: equal rewards, though the paper's sum up to the crash gives
+    /// the later one two more steps of ≈ 34 nats.
+    #[test]
+    fn failures_alike_but_for_their_crash_step_get_equal_rewards() {
+        let prior = nerfsv_validation::Prior::drone(6);
+        let m = prior.mode_step_log_pdf();
+        let rec = |crash: usize, step_log_p: Vec<f64>| {
+            RolloutRecord {
+                step_log_q: step_log_p.clone(),
+                step_log_p,
+                failed: true,
+                score: -0.01,
+                collision_step: Some(crash),
+                step_uncertainty: vec![0.2; crash + 1],
+                ..RolloutRecord::default()
+            }
+            .recounted()
+        };
+        let early = rec(1, vec![30.0, 31.0, 10.0, 12.0, 5.0, 7.0]);
+        let late = rec(3, vec![30.0, 31.0, m, m, 9.0, 8.0]);
+        assert!((late.log_p - early.log_p - 2.0 * m).abs() < 1e-9 && m > 30.0);
+        for method in [Method::Ga, Method::Bla] {
+            let r = UncertaintyReward::new(method, &UqConfig::default(), &prior);
+            approx::assert_relative_eq!(r.reward(&early), r.reward(&late), max_relative = 1e-12);
+        }
+        let row = |x: &RolloutRecord| nerfsv_validation::table_row(x.sampler, std::slice::from_ref(x), m).unwrap();
+        approx::assert_relative_eq!(
+            row(&early).avg_log_likelihood,
+            row(&late).avg_log_likelihood,
+            max_relative = 1e-12
+        );
+        assert!(row(&late).avg_log_likelihood_counted > row(&early).avg_log_likelihood_counted + 60.0);
     }
 }

@@ -48,6 +48,7 @@ mod online;
 mod record;
 mod sampler;
 mod seed;
+mod step_auroc;
 mod subset;
 mod system;
 mod table;
@@ -68,6 +69,10 @@ pub use sampler::{
     MonteCarloResult, Reward,
 };
 pub use seed::rollout_seed;
+pub use step_auroc::{
+    delong_paired, holm, step_auroc_table, stratified_auroc, AurocInterval, DeLong, Measured, StepAurocRow, CLEARANCE,
+    STEP_INDEX,
+};
 pub use subset::{correlation_factor, subset_simulation, subset_simulation_reusing, SubsetEstimate, SubsetResult};
 pub use system::{run_here, Finished, Job, Outcome, System};
 pub use table::{table_row, TableRow};

@@ -463,8 +463,10 @@ pub fn importance_sampling<S: System + ?Sized>(
 ///
 /// Without rewards (Kochenderfer et al.): γ = max(0, m_elite-th smallest score) and the elites
 /// are the samples with score ≤ γ — all failures once there are at least `m_elite` of them.
-/// With rewards (one per record): failures first, then within failures and within non-failures
-/// by reward, higher first (ties by index); the elites are the first `m_elite`.
+/// With rewards (one per record): failures first, by reward (higher first), then non-failures by
+/// closeness to failure (score, lower first), ties by index; the elites are the first
+/// `m_elite`. A non-failure's reward says how likely and how uncertain it was, not how near it
+/// came to failing, so ranking non-failures by it steers the search away from failures.
 pub fn select_elites(records: &[RolloutRecord], m_elite: usize, rewards: Option<&[f64]>) -> Vec<bool> {
     let n = records.len();
     let m_elite = m_elite.clamp(1, n.max(1));
@@ -479,7 +481,15 @@ pub fn select_elites(records: &[RolloutRecord], m_elite: usize, rewards: Option<
             assert_eq!(rewards.len(), n, "select_elites: one reward per record");
             let mut order: Vec<usize> = (0..n).collect();
             order.sort_by(|&a, &b| {
-                records[b].failed.cmp(&records[a].failed).then(rewards[b].total_cmp(&rewards[a])).then(a.cmp(&b))
+                let (ra, rb) = (&records[a], &records[b]);
+                let within = match ra.failed {
+                    true => rewards[b].total_cmp(&rewards[a]),
+                    false => ra.score.total_cmp(&rb.score),
+                };
+                rb.failed
+                    .cmp(&ra.failed)
+                    .then(if ra.failed == rb.failed { within } else { std::cmp::Ordering::Equal })
+                    .then(a.cmp(&b))
             });
             let mut elite = vec![false; n];
             for &i in order.iter().take(m_elite) {

@@ -1,5 +1,5 @@
-//! Elite selection: γ = max(0, m_elite-th smallest score) without a reward; failures first, then
-//! reward, with one.
+//! Elite selection: γ = max(0, m_elite-th smallest score) without a reward; with one, failures
+//! first by reward, then non-failures by closeness to failure.
 
 use nerfsv_validation::{select_elites, Label, RolloutRecord, Trajectory};
 
@@ -41,11 +41,14 @@ fn gamma_is_clamped_at_zero_so_every_failure_is_an_elite() {
 }
 
 #[test]
-fn a_reward_reorders_within_failures_and_non_failures_only() {
+fn a_reward_orders_the_failures_and_closeness_to_failure_the_rest() {
     let r = records(&[-0.5, 0.2, 0.1, -0.1, -0.3, 0.3]);
     let rewards = [0.0, 5.0, 1.0, 2.0, -1.0, 9.0];
-    // Failures by reward: 3 (2), 0 (0), 4 (−1); then non-failures: 5 (9), 1 (5), 2 (1).
+    // Failures by reward: 3 (2), 0 (0), 4 (−1); then non-failures by score: 2 (0.1), 1 (0.2),
+    // 5 (0.3), whatever their rewards.
     assert_eq!(select_elites(&r, 2, Some(&rewards)), [true, false, false, true, false, false]);
-    // The best non-failure (reward 9) never outranks the worst failure (reward −1).
-    assert_eq!(select_elites(&r, 4, Some(&rewards)), [true, false, false, true, true, true]);
+    // The best non-failure by reward (9, the farthest from failing) never outranks the worst
+    // failure (reward −1) nor the closest non-failure.
+    assert_eq!(select_elites(&r, 4, Some(&rewards)), [true, false, true, true, true, false]);
+    assert_eq!(select_elites(&r, 5, Some(&rewards)), [true, true, true, true, true, false]);
 }

@@ -46,7 +46,16 @@ fn rollout(sampler: Label, population: usize, index: usize, failed: bool, positi
 fn flight_csv(path: &Path, truth: &[[f64; 3]], estimate: &[[f64; 3]]) {
     let mut text = String::from("step,substep,time_s,true_x,true_y,true_z,est_x,est_y,est_z,clearance_m,collided\n");
     for (k, (t, e)) in truth.iter().zip(estimate).enumerate() {
-        text.push_str(&format!("0,{k},{},{},{},{},{},{},{},0.1,0\n", k as f64 * 0.1, t[0], t[1], t[2], e[0], e[1], e[2]));
+        text.push_str(&format!(
+            "0,{k},{},{},{},{},{},{},{},0.1,0\n",
+            k as f64 * 0.1,
+            t[0],
+            t[1],
+            t[2],
+            e[0],
+            e[1],
+            e[2]
+        ));
     }
     std::fs::write(path, text).unwrap();
 }

@@ -160,7 +160,12 @@ fn point(p: [f64; 3]) -> [f32; 3] {
 }
 
 /// A surface mesh as a node, or a note when its stage did not write it (or it is empty).
-fn mesh_node(path: &Path, name: &str, material: usize, f: &mut ExportFigures) -> Result<Option<GlbNode>, PipelineError> {
+fn mesh_node(
+    path: &Path,
+    name: &str,
+    material: usize,
+    f: &mut ExportFigures,
+) -> Result<Option<GlbNode>, PipelineError> {
     if !path.is_file() {
         f.notes.push(format!("no {name}: {} is absent", path.display()));
         return Ok(None);
@@ -182,9 +187,12 @@ fn mesh_node(path: &Path, name: &str, material: usize, f: &mut ExportFigures) ->
     }))
 }
 
+/// A polyline's points (nerfsv's frame, metres).
+type Points = Vec<[f32; 3]>;
+
 /// The true and estimated positions of every substep of a flight CSV
 /// ([`nerfsv_sim::trajectory_csv`]: columns `true_x..z`, `est_x..z`).
-fn read_flight_csv(path: &Path) -> Result<(Vec<[f32; 3]>, Vec<[f32; 3]>), PipelineError> {
+fn read_flight_csv(path: &Path) -> Result<(Points, Points), PipelineError> {
     let text = std::fs::read_to_string(path).map_err(|e| PipelineError::io(path, e))?;
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
@@ -200,7 +208,9 @@ fn read_flight_csv(path: &Path) -> Result<(Vec<[f32; 3]>, Vec<[f32; 3]>), Pipeli
             let mut p = [0.0; 3];
             for (v, &k) in p.iter_mut().zip(&at) {
                 let cell = cells.get(k).copied().unwrap_or("");
-                *v = cell.parse::<f64>().map_err(|_| bad_file(path, format!("line {}: `{cell}` is not a number", n + 2)))?
+                *v = cell
+                    .parse::<f64>()
+                    .map_err(|_| bad_file(path, format!("line {}: `{cell}` is not a number", n + 2)))?
                     as f32;
             }
             Ok(p)
@@ -214,7 +224,12 @@ fn read_flight_csv(path: &Path) -> Result<(Vec<[f32; 3]>, Vec<[f32; 3]>), Pipeli
 /// A track's node, or `None` when fewer than two of its points are finite.
 fn track(name: String, group: &str, material: usize, points: Vec<[f32; 3]>) -> Option<GlbNode> {
     let points: Vec<[f32; 3]> = points.into_iter().filter(|p| p.iter().all(|v| v.is_finite())).collect();
-    (points.len() >= 2).then(|| GlbNode { name, group: Some(group.into()), material, shape: GlbShape::LineStrip { points } })
+    (points.len() >= 2).then(|| GlbNode {
+        name,
+        group: Some(group.into()),
+        material,
+        shape: GlbShape::LineStrip { points },
+    })
 }
 
 /// The most likely failures' flights in each world: a true and an estimated track each.
@@ -248,7 +263,8 @@ fn most_likely_failures(
                 )
             };
             let group = "most likely failures";
-            let nodes = [track(name("true"), group, TRUE_TRACK, truth), track(name("estimate"), group, ESTIMATE, estimate)];
+            let nodes =
+                [track(name("true"), group, TRUE_TRACK, truth), track(name("estimate"), group, ESTIMATE, estimate)];
             if nodes.iter().any(Option::is_none) {
                 f.notes.push(format!("{}: fewer than two finite positions; left out", path.display()));
                 continue;

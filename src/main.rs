@@ -58,6 +58,11 @@ enum Command {
     /// Search for the disturbances that crash the drone (Monte Carlo or Cross-Entropy Method),
     /// estimate the failure probability, and replay the rollouts in the other world.
     Stress(commands::stress::StressArgs),
+    /// Write a run folder's ground-truth and NeRF meshes, planned route and failures (each
+    /// sampler's most likely failure, true and estimated tracks, and the failing rollouts) as one
+    /// binary glTF 2.0 file (.glb), metres, y up; Blender (File > Import > glTF 2.0) or any glTF
+    /// viewer opens it.
+    Export(commands::export::ExportArgs),
     /// Uncertainty of a trained NeRF: `uq offline` runs GA or BLA on every image of a dataset
     /// (CSV and figures), `uq ause` scores them against ground-truth depth, `uq field` builds the
     /// uncertainty field.
@@ -93,6 +98,7 @@ fn main() -> ExitCode {
         Command::Collision(a) => commands::collision::run(a),
         Command::Fly(a) => commands::fly::run(a),
         Command::Stress(a) => commands::stress::run(a),
+        Command::Export(a) => commands::export::run(a),
         Command::Uq(a) => commands::uq::run(a),
         Command::Train(a) => commands::nerf::run_train(a),
         Command::Eval(a) => commands::nerf::run_eval(a),

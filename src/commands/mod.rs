@@ -1,5 +1,6 @@
 pub mod collision;
 pub mod config;
+pub mod export;
 pub mod fly;
 pub mod nerf;
 pub mod replicate;

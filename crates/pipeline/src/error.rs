@@ -51,6 +51,16 @@ pub enum PipelineError {
     /// A command line's `--set TABLE.KEY=VALUE` that names no key or gives a value out of range.
     #[error("--set {setting}: {message}")]
     Override { setting: String, message: String },
+    #[error(transparent)]
+    Mesh(#[from] nerfsv_scene::mesh::LoadError),
+    #[error(transparent)]
+    Glb(#[from] nerfsv_plot::glb::GlbError),
+    /// A folder given as a run folder that holds no `summary.json`.
+    #[error("{}: not a run folder (no summary.json; `nerfsv run --out {}` makes one)", .path.display(), .path.display())]
+    NotARun { path: PathBuf },
+    /// A run folder's file that cannot be read as the stage wrote it.
+    #[error("{}: {message}", .path.display())]
+    RunFile { path: PathBuf, message: String },
     #[error("{0}")]
     Internal(String),
 }

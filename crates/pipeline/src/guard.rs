@@ -3,8 +3,9 @@
 //! anything is written, any output that is, contains or lies inside an input, any two outputs
 //! that coincide or nest, an output folder that is not nerfsv's to write (a folder holding a
 //! user's files, a regular file, the current or home folder, the root: see
-//! [`nerfsv_scene::folder`]) and an output file nerfsv did not write. [`Guard::claim`] then
-//! creates and marks the output folders.
+//! [`nerfsv_scene::folder`]) and an output file nerfsv did not write (its header says who did:
+//! [`folder::written_by_nerfsv`] for safetensors and PLY, [`glb_written_by_nerfsv`] for a binary
+//! glTF). [`Guard::claim`] then creates and marks the output folders.
 //!
 //! Paths are compared by identity, not by their text: each is made absolute and resolved
 //! through symbolic links as far as it exists (`./a`, `a/../a`, a link to `a` and `a` are one
@@ -182,11 +183,11 @@ impl Guard {
             let (what, given) = (&out.named.what, &out.named.given);
             match &out.form {
                 Form::Folder(kind) => folder::check_folder(what, given, *kind).map(drop),
-                Form::File => folder::check_file(what, given),
-                Form::Beside(main) if given.exists() && !folder::written_by_nerfsv(main) => {
+                Form::File => check_file(what, given),
+                Form::Beside(main) if given.exists() && !written_by_nerfsv(main) => {
                     Err(folder::FolderError::ForeignFile { what: what.clone(), given: given.clone() })
                 }
-                Form::Beside(_) => folder::check_file(what, given).or_else(|e| match e {
+                Form::Beside(_) => check_file(what, given).or_else(|e| match e {
                     folder::FolderError::ForeignFile { .. } => Ok(()),
                     e => Err(e),
                 }),
@@ -254,6 +255,43 @@ impl Drop for Claimed {
     }
 }
 
+/// Whether `path` is a binary glTF (`.glb`) whose `asset.generator` starts with `nerfsv` (what
+/// `nerfsv export` writes, [`nerfsv_plot::glb::GENERATOR`]). Reads the header and the JSON chunk
+/// only (refusing a chunk over 64 MiB).
+pub fn glb_written_by_nerfsv(path: &Path) -> bool {
+    use std::io::Read;
+    let Ok(mut file) = std::fs::File::open(path) else { return false };
+    let mut head = [0u8; 20];
+    if file.read_exact(&mut head).is_err() || &head[..4] != b"glTF" {
+        return false;
+    }
+    let len = u32::from_le_bytes([head[12], head[13], head[14], head[15]]) as usize;
+    if len > 64 << 20 {
+        return false;
+    }
+    let mut bytes = head.to_vec();
+    bytes.resize(20 + len, 0);
+    if file.read_exact(&mut bytes[20..]).is_err() {
+        return false;
+    }
+    nerfsv_plot::glb::glb_json(&bytes)
+        .and_then(|doc| doc["asset"]["generator"].as_str().map(|g| g.starts_with("nerfsv")))
+        .unwrap_or(false)
+}
+
+/// Whether the file's header says nerfsv wrote it (safetensors, PLY or binary glTF).
+fn written_by_nerfsv(path: &Path) -> bool {
+    folder::written_by_nerfsv(path) || glb_written_by_nerfsv(path)
+}
+
+/// [`folder::check_file`], also admitting a binary glTF nerfsv wrote.
+fn check_file(what: &str, given: &Path) -> Result<(), folder::FolderError> {
+    folder::check_file(what, given).or_else(|e| match e {
+        folder::FolderError::ForeignFile { .. } if glb_written_by_nerfsv(given) => Ok(()),
+        e => Err(e),
+    })
+}
+
 /// An input as the user gave it, with the file it really is where a link leads elsewhere.
 fn shown(input: &Named) -> String {
     let given = std::path::absolute(&input.given).unwrap_or_else(|_| input.given.clone());
@@ -308,6 +346,27 @@ mod tests {
         assert!(e.contains("--out") && e.contains("--mesh") && e.contains("one path or one lies inside"), "{e}");
         assert!(e.ends_with("choose another path for --mesh"), "{e}");
         assert!(Guard::new().file("--out", &x).file("--mesh", &root.path().join("y")).check().is_ok());
+    }
+
+    #[test]
+    fn a_glb_is_replaced_only_if_its_generator_is_nerfsv() {
+        use nerfsv_plot::glb::{glb_bytes, GlbScene};
+        let root = tempfile::tempdir().unwrap();
+        let p = |n: &str| root.path().join(n);
+        let ours = glb_bytes(&GlbScene::default()).unwrap();
+        std::fs::write(p("ours.glb"), &ours).unwrap();
+        assert!(Guard::new().file("--out", &p("ours.glb")).check().is_ok());
+        // Another program's file: the same layout, another generator (of the same length).
+        let mut theirs = ours.clone();
+        let at = theirs.windows(6).position(|w| w == b"nerfsv").unwrap();
+        theirs[at..at + 6].copy_from_slice(b"Kronos");
+        std::fs::write(p("theirs.glb"), &theirs).unwrap();
+        assert!(!glb_written_by_nerfsv(&p("theirs.glb")));
+        let e = Guard::new().file("--out", &p("theirs.glb")).check().unwrap_err().to_string();
+        assert!(e.contains("the file already exists and nerfsv did not write it"), "{e}");
+        std::fs::write(p("short.glb"), &ours[..19]).unwrap();
+        assert!(Guard::new().file("--out", &p("short.glb")).check().is_err());
+        assert!(Guard::new().file("--out", &p("new.glb")).check().is_ok());
     }
 
     #[cfg(unix)]

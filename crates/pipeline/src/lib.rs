@@ -70,6 +70,7 @@ pub mod config;
 pub mod digest;
 pub mod ensemble;
 mod error;
+pub mod export;
 pub mod flight;
 pub mod guard;
 pub mod layout;

@@ -9,6 +9,8 @@
 //! Figures:
 //! - [`trajectory_png`] / [`trajectory_svg`]: one flight, top view over the signed-distance
 //!   slice and side view of altitude along the track ([`trajectory`] describes the layout).
+//! - [`glb::glb_bytes`]: triangle meshes and polylines as a binary glTF 2.0 file (`nerfsv export`),
+//!   for Blender or any glTF viewer.
 //! - [`histograms_png`] / [`histograms_svg`]: histograms of one quantity per group (split) on
 //!   shared bins; [`scatter_png`] / [`scatter_svg`]: two quantities coloured by group
 //!   ([`distribution`]).
@@ -48,6 +50,7 @@ pub mod distribution;
 mod error;
 mod font;
 mod geometry;
+pub mod glb;
 pub mod heatmap;
 pub mod palette;
 mod render;

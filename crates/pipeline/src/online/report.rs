@@ -162,7 +162,7 @@ fn measure_label(measure: &str) -> String {
         nerfsv_validation::CLEARANCE => "NeRF-sim's clearance (baseline)".to_owned(),
         "ga" | "bla" => format!("{} (exact: needs the ground truth's render)", measure.to_uppercase()),
         "ensemble" => "ensemble spread".to_owned(),
-        other => esc(other),
+        other => other.to_owned(),
     }
 }
 
@@ -212,11 +212,12 @@ fn step_auroc_answer(f: &OnlineFigures) -> String {
     let verdict = if beats.is_empty() {
         "No uncertainty measure adds to a baseline that needs none".to_owned()
     } else {
-        format!("Better than NeRF-sim's own clearance (Holm p < 0.05): {}", beats.join(", "))
+        format!("Better than NeRF-sim's own clearance (Holm p &lt; 0.05): {}", esc(&beats.join(", ")))
     };
     format!(
         "<b>Does the uncertainty flag where NeRF-sim and GT-sim disagree?</b> {verdict}: NeRF-sim's own clearance \
-         at the step scores a matched AUROC of {}{best} (0.5 is chance, and a measure of the step index alone).",
-        clearance.join(", ")
+         at the step scores a matched AUROC of {}{} (0.5 is chance, and a measure of the step index alone).",
+        clearance.join(", "),
+        esc(&best)
     )
 }

@@ -452,3 +452,84 @@ fn a_frames_own_distortion_overrides_the_top_level_one() {
     let (with_own, with_top) = (error(&own), error(&top));
     assert!(with_own < 2.0 && with_top > 2.5 * with_own, "own lens {with_own} levels, top-level lens {with_top}");
 }
+
+/// The fixture's COLMAP folder `form` (`colmap_text` or `colmap_bin`) copied, its camera 3 (the
+/// OPENCV one, the last in both files) made camera `model` (`model_id`) with `params`.
+fn with_camera_3(form: &str, model: &str, model_id: u32, params: &[f64]) -> tempfile::TempDir {
+    let dir = copy_of(form);
+    if form == "colmap_text" {
+        let path = dir.path().join("sparse/0/cameras.txt");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let line = text.lines().find(|l| l.starts_with("3 OPENCV ")).unwrap();
+        let shown: Vec<String> = params.iter().map(|p| format!("{p:?}")).collect();
+        std::fs::write(&path, text.replace(line, &format!("3 {model} 16 12 {}", shown.join(" ")))).unwrap();
+    } else {
+        let path = dir.path().join("sparse/0/cameras.bin");
+        let mut bytes = std::fs::read(&path).unwrap();
+        // Camera records: 8-byte count, then (id, model id, width, height, params) each.
+        let third = 8 + (24 + 3 * 8) + (24 + 4 * 8);
+        assert_eq!(bytes[third..third + 8], [3, 0, 0, 0, 4, 0, 0, 0], "the third camera is OPENCV");
+        bytes.truncate(third);
+        bytes.extend(3u32.to_le_bytes());
+        bytes.extend(model_id.to_le_bytes());
+        bytes.extend(16u64.to_le_bytes());
+        bytes.extend(12u64.to_le_bytes());
+        params.iter().for_each(|p| bytes.extend(p.to_le_bytes()));
+        std::fs::write(&path, bytes).unwrap();
+    }
+    dir
+}
+
+#[test]
+fn simple_radial_and_radial_cameras_load_as_the_opencv_lens_they_are() {
+    // COLMAP's SIMPLE_RADIAL (f, cx, cy, k) and RADIAL (f, cx, cy, k1, k2) are OPENCV with
+    // fx = fy = f and the missing coefficients 0.
+    let cases: [(&str, u32, &[f64], [f64; 8]); 2] = [
+        ("SIMPLE_RADIAL", 2, &[14.0, 8.0, 6.0, -0.2], [14.0, 14.0, 8.0, 6.0, -0.2, 0.0, 0.0, 0.0]),
+        ("RADIAL", 3, &[14.0, 8.0, 6.0, -0.2, 0.05], [14.0, 14.0, 8.0, 6.0, -0.2, 0.05, 0.0, 0.0]),
+    ];
+    for form in ["colmap_text", "colmap_bin"] {
+        let pinhole = with_camera_3(form, "PINHOLE", 1, &[14.0, 14.0, 8.0, 6.0]);
+        let pinhole = load(pinhole.path(), "train");
+        for (model, id, params, opencv) in cases {
+            let radial = with_camera_3(form, model, id, params);
+            let equivalent = with_camera_3(form, "OPENCV", 4, &opencv);
+            let (a, b) = (load(radial.path(), "train"), load(equivalent.path(), "train"));
+            assert_eq!(names(&a), names(&b));
+            let mut distorted = 0;
+            for ((fa, fb), fp) in a.frames.iter().zip(&b.frames).zip(&pinhole.frames) {
+                assert_eq!(fa.camera, fb.camera, "{form} {model} {}", fa.file_path);
+                assert_eq!(fa.image, fb.image, "{form} {model} {}: undistorted as OPENCV", fa.file_path);
+                distorted += usize::from(fa.image != fp.image);
+            }
+            // The lens is applied: camera 3's frames differ from a pinhole camera's.
+            assert!(distorted > 0, "{form} {model}: no frame was undistorted");
+        }
+    }
+}
+
+#[test]
+fn an_unknown_camera_model_is_a_typed_error_naming_the_file_and_the_model() {
+    use nerfsv_dataset::DatasetError;
+    let dir =
+        with_camera_3("colmap_text", "FULL_OPENCV", 6, &[14.0, 14.0, 8.0, 6.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    match load_split(dir.path(), "train", LoadOptions::default()).unwrap_err() {
+        DatasetError::Field { path, message, .. } => {
+            assert!(path.ends_with("sparse/0/cameras.txt"), "{}", path.display());
+            assert!(message.contains("FULL_OPENCV") && message.contains("SIMPLE_RADIAL, RADIAL"), "{message}");
+        }
+        e => panic!("not a field error: {e}"),
+    }
+    let dir = with_camera_3("colmap_bin", "", 99, &[]);
+    match load_split(dir.path(), "train", LoadOptions::default()).unwrap_err() {
+        DatasetError::Field { path, message, .. } => {
+            assert!(path.ends_with("sparse/0/cameras.bin"), "{}", path.display());
+            assert!(message.contains("unknown model id 99"), "{message}");
+        }
+        e => panic!("not a field error: {e}"),
+    }
+    // A known model with the wrong number of parameters names the model and the count.
+    let dir = with_camera_3("colmap_text", "RADIAL", 3, &[14.0, 8.0, 6.0, -0.2]);
+    let e = load_split(dir.path(), "train", LoadOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("cameras.txt") && e.contains("RADIAL has 5 parameters, found 4"), "{e}");
+}

@@ -533,3 +533,48 @@ fn an_unknown_camera_model_is_a_typed_error_naming_the_file_and_the_model() {
     let e = load_split(dir.path(), "train", LoadOptions::default()).unwrap_err().to_string();
     assert!(e.contains("cameras.txt") && e.contains("RADIAL has 5 parameters, found 4"), "{e}");
 }
+
+#[test]
+fn a_capture_expressed_with_any_signed_up_axis_places_to_the_same_world_poses() {
+    // A capture point's coordinates for each up axis, from the world's (z-up) ones, written out
+    // here rather than taken from `UpAxis::rotation`: the capture's up axis is the world's +z.
+    let to_capture = |up: UpAxis, [x, y, z]: [f64; 3]| -> [f64; 3] {
+        match up {
+            UpAxis::Z => [x, y, z],
+            UpAxis::Y => [x, z, -y],
+            UpAxis::X => [z, y, -x],
+            UpAxis::NegZ => [x, -y, -z],
+            UpAxis::NegY => [x, -z, y],
+            UpAxis::NegX => [-z, y, x],
+        }
+    };
+    let centre_world = [0.3, -0.2, 0.1];
+    let world = Placement { scale: 2.0, up: UpAxis::Z, centre: centre_world.map(|c| c as f32) };
+    let mut want = load(&fixtures().join("nerfstudio"), "train");
+    world.place(&mut want);
+    assert_eq!(UpAxis::ALL.len(), 6);
+    for up in UpAxis::ALL {
+        let dir = copy_of("nerfstudio");
+        let path = dir.path().join("transforms.json");
+        let mut doc: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        for frame in doc["frames"].as_array_mut().unwrap() {
+            let m = frame["transform_matrix"].clone();
+            let at = |r: usize, c: usize| f(&m[r][c]);
+            // Each column of the 3×4 camera-to-world (axes and position) in capture coordinates.
+            let cols: Vec<[f64; 3]> = (0..4).map(|c| to_capture(up, [at(0, c), at(1, c), at(2, c)])).collect();
+            for (r, row) in frame["transform_matrix"].as_array_mut().unwrap().iter_mut().take(3).enumerate() {
+                *row = serde_json::json!([cols[0][r], cols[1][r], cols[2][r], cols[3][r]]);
+            }
+        }
+        std::fs::write(&path, serde_json::to_string(&doc).unwrap()).unwrap();
+        let centre = to_capture(up, centre_world).map(|c| c as f32);
+        let mut got = load(dir.path(), "train");
+        Placement { scale: 2.0, up, centre }.place(&mut got);
+        assert_eq!(names(&got), names(&want));
+        for (g, w) in got.frames.iter().zip(&want.frames) {
+            let err = (g.camera.c2w - w.camera.c2w).abs().max();
+            assert!(err < 1e-5, "up {up}: {} is {err} off\n{}{}", g.file_path, g.camera.c2w, w.camera.c2w);
+            assert_eq!(g.image, w.image);
+        }
+    }
+}

@@ -43,8 +43,16 @@ fn a_colmap_world_dataset_validates_and_its_placement_is_checked_by_name() {
         let e = config(dir.path(), bad).and_then(|c| c.validate().map_err(|e| e.to_string())).unwrap_err();
         assert!(e.contains(key), "{bad}: {e}");
     }
-    let e = config(dir.path(), "dataset_up = \"x\"\n").unwrap_err();
+    let e = config(dir.path(), "dataset_up = \"w\"\n").unwrap_err();
     assert!(e.contains("dataset_up"), "{e}");
+    for name in ["`x`", "`y`", "`z`", "`-x`", "`-y`", "`-z`"] {
+        assert!(e.contains(name), "the accepted values are listed: {e}");
+    }
+    // Every signed axis is accepted, by its name.
+    for up in UpAxis::ALL {
+        let cfg = config(dir.path(), &format!("dataset_up = \"{up}\"\n")).unwrap();
+        assert_eq!(cfg.world.placement().up, up);
+    }
 }
 
 #[test]

@@ -19,14 +19,13 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Matrix4, Quaternion, UnitQuaternion, Vector3};
-use nerfsv_scene::image::Image;
 use nerfsv_scene::validate::MemoryBudget;
 use nerfsv_scene::Intrinsics;
 use rayon::prelude::*;
 
 use crate::distortion::OpenCvDistortion;
 use crate::error::DatasetError;
-use crate::split::{check_inside, held_bytes, in_split, Frame, LoadOptions, RawFrame, Split};
+use crate::split::{check_inside, held_bytes, in_split, read_frame_image, Frame, LoadOptions, RawFrame, Split};
 
 /// One camera of `cameras.{txt,bin}`: `CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`.
 #[derive(Clone, Debug, PartialEq)]
@@ -424,7 +423,7 @@ fn colmap_frame(
         file: image_path.clone(),
         message,
     };
-    let image = Image::read(&image_path).map_err(image_err)?;
+    let image = read_frame_image(&image_path, Some((k.width, k.height))).map_err(image_err)?;
     if (image.width, image.height) != (k.width, k.height) {
         return Err(image_err(format!(
             "image is {}×{}, camera {} says {}×{}",

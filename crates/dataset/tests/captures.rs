@@ -578,3 +578,89 @@ fn a_capture_expressed_with_any_signed_up_axis_places_to_the_same_world_poses() 
         }
     }
 }
+
+/// `jpeg` with an APP1 `Exif` segment after its SOI marker whose IFD0 holds orientation `value`
+/// (big-endian TIFF, as many cameras write it).
+fn with_exif_orientation(jpeg: &[u8], value: u16) -> Vec<u8> {
+    let mut tiff = b"MM\0\x2a\0\0\0\x08\0\x01".to_vec();
+    tiff.extend(0x0112u16.to_be_bytes());
+    tiff.extend(3u16.to_be_bytes());
+    tiff.extend(1u32.to_be_bytes());
+    tiff.extend(value.to_be_bytes());
+    tiff.extend([0, 0, 0, 0, 0, 0]);
+    let mut out = jpeg[..2].to_vec();
+    out.extend([0xFF, 0xE1]);
+    out.extend(((2 + 6 + tiff.len()) as u16).to_be_bytes());
+    out.extend(b"Exif\0\0");
+    out.extend(tiff);
+    out.extend(&jpeg[2..]);
+    out
+}
+
+#[test]
+fn a_colmap_frames_exif_orientation_is_applied_where_its_camera_has_the_turned_size() {
+    // img_00.jpg (16×12 stored) gets a camera of its own, SIMPLE_PINHOLE (nothing to undistort).
+    let stored = Image::read(&fixtures().join("colmap_text/images/img_00.jpg")).unwrap();
+    let jpeg = std::fs::read(fixtures().join("colmap_text/images/img_00.jpg")).unwrap();
+    for orientation in 1..=8u16 {
+        let turned = (5..=8).contains(&orientation);
+        let shown = stored.oriented(orientation as u8);
+        // The camera as a tool honouring the tag saw the image, and as COLMAP sees it (stored).
+        for (w, h) in [(shown.width, shown.height), (16, 12)] {
+            let dir = copy_of("colmap_text");
+            std::fs::write(dir.path().join("images/img_00.jpg"), with_exif_orientation(&jpeg, orientation)).unwrap();
+            let cams = dir.path().join("sparse/0/cameras.txt");
+            let mut text = std::fs::read_to_string(&cams).unwrap();
+            text.push_str(&format!("4 SIMPLE_PINHOLE {w} {h} 14.0 {} {}\n", w as f32 / 2.0, h as f32 / 2.0));
+            std::fs::write(&cams, text).unwrap();
+            let images = dir.path().join("sparse/0/images.txt");
+            let text = std::fs::read_to_string(&images).unwrap();
+            let line = text.lines().find(|l| l.ends_with(" img_00.jpg")).unwrap();
+            let mut tokens: Vec<&str> = line.split_whitespace().collect();
+            tokens[8] = "4";
+            std::fs::write(&images, text.replace(line, &tokens.join(" "))).unwrap();
+            // img_00 is the first image by name: val and test.
+            let frame = &load(dir.path(), "val").frames[0];
+            assert_eq!(frame.file_path, "img_00.jpg");
+            let want = if (w, h) == (16, 12) { &stored } else { &shown };
+            assert_eq!(&frame.image, want, "orientation {orientation}, camera {w}×{h}");
+            assert_eq!((frame.camera.intrinsics.width, frame.camera.intrinsics.height), (w, h));
+            if turned && (w, h) == (shown.width, shown.height) {
+                assert_ne!(frame.image, stored, "orientation {orientation} turns the pixels");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_nerfstudio_frames_exif_orientation_is_applied_where_the_frame_has_the_turned_size() {
+    // frame_00.jpg (16×12 stored) tagged 6, a quarter turn clockwise, and given the turned size:
+    // it loads as the turned pixels written out as they are, through the same lens.
+    let jpeg = std::fs::read(fixtures().join("nerfstudio/images/frame_00.jpg")).unwrap();
+    let shown = Image::read(&fixtures().join("nerfstudio/images/frame_00.jpg")).unwrap().oriented(6);
+    assert_eq!((shown.width, shown.height), (12, 16));
+    let capture = |image: Vec<u8>| {
+        let dir = copy_of("nerfstudio");
+        std::fs::write(dir.path().join("images/frame_00.jpg"), image).unwrap();
+        let path = dir.path().join("transforms.json");
+        let mut doc: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        doc["frames"][0]["w"] = 12.into();
+        doc["frames"][0]["h"] = 16.into();
+        doc["frames"][0]["cx"] = 6.0.into();
+        doc["frames"][0]["cy"] = 8.0.into();
+        std::fs::write(&path, serde_json::to_string(&doc).unwrap()).unwrap();
+        dir
+    };
+    let tagged = capture(with_exif_orientation(&jpeg, 6));
+    let mut png = Vec::new();
+    shown.write_png(&mut png).unwrap();
+    let turned = capture(png);
+    let (a, b) = (load(tagged.path(), "train"), load(turned.path(), "train"));
+    assert_eq!(a.frames[0].file_path, "images/frame_00.jpg");
+    assert_eq!((a.frames[0].image.width, a.frames[0].image.height), (12, 16));
+    assert_eq!(a.frames[0].image, b.frames[0].image);
+    // Without the tag, the stored 16×12 pixels do not fit the frame's 12×16: refused by name.
+    let untagged = capture(jpeg);
+    let e = load_split(untagged.path(), "train", LoadOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("frame_00.jpg") && e.contains("image is 16×12, transforms say 12×16"), "{e}");
+}

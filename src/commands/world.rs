@@ -10,8 +10,8 @@ pub struct MeshArgs {
     /// Metres per unit of the mesh file.
     #[arg(long, default_value_t = 1.0)]
     pub mesh_scale: f32,
-    /// Which axis of the mesh file points up.
-    #[arg(long, value_enum, default_value = "z")]
+    /// Which axis of the mesh file points up (a signed axis: `--mesh-up -y` for a y-down file).
+    #[arg(long, value_enum, default_value = "z", allow_hyphen_values = true)]
     pub mesh_up: UpAxis,
 }
 

@@ -9,22 +9,23 @@
 //! right, y up, looking down −z) is `[Rᵀ·diag(1, −1, −1) | −Rᵀ·t]`; the world is COLMAP's,
 //! units and up axis as the reconstruction left them (a run places it with the `[world]`
 //! table's `dataset_scale`, `dataset_up` and `dataset_centre`). Cameras `SIMPLE_PINHOLE`,
-//! `PINHOLE` and `OPENCV` are read (`OPENCV` undistorted on load); other models are refused by
-//! name. Images are split by name order: every 8th (0, 8, 16, …) is `val` and `test`, the
-//! others are `train`.
+//! `PINHOLE`, `SIMPLE_RADIAL`, `RADIAL` and `OPENCV` are read (the last three undistorted on
+//! load: `SIMPLE_RADIAL` and `RADIAL` are the `OPENCV` lens with `fx = fy` and, for
+//! `SIMPLE_RADIAL`, `k2 = 0`, without tangential terms); other models are refused by name.
+//! Images are split by name order: every 8th (0, 8, 16, …) is `val` and `test`, the others are
+//! `train`.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Matrix4, Quaternion, UnitQuaternion, Vector3};
-use nerfsv_scene::image::Image;
 use nerfsv_scene::validate::MemoryBudget;
 use nerfsv_scene::Intrinsics;
 use rayon::prelude::*;
 
 use crate::distortion::OpenCvDistortion;
 use crate::error::DatasetError;
-use crate::split::{check_inside, held_bytes, in_split, Frame, LoadOptions, RawFrame, Split};
+use crate::split::{check_inside, held_bytes, in_split, read_frame_image, Frame, LoadOptions, RawFrame, Split};
 
 /// One camera of `cameras.{txt,bin}`: `CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`.
 #[derive(Clone, Debug, PartialEq)]
@@ -299,17 +300,28 @@ pub fn read_images_binary(path: &Path, bytes: &[u8]) -> Result<Vec<ColmapImage>,
     Ok(out)
 }
 
-/// The pinhole part and the lens of a camera: `SIMPLE_PINHOLE` (f, cx, cy), `PINHOLE` (fx, fy,
-/// cx, cy), `OPENCV` (fx, fy, cx, cy, k1, k2, p1, p2); any other model is refused by name.
+/// The pinhole part and the lens of a camera, by COLMAP's model (`colmap/sensor/models.h`):
+/// `SIMPLE_PINHOLE` (f, cx, cy), `PINHOLE` (fx, fy, cx, cy), `SIMPLE_RADIAL` (f, cx, cy, k),
+/// `RADIAL` (f, cx, cy, k1, k2) and `OPENCV` (fx, fy, cx, cy, k1, k2, p1, p2). COLMAP distorts
+/// `SIMPLE_RADIAL` and `RADIAL` points as `OPENCV` does with the missing coefficients 0, so they
+/// are read as that lens. Any other model is refused by name.
 pub fn camera_lens(cam: &ColmapCamera) -> Result<(Intrinsics, OpenCvDistortion), String> {
     let p = &cam.params;
+    let lens = |k1, k2, p1, p2| OpenCvDistortion { k1, k2, p1, p2 };
     let (fx, fy, cx, cy, d) = match (cam.model.as_str(), p.len()) {
         ("SIMPLE_PINHOLE", 3) => (p[0], p[0], p[1], p[2], OpenCvDistortion::default()),
         ("PINHOLE", 4) => (p[0], p[1], p[2], p[3], OpenCvDistortion::default()),
-        ("OPENCV", 8) => (p[0], p[1], p[2], p[3], OpenCvDistortion { k1: p[4], k2: p[5], p1: p[6], p2: p[7] }),
-        (m @ ("SIMPLE_PINHOLE" | "PINHOLE" | "OPENCV"), n) => return Err(format!("{m} with {n} parameters")),
+        ("SIMPLE_RADIAL", 4) => (p[0], p[0], p[1], p[2], lens(p[3], 0.0, 0.0, 0.0)),
+        ("RADIAL", 5) => (p[0], p[0], p[1], p[2], lens(p[3], p[4], 0.0, 0.0)),
+        ("OPENCV", 8) => (p[0], p[1], p[2], p[3], lens(p[4], p[5], p[6], p[7])),
+        (m @ ("SIMPLE_PINHOLE" | "PINHOLE" | "SIMPLE_RADIAL" | "RADIAL" | "OPENCV"), n) => {
+            return Err(format!("{m} with {n} parameters"))
+        }
         (m, _) => {
-            return Err(format!("model {m} is not supported: nerfsv reads SIMPLE_PINHOLE, PINHOLE and OPENCV cameras"))
+            return Err(format!(
+                "model {m} is not supported: nerfsv reads SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL and OPENCV \
+                 cameras"
+            ))
         }
     };
     if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0 && cx.is_finite() && cy.is_finite()) {
@@ -411,7 +423,7 @@ fn colmap_frame(
         file: image_path.clone(),
         message,
     };
-    let image = Image::read(&image_path).map_err(image_err)?;
+    let image = read_frame_image(&image_path, Some((k.width, k.height))).map_err(image_err)?;
     if (image.width, image.height) != (k.width, k.height) {
         return Err(image_err(format!(
             "image is {}×{}, camera {} says {}×{}",

@@ -44,8 +44,10 @@ pub fn dataset_format(dir: &Path) -> Option<DatasetFormat> {
 ///   `train`.
 /// - COLMAP ([`crate::colmap`]): the images in name order, every 8th as `val` and `test`.
 ///
-/// Images are PNG or JPEG (told apart by their first bytes); cameras with OpenCV distortion are
-/// undistorted into the pinhole camera with the same intrinsics
+/// Images are PNG or JPEG (told apart by their first bytes), their pixels as stored unless their
+/// EXIF orientation turns them to the size the capture gives for the frame (then turned, as the
+/// capture was made from the turned pixels); cameras with OpenCV distortion are undistorted into
+/// the pinhole camera with the same intrinsics
 /// ([`crate::distortion::OpenCvDistortion::undistort_image`]). A folder with none of these fails
 /// naming `transforms_{split}.json`.
 pub fn load_split(dir: &Path, split: &str, opts: LoadOptions) -> Result<Split, DatasetError> {

@@ -17,7 +17,8 @@ use crate::split::Split;
 pub struct Placement {
     /// Metres per capture unit: finite, greater than 0 (default 1).
     pub scale: f32,
-    /// Which capture axis points up: `z` (default) or `y` (`(x, y, z)` becomes `(x, −z, y)`).
+    /// Which capture axis points up: `z` (default), `y` (`(x, y, z)` becomes `(x, −z, y)`), `x`,
+    /// `-x`, `-y` or `-z`, turned to +z by a proper rotation ([`UpAxis::rotation`]).
     pub up: UpAxis,
     /// The capture-unit point that becomes the world origin (default `[0, 0, 0]`).
     pub centre: [f32; 3],
@@ -45,13 +46,10 @@ impl Placement {
         Ok(())
     }
 
-    /// `R_up`: the rotation turning the capture's up axis to +z.
+    /// `R_up`: the rotation turning the capture's up axis to +z (determinant +1), as the mesh
+    /// loader turns a file with the same up axis.
     pub fn rotation(&self) -> Matrix3<f32> {
-        match self.up {
-            UpAxis::Z => Matrix3::identity(),
-            // (x, y, z) → (x, −z, y), as the mesh loader turns a y-up file.
-            UpAxis::Y => Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0),
-        }
+        self.up.rotation()
     }
 
     /// A capture point in the world (metres).

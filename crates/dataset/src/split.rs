@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Matrix4;
-use nerfsv_scene::image::{DepthImage, Image};
+use nerfsv_scene::image::{oriented_size, DepthImage, Image};
 use nerfsv_scene::validate::bytes_for;
 use nerfsv_scene::views::{PosedImages, View};
 use nerfsv_scene::{Camera, Intrinsics};
@@ -81,6 +81,24 @@ impl PosedImages for Split {
 
     fn pixels(&self) -> usize {
         Split::pixels(self)
+    }
+}
+
+/// A frame's image as its capture describes it, `size` being the capture's size for the frame
+/// (where it gives one). The pixels are used as stored, as COLMAP, nerfstudio and instant-ngp
+/// read them (their cameras describe the stored pixels: COLMAP ignores EXIF orientation on
+/// purpose), unless the image's EXIF orientation turns it to `size` while its stored size is
+/// not `size`: the capture was then made from the turned pixels (a tool that honoured the tag),
+/// and they are turned the same way ([`Image::oriented`]). Orientations 2 to 4 keep the size,
+/// so the stored pixels stand.
+pub(crate) fn read_frame_image(path: &Path, size: Option<(u32, u32)>) -> Result<Image, String> {
+    let (image, orientation) = Image::read_with_orientation(path)?;
+    let stored = (image.width, image.height);
+    match size {
+        Some(size) if stored != size && oriented_size(stored.0, stored.1, orientation) == size => {
+            Ok(image.oriented(orientation))
+        }
+        _ => Ok(image),
     }
 }
 

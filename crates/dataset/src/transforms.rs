@@ -6,7 +6,7 @@
 use std::path::{Component, Path, PathBuf};
 
 use nalgebra::Matrix4;
-use nerfsv_scene::image::{image_size, DepthImage, Image};
+use nerfsv_scene::image::{image_size, DepthImage};
 use nerfsv_scene::validate::MemoryBudget;
 use nerfsv_scene::Intrinsics;
 use rayon::prelude::*;
@@ -14,7 +14,7 @@ use serde_json::{Map, Value};
 
 use crate::distortion::OpenCvDistortion;
 use crate::error::DatasetError;
-use crate::split::{check_inside, held_bytes, in_split, Frame, LoadOptions, RawFrame, Split};
+use crate::split::{check_inside, held_bytes, in_split, read_frame_image, Frame, LoadOptions, RawFrame, Split};
 
 /// Reads split `split` from the transforms file `path`: all its frames when it is a
 /// `transforms_{split}.json`; when it is a single `transforms.json` (`single`), the frames its
@@ -205,8 +205,9 @@ impl Ctx<'_> {
             file: file.to_path_buf(),
             message,
         };
-        let image = Image::read(&image_path).map_err(|m| image_err("file_path", &image_path, m))?;
         let k = top.overridden_by(self.partial_intrinsics(Some(i), obj)?);
+        let size = k.w.zip(k.h).map(|(w, h)| (w.round() as u32, h.round() as u32));
+        let image = read_frame_image(&image_path, size).map_err(|m| image_err("file_path", &image_path, m))?;
         let intr = self.intrinsics(i, &k, image.width, image.height)?;
         if (image.width, image.height) != (intr.width, intr.height) {
             return Err(image_err(

@@ -452,3 +452,215 @@ fn a_frames_own_distortion_overrides_the_top_level_one() {
     let (with_own, with_top) = (error(&own), error(&top));
     assert!(with_own < 2.0 && with_top > 2.5 * with_own, "own lens {with_own} levels, top-level lens {with_top}");
 }
+
+/// The fixture's COLMAP folder `form` (`colmap_text` or `colmap_bin`) copied, its camera 3 (the
+/// OPENCV one, the last in both files) made camera `model` (`model_id`) with `params`.
+fn with_camera_3(form: &str, model: &str, model_id: u32, params: &[f64]) -> tempfile::TempDir {
+    let dir = copy_of(form);
+    if form == "colmap_text" {
+        let path = dir.path().join("sparse/0/cameras.txt");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let line = text.lines().find(|l| l.starts_with("3 OPENCV ")).unwrap();
+        let shown: Vec<String> = params.iter().map(|p| format!("{p:?}")).collect();
+        std::fs::write(&path, text.replace(line, &format!("3 {model} 16 12 {}", shown.join(" ")))).unwrap();
+    } else {
+        let path = dir.path().join("sparse/0/cameras.bin");
+        let mut bytes = std::fs::read(&path).unwrap();
+        // Camera records: 8-byte count, then (id, model id, width, height, params) each.
+        let third = 8 + (24 + 3 * 8) + (24 + 4 * 8);
+        assert_eq!(bytes[third..third + 8], [3, 0, 0, 0, 4, 0, 0, 0], "the third camera is OPENCV");
+        bytes.truncate(third);
+        bytes.extend(3u32.to_le_bytes());
+        bytes.extend(model_id.to_le_bytes());
+        bytes.extend(16u64.to_le_bytes());
+        bytes.extend(12u64.to_le_bytes());
+        params.iter().for_each(|p| bytes.extend(p.to_le_bytes()));
+        std::fs::write(&path, bytes).unwrap();
+    }
+    dir
+}
+
+#[test]
+fn simple_radial_and_radial_cameras_load_as_the_opencv_lens_they_are() {
+    // COLMAP's SIMPLE_RADIAL (f, cx, cy, k) and RADIAL (f, cx, cy, k1, k2) are OPENCV with
+    // fx = fy = f and the missing coefficients 0.
+    let cases: [(&str, u32, &[f64], [f64; 8]); 2] = [
+        ("SIMPLE_RADIAL", 2, &[14.0, 8.0, 6.0, -0.2], [14.0, 14.0, 8.0, 6.0, -0.2, 0.0, 0.0, 0.0]),
+        ("RADIAL", 3, &[14.0, 8.0, 6.0, -0.2, 0.05], [14.0, 14.0, 8.0, 6.0, -0.2, 0.05, 0.0, 0.0]),
+    ];
+    for form in ["colmap_text", "colmap_bin"] {
+        let pinhole = with_camera_3(form, "PINHOLE", 1, &[14.0, 14.0, 8.0, 6.0]);
+        let pinhole = load(pinhole.path(), "train");
+        for (model, id, params, opencv) in cases {
+            let radial = with_camera_3(form, model, id, params);
+            let equivalent = with_camera_3(form, "OPENCV", 4, &opencv);
+            let (a, b) = (load(radial.path(), "train"), load(equivalent.path(), "train"));
+            assert_eq!(names(&a), names(&b));
+            let mut distorted = 0;
+            for ((fa, fb), fp) in a.frames.iter().zip(&b.frames).zip(&pinhole.frames) {
+                assert_eq!(fa.camera, fb.camera, "{form} {model} {}", fa.file_path);
+                assert_eq!(fa.image, fb.image, "{form} {model} {}: undistorted as OPENCV", fa.file_path);
+                distorted += usize::from(fa.image != fp.image);
+            }
+            // The lens is applied: camera 3's frames differ from a pinhole camera's.
+            assert!(distorted > 0, "{form} {model}: no frame was undistorted");
+        }
+    }
+}
+
+#[test]
+fn an_unknown_camera_model_is_a_typed_error_naming_the_file_and_the_model() {
+    use nerfsv_dataset::DatasetError;
+    let dir =
+        with_camera_3("colmap_text", "FULL_OPENCV", 6, &[14.0, 14.0, 8.0, 6.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    match load_split(dir.path(), "train", LoadOptions::default()).unwrap_err() {
+        DatasetError::Field { path, message, .. } => {
+            assert!(path.ends_with("sparse/0/cameras.txt"), "{}", path.display());
+            assert!(message.contains("FULL_OPENCV") && message.contains("SIMPLE_RADIAL, RADIAL"), "{message}");
+        }
+        e => panic!("not a field error: {e}"),
+    }
+    let dir = with_camera_3("colmap_bin", "", 99, &[]);
+    match load_split(dir.path(), "train", LoadOptions::default()).unwrap_err() {
+        DatasetError::Field { path, message, .. } => {
+            assert!(path.ends_with("sparse/0/cameras.bin"), "{}", path.display());
+            assert!(message.contains("unknown model id 99"), "{message}");
+        }
+        e => panic!("not a field error: {e}"),
+    }
+    // A known model with the wrong number of parameters names the model and the count.
+    let dir = with_camera_3("colmap_text", "RADIAL", 3, &[14.0, 8.0, 6.0, -0.2]);
+    let e = load_split(dir.path(), "train", LoadOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("cameras.txt") && e.contains("RADIAL has 5 parameters, found 4"), "{e}");
+}
+
+#[test]
+fn a_capture_expressed_with_any_signed_up_axis_places_to_the_same_world_poses() {
+    // A capture point's coordinates for each up axis, from the world's (z-up) ones, written out
+    // here rather than taken from `UpAxis::rotation`: the capture's up axis is the world's +z.
+    let to_capture = |up: UpAxis, [x, y, z]: [f64; 3]| -> [f64; 3] {
+        match up {
+            UpAxis::Z => [x, y, z],
+            UpAxis::Y => [x, z, -y],
+            UpAxis::X => [z, y, -x],
+            UpAxis::NegZ => [x, -y, -z],
+            UpAxis::NegY => [x, -z, y],
+            UpAxis::NegX => [-z, y, x],
+        }
+    };
+    let centre_world = [0.3, -0.2, 0.1];
+    let world = Placement { scale: 2.0, up: UpAxis::Z, centre: centre_world.map(|c| c as f32) };
+    let mut want = load(&fixtures().join("nerfstudio"), "train");
+    world.place(&mut want);
+    assert_eq!(UpAxis::ALL.len(), 6);
+    for up in UpAxis::ALL {
+        let dir = copy_of("nerfstudio");
+        let path = dir.path().join("transforms.json");
+        let mut doc: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        for frame in doc["frames"].as_array_mut().unwrap() {
+            let m = frame["transform_matrix"].clone();
+            let at = |r: usize, c: usize| f(&m[r][c]);
+            // Each column of the 3×4 camera-to-world (axes and position) in capture coordinates.
+            let cols: Vec<[f64; 3]> = (0..4).map(|c| to_capture(up, [at(0, c), at(1, c), at(2, c)])).collect();
+            for (r, row) in frame["transform_matrix"].as_array_mut().unwrap().iter_mut().take(3).enumerate() {
+                *row = serde_json::json!([cols[0][r], cols[1][r], cols[2][r], cols[3][r]]);
+            }
+        }
+        std::fs::write(&path, serde_json::to_string(&doc).unwrap()).unwrap();
+        let centre = to_capture(up, centre_world).map(|c| c as f32);
+        let mut got = load(dir.path(), "train");
+        Placement { scale: 2.0, up, centre }.place(&mut got);
+        assert_eq!(names(&got), names(&want));
+        for (g, w) in got.frames.iter().zip(&want.frames) {
+            let err = (g.camera.c2w - w.camera.c2w).abs().max();
+            assert!(err < 1e-5, "up {up}: {} is {err} off\n{}{}", g.file_path, g.camera.c2w, w.camera.c2w);
+            assert_eq!(g.image, w.image);
+        }
+    }
+}
+
+/// `jpeg` with an APP1 `Exif` segment after its SOI marker whose IFD0 holds orientation `value`
+/// (big-endian TIFF, as many cameras write it).
+fn with_exif_orientation(jpeg: &[u8], value: u16) -> Vec<u8> {
+    let mut tiff = b"MM\0\x2a\0\0\0\x08\0\x01".to_vec();
+    tiff.extend(0x0112u16.to_be_bytes());
+    tiff.extend(3u16.to_be_bytes());
+    tiff.extend(1u32.to_be_bytes());
+    tiff.extend(value.to_be_bytes());
+    tiff.extend([0, 0, 0, 0, 0, 0]);
+    let mut out = jpeg[..2].to_vec();
+    out.extend([0xFF, 0xE1]);
+    out.extend(((2 + 6 + tiff.len()) as u16).to_be_bytes());
+    out.extend(b"Exif\0\0");
+    out.extend(tiff);
+    out.extend(&jpeg[2..]);
+    out
+}
+
+#[test]
+fn a_colmap_frames_exif_orientation_is_applied_where_its_camera_has_the_turned_size() {
+    // img_00.jpg (16×12 stored) gets a camera of its own, SIMPLE_PINHOLE (nothing to undistort).
+    let stored = Image::read(&fixtures().join("colmap_text/images/img_00.jpg")).unwrap();
+    let jpeg = std::fs::read(fixtures().join("colmap_text/images/img_00.jpg")).unwrap();
+    for orientation in 1..=8u16 {
+        let turned = (5..=8).contains(&orientation);
+        let shown = stored.oriented(orientation as u8);
+        // The camera as a tool honouring the tag saw the image, and as COLMAP sees it (stored).
+        for (w, h) in [(shown.width, shown.height), (16, 12)] {
+            let dir = copy_of("colmap_text");
+            std::fs::write(dir.path().join("images/img_00.jpg"), with_exif_orientation(&jpeg, orientation)).unwrap();
+            let cams = dir.path().join("sparse/0/cameras.txt");
+            let mut text = std::fs::read_to_string(&cams).unwrap();
+            text.push_str(&format!("4 SIMPLE_PINHOLE {w} {h} 14.0 {} {}\n", w as f32 / 2.0, h as f32 / 2.0));
+            std::fs::write(&cams, text).unwrap();
+            let images = dir.path().join("sparse/0/images.txt");
+            let text = std::fs::read_to_string(&images).unwrap();
+            let line = text.lines().find(|l| l.ends_with(" img_00.jpg")).unwrap();
+            let mut tokens: Vec<&str> = line.split_whitespace().collect();
+            tokens[8] = "4";
+            std::fs::write(&images, text.replace(line, &tokens.join(" "))).unwrap();
+            // img_00 is the first image by name: val and test.
+            let frame = &load(dir.path(), "val").frames[0];
+            assert_eq!(frame.file_path, "img_00.jpg");
+            let want = if (w, h) == (16, 12) { &stored } else { &shown };
+            assert_eq!(&frame.image, want, "orientation {orientation}, camera {w}×{h}");
+            assert_eq!((frame.camera.intrinsics.width, frame.camera.intrinsics.height), (w, h));
+            if turned && (w, h) == (shown.width, shown.height) {
+                assert_ne!(frame.image, stored, "orientation {orientation} turns the pixels");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_nerfstudio_frames_exif_orientation_is_applied_where_the_frame_has_the_turned_size() {
+    // frame_00.jpg (16×12 stored) tagged 6, a quarter turn clockwise, and given the turned size:
+    // it loads as the turned pixels written out as they are, through the same lens.
+    let jpeg = std::fs::read(fixtures().join("nerfstudio/images/frame_00.jpg")).unwrap();
+    let shown = Image::read(&fixtures().join("nerfstudio/images/frame_00.jpg")).unwrap().oriented(6);
+    assert_eq!((shown.width, shown.height), (12, 16));
+    let capture = |image: Vec<u8>| {
+        let dir = copy_of("nerfstudio");
+        std::fs::write(dir.path().join("images/frame_00.jpg"), image).unwrap();
+        let path = dir.path().join("transforms.json");
+        let mut doc: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        doc["frames"][0]["w"] = 12.into();
+        doc["frames"][0]["h"] = 16.into();
+        doc["frames"][0]["cx"] = 6.0.into();
+        doc["frames"][0]["cy"] = 8.0.into();
+        std::fs::write(&path, serde_json::to_string(&doc).unwrap()).unwrap();
+        dir
+    };
+    let tagged = capture(with_exif_orientation(&jpeg, 6));
+    let mut png = Vec::new();
+    shown.write_png(&mut png).unwrap();
+    let turned = capture(png);
+    let (a, b) = (load(tagged.path(), "train"), load(turned.path(), "train"));
+    assert_eq!(a.frames[0].file_path, "images/frame_00.jpg");
+    assert_eq!((a.frames[0].image.width, a.frames[0].image.height), (12, 16));
+    assert_eq!(a.frames[0].image, b.frames[0].image);
+    // Without the tag, the stored 16×12 pixels do not fit the frame's 12×16: refused by name.
+    let untagged = capture(jpeg);
+    let e = load_split(untagged.path(), "train", LoadOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("frame_00.jpg") && e.contains("image is 16×12, transforms say 12×16"), "{e}");
+}

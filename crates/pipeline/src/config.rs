@@ -193,7 +193,8 @@ pub struct WorldConfig {
     pub mesh: Option<PathBuf>,
     /// Metres per unit of the mesh file.
     pub mesh_scale: f32,
-    /// Which axis of the mesh file points up: "z", or "y" (glTF, Blender's exports).
+    /// Which axis of the mesh file points up: "z", "y" (glTF, Blender's exports), "x", "-x", "-y"
+    /// or "-z", turned to +z by a quarter or half turn about a horizontal axis.
     pub mesh_up: nerfsv_scene::mesh::UpAxis,
     /// A dataset folder used as is instead of rendering one: Blender format
     /// (`transforms_{train,val,test}.json`), nerfstudio / instant-ngp (`transforms.json`; its
@@ -207,8 +208,11 @@ pub struct WorldConfig {
     /// Metres per unit of the dataset's poses (a reconstruction's units are arbitrary): finite,
     /// greater than 0. Ground-truth depths scale with it. Applied last.
     pub dataset_scale: f32,
-    /// Which axis of the dataset's world points up: "z" (Blender's and nerfstudio's), or "y"
-    /// (turned to z: `(x, y, z)` becomes `(x, −z, y)`). Applied after `dataset_centre`.
+    /// Which axis of the dataset's world points up, turned to +z by a proper rotation: "z"
+    /// (Blender's and nerfstudio's; left as is), "y" (`(x, y, z)` becomes `(x, −z, y)`), "x"
+    /// (`(−z, y, x)`), "-x" (`(z, y, −x)`), "-y" (`(x, z, −y)`: a y-down world, such as a COLMAP
+    /// model whose axes are a level camera's) or "-z" (`(x, −y, −z)`). Applied after
+    /// `dataset_centre`.
     pub dataset_up: nerfsv_scene::mesh::UpAxis,
     /// The point of the dataset's world, in its own units, that becomes the world origin
     /// (finite). Applied first.

@@ -159,11 +159,17 @@ pub fn file_digest(path: &Path) -> io::Result<u64> {
 /// The digest of every file under `dir` (relative names and digested bytes, in sorted path
 /// order).
 pub fn folder_digest(dir: &Path) -> io::Result<u64> {
+    files_digest(dir, &files(dir)?, digested_bytes)
+}
+
+/// The digest of the files `rels` of `dir` (names relative to it with `/` separators, digested
+/// in the order given: each name, then the bytes `read` gives for the file).
+pub fn files_digest(dir: &Path, rels: &[String], read: impl Fn(&Path) -> io::Result<Vec<u8>>) -> io::Result<u64> {
     let mut hash = BASIS;
-    for rel in files(dir)? {
+    for rel in rels {
         hash = fnv1a_from(hash, rel.as_bytes());
         hash = fnv1a_from(hash, &[0]);
-        hash = fnv1a_from(hash, &digested_bytes(&dir.join(&rel))?);
+        hash = fnv1a_from(hash, &read(&dir.join(rel))?);
         hash = fnv1a_from(hash, &[0xff]);
     }
     Ok(hash)

@@ -122,6 +122,24 @@ impl Dataset<'_> {
     }
 }
 
+/// The digest of the files the loader reads from the dataset folder `folder`
+/// ([`nerfsv_dataset::dataset_files`]: transforms files or COLMAP model files and the images
+/// and depth images they name), by name relative to it and bytes, in sorted name order. A file
+/// that cannot be read digests as its error's kind: the stage then fails naming it.
+pub fn dataset_digest(folder: &Path) -> u64 {
+    let mut rels: Vec<String> = nerfsv_dataset::dataset_files(folder)
+        .iter()
+        .map(|f| {
+            let rel = f.strip_prefix(folder).unwrap_or(f);
+            rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/")
+        })
+        .collect();
+    rels.sort();
+    rels.dedup();
+    let read = |p: &Path| Ok(std::fs::read(p).unwrap_or_else(|e| format!("unreadable: {:?}", e.kind()).into_bytes()));
+    crate::digest::files_digest(folder, &rels, read).unwrap_or(0)
+}
+
 impl Stage for Dataset<'_> {
     const NAME: &'static str = "dataset";
     const CODE: &'static [&'static str] = &["nerfsv-dataset", "stages.rs"];
@@ -138,10 +156,11 @@ impl Stage for Dataset<'_> {
     fn config(&self) -> impl Serialize {
         match &self.source {
             DatasetSource::Render { scene, options } => serde_json::json!([scene.key(), options]),
-            // The folder's files: a changed image is another dataset. An unreadable folder keys
-            // as 0, and the stage then fails naming it. An identity placement keys as none.
+            // The files the loader reads: a changed image is another dataset, while what else
+            // the folder holds (COLMAP's database.db, dense/, …) is not read and not hashed. An
+            // identity placement keys as none.
             DatasetSource::Folder { folder, placement } => {
-                let digest = crate::digest::folder_digest(folder).unwrap_or(0);
+                let digest = dataset_digest(folder);
                 let mut key = serde_json::json!({"folder": folder, "digest": format!("{digest:016x}")});
                 if !placement.is_identity() {
                     key["placement"] = serde_json::json!(placement);

@@ -43,8 +43,16 @@ fn a_colmap_world_dataset_validates_and_its_placement_is_checked_by_name() {
         let e = config(dir.path(), bad).and_then(|c| c.validate().map_err(|e| e.to_string())).unwrap_err();
         assert!(e.contains(key), "{bad}: {e}");
     }
-    let e = config(dir.path(), "dataset_up = \"x\"\n").unwrap_err();
+    let e = config(dir.path(), "dataset_up = \"w\"\n").unwrap_err();
     assert!(e.contains("dataset_up"), "{e}");
+    for name in ["`x`", "`y`", "`z`", "`-x`", "`-y`", "`-z`"] {
+        assert!(e.contains(name), "the accepted values are listed: {e}");
+    }
+    // Every signed axis is accepted, by its name.
+    for up in UpAxis::ALL {
+        let cfg = config(dir.path(), &format!("dataset_up = \"{up}\"\n")).unwrap();
+        assert_eq!(cfg.world.placement().up, up);
+    }
 }
 
 #[test]
@@ -100,4 +108,61 @@ fn the_dataset_stage_records_the_placement_and_later_readers_get_placed_poses() 
     assert!(!text.contains("placement"), "{text}");
     let plain = load_dataset_split(&Dataset::folder(&root).unwrap(), "train", 1).unwrap();
     assert_eq!(plain.frames[0].camera.c2w, raw.frames[0].camera.c2w);
+}
+
+/// Copies the folder `from` into `to`.
+fn copy_folder(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        let target = to.join(e.file_name());
+        if e.path().is_dir() {
+            copy_folder(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn the_dataset_stages_key_hashes_the_files_the_loader_reads_and_no_others() {
+    use nerfsv_pipeline::stage::Stage;
+    let dir = tempfile::tempdir().unwrap();
+    for (name, image, model) in [
+        ("colmap_text", "images/img_03.jpg", "sparse/0/images.txt"),
+        ("colmap_bin", "images/img_05.jpg", "sparse/0/cameras.bin"),
+        ("nerfstudio", "images/frame_04.png", "transforms.json"),
+    ] {
+        let folder = dir.path().join(name);
+        copy_folder(&fixtures().join("captures").join(name), &folder);
+        let key = || {
+            let stage = Dataset { source: DatasetSource::Folder { folder: &folder, placement: Placement::default() } };
+            let key = serde_json::to_string(&stage.config()).unwrap();
+            key
+        };
+        let before = key();
+        // What COLMAP and nerfstudio leave beside a capture, large and not read: the key stands.
+        std::fs::write(folder.join("database.db"), vec![7u8; 8 << 20]).unwrap();
+        std::fs::create_dir_all(folder.join("dense/0")).unwrap();
+        std::fs::write(folder.join("dense/0/x.bin"), vec![1u8; 1 << 20]).unwrap();
+        std::fs::create_dir_all(folder.join("sparse/1")).unwrap();
+        std::fs::write(folder.join("sparse/1/points3D.bin"), b"another model").unwrap();
+        std::fs::write(folder.join("images/unregistered.jpg"), b"not named by the model").unwrap();
+        assert_eq!(key(), before, "{name}: files the loader does not read changed the key");
+        // A byte of an image the loader reads changes it, and so does its model file.
+        let path = folder.join(image);
+        let original = std::fs::read(&path).unwrap();
+        let mut bytes = original.clone();
+        let last = bytes.len() - 3;
+        bytes[last] ^= 1;
+        std::fs::write(&path, &bytes).unwrap();
+        let edited = key();
+        assert_ne!(edited, before, "{name}: a changed {image} kept the key");
+        std::fs::write(&path, &original).unwrap();
+        assert_eq!(key(), before, "{name}: the key is the files' bytes");
+        let path = folder.join(model);
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes.push(b'\n');
+        std::fs::write(&path, &bytes).unwrap();
+        assert_ne!(key(), before, "{name}: a changed {model} kept the key");
+    }
 }

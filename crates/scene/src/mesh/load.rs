@@ -5,22 +5,78 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix4, Point3};
+use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
 
 use super::triangle::{MeshError, TriangleMesh, DEFAULT_COLOUR};
 use crate::image::Image;
 
-/// Which axis of the file points up.
+/// Which axis of the file points up, signed: the file is turned by the proper rotation
+/// ([`UpAxis::rotation`], determinant +1) taking that axis to +z. Each is a quarter or half turn
+/// about a horizontal axis of the file, so the axes other than the up axis stay horizontal.
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[derive(nerfsv_derive::Choice, Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum UpAxis {
-    /// The file is z-up already (nerfsv's frame).
-    #[default]
-    Z,
+    /// The file is x-up: `(x, y, z)` becomes `(−z, y, x)`, a quarter turn about y.
+    X,
     /// The file is y-up (glTF's convention, Blender's glTF and OBJ exports): `(x, y, z)` becomes
     /// `(x, −z, y)`, a right-handed turn about x.
     Y,
+    /// The file is z-up already (nerfsv's frame).
+    #[default]
+    Z,
+    /// The file is −x-up: `(x, y, z)` becomes `(z, y, −x)`, a quarter turn about y.
+    #[serde(rename = "-x")]
+    #[cfg_attr(feature = "clap", value(name = "-x"))]
+    NegX,
+    /// The file is −y-up (COLMAP's and OpenCV's y-down worlds): `(x, y, z)` becomes `(x, z, −y)`,
+    /// a quarter turn about x.
+    #[serde(rename = "-y")]
+    #[cfg_attr(feature = "clap", value(name = "-y"))]
+    NegY,
+    /// The file is −z-up: `(x, y, z)` becomes `(x, −y, −z)`, a half turn about x.
+    #[serde(rename = "-z")]
+    #[cfg_attr(feature = "clap", value(name = "-z"))]
+    NegZ,
+}
+
+impl UpAxis {
+    /// The file's up axis as a unit vector of the file.
+    pub fn vector(self) -> Vector3<f32> {
+        match self {
+            UpAxis::X => Vector3::x(),
+            UpAxis::Y => Vector3::y(),
+            UpAxis::Z => Vector3::z(),
+            UpAxis::NegX => -Vector3::x(),
+            UpAxis::NegY => -Vector3::y(),
+            UpAxis::NegZ => -Vector3::z(),
+        }
+    }
+
+    /// The rotation turning the file's up axis to +z (determinant +1; variant docs).
+    pub fn rotation(self) -> Matrix3<f32> {
+        match self {
+            UpAxis::X => Matrix3::new(0.0, 0.0, -1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0),
+            UpAxis::Y => Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0),
+            UpAxis::Z => Matrix3::identity(),
+            UpAxis::NegX => Matrix3::new(0.0, 0.0, 1.0, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0),
+            UpAxis::NegY => Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0),
+            UpAxis::NegZ => Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
+        }
+    }
+
+    /// A point of the file turned z-up: [`UpAxis::rotation`] times `p`, computed exactly (its
+    /// coordinates moved and negated, not multiplied).
+    pub fn turn(self, p: Point3<f32>) -> Point3<f32> {
+        match self {
+            UpAxis::X => Point3::new(-p.z, p.y, p.x),
+            UpAxis::Y => Point3::new(p.x, -p.z, p.y),
+            UpAxis::Z => p,
+            UpAxis::NegX => Point3::new(p.z, p.y, -p.x),
+            UpAxis::NegY => Point3::new(p.x, p.z, -p.y),
+            UpAxis::NegZ => Point3::new(p.x, -p.y, -p.z),
+        }
+    }
 }
 
 /// How a file's coordinates become metres, z up.
@@ -93,11 +149,7 @@ pub fn load_mesh(path: &Path, options: MeshOptions) -> Result<LoadedMesh, LoadEr
         _ => return Err(read_error(path, "unknown mesh format: expected .obj, .ply, .gltf or .glb")),
     };
     for p in &mut loaded.mesh.positions {
-        let q = match options.up {
-            UpAxis::Z => *p,
-            UpAxis::Y => Point3::new(p.x, -p.z, p.y),
-        };
-        *p = q * options.scale;
+        *p = options.up.turn(*p) * options.scale;
     }
     loaded.mesh.validate().map_err(|error| LoadError::Invalid { path: path.to_path_buf(), error })?;
     Ok(loaded)
@@ -380,6 +432,26 @@ mod tests {
         // (x, y, z) → 2·(x, −z, y)
         assert_eq!(y_up.positions[4], Point3::new(0.0, -2.0, 0.0)); // vertex (0, 0, 1)
         assert_eq!(y_up.positions[2], Point3::new(0.0, 0.0, 2.0)); // vertex (0, 1, 0)
+    }
+
+    #[test]
+    fn every_up_axis_turns_to_z_by_a_proper_rotation() {
+        let names: Vec<&str> = UpAxis::ALL.iter().map(|u| u.name()).collect();
+        assert_eq!(names, ["x", "y", "z", "-x", "-y", "-z"]);
+        let p = Point3::new(1.5, -2.25, 3.0);
+        for up in UpAxis::ALL {
+            let r = up.rotation();
+            assert_eq!(r.determinant(), 1.0, "{up}");
+            assert_eq!(r * r.transpose(), Matrix3::identity(), "{up}");
+            assert_eq!(r * up.vector(), Vector3::z(), "{up}");
+            assert_eq!(up.turn(p), Point3::from(r * p.coords), "{up}");
+            assert_eq!(up.name().parse::<UpAxis>(), Ok(up));
+            assert_eq!(serde_json::to_string(&up).unwrap(), format!("{:?}", up.name()));
+        }
+        // z and y as they always were.
+        assert_eq!(UpAxis::Z.rotation(), Matrix3::identity());
+        assert_eq!(UpAxis::Y.turn(p), Point3::new(1.5, -3.0, -2.25));
+        assert_eq!("w".parse::<UpAxis>().unwrap_err(), "unknown up axis \"w\": one of x, y, z, -x, -y, -z");
     }
 
     #[test]

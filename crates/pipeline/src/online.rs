@@ -228,12 +228,10 @@ impl Stage for OnlineStage<'_> {
             .map(|(r, g)| (r.clone(), g.clone()))
             .unzip();
         let cem_confusion = compare(&cem, &cem_replays).map_err(PipelineError::Internal)?.trajectories;
-        let mode = s.prior.mode_step_log_pdf();
         let mut studies = Vec::new();
         let mut measured: Vec<(&'static str, Vec<RolloutRecord>)> = Vec::new();
-        let studied = |r: &RolloutRecord| {
-            (r.sampler == Label::Mc && r.index < validation.monte_carlo.rollouts) || r.sampler == Label::Cem
-        };
+        let mc = validation.monte_carlo.rollouts;
+        let studied = |r: &RolloutRecord| (r.sampler == Label::Mc && r.index < mc) || r.sampler == Label::Cem;
         for &method in &self.online.methods {
             let dir = cx.dir.join(method.name());
             let setup = |samplers: &'static [Sampler], reward: bool| StressSetup {
@@ -255,7 +253,7 @@ impl Stage for OnlineStage<'_> {
                 nerfsv_validation::write_csv_file(&path, &records).map_err(|e| PipelineError::io(&path, e))?;
                 let rows: Vec<TableRow> = [Label::Mc, Label::Cem]
                     .into_iter()
-                    .filter_map(|sampler| table_row(sampler, &records, mode))
+                    .filter_map(|sampler| table_row(sampler, &records, s.prior.mode_step_log_pdf()))
                     .collect();
                 write_stress_table(&out.join(TABLE_CSV), WorldKind::Nerf, setup.online, &rows)?;
                 (records, views, seconds)
@@ -289,7 +287,7 @@ impl Stage for OnlineStage<'_> {
                 (&scored, Label::Cem, false),
                 (&reward_records, Label::Cem, true),
             ] {
-                if let Some(row) = table_row(sampler, records, mode) {
+                if let Some(row) = table_row(sampler, records, s.prior.mode_step_log_pdf()) {
                     rows.push(OnlineRow { method, reward, row });
                 }
             }
@@ -316,15 +314,7 @@ impl Stage for OnlineStage<'_> {
             });
             measured.push((method.name(), plain_records));
         }
-        // The ensemble's spread at the same rollouts' steps, as the stress stage measured it.
-        let ensemble = stress_dir.join(StressStage::STEP_UNCERTAINTY_CSV);
-        if ensemble.is_file() {
-            measured.push(("ensemble", read_records(&ensemble)?.into_iter().filter(|r| studied(r)).collect()));
-        }
-        let measures: Vec<Measured> =
-            measured.iter().map(|(measure, rollouts)| Measured { measure, rollouts }).collect();
-        let step_auroc =
-            step_auroc_table(&measures, &replays, &[Label::Mc, Label::Cem], BOOTSTRAP_RESAMPLES, validation.seed);
+        let step_auroc = against_baselines(&stress_dir, measured, &studied, &replays, validation.seed)?;
         let figures = OnlineFigures {
             mode: UqMode::Exact,
             ga_measure: self.uq.ga_measure.name().to_owned(),
@@ -335,6 +325,23 @@ impl Stage for OnlineStage<'_> {
         write_table(&cx.dir.join(ONLINE_TABLE_CSV), &figures)?;
         Ok(figures)
     }
+}
+
+/// Each measure's step AUROC table with the baselines ([`step_auroc_table`]), the ensemble's
+/// spread at the `studied` rollouts' steps (as the stress stage measured it) added to `measured`.
+fn against_baselines(
+    stress_dir: &Path,
+    mut measured: Vec<(&'static str, Vec<RolloutRecord>)>,
+    studied: &dyn Fn(&RolloutRecord) -> bool,
+    replays: &[RolloutRecord],
+    seed: u64,
+) -> Result<Vec<StepAurocRow>, PipelineError> {
+    let ensemble = stress_dir.join(StressStage::STEP_UNCERTAINTY_CSV);
+    if ensemble.is_file() {
+        measured.push(("ensemble", read_records(&ensemble)?.into_iter().filter(|r| studied(r)).collect()));
+    }
+    let measures: Vec<Measured> = measured.iter().map(|(measure, rollouts)| Measured { measure, rollouts }).collect();
+    Ok(step_auroc_table(&measures, replays, &[Label::Mc, Label::Cem], BOOTSTRAP_RESAMPLES, seed))
 }
 
 fn read_records(path: &Path) -> Result<Vec<RolloutRecord>, PipelineError> {

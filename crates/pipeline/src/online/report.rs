@@ -37,43 +37,7 @@ impl Report for OnlineStage<'_> {
                 ),
             );
         }
-        if !f.step_auroc.is_empty() {
-            s.html("<h3>Each measure against two baselines that need no uncertainty</h3>\n".to_owned());
-            s.paragraph(
-                "A step is positive when one world touched geometry during it and the other did not. <em>Pooled</em>: \
-                 the AUROC over all steps; <em>matched</em>: the probability that a disagreeing step outscores an \
-                 agreeing step of the same index (ties ½), so that a measure knowing only where along the route the \
-                 drone is scores 0.5. Baselines: the step index, and NeRF-sim's own clearance at the step (lower \
-                 scoring higher). Intervals: 95 % from 2000 bootstraps over rollouts. DeLong: the paired test of the \
-                 matched AUROC against the clearance's on the same steps; Holm: adjusted over every test of the \
-                 table. GA and BLA run in exact mode: they need the ground truth's render of the view, so they \
-                 cannot run on a real drone; the ensemble's spread needs only the NeRFs.",
-            );
-            s.table(
-                Table::new(&[
-                    "sampler",
-                    "measure",
-                    "steps (disagreeing)",
-                    "pooled AUROC",
-                    "matched AUROC",
-                    "clearance, same steps",
-                    "DeLong p",
-                    "Holm p",
-                ])
-                .rows(f.step_auroc.iter().map(|r| {
-                    vec![
-                        r.sampler.name().to_uppercase(),
-                        measure_label(&r.measure),
-                        format!("{} ({})", r.steps, r.disagreeing_steps),
-                        with_interval(&r.pooled),
-                        with_interval(&r.stratified),
-                        num(r.clearance_stratified, 2),
-                        p_value(r.delong_p_vs_clearance),
-                        p_value(r.holm_p),
-                    ]
-                })),
-            );
-        }
+        baselines_table(&mut s, f);
         s.paragraph(format!(
             "A step's uncertainty is the view's GA {} or BLA {} (<code>uq.ga_measure</code>, <code>uq.bla_measure</code>).",
             esc(&f.ga_measure),
@@ -220,4 +184,46 @@ fn step_auroc_answer(f: &OnlineFigures) -> String {
         clearance.join(", "),
         esc(&best)
     )
+}
+
+/// Each measure against the two baselines, as a table (nothing without rows).
+fn baselines_table(s: &mut Section, f: &OnlineFigures) {
+    if f.step_auroc.is_empty() {
+        return;
+    }
+    s.html("<h3>Each measure against two baselines that need no uncertainty</h3>\n".to_owned());
+    s.paragraph(
+        "A step is positive when one world touched geometry during it and the other did not. <em>Pooled</em>: \
+                 the AUROC over all steps; <em>matched</em>: the probability that a disagreeing step outscores an \
+                 agreeing step of the same index (ties ½), so that a measure knowing only where along the route the \
+                 drone is scores 0.5. Baselines: the step index, and NeRF-sim's own clearance at the step (lower \
+                 scoring higher). Intervals: 95 % from 2000 bootstraps over rollouts. DeLong: the paired test of the \
+                 matched AUROC against the clearance's on the same steps; Holm: adjusted over every test of the \
+                 table. GA and BLA run in exact mode: they need the ground truth's render of the view, so they \
+                 cannot run on a real drone; the ensemble's spread needs only the NeRFs.",
+    );
+    s.table(
+        Table::new(&[
+            "sampler",
+            "measure",
+            "steps (disagreeing)",
+            "pooled AUROC",
+            "matched AUROC",
+            "clearance, same steps",
+            "DeLong p",
+            "Holm p",
+        ])
+        .rows(f.step_auroc.iter().map(|r| {
+            vec![
+                r.sampler.name().to_uppercase(),
+                measure_label(&r.measure),
+                format!("{} ({})", r.steps, r.disagreeing_steps),
+                with_interval(&r.pooled),
+                with_interval(&r.stratified),
+                num(r.clearance_stratified, 2),
+                p_value(r.delong_p_vs_clearance),
+                p_value(r.holm_p),
+            ]
+        })),
+    );
 }

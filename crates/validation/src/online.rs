@@ -37,6 +37,17 @@ pub fn auroc(scores: &[f64], labels: &[bool]) -> Option<f64> {
     Some((rank_sum - p * (p + 1.0) / 2.0) / (p * n))
 }
 
+/// Each rollout of `nerf` with its GT-sim replay among `gt` (same sampler, population, index and
+/// seed); rollouts without one are left out.
+pub(crate) fn with_replays<'a>(
+    nerf: impl IntoIterator<Item = &'a RolloutRecord>,
+    gt: &'a [RolloutRecord],
+) -> impl Iterator<Item = (&'a RolloutRecord, &'a RolloutRecord)> {
+    let replays: std::collections::HashMap<(Label, usize, usize), &RolloutRecord> =
+        gt.iter().map(|r| (r.key(), r)).collect();
+    nerf.into_iter().filter_map(move |r| Some((r, *replays.get(&r.key()).filter(|g| g.seed == r.seed)?)))
+}
+
 /// How well the per-step uncertainty measured in NeRF-sim predicts where NeRF-sim and GT-sim
 /// disagree on the same disturbances.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -60,12 +71,9 @@ pub struct DisagreementAuroc {
 /// replay are left out. A step counts when both worlds flew it (a finite step score) and its
 /// uncertainty is finite.
 pub fn disagreement_auroc(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> DisagreementAuroc {
-    let replays: std::collections::HashMap<(Label, usize, usize), &RolloutRecord> =
-        gt.iter().map(|r| (r.key(), r)).collect();
     let (mut step_scores, mut step_labels) = (Vec::new(), Vec::new());
     let (mut traj_scores, mut traj_labels) = (Vec::new(), Vec::new());
-    for r in nerf {
-        let Some(g) = replays.get(&r.key()).filter(|g| g.seed == r.seed) else { continue };
+    for (r, g) in with_replays(nerf, gt) {
         for (t, &u) in r.step_uncertainty.iter().enumerate() {
             let (Some(&a), Some(&b)) = (r.step_scores.get(t), g.step_scores.get(t)) else { continue };
             if u.is_finite() && !a.is_nan() && !b.is_nan() {
@@ -92,21 +100,16 @@ pub fn disagreement_auroc(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Disag
 /// Each paired rollout's steps as (uncertainty, disagreeing) pairs, as
 /// [`disagreement_auroc`] counts them.
 fn paired_steps(nerf: &[RolloutRecord], gt: &[RolloutRecord]) -> Vec<Vec<(f64, bool)>> {
-    let replays: std::collections::HashMap<(Label, usize, usize), &RolloutRecord> =
-        gt.iter().map(|r| (r.key(), r)).collect();
-    nerf.iter()
-        .filter_map(|r| {
-            let g = replays.get(&r.key()).filter(|g| g.seed == r.seed)?;
-            Some(
-                r.step_uncertainty
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(t, &u)| {
-                        let (a, b) = (*r.step_scores.get(t)?, *g.step_scores.get(t)?);
-                        (u.is_finite() && !a.is_nan() && !b.is_nan()).then_some((u, (a <= 0.0) != (b <= 0.0)))
-                    })
-                    .collect(),
-            )
+    with_replays(nerf, gt)
+        .map(|(r, g)| {
+            r.step_uncertainty
+                .iter()
+                .enumerate()
+                .filter_map(|(t, &u)| {
+                    let (a, b) = (*r.step_scores.get(t)?, *g.step_scores.get(t)?);
+                    (u.is_finite() && !a.is_nan() && !b.is_nan()).then_some((u, (a <= 0.0) != (b <= 0.0)))
+                })
+                .collect()
         })
         .collect()
 }

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::label::Label;
-use crate::online::auroc;
+use crate::online::{auroc, with_replays};
 use crate::record::RolloutRecord;
 
 /// The name of the step-index baseline in [`StepAurocRow::measure`].
@@ -82,11 +82,8 @@ struct Step {
 /// The steps of `nerf`'s rollouts (with `step_uncertainty` as the measure) flown in both worlds,
 /// paired with their GT-sim replays by (sampler, population, index) and seed.
 fn paired_steps(nerf: &[&RolloutRecord], gt: &[RolloutRecord]) -> Vec<Step> {
-    let replays: std::collections::HashMap<(Label, usize, usize), &RolloutRecord> =
-        gt.iter().map(|r| (r.key(), r)).collect();
     let mut steps = Vec::new();
-    for (rollout, r) in nerf.iter().enumerate() {
-        let Some(g) = replays.get(&r.key()).filter(|g| g.seed == r.seed) else { continue };
+    for (rollout, (r, g)) in with_replays(nerf.iter().copied(), gt).enumerate() {
         for (index, (&a, &b)) in r.step_scores.iter().zip(&g.step_scores).enumerate() {
             if a.is_nan() || b.is_nan() {
                 continue;

@@ -63,8 +63,8 @@ fn a_mesh_and_two_polylines_read_back_through_the_gltf_crate() {
         let positions: Vec<[f32; 3]> = reader.read_positions().unwrap().collect();
         let bounds = prim.bounding_box();
         for p in &positions {
-            for k in 0..3 {
-                assert!(bounds.min[k] <= p[k] && p[k] <= bounds.max[k]);
+            for (k, &x) in p.iter().enumerate() {
+                assert!(bounds.min[k] <= x && x <= bounds.max[k]);
             }
         }
         match &expected.shape {

@@ -40,31 +40,6 @@ pub fn median(mut values: Vec<f64>) -> Option<f64> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn quantiles_match_numpys_default() {
-        // numpy.quantile([1, 2, 3, 4], [0, 0.25, 0.5, 0.9, 1]) = [1, 1.75, 2.5, 3.7, 4]
-        let v = [1.0, 2.0, 3.0, 4.0];
-        for (q, want) in [(0.0, 1.0), (0.25, 1.75), (0.5, 2.5), (0.9, 3.7), (1.0, 4.0)] {
-            assert!((quantile_sorted(&v, q) - want).abs() < 1e-12, "{q}");
-        }
-        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
-        assert_eq!(median(vec![5.0, 1.0, 3.0]), Some(3.0));
-        assert_eq!(quantile(vec![7.0], 0.9), Some(7.0));
-        assert_eq!(median(Vec::new()), None);
-        let mut shuffled = [4.0f32, 1.0, 3.0, 2.0];
-        assert!((quantile_select(&mut shuffled, 0.9) - 3.7).abs() < 1e-6);
-        for n in 1..9 {
-            let v: Vec<f64> = (0..n).map(|i| ((i * 7) % 5) as f64 * 0.3 + i as f64).collect();
-            let q = quantile(v.clone(), 0.5).unwrap();
-            assert!((median(v).unwrap() - q).abs() < 1e-12, "{n}");
-        }
-    }
-}
-
 /// erfc(x) to ~1e-14 relative: for |x| < 3 from the all-positive series
 /// erf(x) = (2/√π)·e^{−x²}·Σ_n 2ⁿ x^{2n+1} / (1·3·…·(2n+1)) (no cancellation; erfc = 1 − erf
 /// loses only ~1e-16/erfc(x) relative, < 1e-12 for x < 3), beyond from the continued fraction
@@ -94,4 +69,29 @@ pub fn erfc(x: f64) -> f64 {
 /// The two-sided p-value of a standard normal statistic `z`: P(|Z| ≥ |z|) = erfc(|z|/√2).
 pub fn normal_two_sided_p(z: f64) -> f64 {
     erfc(z.abs() / std::f64::consts::SQRT_2).min(1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quantiles_match_numpys_default() {
+        // numpy.quantile([1, 2, 3, 4], [0, 0.25, 0.5, 0.9, 1]) = [1, 1.75, 2.5, 3.7, 4]
+        let v = [1.0, 2.0, 3.0, 4.0];
+        for (q, want) in [(0.0, 1.0), (0.25, 1.75), (0.5, 2.5), (0.9, 3.7), (1.0, 4.0)] {
+            assert!((quantile_sorted(&v, q) - want).abs() < 1e-12, "{q}");
+        }
+        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
+        assert_eq!(median(vec![5.0, 1.0, 3.0]), Some(3.0));
+        assert_eq!(quantile(vec![7.0], 0.9), Some(7.0));
+        assert_eq!(median(Vec::new()), None);
+        let mut shuffled = [4.0f32, 1.0, 3.0, 2.0];
+        assert!((quantile_select(&mut shuffled, 0.9) - 3.7).abs() < 1e-6);
+        for n in 1..9 {
+            let v: Vec<f64> = (0..n).map(|i| ((i * 7) % 5) as f64 * 0.3 + i as f64).collect();
+            let q = quantile(v.clone(), 0.5).unwrap();
+            assert!((median(v).unwrap() - q).abs() < 1e-12, "{n}");
+        }
+    }
 }

@@ -48,7 +48,7 @@ mod online;
 mod record;
 mod sampler;
 mod seed;
-mod step_auroc;
+pub mod step_auroc;
 mod subset;
 mod system;
 mod table;

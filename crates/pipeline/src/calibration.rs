@@ -20,10 +20,13 @@ use nerfsv_study::calibration::{
 use nerfsv_study::flight::{Calibration, Drone};
 use serde::Serialize;
 
+use crate::collision::GroundTruthField;
+use crate::dataset::{load_dataset_split, Dataset};
 use crate::ensemble::EnsembleStage;
 use crate::flight::flight_inputs;
+use crate::nerf::Train;
+use crate::nerf_collision::NerfField;
 use crate::stage::{Stage, StageContext};
-use crate::stages::{load_dataset_split, Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
 /// The calibration stage.
@@ -62,7 +65,7 @@ fn view_of(intrinsics: nerfsv_scene::Intrinsics, position: &Vector3<f64>, rotati
 
 impl Stage for CalibrationStage<'_> {
     const NAME: &'static str = "calibration";
-    const CODE: &'static [&'static str] = &["nerfsv-study", "calibration.rs", "flight.rs", "stages.rs", "ensemble.rs"];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::VIEWS_CSV, Self::MODEL_JSON, Self::ROUTE_PNG];
     const INPUTS: &'static [&'static str] =
         &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME];
@@ -134,7 +137,7 @@ impl Stage for CalibrationStage<'_> {
         let records = measure(&views, &inputs.nerf, &sim.vision, sim.background, p.fits_per_view, self.seed);
         write_records_csv(&cx.dir.join(Self::VIEWS_CSV), &records)?;
         // Each member's own images at the same views, pixels and starts.
-        let members = EnsembleStage::load_members(cx.root)?;
+        let members = crate::members::load_members(cx.root)?;
         let mut member_records = Vec::new();
         for (k, m) in members.iter().enumerate() {
             cx.progress(0, 2, &format!("fitting member {}'s images of the same views", k + 1));

@@ -1,17 +1,29 @@
 //! Digests of the workspace's source code, so that a stage's cache key changes exactly when the
-//! code it runs does. The build script computes them over `crates/` (this file is compiled into
-//! it as well as into the crate) and [`crate::stage`] folds them into every stage key.
+//! code it runs does. The build script computes them over `crates/` (this file and
+//! [`crate::modules`] are compiled into it as well as into the crate) and [`crate::stage`] folds
+//! the digest of a stage's module into its key.
+//!
+//! A pipeline module's digest ([`module_digests`]) covers the code it reaches: its own file,
+//! every pipeline module it imports (transitively, [`crate::modules`]) and every workspace crate
+//! those name. Nothing is listed per stage: a stage that starts calling another module's code is
+//! keyed by it from that build on. Two kinds of module are set apart, by name:
+//! - presentation ([`PRESENTATION_MODULE`]: a stage's section of the report and its one-line
+//!   description) is neither covered nor followed;
+//! - the runner's own modules ([`RUNNER_MODULES`]: errors, settings, the runner, the folder
+//!   layout) are covered by their own code, but the crates they name are not followed: they name
+//!   every crate's error and settings types, which would key every stage by every crate. Code
+//!   that calls a crate does not belong in them.
 //!
 //! A crate's digest covers its `Cargo.toml` and every file under its `src/`, in sorted path
 //! order, and folds in the digests of the workspace crates it depends on, so that a change to
-//! `nerfsv-nerf` also changes `nerfsv-sim`'s. A pipeline module's digest covers that one file.
+//! `nerfsv-nerf` also changes `nerfsv-sim`'s.
 //!
 //! What does not change a computation is left out: a Rust file is digested without its comments
 //! (doc comments included) and with every run of whitespace as one space ([`code_text`]), and a
 //! crate whose manifest marks it as presentation (`[package.metadata.nerfsv] presentation =
 //! true`: pictures and their styling) is left out of its dependents' digests.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::io;
 use std::path::Path;
 
@@ -202,6 +214,11 @@ pub fn workspace_dependencies(manifest: &str) -> Vec<String> {
     deps
 }
 
+/// A manifest's package name (its first `name = "…"` line).
+fn package_name(manifest: &str) -> Option<String> {
+    manifest.lines().find_map(|l| l.trim().strip_prefix("name = ").map(|n| n.trim_matches('"').to_owned()))
+}
+
 /// Whether a manifest marks its crate as presentation (`presentation = true` under
 /// `[package.metadata.nerfsv]`).
 pub fn is_presentation(manifest: &str) -> bool {
@@ -226,11 +243,7 @@ pub fn workspace_digests(crates_dir: &Path) -> io::Result<BTreeMap<String, u64>>
     for entry in std::fs::read_dir(crates_dir)? {
         let dir = entry?.path();
         let Ok(manifest) = std::fs::read_to_string(dir.join("Cargo.toml")) else { continue };
-        let Some(name) =
-            manifest.lines().find_map(|l| l.trim().strip_prefix("name = ").map(|n| n.trim_matches('"').to_owned()))
-        else {
-            continue;
-        };
+        let Some(name) = package_name(&manifest) else { continue };
         if is_presentation(&manifest) {
             presentation.push(name.clone());
         }
@@ -254,6 +267,82 @@ pub fn workspace_digests(crates_dir: &Path) -> io::Result<BTreeMap<String, u64>>
         }
         let digest = closure.iter().fold(BASIS, |h, (n, d)| fnv1a_from(fnv1a_from(h, n.as_bytes()), &d.to_le_bytes()));
         out.insert(name.clone(), digest);
+    }
+    Ok(out)
+}
+
+/// The last segment of a presentation module's path (`stress::report`, `report`): a stage's
+/// section of the report, whose changes must not redo the stage.
+pub const PRESENTATION_MODULE: &str = "report";
+
+/// The runner's own modules, by path: their code is part of every key that reaches them, the
+/// crates they name (for error and settings types) are not.
+pub const RUNNER_MODULES: &[&str] = &["config", "digest", "error", "guard", "layout", "modules", "stage"];
+
+/// Whether a pipeline module is presentation ([`PRESENTATION_MODULE`]).
+fn is_presentation_module(path: &str) -> bool {
+    path.rsplit("::").next() == Some(PRESENTATION_MODULE)
+}
+
+/// Per module of the pipeline crate (`pipeline_src`), by `::`-joined path: the code it reaches,
+/// as the names of the pipeline modules it imports, transitively, itself included, and the
+/// package names of the workspace crates those name, [`RUNNER_MODULES`] apart (see the module
+/// docs). Presentation modules (other than the module itself) are neither included nor
+/// followed; every crate named is listed, presentation or not.
+pub fn module_reach(pipeline_src: &Path) -> io::Result<BTreeMap<String, BTreeSet<String>>> {
+    let modules = crate::modules::modules(pipeline_src)?;
+    let mut out = BTreeMap::new();
+    for start in modules.keys() {
+        let mut reached = BTreeSet::new();
+        let mut stack = vec![start.as_str()];
+        while let Some(m) = stack.pop() {
+            if (m != start && is_presentation_module(m)) || reached.contains(m) {
+                continue;
+            }
+            let Some(module) = modules.get(m) else { continue };
+            reached.insert(m.to_owned());
+            let runner = RUNNER_MODULES.iter().any(|r| m == *r || m.starts_with(&format!("{r}::")));
+            if !runner {
+                reached.extend(module.crates.iter().cloned());
+            }
+            stack.extend(module.imports.iter().map(String::as_str));
+        }
+        out.insert(start.clone(), reached);
+    }
+    Ok(out)
+}
+
+/// Per module of the pipeline crate (`crates_dir/pipeline/src`), by `::`-joined path: the
+/// digest of the code it reaches ([`module_reach`]): each pipeline module's file and each
+/// workspace crate's [`workspace_digests`] (presentation crates left out), by name and digest in
+/// name order.
+pub fn module_digests(crates_dir: &Path) -> io::Result<BTreeMap<String, u64>> {
+    let crates = workspace_digests(crates_dir)?;
+    let mut presentation = Vec::new();
+    for entry in std::fs::read_dir(crates_dir)? {
+        let dir = entry?.path();
+        let Ok(manifest) = std::fs::read_to_string(dir.join("Cargo.toml")) else { continue };
+        if is_presentation(&manifest) {
+            presentation.extend(package_name(&manifest));
+        }
+    }
+    let src = crates_dir.join("pipeline/src");
+    let modules = crate::modules::modules(&src)?;
+    let mut out = BTreeMap::new();
+    for (start, reach) in module_reach(&src)? {
+        let mut hash = BASIS;
+        for name in &reach {
+            let digest = match modules.get(name) {
+                Some(module) => file_digest(&module.file)?,
+                None if presentation.contains(name) => continue,
+                None => match crates.get(name) {
+                    Some(&d) => d,
+                    None => continue, // a name like `nerfsv_…` that is no workspace crate
+                },
+            };
+            hash = fnv1a_from(fnv1a_from(hash, name.as_bytes()), &digest.to_le_bytes());
+        }
+        out.insert(start, hash);
     }
     Ok(out)
 }

@@ -9,17 +9,16 @@ mod report;
 
 use std::path::{Path, PathBuf};
 
-use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
 use nerfsv_scene::views::{Bootstrap, PosedImages};
-use nerfsv_study::flight::WorldMember;
 use serde::{Deserialize, Serialize};
 
+use crate::collision::GroundTruthField;
 use crate::config::{EnsembleConfig, NerfSettings};
+use crate::dataset::{load_dataset_split, Dataset};
+use crate::nerf::train_status;
+use crate::nerf_collision::{build_nerf_field, nerf_field_geometry};
 use crate::stage::{write_json, Stage, StageContext};
-use crate::stages::{
-    build_nerf_field, load_dataset_split, nerf_field_geometry, train_status, Dataset, GroundTruthField,
-};
 use crate::PipelineError;
 
 /// Trains members 1..K of the ensemble into `RUN/ensemble/member_k/` (checkpoint and signed
@@ -90,41 +89,20 @@ impl EnsembleStage<'_> {
     fn steps(&self) -> u64 {
         self.ensemble.steps.unwrap_or(self.train_steps)
     }
-
-    /// The members 1..K the stage left in run `root` (none when it trained none).
-    pub fn load_members(root: &Path) -> Result<Vec<WorldMember>, PipelineError> {
-        let list = root.join(<Self as Stage>::NAME).join(Self::MEMBERS);
-        if !list.exists() {
-            return Ok(Vec::new());
-        }
-        let text = std::fs::read_to_string(&list).map_err(|e| PipelineError::io(&list, e))?;
-        let members: Vec<MemberEntry> =
-            serde_json::from_str(&text).map_err(|e| PipelineError::Internal(format!("{}: {e}", list.display())))?;
-        members
-            .iter()
-            .map(|m| {
-                let dir = Self::member_dir(root, m.member);
-                Ok(WorldMember {
-                    nerf: Nerf::load(&dir.join(Self::CHECKPOINT))?,
-                    field: SdfGrid::load(dir.join(Self::SDF))?,
-                })
-            })
-            .collect()
-    }
 }
 
 impl Stage for EnsembleStage<'_> {
     const NAME: &'static str = "ensemble";
-    const CODE: &'static [&'static str] = &["nerfsv-nerf", "nerfsv-collision", "ensemble.rs", "stages.rs"];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::MEMBERS];
     const RESUMABLE: bool = true;
-    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, crate::stages::Train::NAME];
+    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, crate::nerf::Train::NAME];
     type Figures = EnsembleFigures;
 
     fn inputs(&self) -> &'static [&'static str] {
         match self.own_grid {
             None => Self::INPUTS,
-            Some(_) => &[Dataset::NAME, crate::stages::Train::NAME],
+            Some(_) => &[Dataset::NAME, crate::nerf::Train::NAME],
         }
     }
 
@@ -143,7 +121,7 @@ impl Stage for EnsembleStage<'_> {
             for k in 1..self.ensemble.members {
                 trained.push(self.member(cx, k, steps, &data, &test)?);
             }
-            let deployed = Nerf::load(&crate::stages::Train::checkpoint(cx.root))?;
+            let deployed = Nerf::load(&crate::nerf::Train::checkpoint(cx.root))?;
             let options = EvalOptions { max_images: Some(Self::EVAL_VIEWS), ..EvalOptions::default() };
             deployed_test_psnr = Some(nerfsv_nerf::evaluate_with_progress(&deployed, &test, options, &|_, _| {})?.psnr);
         }

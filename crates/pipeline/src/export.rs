@@ -32,10 +32,11 @@ use nerfsv_study::stress::{most_likely_failure_stem, replay_csv, Sampler, ROLLOU
 use nerfsv_validation::{Label, RolloutRecord};
 use serde::{Deserialize, Serialize};
 
+use crate::collision::GroundTruthField;
 use crate::flight::FlightStage;
 use crate::layout::{summary_path, RECORD};
+use crate::nerf_collision::NerfField;
 use crate::stage::Stage;
-use crate::stages::{GroundTruthField, NerfField};
 use crate::stress::StressStage;
 use crate::PipelineError;
 

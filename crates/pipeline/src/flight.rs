@@ -12,8 +12,11 @@ use nerfsv_study::flight::{
 };
 use serde::{Deserialize, Serialize};
 
+use crate::collision::GroundTruthField;
+use crate::dataset::Dataset;
+use crate::nerf::Train;
+use crate::nerf_collision::NerfField;
 use crate::stage::{Stage, StageContext};
-use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::PipelineError;
 
 /// The stages the drone's stages read: the dataset, the ground truth's field (when there is a
@@ -97,7 +100,7 @@ impl FlightStage<'_> {
 
 impl Stage for FlightStage<'_> {
     const NAME: &'static str = "flight";
-    const CODE: &'static [&'static str] = &["nerfsv-study", "flight.rs", "stages.rs"];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = Self::OUTPUT_FILES;
     const INPUTS: &'static [&'static str] = drone_inputs(true);
     type Figures = FlightStageFigures;

@@ -26,7 +26,7 @@
 //!
 //! impl Stage for CountTestViews {
 //!     const NAME: &'static str = "count";
-//!     const CODE: &'static [&'static str] = &["nerfsv-dataset"];
+//!     const MODULE: &'static str = module_path!();
 //!     const OUTPUTS: &'static [&'static str] = &["count.txt"];
 //!     const INPUTS: &'static [&'static str] = &["dataset"];
 //!     type Figures = usize;
@@ -66,14 +66,21 @@
 //! ```
 
 pub mod calibration;
+pub mod collision;
 pub mod config;
+pub mod dataset;
 pub mod digest;
 pub mod ensemble;
 mod error;
+pub mod eval;
 pub mod export;
 pub mod flight;
 pub mod guard;
 pub mod layout;
+pub mod members;
+pub mod modules;
+pub mod nerf;
+pub mod nerf_collision;
 pub mod online;
 pub mod replicate;
 pub mod report;

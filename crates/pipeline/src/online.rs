@@ -42,9 +42,12 @@ use nerfsv_validation::{
 use serde::{Deserialize, Serialize};
 
 use self::config::OnlineConfig;
+use crate::collision::GroundTruthField;
+use crate::dataset::Dataset;
 use crate::flight::flight_inputs;
+use crate::nerf::Train;
+use crate::nerf_collision::NerfField;
 use crate::stage::{Stage, StageContext};
-use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::stress::StressStage;
 use crate::PipelineError;
 use nerfsv_study::stress::{
@@ -183,16 +186,7 @@ impl OnlineStage<'_> {
 
 impl Stage for OnlineStage<'_> {
     const NAME: &'static str = "online";
-    const CODE: &'static [&'static str] = &[
-        "nerfsv-study",
-        "online.rs",
-        "stress.rs",
-        "flight.rs",
-        "stages.rs",
-        "config.rs",
-        "ensemble.rs",
-        "calibration.rs",
-    ];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[ONLINE_TABLE_CSV];
     const INPUTS: &'static [&'static str] =
         &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, nerfsv_study::stress::STAGE];
@@ -210,7 +204,7 @@ impl Stage for OnlineStage<'_> {
         let s = self.search;
         if s.ensemble {
             // Its rewarded searches fly in the stress stage's NeRF world.
-            inputs.members = crate::ensemble::EnsembleStage::load_members(cx.root)?;
+            inputs.members = crate::members::load_members(cx.root)?;
         }
         if s.calibrated() {
             let seed = s.validation.seed;

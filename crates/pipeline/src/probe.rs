@@ -41,7 +41,7 @@ impl Probe<'_> {
 
 impl Stage for Probe<'_> {
     const NAME: &'static str = "probe";
-    const CODE: &'static [&'static str] = &[];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::TXT];
     type Figures = u32;
 

@@ -25,7 +25,7 @@ pub fn seed_folder(out: &Path, seed: u64) -> PathBuf {
 }
 
 /// The stages every replicate shares with the first (they do not depend on training).
-const SHARED_STAGES: [&str; 2] = [crate::stages::Dataset::NAME, crate::stages::GroundTruthField::NAME];
+const SHARED_STAGES: [&str; 2] = [crate::dataset::Dataset::NAME, crate::collision::GroundTruthField::NAME];
 
 /// The headline figures, as (label, how to read it from a run's `summary.json`). A figure a run
 /// does not have (a stage skipped, a world without a ground truth) is left empty in its row.

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::layout::summary_path;
 use crate::stage::{self, Observer, Runner};
-use crate::{calibration, ensemble, flight, online, report, stages, stress, uq};
+use crate::{calibration, ensemble, flight, online, report, stress, uq};
 use crate::{Guard, PipelineError, RunConfig, Validate};
 
 /// What `summary.json` holds: the run folder, then each stage's figures under its name, in
@@ -74,19 +74,19 @@ pub fn run_in(
     let settings = cfg.nerf_settings();
     let mut r = Runner::new(cfg.run_folder(), observer)?;
     let source = match (&cfg.world.dataset, scene) {
-        (Some(folder), _) => stages::DatasetSource::Folder { folder, placement: cfg.world.placement() },
-        (None, Some(scene)) => stages::DatasetSource::Render { scene, options: &cfg.dataset },
+        (Some(folder), _) => crate::dataset::DatasetSource::Folder { folder, placement: cfg.world.placement() },
+        (None, Some(scene)) => crate::dataset::DatasetSource::Render { scene, options: &cfg.dataset },
         (None, None) => return Err(PipelineError::Internal("a world needs a dataset or a scene".into())),
     };
-    r.run(&stages::Dataset { source })?;
+    r.run(&crate::dataset::Dataset { source })?;
     match scene {
         Some(scene) => {
-            r.run(&stages::GroundTruthField { scene, cells_per_metre: cfg.cells_per_metre })?;
+            r.run(&crate::collision::GroundTruthField { scene, cells_per_metre: cfg.cells_per_metre })?;
         }
-        None => r.skip::<stages::GroundTruthField>(NO_GROUND_TRUTH)?,
+        None => r.skip::<crate::collision::GroundTruthField>(NO_GROUND_TRUTH)?,
     }
-    r.run(&stages::Train { settings: &settings, steps: cfg.train_steps })?;
-    r.run(&stages::Eval)?;
+    r.run(&crate::nerf::Train { settings: &settings, steps: cfg.train_steps })?;
+    r.run(&crate::eval::Eval)?;
     r.run(&ensemble::EnsembleStage {
         settings: &settings,
         ensemble: &cfg.ensemble,
@@ -95,7 +95,7 @@ pub fn run_in(
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
     })?;
     r.run(&uq::Uncertainty { uq: &cfg.uq, offline: &cfg.uq_offline, ensemble: cfg.ensemble.members > 1 })?;
-    r.run(&stages::NerfField {
+    r.run(&crate::nerf_collision::NerfField {
         density_threshold: cfg.nerf_density_threshold,
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
     })?;

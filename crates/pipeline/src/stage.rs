@@ -5,8 +5,8 @@
 //! an absent or empty folder or one nerfsv made, so a stage that clears its folder never clears
 //! a user's. A stage's folder `RUN/NAME/` holds its outputs and `stage.json`, the record
 //! `{"key": …, "figures": …}` written (atomically) after every output. The key hashes the
-//! stage's name, the digest of the code it runs ([`Stage::CODE`], computed from the sources at
-//! build time: see [`crate::digest`]), its config slice and the keys of the stages it reads, so
+//! stage's name, the digest of the code its module reaches ([`Stage::MODULE`], computed from the
+//! sources at build time: see [`crate::digest`]), its config slice and the keys of the stages it reads, so
 //! changing any of them redoes this stage and everything downstream, and nothing else.
 
 use std::collections::BTreeMap;
@@ -32,12 +32,12 @@ const STARTED: &str = "started.json";
 pub trait Stage {
     /// The stage's folder under the run folder, and its name in `summary.json` and messages.
     const NAME: &'static str;
-    /// The code the stage runs: workspace crates by package name (`"nerfsv-sim"`; the crates
-    /// they depend on are folded into their digest) and this crate's modules by file name
-    /// (`"stress.rs"`). Their digest, taken from the sources at build time, is part of the key:
-    /// a change to any of them redoes the stage, whatever else changed or not. A name that is
-    /// neither is an error when the key is computed.
-    const CODE: &'static [&'static str];
+    /// The module that holds the stage: `module_path!()`, written in the stage's `impl`. The
+    /// digest of the code that module reaches (its file, the pipeline modules it imports and the
+    /// workspace crates they name, taken from the sources at build time: see [`crate::digest`])
+    /// is part of the key, so a change to any of it redoes the stage, and nothing is listed by
+    /// hand (see [`code_digest_in`] for a stage outside this crate).
+    const MODULE: &'static str;
     /// Files (relative to the stage folder) that must exist for a recorded result to count.
     const OUTPUTS: &'static [&'static str];
     /// [`Stage::OUTPUTS`] of this instance, for a stage whose files depend on its settings.
@@ -70,8 +70,8 @@ pub trait Stage {
 /// section after every run of the stage, up to date or not, and keeps it in the stage's folder
 /// ([`REPORT_SECTION`]), from which [`crate::report::write_report`] assembles the page.
 ///
-/// A trait of its own so that it may live outside the stage's code: a stage's key digests its
-/// [`Stage::CODE`], and changing how a table or a line reads must not rerun a stage. Each
+/// A trait of its own so that it may live outside the stage's code: a stage's key digests the code
+/// its [`Stage::MODULE`] reaches, and changing how a table or a line reads must not rerun a stage. Each
 /// built-in stage's `Report` is in its module's child `report.rs` (`stress/report.rs` for
 /// `stress.rs`), which no stage's key includes.
 pub trait Report: Stage {
@@ -127,35 +127,34 @@ mod generated {
     include!(concat!(env!("OUT_DIR"), "/code_digests.rs"));
 }
 
-/// The digest of the code units `code` (see [`Stage::CODE`]) from the digests of this build's
-/// sources, as 16 hex digits; an error names a unit that is neither a workspace crate nor a
-/// module of this crate.
-pub fn code_digest(code: &[&str]) -> Result<String, PipelineError> {
-    code_digest_in(code, generated::CRATES, generated::PIPELINE_MODULES)
+/// The digest of the code the module `module` (a `module_path!()` of this crate) reaches, as 16
+/// hex digits: see [`Stage::MODULE`].
+pub fn code_digest(module: &str) -> Result<String, PipelineError> {
+    code_digest_in(module, generated::MODULES)
 }
 
-/// [`code_digest`] over given digest tables (`(name, digest)` of crates and of modules).
-pub fn code_digest_in(code: &[&str], crates: &[(&str, u64)], modules: &[(&str, u64)]) -> Result<String, PipelineError> {
-    let mut units: Vec<(&str, u64)> = code
-        .iter()
-        .map(|&unit| {
-            crates.iter().chain(modules).find(|(n, _)| *n == unit).map(|&(n, d)| (n, d)).ok_or_else(|| {
-                PipelineError::Internal(format!(
-                    "code unit {unit:?} is neither a workspace crate nor a pipeline module"
-                ))
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    units.sort_unstable();
-    units.dedup();
-    let text: String = units.iter().map(|(n, d)| format!("{n}={d:016x};")).collect();
-    Ok(format!("{:016x}", fnv1a(text.as_bytes())))
+/// [`code_digest`] over a given table of `(module path, digest)`. An inline module (`stage::tests`)
+/// is its file's module. A module outside this crate (a stage of the user's own) cannot be
+/// digested here: its key holds its path instead, and a change to its code does not redo it.
+pub fn code_digest_in(module: &str, modules: &[(&str, u64)]) -> Result<String, PipelineError> {
+    let Some(path) = module.strip_prefix(concat!(env!("CARGO_CRATE_NAME"), "::")) else {
+        return Ok(format!("{:016x}", fnv1a(module.as_bytes())));
+    };
+    let mut segments: Vec<&str> = path.split("::").collect();
+    while !segments.is_empty() {
+        let joined = segments.join("::");
+        if let Some(&(_, d)) = modules.iter().find(|(n, _)| *n == joined) {
+            return Ok(format!("{d:016x}"));
+        }
+        segments.pop();
+    }
+    Err(PipelineError::Internal(format!("stage module {module:?}: no digest of its code was built")))
 }
 
-/// The key of a stage from its name, the code it runs ([`Stage::CODE`]), its config slice and
-/// its inputs' keys.
-pub fn stage_key(name: &str, code: &[&str], config: &impl Serialize, inputs: &[&str]) -> Result<String, PipelineError> {
-    let code = code_digest(code)?;
+/// The key of a stage from its name, the code its module reaches ([`Stage::MODULE`]), its config
+/// slice and its inputs' keys.
+pub fn stage_key(name: &str, module: &str, config: &impl Serialize, inputs: &[&str]) -> Result<String, PipelineError> {
+    let code = code_digest(module)?;
     let text = serde_json::to_string(&(name, code, config, inputs))
         .map_err(|e| PipelineError::Internal(format!("stage {name}: config is not serialisable: {e}")))?;
     Ok(format!("{:016x}", fnv1a(text.as_bytes())))
@@ -213,7 +212,7 @@ impl<'a> Runner<'a> {
                 self.keys.get(input).map(String::as_str).ok_or(PipelineError::MissingInput { stage: S::NAME, input })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        let key = stage_key(S::NAME, S::CODE, &stage.config(), &inputs)?;
+        let key = stage_key(S::NAME, S::MODULE, &stage.config(), &inputs)?;
         let dir = self.root.join(S::NAME);
         // What a killed writer left half-written is never an output, cached or not.
         nerfsv_scene::io::remove_stale_temporaries_in(&dir);
@@ -367,7 +366,7 @@ mod tests {
 
     impl Stage for Writer<'_> {
         const NAME: &'static str = "writer";
-        const CODE: &'static [&'static str] = &[];
+        const MODULE: &'static str = module_path!();
         const OUTPUTS: &'static [&'static str] = &["out.txt"];
         type Figures = Written;
 
@@ -398,7 +397,7 @@ mod tests {
 
     impl Stage for Reader {
         const NAME: &'static str = "reader";
-        const CODE: &'static [&'static str] = &[];
+        const MODULE: &'static str = module_path!();
         const OUTPUTS: &'static [&'static str] = &[];
         const INPUTS: &'static [&'static str] = &["writer"];
         type Figures = String;
@@ -449,13 +448,13 @@ mod tests {
 
     #[test]
     fn the_code_version_is_part_of_the_key() {
-        let a = stage_key("train", &["nerfsv-nerf"], &5u32, &["k"]).unwrap();
-        assert_ne!(a, stage_key("train", &["nerfsv-sim"], &5u32, &["k"]).unwrap());
-        assert_ne!(a, stage_key("train", &["nerfsv-nerf"], &6u32, &["k"]).unwrap());
-        assert_ne!(a, stage_key("train", &["nerfsv-nerf"], &5u32, &["j"]).unwrap());
-        assert_eq!(a, stage_key("train", &["nerfsv-nerf"], &5u32, &["k"]).unwrap());
-        let e = stage_key("train", &["nerfsv-nope"], &5u32, &["k"]).unwrap_err().to_string();
-        assert!(e.contains("nerfsv-nope"), "{e}");
+        let a = stage_key("train", "nerfsv_pipeline::nerf", &5u32, &["k"]).unwrap();
+        assert_ne!(a, stage_key("train", "nerfsv_pipeline::flight", &5u32, &["k"]).unwrap());
+        assert_ne!(a, stage_key("train", "nerfsv_pipeline::nerf", &6u32, &["k"]).unwrap());
+        assert_ne!(a, stage_key("train", "nerfsv_pipeline::nerf", &5u32, &["j"]).unwrap());
+        assert_eq!(a, stage_key("train", "nerfsv_pipeline::nerf", &5u32, &["k"]).unwrap());
+        let e = stage_key("train", "nerfsv_pipeline::nope", &5u32, &["k"]).unwrap_err().to_string();
+        assert!(e.contains("nerfsv_pipeline::nope"), "{e}");
     }
 
     #[test]
@@ -475,7 +474,7 @@ mod tests {
 
     impl Stage for Counter {
         const NAME: &'static str = "counter";
-        const CODE: &'static [&'static str] = &[];
+        const MODULE: &'static str = module_path!();
         const OUTPUTS: &'static [&'static str] = &["count"];
         const RESUMABLE: bool = true;
         type Figures = (u32, bool);

@@ -20,10 +20,13 @@ use nerfsv_validation::{read_csv_file, Label, Prior, RolloutRecord, ValidationCo
 use serde::Serialize;
 
 use crate::calibration::CalibrationStage;
+use crate::collision::GroundTruthField;
+use crate::dataset::Dataset;
 use crate::ensemble::EnsembleStage;
 use crate::flight::{drone_inputs, flight_inputs};
+use crate::nerf::Train;
+use crate::nerf_collision::NerfField;
 use crate::stage::{stage_key, Observer, Stage, StageContext};
-use crate::stages::{Dataset, GroundTruthField, NerfField, Train};
 use crate::{PipelineError, RunConfig};
 
 /// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
@@ -61,8 +64,7 @@ impl StressStage<'_> {
 
 impl Stage for StressStage<'_> {
     const NAME: &'static str = STAGE;
-    const CODE: &'static [&'static str] =
-        &["nerfsv-study", "stress.rs", "flight.rs", "stages.rs", "ensemble.rs", "calibration.rs"];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[ROLLOUTS_CSV, "replay_gt.csv", TABLE_CSV];
     const INPUTS: &'static [&'static str] = drone_inputs(true);
     const RESUMABLE: bool = true;
@@ -96,7 +98,7 @@ impl Stage for StressStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
         let mut inputs = flight_inputs(cx.root, self.drone.scene.is_some())?;
         if self.ensemble {
-            inputs.members = EnsembleStage::load_members(cx.root)?;
+            inputs.members = crate::members::load_members(cx.root)?;
         }
         if self.calibrated() {
             inputs.calibration = Some(CalibrationStage::load(cx.root, self.perception, self.validation.seed)?);
@@ -262,7 +264,7 @@ impl StressRequest<'_> {
         let cfg = self.config;
         stage_key(
             STAGE,
-            <StressStage as Stage>::CODE,
+            <StressStage as Stage>::MODULE,
             &(
                 cfg.drone(Some(self.scene)).key(),
                 &cfg.validation,

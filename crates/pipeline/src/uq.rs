@@ -16,8 +16,9 @@ use nerfsv_uq::UqConfig;
 use serde::{Deserialize, Serialize};
 
 use self::config::UqOfflineConfig;
+use crate::dataset::{load_dataset_split, Dataset};
+use crate::nerf::Train;
 use crate::stage::{Stage, StageContext};
-use crate::stages::{load_dataset_split, Dataset, Train};
 use crate::PipelineError;
 
 // ---------------------------------------------------------------------------------------------
@@ -111,7 +112,7 @@ impl Uncertainty<'_> {
 
 impl Stage for Uncertainty<'_> {
     const NAME: &'static str = "uq";
-    const CODE: &'static [&'static str] = &["nerfsv-uq", "uq.rs", "stages.rs", "config.rs"];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[
         Self::GA_CSV,
         Self::BLA_CSV,
@@ -155,7 +156,7 @@ impl Stage for Uncertainty<'_> {
         let start = Instant::now();
         let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
         let members = match self.ensemble {
-            true => crate::ensemble::EnsembleStage::load_members(cx.root)?,
+            true => crate::members::load_members(cx.root)?,
             false => Vec::new(),
         };
         let others: Vec<&Nerf> = members.iter().map(|m| &m.nerf).collect();

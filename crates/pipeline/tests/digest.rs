@@ -77,32 +77,71 @@ fn a_change_to_one_crate_changes_the_digests_of_exactly_it_and_its_dependents() 
     assert_eq!(workspace_digests(root).unwrap(), fourth);
 }
 
+/// A pipeline crate beside `workspace`'s: stage `a` imports the runner's `error` module (which
+/// names `nerfsv-top` for a type) and has a report; stage `c` calls the helper module `h`, which
+/// runs `nerfsv-mid`; stage `d` imports `c`.
+fn pipeline(root: &Path) {
+    let src = root.join("pipeline/src");
+    write(&root.join("pipeline/Cargo.toml"), "[package]\nname = \"nerfsv-pipeline\"\n");
+    write(
+        &src.join("lib.rs"),
+        "pub mod a;\nmod error;\npub mod c;\npub mod d;\nmod h;\npub use error::PipelineError;\n",
+    );
+    write(
+        &src.join("a.rs"),
+        "mod report;\npub struct A;\nimpl Stage for A {}\nfn run() -> crate::PipelineError { nerfsv_low::f() }\n",
+    );
+    write(&src.join("a/report.rs"), "use super::A;\nconst TITLE: &str = \"A\";\n");
+    write(&src.join("error.rs"), "pub struct PipelineError(nerfsv_top::Error);\npub const K: u32 = 1;\n");
+    write(&src.join("c.rs"), "pub struct C;\nimpl Stage for C {}\npub fn run() { crate::h::go(); }\n");
+    write(&src.join("h.rs"), "pub fn go() { nerfsv_mid::f(); }\n");
+    write(&src.join("d.rs"), "pub struct D;\nimpl Stage for D {}\nfn run() { crate::c::run(); }\n");
+}
+
 #[test]
-fn stage_keys_follow_the_digests_of_the_code_they_name() {
+fn a_stage_key_covers_the_modules_its_module_reaches_and_the_crates_they_name() {
+    use nerfsv_pipeline::digest::{module_digests, module_reach};
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
     workspace(root);
-    let modules = [("stress.rs", 7u64), ("report.rs", 8)];
-    let keys = |digests: &std::collections::BTreeMap<String, u64>| {
-        let crates: Vec<(&str, u64)> = digests.iter().map(|(n, &d)| (n.as_str(), d)).collect();
-        // Three "stages": one runs the lowest crate, one the top one and a module, one apart.
-        [&["nerfsv-low"][..], &["nerfsv-top", "stress.rs"][..], &["nerfsv-apart"][..]]
-            .map(|code| code_digest_in(code, &crates, &modules).unwrap())
+    pipeline(root);
+    let reach = module_reach(&root.join("pipeline/src")).unwrap();
+    let names = |m: &str| reach[m].iter().map(String::as_str).collect::<Vec<_>>();
+    assert_eq!(names("a"), ["a", "error", "nerfsv-low"], "error through the root's re-export, not its crates");
+    assert_eq!(names("d"), ["c", "d", "h", "nerfsv-mid"], "a helper two imports away and the crate it calls");
+    assert_eq!(names("a::report"), ["a", "a::report", "error", "nerfsv-low"]);
+
+    let before = module_digests(root).unwrap();
+    assert_eq!(module_digests(root).unwrap(), before, "digests are not deterministic");
+    let changed = |edit: &dyn Fn(&Path)| {
+        let earlier = module_digests(root).unwrap();
+        edit(root);
+        let later = module_digests(root).unwrap();
+        ["a", "c", "d"].into_iter().filter(|m| earlier[*m] != later[*m]).collect::<Vec<_>>()
     };
-    let before = keys(&workspace_digests(root).unwrap());
-    write(&root.join("top/src/lib.rs"), "//! changed\n");
-    let after = keys(&workspace_digests(root).unwrap());
-    assert_eq!(before[0], after[0], "the stage on the crate below the change was redone");
-    assert_ne!(before[1], after[1], "the stage on the changed crate was not redone");
-    assert_eq!(before[2], after[2]);
-    // The order of a stage's units does not matter; an unknown unit is refused by name.
-    let crates = [("nerfsv-low", 1u64)];
+    let src = root.join("pipeline/src");
+    // A module reached through another: the omission a hand-written list of modules made.
     assert_eq!(
-        code_digest_in(&["nerfsv-low", "stress.rs"], &crates, &modules).unwrap(),
-        code_digest_in(&["stress.rs", "nerfsv-low"], &crates, &modules).unwrap()
+        changed(&|_| write(&src.join("h.rs"), "pub fn go() { nerfsv_mid::f(); nerfsv_mid::f(); }\n")),
+        ["c", "d"]
     );
-    let e = code_digest_in(&["nerfsv-gone"], &crates, &modules).unwrap_err().to_string();
-    assert!(e.contains("nerfsv-gone"), "{e}");
+    assert_eq!(changed(&|_| write(&src.join("error.rs"), "pub struct PipelineError(nerfsv_top::Error);\n")), ["a"]);
+    assert_eq!(changed(&|r| write(&r.join("low/src/lib.rs"), "pub fn f() -> u32 { 2 }\n")), ["a", "c", "d"]);
+    assert_eq!(changed(&|r| write(&r.join("mid/src/lib.rs"), "pub fn f() -> u32 { 3 }\n")), ["c", "d"]);
+    assert!(changed(&|r| write(&r.join("top/src/lib.rs"), "pub fn f() -> u32 { 4 }\n")).is_empty(), "a type's crate");
+    assert!(changed(&|_| write(&src.join("a/report.rs"), "const TITLE: &str = \"Stage A\";\n")).is_empty());
+}
+
+#[test]
+fn a_stage_module_path_finds_its_file_module_or_is_keyed_by_its_path_outside_the_crate() {
+    let modules = [("stress", 7u64), ("stress::report", 8), ("online::config", 9)];
+    assert_eq!(code_digest_in("nerfsv_pipeline::stress", &modules).unwrap(), format!("{:016x}", 7));
+    assert_eq!(code_digest_in("nerfsv_pipeline::stress::tests", &modules).unwrap(), format!("{:016x}", 7));
+    assert_eq!(code_digest_in("nerfsv_pipeline::online::config", &modules).unwrap(), format!("{:016x}", 9));
+    let e = code_digest_in("nerfsv_pipeline::gone", &modules).unwrap_err().to_string();
+    assert!(e.contains("nerfsv_pipeline::gone"), "{e}");
+    let outside = code_digest_in("my_study::count", &modules).unwrap();
+    assert_ne!(outside, code_digest_in("my_study::other", &modules).unwrap());
 }
 
 /// Copies every crate's `Cargo.toml` and `src/` of this workspace under `to`.
@@ -133,6 +172,7 @@ fn copy_sources(from: &Path, to: &Path) {
 /// The stages whose code digest changes when `edit` changes a copy of this workspace's
 /// sources (every crate's manifest and `src/`), in the run's order.
 fn redone_by(edit: impl FnOnce(&Path)) -> Vec<&'static str> {
+    use nerfsv_pipeline::calibration::CalibrationStage;
     use nerfsv_pipeline::ensemble::EnsembleStage;
     use nerfsv_pipeline::flight::FlightStage;
     use nerfsv_pipeline::online::OnlineStage;
@@ -141,35 +181,26 @@ fn redone_by(edit: impl FnOnce(&Path)) -> Vec<&'static str> {
     use nerfsv_pipeline::uq::Uncertainty;
     use nerfsv_pipeline::Stage;
 
-    let stages: [(&'static str, &[&str]); 10] = [
-        (Dataset::NAME, Dataset::CODE),
-        (GroundTruthField::NAME, GroundTruthField::CODE),
-        (Train::NAME, Train::CODE),
-        (Eval::NAME, Eval::CODE),
-        (EnsembleStage::NAME, EnsembleStage::CODE),
-        (Uncertainty::NAME, Uncertainty::CODE),
-        (NerfField::NAME, NerfField::CODE),
-        (FlightStage::NAME, FlightStage::CODE),
-        (StressStage::NAME, StressStage::CODE),
-        (OnlineStage::NAME, OnlineStage::CODE),
+    let stages: [(&'static str, &str); 11] = [
+        (Dataset::NAME, Dataset::MODULE),
+        (GroundTruthField::NAME, GroundTruthField::MODULE),
+        (Train::NAME, Train::MODULE),
+        (Eval::NAME, Eval::MODULE),
+        (EnsembleStage::NAME, EnsembleStage::MODULE),
+        (Uncertainty::NAME, Uncertainty::MODULE),
+        (NerfField::NAME, NerfField::MODULE),
+        (FlightStage::NAME, FlightStage::MODULE),
+        (CalibrationStage::NAME, CalibrationStage::MODULE),
+        (StressStage::NAME, StressStage::MODULE),
+        (OnlineStage::NAME, OnlineStage::MODULE),
     ];
     let dir = tempfile::tempdir().unwrap();
     let crates_dir = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
     copy_sources(crates_dir, dir.path());
     let keys = || {
-        let modules: Vec<(String, u64)> = std::fs::read_dir(dir.path().join("pipeline/src"))
-            .unwrap()
-            .flatten()
-            .filter(|e| e.path().is_file())
-            .map(|e| {
-                let name = e.file_name().to_string_lossy().into_owned();
-                (name, nerfsv_pipeline::digest::file_digest(&e.path()).unwrap())
-            })
-            .collect();
-        let digests = workspace_digests(dir.path()).unwrap();
-        let crates: Vec<(&str, u64)> = digests.iter().map(|(n, &d)| (n.as_str(), d)).collect();
-        let modules: Vec<(&str, u64)> = modules.iter().map(|(n, d)| (n.as_str(), *d)).collect();
-        stages.map(|(name, code)| (name, code_digest_in(code, &crates, &modules).unwrap()))
+        let digests = nerfsv_pipeline::digest::module_digests(dir.path()).unwrap();
+        let table: Vec<(&str, u64)> = digests.iter().map(|(n, &d)| (n.as_str(), d)).collect();
+        stages.map(|(name, module)| (name, code_digest_in(module, &table).unwrap()))
     };
     let before = keys();
     edit(dir.path());
@@ -187,11 +218,12 @@ fn rewrite(root: &Path, rel: &str, f: impl FnOnce(&str) -> String) {
 }
 
 #[test]
-fn a_line_changed_in_the_simulator_redoes_the_flight_stress_and_online_stages_and_nothing_upstream() {
+fn a_line_changed_in_the_simulator_redoes_the_stages_that_fly_or_load_worlds_and_nothing_upstream() {
     let redone = redone_by(|root| {
         rewrite(root, "sim/src/lib.rs", |t| format!("{t}\n#[doc(hidden)]\npub const ONE_MORE_LINE: u8 = 1;\n"))
     });
-    assert_eq!(redone, ["flight", "stress", "online"]);
+    // The uncertainty stage loads the ensemble's members as the study crate's worlds.
+    assert_eq!(redone, ["uq", "flight", "calibration", "stress", "online"]);
 }
 
 #[test]
@@ -210,7 +242,7 @@ fn a_doc_comment_in_the_config_a_colour_in_the_plot_crate_or_a_report_section_re
     // A stage's section and its one-line description live in its module's child report.rs.
     let redone = redone_by(|root| {
         rewrite(root, "pipeline/src/stress/report.rs", |t| t.replacen("Monte Carlo", "Plain Monte Carlo", 1));
-        rewrite(root, "pipeline/src/stages/report.rs", |t| {
+        rewrite(root, "pipeline/src/dataset/report.rs", |t| {
             t.replacen("views of {}×{} in", "views, {}×{} pixels, in", 1)
         });
     });
@@ -222,7 +254,10 @@ fn a_change_in_the_nerf_kernels_redoes_training_and_what_uses_the_model() {
     let redone = redone_by(|root| {
         rewrite(root, "nerf/src/kernels.rs", |t| format!("{t}\n#[doc(hidden)]\npub const ONE_MORE_LINE: u8 = 1;\n"))
     });
-    assert_eq!(redone, ["nerf", "eval", "ensemble", "uq", "nerf_collision", "flight", "stress", "online"]);
+    assert_eq!(
+        redone,
+        ["nerf", "eval", "ensemble", "uq", "nerf_collision", "flight", "calibration", "stress", "online"]
+    );
 }
 
 #[test]
@@ -260,4 +295,14 @@ fn a_presentation_crate_is_left_out_of_its_dependents_digests() {
     assert_ne!(before["nerfsv-low"], after["nerfsv-low"], "its own digest follows its code");
     assert_eq!(before["nerfsv-mid"], after["nerfsv-mid"]);
     assert_eq!(before["nerfsv-top"], after["nerfsv-top"]);
+}
+
+#[test]
+fn a_line_changed_in_the_ensemble_stage_redoes_every_stage_that_loads_its_members() {
+    let redone = redone_by(|root| {
+        rewrite(root, "pipeline/src/ensemble.rs", |t| {
+            format!("{t}\n#[doc(hidden)]\npub const ONE_MORE_LINE: u8 = 1;\n")
+        })
+    });
+    assert_eq!(redone, ["ensemble", "uq", "calibration", "stress", "online"]);
 }

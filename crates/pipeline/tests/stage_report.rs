@@ -18,7 +18,7 @@ struct SquaresFigures {
 
 impl Stage for Squares {
     const NAME: &'static str = "squares";
-    const CODE: &'static [&'static str] = &[];
+    const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &["squares.csv"];
     type Figures = SquaresFigures;
 

@@ -290,7 +290,11 @@ fn is_presentation_module(path: &str) -> bool {
 /// docs). Presentation modules (other than the module itself) are neither included nor
 /// followed; every crate named is listed, presentation or not.
 pub fn module_reach(pipeline_src: &Path) -> io::Result<BTreeMap<String, BTreeSet<String>>> {
-    let modules = crate::modules::modules(pipeline_src)?;
+    Ok(reach(&crate::modules::modules(pipeline_src)?))
+}
+
+/// [`module_reach`] of modules already read.
+fn reach(modules: &BTreeMap<String, crate::modules::Module>) -> BTreeMap<String, BTreeSet<String>> {
     let mut out = BTreeMap::new();
     for start in modules.keys() {
         let mut reached = BTreeSet::new();
@@ -309,7 +313,7 @@ pub fn module_reach(pipeline_src: &Path) -> io::Result<BTreeMap<String, BTreeSet
         }
         out.insert(start.clone(), reached);
     }
-    Ok(out)
+    out
 }
 
 /// Per module of the pipeline crate (`crates_dir/pipeline/src`), by `::`-joined path: the
@@ -326,14 +330,17 @@ pub fn module_digests(crates_dir: &Path) -> io::Result<BTreeMap<String, u64>> {
             presentation.extend(package_name(&manifest));
         }
     }
-    let src = crates_dir.join("pipeline/src");
-    let modules = crate::modules::modules(&src)?;
+    let modules = crate::modules::modules(&crates_dir.join("pipeline/src"))?;
+    let mut files = BTreeMap::new();
+    for (name, module) in &modules {
+        files.insert(name.as_str(), file_digest(&module.file)?);
+    }
     let mut out = BTreeMap::new();
-    for (start, reach) in module_reach(&src)? {
+    for (start, reached) in reach(&modules) {
         let mut hash = BASIS;
-        for name in &reach {
-            let digest = match modules.get(name) {
-                Some(module) => file_digest(&module.file)?,
+        for name in &reached {
+            let digest = match files.get(name.as_str()) {
+                Some(&d) => d,
                 None if presentation.contains(name) => continue,
                 None => match crates.get(name) {
                     Some(&d) => d,

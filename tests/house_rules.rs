@@ -9,6 +9,13 @@ use std::path::{Path, PathBuf};
 /// The longest a function may be, in lines from its `fn` to its closing brace.
 const MAX_LINES: usize = 120;
 
+/// The longest a module may be, in lines before its inline tests (`#[cfg(test)]` at the start of
+/// a line): what a reader can take in as one concern.
+const MAX_MODULE_LINES: usize = 800;
+
+/// Modules allowed to be longer: the NeRF crate's (fused kernels kept whole for speed).
+const LONG_MODULES: &str = "crates/nerf/";
+
 /// Functions allowed to be longer: the NeRF's fused kernels (file, function).
 const LONG_KERNELS: &[(&str, &str)] = &[
     ("crates/nerf/src/jacobian.rs", "backward_body"),
@@ -86,9 +93,9 @@ fn long_functions(text: &str, max: usize) -> Vec<(String, usize, usize)> {
     found
 }
 
-#[test]
-fn no_function_is_longer_than_a_reader_can_hold_and_none_takes_too_many_arguments() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+/// The workspace's sources the rules cover, relative to `root`: the binary's, the Python
+/// package's, and each crate's library and examples.
+fn workspace_sources(root: &Path) -> Vec<PathBuf> {
     let mut files = sources(root, "src");
     files.extend(sources(root, "examples"));
     files.extend(sources(root, "python/src"));
@@ -98,6 +105,13 @@ fn no_function_is_longer_than_a_reader_can_hold_and_none_takes_too_many_argument
         files.extend(sources(root, &format!("crates/{krate}/examples")));
     }
     assert!(files.len() > 100, "only {} source files found", files.len());
+    files
+}
+
+#[test]
+fn no_function_is_longer_than_a_reader_can_hold_and_none_takes_too_many_arguments() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let files = workspace_sources(root);
     let mut bad = Vec::new();
     for file in &files {
         let name = file.to_string_lossy().replace('\\', "/");
@@ -145,4 +159,31 @@ fn a_long_function_is_measured_from_its_fn_to_its_closing_brace() {
     let text = format!("/// doc\npub fn short() {{\n}}\n\nfn long(a: u32) -> u32 {{\n{body}    if a > 0 {{ a }} else {{ 0 }}\n}}\nfn decl();\n");
     assert_eq!(long_functions(&text, 3), [("long".to_string(), 5, 8)]);
     assert!(long_functions(&text, 8).is_empty());
+}
+
+/// The lines of `text` before its inline tests: all of them without.
+fn lines_before_tests(text: &str) -> usize {
+    text.lines().take_while(|l| !l.starts_with("#[cfg(test)]")).count()
+}
+
+#[test]
+fn no_module_is_longer_than_one_concern() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut bad = Vec::new();
+    for file in workspace_sources(root) {
+        let name = file.to_string_lossy().replace('\\', "/");
+        let lines = lines_before_tests(&std::fs::read_to_string(root.join(&file)).unwrap());
+        if lines > MAX_MODULE_LINES && !name.starts_with(LONG_MODULES) {
+            bad.push(format!(
+                "{name}: {lines} lines before its tests (at most {MAX_MODULE_LINES}): split it by concern"
+            ));
+        }
+    }
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+#[test]
+fn a_module_is_measured_up_to_its_inline_tests() {
+    assert_eq!(lines_before_tests("//! doc\nfn a() {}\n\n#[cfg(test)]\nmod tests {\n}\n"), 3);
+    assert_eq!(lines_before_tests("fn a() {}\n    #[cfg(test)]\nfn b() {}\n"), 3);
 }

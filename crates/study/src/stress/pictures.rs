@@ -1,0 +1,88 @@
+//! What a stress run draws: the estimator's error histograms and each sampler's most likely
+//! failure flown and plotted in each world.
+
+use super::*;
+
+/// The file of the estimate-error histograms.
+pub const ESTIMATE_ERRORS_PNG: &str = "estimate_errors.png";
+
+/// Histograms of the estimator's position errors after its image updates, one panel per world,
+/// up to the 99th percentile of all of them (the rest, a crashed rollout's last images, would
+/// squeeze the bulk into one bar; the title says how many are left out).
+pub(super) fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<Vec<u8>, StudyError> {
+    let mut all: Vec<f64> = logs.iter().flat_map(|(_, e)| e.iter().map(|e| 1e3 * e[0])).collect();
+    all.sort_by(f64::total_cmp);
+    let cut = all.get(((all.len().max(1) - 1) as f64 * 0.99).round() as usize).copied().unwrap_or(f64::INFINITY);
+    let left_out = all.iter().filter(|&&v| v > cut).count();
+    let groups = logs
+        .iter()
+        .map(|(w, e)| nerfsv_plot::Group {
+            label: format!("{}-sim", w.name()),
+            values: e.iter().map(|e| 1e3 * e[0]).filter(|&v| v <= cut).collect(),
+        })
+        .collect();
+    let fig = nerfsv_plot::HistogramFigure {
+        title: format!(
+            "Position error of the estimate after each image update, both worlds ({left_out} above {cut:.0} mm, the 99th \
+             percentile, left out)"
+        ),
+        x_title: "position error (mm)".into(),
+        y_title: "images".into(),
+        groups,
+        bins: 40,
+    };
+    nerfsv_plot::histograms_png(&fig, 1100, 560).map_err(|e| StudyError::Internal(format!("plotting: {e}")))
+}
+
+/// The estimator's errors of each world's log (worlds without any left out): their figures,
+/// and their histograms in [`ESTIMATE_ERRORS_PNG`] under `out` when there are any.
+pub(super) fn write_estimate_errors(
+    out: &Path,
+    logs: [(WorldKind, &EstimateLog); 2],
+) -> Result<Vec<EstimateErrorFigures>, StudyError> {
+    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> =
+        logs.into_iter().map(|(w, log)| (w, log.sorted())).filter(|(_, e)| !e.is_empty()).collect();
+    if !logs.is_empty() {
+        let path = out.join(ESTIMATE_ERRORS_PNG);
+        nerfsv_scene::io::atomic_write_bytes(&path, &estimate_error_png(&logs)?)
+            .map_err(|e| StudyError::io(&path, e))?;
+    }
+    Ok(logs.iter().filter_map(|(w, e)| EstimateErrorFigures::new(*w, e)).collect())
+}
+
+/// The stem of a sampler's most likely failure's files: `most_likely_failure_{sampler}`.
+pub fn most_likely_failure_stem(sampler: Sampler) -> String {
+    format!("most_likely_failure_{}", sampler.name())
+}
+
+/// The plot of a sampler's most likely failure flown in `world`.
+pub fn most_likely_failure_png(sampler: Sampler, world: WorldKind) -> String {
+    format!("{}_{}.png", most_likely_failure_stem(sampler), world.name())
+}
+
+/// The most likely failure's disturbances, and its flight in the search's world (and, when
+/// replaying, in the other), as trajectory CSV and plot; the other world's flight's figures.
+pub(super) fn write_failure(
+    setup: &StressSetup,
+    out: &Path,
+    sampler: Sampler,
+    f: &RolloutRecord,
+    search: &dyn World,
+    other: Option<&dyn World>,
+) -> Result<Option<FlightFigures>, StudyError> {
+    let ds = drone_disturbances(&f.disturbances);
+    let name = most_likely_failure_stem(sampler);
+    let path = out.join(format!("{name}.csv"));
+    nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&ds).as_bytes())
+        .map_err(|e| StudyError::io(&path, e))?;
+    let mut replayed = None;
+    for w in std::iter::once(search).chain(other.filter(|_| setup.replay)) {
+        let png = out.join(most_likely_failure_png(sampler, w.kind()));
+        let sortie = Sortie { world: w, estimator: setup.estimator, disturbances: &ds, seed: f.seed };
+        let (figures, _) = fly_and_write(&setup.mission, &sortie, &png.with_extension("csv"), &png)?;
+        if w.kind() != setup.world {
+            replayed = Some(figures);
+        }
+    }
+    Ok(replayed)
+}

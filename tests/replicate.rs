@@ -41,6 +41,14 @@ fn replicate_with_two_seeds_writes_both_rows_and_the_spread() {
     let sd = (values[0] - values[1]).abs() / 2f64.sqrt();
     assert!((psnr["sd"].as_f64().unwrap() - sd).abs() < 1e-9, "{json:#}");
     assert!(values[0] != values[1], "different training seeds must train different models");
+    // The stress stage's comparison reaches the rows: each run's NeRF-sim and GT-sim rates.
+    let label = |h: usize| json["headlines"][h]["headline"].as_str().unwrap().to_owned();
+    for h in [1, 2, 4] {
+        assert!(label(h).contains("failure rate"), "{json:#}");
+        for row in json["seeds"].as_array().unwrap() {
+            assert!(row["values"][h].is_number(), "{}: {json:#}", label(h));
+        }
+    }
     let page = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(page.contains("test PSNR (dB)") && page.contains("seed 16"), "{page}");
 }

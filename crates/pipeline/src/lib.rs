@@ -98,7 +98,7 @@ pub use guard::{Claimed, Guard};
 pub use layout::{summary_path, SUMMARY};
 pub use nerfsv_scene::folder::OutputKind;
 pub use run::{config_toml, run, run_guard, run_in, StageFigures, Summary, NO_GROUND_TRUTH};
-pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext};
+pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext, StageFigure};
 
 // A stage with a table of its own, for the unit tests (last: a test module ends what
 // `tests/module_graph.rs` reads of a file).

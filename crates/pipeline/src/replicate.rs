@@ -16,8 +16,14 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use nerfsv_sim::WorldKind;
+use nerfsv_study::stress::{Sampler, StressFigures, TransferFigures};
+
 use crate::config::MAX_MEMBERS;
-use crate::{Observer, PipelineError, RunConfig, Stage, Validate};
+use crate::eval::{Eval, EvalFigures};
+use crate::stress::StressStage;
+use crate::uq::{Uncertainty, UqFigures};
+use crate::{Observer, PipelineError, RunConfig, Stage, Summary, Validate};
 
 /// The run folder of training seed `seed` below `out`.
 pub fn seed_folder(out: &Path, seed: u64) -> PathBuf {
@@ -27,46 +33,65 @@ pub fn seed_folder(out: &Path, seed: u64) -> PathBuf {
 /// The stages every replicate shares with the first (they do not depend on training).
 const SHARED_STAGES: [&str; 2] = [crate::dataset::Dataset::NAME, crate::collision::GroundTruthField::NAME];
 
-/// The headline figures, as (label, how to read it from a run's `summary.json`). A figure a run
-/// does not have (a stage skipped, a world without a ground truth) is left empty in its row.
+/// The headline figures, as (label, how to read it from a run's figures). A figure a run does
+/// not have (a stage skipped, a world without a ground truth) is left empty in its row.
 const HEADLINES: [(&str, Headline); 15] = [
-    ("test PSNR (dB)", |s| s.pointer("/eval/psnr")?.as_f64()),
-    ("NeRF-sim MC failure rate, deployed model", |s| s.pointer("/stress/transfer/nerf_deployed/rate")?.as_f64()),
-    ("NeRF-sim MC failure rate, ensemble world", |s| s.pointer("/stress/transfer/nerf_ensemble/rate")?.as_f64()),
-    ("NeRF-sim MC failure rate, calibrated world", |s| s.pointer("/stress/transfer/nerf_calibrated/rate")?.as_f64()),
-    ("GT-sim failure rate (same disturbances)", |s| s.pointer("/stress/transfer/gt/rate")?.as_f64()),
-    ("NeRF-sim / GT-sim rate ratio (calibrated world, else ensemble, else deployed)", |s| {
-        let gt = s.pointer("/stress/transfer/gt/rate")?.as_f64()?;
-        let nerf = s
-            .pointer("/stress/transfer/nerf_calibrated/rate")
-            .or_else(|| s.pointer("/stress/transfer/nerf_ensemble/rate"))
-            .or_else(|| s.pointer("/stress/transfer/nerf_deployed/rate"))?
-            .as_f64()?;
-        (gt > 0.0).then(|| nerf / gt)
+    ("test PSNR (dB)", |f| Some(f.eval?.psnr)),
+    ("NeRF-sim MC failure rate, deployed model", |f| Some(f.transfer()?.nerf_deployed.rate)),
+    ("NeRF-sim MC failure rate, ensemble world", |f| Some(f.transfer()?.nerf_ensemble.rate)),
+    ("NeRF-sim MC failure rate, calibrated world", |f| Some(f.transfer()?.nerf_calibrated.as_ref()?.rate)),
+    ("GT-sim failure rate (same disturbances)", |f| Some(f.transfer()?.gt.rate)),
+    ("NeRF-sim / GT-sim rate ratio (calibrated world, else ensemble, else deployed)", |f| {
+        let t = f.transfer()?;
+        let finite = |v: f64| v.is_finite().then_some(v);
+        let calibrated = t.nerf_calibrated.as_ref().and_then(|c| finite(c.rate));
+        let nerf = calibrated.or(finite(t.nerf_ensemble.rate)).unwrap_or(t.nerf_deployed.rate);
+        (t.gt.rate > 0.0).then(|| nerf / t.gt.rate)
     }),
-    ("recall of GT-sim failures, calibrated world", |s| s.pointer("/stress/transfer/recall_calibrated")?.as_f64()),
-    ("precision, calibrated world", |s| s.pointer("/stress/transfer/precision_calibrated")?.as_f64()),
-    ("McNemar p, calibrated world", |s| s.pointer("/stress/transfer/mcnemar_p_calibrated")?.as_f64()),
-    ("recall of GT-sim failures, ensemble world", |s| s.pointer("/stress/transfer/recall_ensemble")?.as_f64()),
-    ("precision, ensemble world", |s| s.pointer("/stress/transfer/precision_ensemble")?.as_f64()),
-    ("Matthews correlation, ensemble world", |s| s.pointer("/stress/transfer/mcc_ensemble")?.as_f64()),
-    ("CEM P(fail), NeRF-sim", |s| sampler(s, "cem")?.get("p_fail")?.as_f64()),
-    ("step AUROC of the ensemble's spread, MC", |s| {
-        s.pointer("/stress/transfer/step_auroc")?
-            .as_array()?
-            .iter()
-            .find(|a| a["sampler"] == "mc")?
-            .pointer("/auroc/step_auroc")?
-            .as_f64()
+    ("recall of GT-sim failures, calibrated world", |f| f.transfer()?.recall_calibrated),
+    ("precision, calibrated world", |f| f.transfer()?.precision_calibrated),
+    ("McNemar p, calibrated world", |f| f.transfer()?.mcnemar_p_calibrated),
+    ("recall of GT-sim failures, ensemble world", |f| f.transfer()?.recall_ensemble),
+    ("precision, ensemble world", |f| f.transfer()?.precision_ensemble),
+    ("Matthews correlation, ensemble world", |f| f.transfer()?.mcc_ensemble),
+    ("CEM P(fail), NeRF-sim", |f| {
+        let stress = f.stress?;
+        Some(stress.samplers.iter().find(|s| s.sampler == Sampler::Cem && s.world == WorldKind::Nerf)?.p_fail)
     }),
-    ("depth AUSE, ensemble (GA's images)", |s| s.pointer("/uq/ensemble_ause/on_ga_images")?.as_f64()),
+    ("step AUROC of the ensemble's spread, MC", |f| {
+        f.transfer()?.step_auroc.iter().find(|a| a.sampler == Sampler::Mc)?.auroc.step_auroc
+    }),
+    ("depth AUSE, ensemble (GA's images)", |f| f.uq?.ensemble_ause.as_ref()?.on_ga_images),
 ];
 
-type Headline = fn(&serde_json::Value) -> Option<f64>;
+type Headline = for<'a> fn(&RunFigures<'a>) -> Option<f64>;
 
-/// The NeRF-sim figures of `name` among the stress stage's samplers.
-fn sampler<'a>(summary: &'a serde_json::Value, name: &str) -> Option<&'a serde_json::Value> {
-    summary.pointer("/stress/samplers")?.as_array()?.iter().find(|s| s["sampler"] == name && s["world"] == "nerf")
+/// The figures of one run the headlines read, typed.
+struct RunFigures<'a> {
+    eval: Option<&'a EvalFigures>,
+    stress: Option<&'a StressFigures>,
+    uq: Option<&'a UqFigures>,
+}
+
+impl<'a> RunFigures<'a> {
+    fn of(summary: &'a Summary) -> Self {
+        Self {
+            eval: summary.figures::<Eval>(),
+            stress: summary.figures::<StressStage>(),
+            uq: summary.figures::<Uncertainty>(),
+        }
+    }
+
+    /// The stress stage's comparison of NeRF-sim with GT-sim on the same rollouts.
+    fn transfer(&self) -> Option<&'a TransferFigures> {
+        self.stress?.transfer.as_ref()
+    }
+
+    /// Every headline, in order; a figure that is not a number (NaN) is left empty, as
+    /// `summary.json` writes it (null).
+    fn headlines(&self) -> Vec<Option<f64>> {
+        HEADLINES.iter().map(|(_, read)| read(self).filter(|v| v.is_finite())).collect()
+    }
 }
 
 /// One run's headline figures.
@@ -136,12 +161,7 @@ pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Resu
             }
         }
         let summary = crate::run_in(&run, scene.as_ref(), observer)?;
-        let value = serde_json::to_value(&summary).map_err(|e| PipelineError::Internal(e.to_string()))?;
-        rows.push(SeedRow {
-            train_seed: seed,
-            folder: folder.clone(),
-            values: HEADLINES.iter().map(|(_, read)| read(&value)).collect(),
-        });
+        rows.push(SeedRow { train_seed: seed, folder: folder.clone(), values: RunFigures::of(&summary).headlines() });
         first.get_or_insert(folder);
     }
     let replication = Replication { headlines: spreads(&rows), seeds: rows };
@@ -260,6 +280,7 @@ fn copy_dir(from: &Path, to: &Path) -> Result<(), PipelineError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stage::StageFigure;
 
     #[test]
     fn spreads_are_the_mean_and_sample_sd_of_the_runs_that_have_the_figure() {
@@ -272,5 +293,24 @@ mod tests {
         assert_eq!((s[0].n, s[0].mean, s[0].sd), (2, Some(2.0), Some(2f64.sqrt())));
         assert_eq!((s[1].n, s[1].mean, s[1].sd), (0, None, None));
         assert_eq!(replicate_seed(5, 2), 5 + 2 * MAX_MEMBERS as u64);
+    }
+
+    #[test]
+    fn headlines_read_the_typed_figures_and_leave_out_what_a_run_has_not() {
+        let eval = EvalFigures { psnr: 27.5, ssim: 0.9, depth_median_abs_err_m: None, images: 4, background: [1.0; 3] };
+        let summary = |stages: Vec<StageFigure>| Summary { run: PathBuf::new(), stages: crate::StageFigures(stages) };
+        // The stress stage's figures under another stage's name are not the stress stage's.
+        let ran = summary(vec![
+            StageFigure::new(Eval::NAME, eval.clone()).unwrap(),
+            StageFigure::new("stress", 3u32).unwrap(),
+        ]);
+        let values = RunFigures::of(&ran).headlines();
+        assert_eq!(values.len(), HEADLINES.len());
+        assert_eq!(values[0], Some(27.5));
+        assert!(values[1..].iter().all(Option::is_none), "{values:?}");
+        // A NaN figure is empty, as summary.json writes it.
+        let nan = summary(vec![StageFigure::new(Eval::NAME, EvalFigures { psnr: f64::NAN, ..eval }).unwrap()]);
+        assert_eq!(RunFigures::of(&nan).headlines()[0], None);
+        assert_eq!(serde_json::to_value(&nan).unwrap()["eval"]["psnr"], serde_json::Value::Null);
     }
 }

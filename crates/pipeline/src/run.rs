@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use serde::Serialize;
 
 use crate::layout::summary_path;
-use crate::stage::{self, Observer, Runner};
+use crate::stage::{self, Observer, Runner, StageFigure};
 use crate::{calibration, ensemble, flight, online, report, stress, uq};
 use crate::{Guard, PipelineError, RunConfig, Validate};
 
@@ -19,13 +19,20 @@ pub struct Summary {
     pub stages: StageFigures,
 }
 
+impl Summary {
+    /// The figures stage `S` gave, as their type: `None` where it did not run or was skipped.
+    pub fn figures<S: crate::Stage>(&self) -> Option<&S::Figures> {
+        self.stages.0.iter().find_map(|f| f.of::<S>())
+    }
+}
+
 /// Stage figures in run order, serialised as one JSON object.
 #[derive(Clone, Debug, Default)]
-pub struct StageFigures(pub Vec<(&'static str, serde_json::Value)>);
+pub struct StageFigures(pub Vec<StageFigure>);
 
 impl Serialize for StageFigures {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.collect_map(self.0.iter().map(|(k, v)| (k, v)))
+        s.collect_map(self.0.iter().map(|f| (f.name, &f.json)))
     }
 }
 

@@ -9,8 +9,10 @@
 //! sources at build time: see [`crate::digest`]), its config slice and the keys of the stages it reads, so
 //! changing any of them redoes this stage and everything downstream, and nothing else.
 
+use std::any::Any;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use serde::de::DeserializeOwned;
@@ -56,7 +58,7 @@ pub trait Stage {
     const INPUTS: &'static [&'static str] = &[];
 
     /// The figures the stage reports, kept in its record and in `summary.json`.
-    type Figures: Serialize + DeserializeOwned;
+    type Figures: Serialize + DeserializeOwned + Clone + Send + Sync + 'static;
 
     /// The part of the run's configuration the stage's outputs depend on.
     fn config(&self) -> impl Serialize;
@@ -182,12 +184,46 @@ pub enum Outcome {
     Skipped,
 }
 
+/// One stage's figures: as `summary.json` writes them, and as their type (what a caller reads,
+/// so that a renamed figure is a compile error there, and a NaN stays a number).
+#[derive(Clone)]
+pub struct StageFigure {
+    pub name: &'static str,
+    pub json: serde_json::Value,
+    typed: Arc<dyn Any + Send + Sync>,
+}
+
+impl StageFigure {
+    /// Stage `name`'s `figures`.
+    pub fn new<F: Serialize + Send + Sync + 'static>(name: &'static str, figures: F) -> Result<Self, PipelineError> {
+        let json = serde_json::to_value(&figures)
+            .map_err(|e| PipelineError::Internal(format!("stage {name}: figures: {e}")))?;
+        Ok(Self { name, json, typed: Arc::new(figures) })
+    }
+
+    /// A stage that was skipped: `{"skipped": reason}`, and no figures of any type.
+    fn skipped(name: &'static str, json: serde_json::Value) -> Self {
+        Self { name, json, typed: Arc::new(()) }
+    }
+
+    /// The figures as stage `S`'s: `None` if they are another stage's or it was skipped.
+    pub fn of<S: Stage>(&self) -> Option<&S::Figures> {
+        (self.name == S::NAME).then(|| self.typed.downcast_ref())?
+    }
+}
+
+impl std::fmt::Debug for StageFigure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StageFigure").field("name", &self.name).field("json", &self.json).finish()
+    }
+}
+
 /// Runs stages in order into one run folder, and collects their figures for `summary.json`.
 pub struct Runner<'a> {
     root: PathBuf,
     observer: &'a dyn Observer,
     keys: BTreeMap<&'static str, String>,
-    figures: Vec<(&'static str, serde_json::Value)>,
+    figures: Vec<StageFigure>,
     outcomes: Vec<(&'static str, Outcome)>,
 }
 
@@ -247,10 +283,8 @@ impl<'a> Runner<'a> {
         };
         let section = S::report(&figures, &ReportContext { root: &self.root, dir: &dir });
         write_json(&dir.join(REPORT_SECTION), &StageReport { about: S::ABOUT.to_owned(), section })?;
-        let value = serde_json::to_value(&figures)
-            .map_err(|e| PipelineError::Internal(format!("stage {}: figures: {e}", S::NAME)))?;
+        self.figures.push(StageFigure::new(S::NAME, figures.clone())?);
         self.keys.insert(S::NAME, key);
-        self.figures.push((S::NAME, value));
         self.outcomes.push((S::NAME, outcome));
         Ok(figures)
     }
@@ -275,7 +309,7 @@ impl<'a> Runner<'a> {
         };
         write_json(&dir.join(REPORT_SECTION), &StageReport { about: S::ABOUT.to_owned(), section: Some(section) })?;
         self.observer.note(S::NAME, &format!("skipped: {reason}"));
-        self.figures.push((S::NAME, figures));
+        self.figures.push(StageFigure::skipped(S::NAME, figures));
         self.outcomes.push((S::NAME, Outcome::Skipped));
         Ok(())
     }
@@ -286,7 +320,7 @@ impl<'a> Runner<'a> {
     }
 
     /// Every stage's figures so far, in the order the stages ran.
-    pub fn figures(&self) -> &[(&'static str, serde_json::Value)] {
+    pub fn figures(&self) -> &[StageFigure] {
         &self.figures
     }
 
@@ -358,7 +392,7 @@ mod tests {
         fail: bool,
     }
 
-    #[derive(Serialize, Deserialize, Debug, PartialEq)]
+    #[derive(Clone, Serialize, Deserialize, Debug, PartialEq)]
     struct Written {
         value: u32,
         half: f64,

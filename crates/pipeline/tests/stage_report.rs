@@ -10,7 +10,7 @@ struct Squares {
     n: u32,
 }
 
-#[derive(Serialize, Deserialize)]
+#[derive(Clone, Serialize, Deserialize)]
 struct SquaresFigures {
     count: u32,
     largest: u32,

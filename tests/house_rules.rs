@@ -13,6 +13,10 @@ const MAX_LINES: usize = 120;
 /// a line): what a reader can take in as one concern.
 const MAX_MODULE_LINES: usize = 800;
 
+/// The longest a stage's `run` may be: it loads its inputs, calls one request → figures function
+/// of a library crate and returns the figures.
+const MAX_STAGE_RUN_LINES: usize = 30;
+
 /// Modules allowed to be longer: the NeRF crate's (fused kernels kept whole for speed).
 const LONG_MODULES: &str = "crates/nerf/";
 
@@ -186,4 +190,30 @@ fn no_module_is_longer_than_one_concern() {
 fn a_module_is_measured_up_to_its_inline_tests() {
     assert_eq!(lines_before_tests("//! doc\nfn a() {}\n\n#[cfg(test)]\nmod tests {\n}\n"), 3);
     assert_eq!(lines_before_tests("fn a() {}\n    #[cfg(test)]\nfn b() {}\n"), 3);
+}
+
+#[test]
+fn every_stage_run_only_orchestrates() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut bad = Vec::new();
+    let mut stages = 0;
+    for file in sources(root, "crates/pipeline/src") {
+        let whole = std::fs::read_to_string(root.join(&file)).unwrap();
+        // The stages of the module itself, not its tests' (the runner's own `run` is not a stage's).
+        let text: String = whole.lines().take(lines_before_tests(&whole)).flat_map(|l| [l, "\n"]).collect();
+        if !text.contains("impl Stage for") {
+            continue;
+        }
+        stages += 1;
+        for (function, line, lines) in long_functions(&text, MAX_STAGE_RUN_LINES) {
+            if function == "run" {
+                bad.push(format!(
+                    "{}:{line}: a stage's run is {lines} lines (at most {MAX_STAGE_RUN_LINES})",
+                    file.display()
+                ));
+            }
+        }
+    }
+    assert!(stages >= 10, "only {stages} stage modules found");
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
 }

@@ -243,8 +243,9 @@ impl Recorder for Refusing<'_> {
 }
 
 /// Which sampler searches the system.
-#[derive(Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(nerfsv_derive::Choice, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
+#[choice(what = "sampler")]
 enum Search {
     Mc,
     Cem,
@@ -254,15 +255,7 @@ enum Search {
 
 impl Search {
     fn parse(name: &str) -> PyResult<Self> {
-        Ok(match name {
-            "mc" => Self::Mc,
-            "cem" => Self::Cem,
-            "is" => Self::Is,
-            "subset" => Self::Subset,
-            other => {
-                return Err(value_error(format!("sampler: unknown sampler {other:?}: one of mc, cem, is, subset")))
-            }
-        })
+        name.parse().map_err(|e| value_error(format!("sampler: {e}")))
     }
 }
 

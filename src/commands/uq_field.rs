@@ -92,11 +92,7 @@ pub fn run(args: FieldArgs) -> anyhow::Result<()> {
     let split = load_split(&args.data, "train", LoadOptions { downscale: 1, load_depth: false, ..Default::default() })
         .with_context(|| format!("loading the train split of {}", args.data.display()))?;
     let reporter = Reporter::new(args.json);
-    let method = match args.method {
-        FieldMethod::Ga => Some(Method::Ga),
-        FieldMethod::Bla => Some(Method::Bla),
-        FieldMethod::Ensemble => None,
-    };
+    let method = args.method.method();
     if method.is_some() != args.members.is_empty() {
         anyhow::bail!("--member names the other members of an ensemble: give it with --method ensemble, and only then");
     }

@@ -171,30 +171,33 @@ impl Stage for Dataset<'_> {
             DatasetSource::Render { scene, options } => render_dataset(scene, &cx.dir, options, &|done, total| {
                 cx.progress(done as u64, total as u64, "views rendered")
             }),
-            DatasetSource::Folder { folder, placement } => {
-                // Every split is read now, so a broken dataset stops the run before training.
-                let start = Instant::now();
-                let mut views = 0;
-                let mut size = (0, 0);
-                for (i, split) in ["train", "val", "test"].into_iter().enumerate() {
-                    let s = load_dataset_split(folder, split, 1)?;
-                    views += s.frames.len();
-                    if let Some(f) = s.frames.first() {
-                        size = (f.image.width, f.image.height);
-                    }
-                    cx.progress(i as u64 + 1, 3, "splits read");
-                }
-                let absolute = std::path::absolute(folder).map_err(|e| PipelineError::io(*folder, e))?;
-                write_json(&cx.dir.join(Self::SOURCE), &DatasetFolder { folder: absolute, placement: *placement })?;
-                Ok(DatasetFigures {
-                    scene: folder.display().to_string(),
-                    views,
-                    width: size.0,
-                    height: size.1,
-                    seconds: start.elapsed().as_secs_f64(),
-                    primary_rays_per_second: 0.0,
-                })
-            }
+            DatasetSource::Folder { folder, placement } => read_folder(folder, *placement, cx),
         }
     }
+}
+
+/// Reads every split of the dataset `folder` (so that a broken dataset stops the run before
+/// training) and records where it lies and how its poses are placed ([`Dataset::SOURCE`]).
+fn read_folder(folder: &Path, placement: Placement, cx: &StageContext) -> Result<DatasetFigures, PipelineError> {
+    let start = Instant::now();
+    let mut views = 0;
+    let mut size = (0, 0);
+    for (i, split) in ["train", "val", "test"].into_iter().enumerate() {
+        let s = load_dataset_split(folder, split, 1)?;
+        views += s.frames.len();
+        if let Some(f) = s.frames.first() {
+            size = (f.image.width, f.image.height);
+        }
+        cx.progress(i as u64 + 1, 3, "splits read");
+    }
+    let absolute = std::path::absolute(folder).map_err(|e| PipelineError::io(folder, e))?;
+    write_json(&cx.dir.join(Dataset::SOURCE), &DatasetFolder { folder: absolute, placement })?;
+    Ok(DatasetFigures {
+        scene: folder.display().to_string(),
+        views,
+        width: size.0,
+        height: size.1,
+        seconds: start.elapsed().as_secs_f64(),
+        primary_rays_per_second: 0.0,
+    })
 }

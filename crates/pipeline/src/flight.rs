@@ -61,6 +61,29 @@ pub struct FlightStageFigures {
 }
 
 impl FlightStage<'_> {
+    /// Flies each of [`Self::flights`] undisturbed in its world, writing its trajectory and plot.
+    fn fly(&self, cx: &StageContext, mission: &Mission) -> Result<Vec<FlightFigures>, PipelineError> {
+        let runs = self.flights();
+        let mut flights = Vec::new();
+        for (i, &(kind, estimator)) in runs.iter().enumerate() {
+            cx.progress(
+                i as u64,
+                runs.len() as u64,
+                &format!("flying {}-sim with the {} estimator", kind.name(), estimator.name()),
+            );
+            let w = world(kind, mission.inputs, self.drone.scene, self.drone.render)?;
+            let sortie = Sortie { world: w.as_ref(), estimator, disturbances: &[], seed: self.seed };
+            let (f, _) = fly_and_write(
+                mission,
+                &sortie,
+                &cx.dir.join(Self::output(kind, estimator, "csv")),
+                &cx.dir.join(Self::output(kind, estimator, "png")),
+            )?;
+            flights.push(f);
+        }
+        Ok(flights)
+    }
+
     /// `trajectory_{world}_{estimator}.csv`, `.png`.
     pub fn output(world: WorldKind, estimator: EstimatorKind, ext: &str) -> String {
         format!("trajectory_{}_{}.{ext}", world.name(), estimator.name())
@@ -125,24 +148,7 @@ impl Stage for FlightStage<'_> {
         let inputs = flight_inputs(cx.root, self.drone.scene.is_some())?;
         let flight = inputs.plan(self.drone.sim)?;
         let mission = Mission { drone: self.drone, inputs: &inputs, flight: &flight };
-        let mut flights = Vec::new();
-        let runs = self.flights();
-        for (i, &(kind, estimator)) in runs.iter().enumerate() {
-            cx.progress(
-                i as u64,
-                runs.len() as u64,
-                &format!("flying {}-sim with the {} estimator", kind.name(), estimator.name()),
-            );
-            let w = world(kind, &inputs, self.drone.scene, self.drone.render)?;
-            let sortie = Sortie { world: w.as_ref(), estimator, disturbances: &[], seed: self.seed };
-            let (f, _) = fly_and_write(
-                &mission,
-                &sortie,
-                &cx.dir.join(Self::output(kind, estimator, "csv")),
-                &cx.dir.join(Self::output(kind, estimator, "png")),
-            )?;
-            flights.push(f);
-        }
+        let flights = self.fly(cx, &mission)?;
         if let Some(gt) = &inputs.gt_field {
             write_field_slices(&cx.dir, gt, &inputs.nerf_field, &flight)?;
         }

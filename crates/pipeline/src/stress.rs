@@ -53,6 +53,19 @@ impl StressStage<'_> {
         Mission { drone: self.drone, inputs, flight }
     }
 
+    /// The drone's worlds in the run folder `root`: the model and the fields, with the ensemble's
+    /// other members and the calibrated world's error model where this stage flies them.
+    pub fn load_inputs(&self, root: &Path) -> Result<FlightInputs, PipelineError> {
+        let mut inputs = flight_inputs(root, self.drone.scene.is_some())?;
+        if self.ensemble {
+            inputs.members = crate::members::load_members(root)?;
+        }
+        if self.calibrated() {
+            inputs.calibration = Some(CalibrationStage::load(root, self.perception, self.validation.seed)?);
+        }
+        Ok(inputs)
+    }
+
     fn samplers(&self) -> &'static [Sampler] {
         if self.subset {
             &[Sampler::Mc, Sampler::Cem, Sampler::Subset]
@@ -96,13 +109,7 @@ impl Stage for StressStage<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
-        let mut inputs = flight_inputs(cx.root, self.drone.scene.is_some())?;
-        if self.ensemble {
-            inputs.members = crate::members::load_members(cx.root)?;
-        }
-        if self.calibrated() {
-            inputs.calibration = Some(CalibrationStage::load(cx.root, self.perception, self.validation.seed)?);
-        }
+        let inputs = self.load_inputs(cx.root)?;
         let flight = inputs.plan(self.drone.sim)?;
         let uq = UqConfig::default();
         let setup = StressSetup {

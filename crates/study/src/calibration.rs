@@ -11,19 +11,25 @@
 
 use std::io::Write;
 use std::path::Path;
+use std::time::Instant;
 
 use nalgebra::{Matrix3, Vector3};
 use nerfsv_nerf::Nerf;
+use nerfsv_scene::seed::mix;
 use nerfsv_scene::{Image, Intrinsics};
 use nerfsv_sim::camera::{body_to_camera_axes, drone_camera};
 use nerfsv_sim::estimator::{refine_pose, stratified_pixels, Observation, Starts};
 use nerfsv_sim::filter::pose_difference;
 use nerfsv_sim::perception::{AxisPrediction, AXES};
-use nerfsv_sim::{Belief, ErrorModel, ErrorSample, Flight, PosePrior, State, ViewPose, VisionConfig, World};
+use nerfsv_sim::{
+    Belief, ErrorModel, ErrorSample, Flight, GroundTruthWorld, NerfWorld, PosePrior, State, ViewPose, VisionConfig,
+    World,
+};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::StudyError;
+use crate::flight::Mission;
+use crate::{Observer, StudyError};
 
 /// The `[perception]` table: the calibration views and the calibrated world's draws.
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -437,6 +443,140 @@ pub fn route_figure(
         y_title: "position error, mm".into(),
         groups,
     }
+}
+
+/// What the calibration measures and fits, and where it writes.
+pub struct CalibrationRequest<'a> {
+    /// The drone's estimator and planned route, its deployed NeRF, the ensemble's other members
+    /// (`inputs.members`) and the ground truth, where there is one (the route capture's images).
+    pub mission: Mission<'a>,
+    pub perception: &'a PerceptionConfig,
+    /// The dataset's held-out views ([`CalibrationView::held_out`]), when `perception.held_out_split`.
+    pub held_out: Vec<CalibrationView<'a>>,
+    /// Seeds the route capture's poses and each fit's pixels and start.
+    pub seed: u64,
+    /// The folder the files go to (which exists): [`VIEWS_CSV`], a `calibration_fits_member_{k}.csv`
+    /// per member, [`MODEL_JSON`], [`ROUTE_PNG`].
+    pub out: &'a Path,
+    /// The name progress is reported under.
+    pub stage: &'static str,
+}
+
+/// One row per fit ([`CalibrationRecord`]).
+pub const VIEWS_CSV: &str = "calibration_fits.csv";
+/// The fitted models ([`ErrorModels`]: the real error's and one per member, each as its samples
+/// and kernels).
+pub const MODEL_JSON: &str = "error_models.json";
+/// The errors along the route and the model's band.
+pub const ROUTE_PNG: &str = "route_errors.png";
+/// Folds of the cross-validation by view.
+pub const FOLDS: usize = 5;
+
+impl<'a> CalibrationView<'a> {
+    /// A held-out image of the dataset taken by `camera`.
+    pub fn held_out(camera: &nerfsv_scene::Camera, image: &'a Image) -> Self {
+        let rotation: Matrix3<f64> = camera.rotation().map(f64::from);
+        CalibrationView {
+            source: ViewSource::HeldOut,
+            route_fraction: None,
+            position: camera.position().coords.map(f64::from),
+            rotation: CalibrationView::body_rotation(&rotation),
+            intrinsics: camera.intrinsics,
+            image: ViewImage::Image(image),
+        }
+    }
+}
+
+/// The calibration of `req`: the estimator's fits on the route capture (rendered by the ground
+/// truth along the planned route) and the held-out views, then on each member's own images of
+/// the same views; the error model fitted to the real errors and one to each member's
+/// differences from them; the files; the figures.
+pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<CalibrationFigures, StudyError> {
+    let (drone, inputs, flight) = (req.mission.drone, req.mission.inputs, req.mission.flight);
+    let sim = flight.simulator(drone.sim, &inputs.nerf, drone.intrinsics);
+    let p = req.perception;
+    let ground_truth = match (drone.scene, &inputs.gt_field) {
+        (Some(scene), Some(field)) => Some(GroundTruthWorld { scene, field, render: drone.render }),
+        _ => None,
+    };
+    let mut views = Vec::new();
+    if let Some(world) = &ground_truth {
+        for (fraction, position, rotation) in
+            route_poses(flight, p.route_views, p.route_jitter, mix(req.seed, 0x7017e, 0))
+        {
+            views.push(CalibrationView {
+                source: ViewSource::Route,
+                route_fraction: Some(fraction),
+                position,
+                rotation,
+                intrinsics: sim.intrinsics,
+                image: ViewImage::World(world),
+            });
+        }
+    }
+    views.extend(req.held_out.iter().copied());
+    let progress = |done, status: &str| observer.progress(req.stage, done, 2, status);
+    progress(0, &format!("fitting {} views {} times each", views.len(), p.fits_per_view));
+    let start = Instant::now();
+    let records = measure(&views, &inputs.nerf, &sim.vision, sim.background, p.fits_per_view, req.seed);
+    write_records_csv(&req.out.join(VIEWS_CSV), &records)?;
+    // Each member's own images at the same views, pixels and starts.
+    let mut member_records = Vec::new();
+    for (k, m) in inputs.members.iter().enumerate() {
+        progress(0, &format!("fitting member {}'s images of the same views", k + 1));
+        let world = NerfWorld { nerf: &m.nerf, field: &m.field };
+        let own: Vec<CalibrationView> =
+            views.iter().map(|v| CalibrationView { image: ViewImage::World(&world), ..*v }).collect();
+        let rs = measure(&own, &inputs.nerf, &sim.vision, sim.background, p.fits_per_view, req.seed);
+        write_records_csv(&req.out.join(format!("calibration_fits_member_{}.csv", k + 1)), &rs)?;
+        member_records.push(rs);
+    }
+    let measure_seconds = start.elapsed().as_secs_f64();
+    progress(1, "fitting the error model");
+    let start = Instant::now();
+    let samples: Vec<_> = records.iter().map(|r| r.sample()).collect();
+    let model = ErrorModel::fit(&samples);
+    let cv = cross_validate(&samples, FOLDS);
+    let member_samples: Vec<Vec<_>> = member_records.iter().map(|rs| differences(&records, rs)).collect();
+    let models =
+        ErrorModels { real: model.clone(), members: member_samples.iter().map(|d| ErrorModel::fit(d)).collect() };
+    let member_mean_difference = member_samples
+        .iter()
+        .map(|d| std::array::from_fn(|a| d.iter().map(|s| s.error[a]).sum::<f64>() / d.len().max(1) as f64))
+        .collect();
+    let model_seconds = start.elapsed().as_secs_f64();
+    let path = req.out.join(MODEL_JSON);
+    nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer(w, &models).map_err(std::io::Error::other))
+        .map_err(|e| StudyError::io(&path, e))?;
+    write_route_png(&req.out.join(ROUTE_PNG), flight, sim.intrinsics, &records, &model)?;
+    Ok(CalibrationFigures {
+        measure_seconds,
+        model_seconds,
+        member_mean_difference,
+        ..CalibrationFigures::of(&records, &model, cv)
+    })
+}
+
+/// [`ROUTE_PNG`]: the errors along the route and the model's band at 100 poses of it.
+fn write_route_png(
+    path: &Path,
+    flight: &Flight,
+    intrinsics: Intrinsics,
+    records: &[CalibrationRecord],
+    model: &ErrorModel,
+) -> Result<(), StudyError> {
+    let duration = flight.reference.duration();
+    let route: Vec<(f64, ViewPose)> = (0..100)
+        .map(|i| {
+            let f = (i as f64 + 0.5) / 100.0;
+            let at = flight.reference.at_rest(f * duration);
+            (f, ViewPose::of_camera(&drone_camera(intrinsics, &at.position, &at.rotation)))
+        })
+        .collect();
+    let figure = route_figure(records, model, &route);
+    let png = nerfsv_plot::scatter_png(&figure, 1000, 480)
+        .map_err(|e| StudyError::Internal(format!("the route's error figure: {e}")))?;
+    nerfsv_scene::io::atomic_write(path, |w| w.write_all(&png)).map_err(|e| StudyError::io(path, e))
 }
 
 #[cfg(test)]

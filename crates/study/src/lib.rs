@@ -18,6 +18,8 @@
 //!   with the paper's tables, the confusion matrices and the most likely failures
 //!   ([`stress::stress`]), and uncertainty measured at recorded poses
 //!   ([`stress::measure_recorded`]).
+//! - [`online`]: the paper's Tables 1–2 over the stress searches' rollouts, each step's GA or BLA
+//!   uncertainty measured and CEM ranked by its reward ([`online::online_study`]).
 //!
 //! The stages of `nerfsv run`, the subcommands and the Python package call these functions;
 //! progress goes to an [`Observer`].
@@ -25,6 +27,7 @@
 pub mod calibration;
 mod drone;
 pub mod flight;
+pub mod online;
 pub mod remote;
 pub mod stress;
 mod uncertainty;

@@ -24,6 +24,10 @@
 //!   against a per-pixel uncertainty (100 fractions, curves normalised by their shared maximum,
 //!   as Bayes' Rays evaluates it), per image and averaged; an image without ground-truth depth
 //!   is an error naming it.
+//! - [`offline`]: the paper's offline study of a split (per-image fits, their rows, CSV and
+//!   figures); [`study`]: that study over a dataset's three splits, with the depth AUSE and an
+//!   ensemble's field (the uq stage of `nerfsv run`); [`folder`]: the same over a dataset folder
+//!   (`nerfsv uq offline`, `nerfsv uq ause`).
 //!
 //! Both read the model through [`nerfsv_nerf::param_jacobian`] (composited samples, and the
 //! Jacobian of each ray's colour with respect to the `sigma_net` weights). The BLA core
@@ -57,6 +61,7 @@ pub mod folder;
 pub mod ga;
 pub mod maps;
 pub mod offline;
+pub mod study;
 
 pub use ause::{depth_ause, depth_errors, mean_ause, sparsification, Sparsification};
 pub use bla::{

@@ -608,3 +608,12 @@ fn ensemble_field_is_the_members_density_variance_at_each_node() {
     assert!(looked_up.is_finite() && looked_up >= 0.0);
     assert!(matches!(UncertaintyField::build_ensemble(&[&a], "a", &cfg), Err(UqError::FieldGrid { .. })));
 }
+
+#[test]
+fn a_field_method_names_the_per_image_method_it_comes_from() {
+    use nerfsv_uq::Method;
+    for m in Method::ALL {
+        assert_eq!(FieldMethod::from(m).method(), Some(m));
+    }
+    assert_eq!(FieldMethod::Ensemble.method(), None);
+}

@@ -131,6 +131,14 @@ impl From<Method> for FieldMethod {
     }
 }
 
+impl FieldMethod {
+    /// The per-image method whose fits make the field (none for an ensemble's): the inverse of
+    /// `From<Method>`.
+    pub fn method(self) -> Option<Method> {
+        Method::ALL.into_iter().find(|&m| Self::from(m) == self)
+    }
+}
+
 /// `format` of a field file.
 pub const FIELD_FORMAT: &str = "nerfsv-uncertainty-field";
 /// `format_version` of a field file.

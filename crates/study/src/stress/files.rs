@@ -1,7 +1,15 @@
 //! The files a stress run writes and reads back: their names, the journal folders, the
 //! clearance differences and the Tables 1–2 CSV.
 
-use super::*;
+use std::path::{Path, PathBuf};
+
+use nerfsv_sim::WorldKind;
+use nerfsv_validation::Sampler;
+use nerfsv_validation::TableRow;
+
+use crate::StudyError;
+
+use super::figures::*;
 
 /// Files a stress run writes (besides the journal and the most likely failures).
 pub const ROLLOUTS_CSV: &str = "rollouts.csv";

@@ -1,6 +1,19 @@
 //! Each step's uncertainty, measured while a search flies or afterwards at the poses a record keeps.
 
-use super::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use nerfsv_scene::Camera;
+use nerfsv_sim::camera::drone_camera;
+use nerfsv_sim::{World, WorldKind};
+use nerfsv_validation::RolloutRecord;
+
+use crate::flight::world;
+use crate::{online_pixels, ExactUncertainty, FieldUncertainty, Observer, StudyError, UqMode, ViewUncertainty};
+
+use super::setup::*;
 
 /// Times a [`ViewUncertainty`]'s views.
 pub(super) struct Timed<'a> {

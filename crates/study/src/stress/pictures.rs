@@ -1,7 +1,17 @@
 //! What a stress run draws: the estimator's error histograms and each sampler's most likely
 //! failure flown and plotted in each world.
 
-use super::*;
+use std::path::Path;
+
+use nerfsv_sim::{World, WorldKind};
+use nerfsv_validation::RolloutRecord;
+use nerfsv_validation::Sampler;
+
+use crate::flight::{fly_and_write, FlightFigures, Sortie};
+use crate::{drone_disturbances, EstimateLog, StudyError};
+
+use super::figures::*;
+use super::setup::*;
 
 /// The file of the estimate-error histograms.
 pub const ESTIMATE_ERRORS_PNG: &str = "estimate_errors.png";

@@ -1,6 +1,16 @@
 //! The searched rollouts flown again in the other world.
 
-use super::*;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use nerfsv_sim::World;
+use nerfsv_validation::{replay_all, Journal, RolloutRecord};
+
+use crate::{DroneSystem, EstimateLog, StudyError};
+
+use super::files::*;
+use super::search::*;
+use super::setup::*;
 
 /// The searched rollouts flown again in the other world.
 pub(super) struct Replay<'a> {

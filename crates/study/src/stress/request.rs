@@ -1,7 +1,21 @@
 //! One search outside `nerfsv run` (`nerfsv stress`, the Python package): its settings, checked
 //! before anything is written.
 
-use super::*;
+use std::path::Path;
+
+use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_uq::{UncertaintyField, UqConfig};
+use nerfsv_validation::Sampler;
+use nerfsv_validation::{Prior, ValidationConfig};
+
+use crate::flight::{Drone, FlightInputs, Mission};
+use crate::remote::RemoteRollouts;
+use crate::{Observer, StudyError, UqMode};
+
+use super::figures::*;
+use super::files::*;
+use super::run::*;
+use super::setup::*;
 
 /// What one search outside `nerfsv run` does (`nerfsv stress`, the Python package), whatever
 /// describes its drone: one sampler in one world, into a folder of its own.

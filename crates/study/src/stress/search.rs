@@ -1,7 +1,17 @@
 //! The samplers' searches in one world (Monte Carlo, the Cross-Entropy Method, subset
 //! simulation), their estimates, and the journal that lets a killed run resume.
 
-use super::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use nerfsv_validation::Sampler;
+use nerfsv_validation::{
+    cross_entropy, monte_carlo, subset_simulation_reusing, ImportanceEstimate, Journal, Label, Recorder, Reward,
+    RolloutRecord, SubsetEstimate, ValidationError,
+};
+
+use crate::{DroneSystem, EstimateLog, Observer, StudyError, UncertaintyReward};
+
+use super::setup::*;
 
 /// The searches' own rollouts, in order: not the importance batch nor subset simulation's
 /// chains, which estimate a probability (the paper's confusion matrices are over MC's and CEM's

@@ -6,7 +6,7 @@
 //! Every finished rollout is kept in a journal under the output folder as it completes, so a
 //! killed run resumes without flying it again and ends with the same bytes.
 //!
-//! One module per concern, each importing only those before it: [`figures`] (what a run
+//! One module per concern, each importing only those before it: `figures` (what a run
 //! reports), `files` (names and CSVs), `setup` (what a run needs), `measure` (per-step
 //! uncertainty), `search` (the samplers and the journal), `pictures`, `replay`, `tabulate` (a
 //! sampler's figures), `run` ([`stress`]) and `request` (one search outside `nerfsv run`).

@@ -422,11 +422,6 @@ pub(crate) fn yes_no(v: bool) -> String {
     if v { "yes" } else { "no" }.into()
 }
 
-/// Writes a picture a section drew into its stage's folder `dir`; `false` if it could not.
-pub(crate) fn draw(dir: &Path, file: &str, png: Option<Vec<u8>>) -> bool {
-    png.is_some_and(|png| nerfsv_scene::io::atomic_write_bytes(&dir.join(file), &png).is_ok())
-}
-
 /// A rate with its interval: `3.0 % [1.0, 8.5]`.
 pub(crate) fn rate_ci(value: f64, ci: [f64; 2]) -> String {
     format!("{} [{:.1}, {:.1}]", pct(value), 100.0 * ci[0], 100.0 * ci[1])

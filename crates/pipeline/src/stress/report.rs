@@ -4,45 +4,14 @@
 //! Presentation only: a stage's key digests its own module file, not this child module, so a
 //! change here redoes no stage.
 
-use std::path::Path;
-
 use nerfsv_study::stress::{
-    clearance_csv, most_likely_failure_png, other_world, read_clearance_csv, Sampler, SamplerFigures, StressFigures,
-    TransferFigures, ESTIMATE_ERRORS_PNG,
+    most_likely_failure_png, other_world, Sampler, SamplerFigures, StressFigures, TransferFigures, CLEARANCE_PNG,
+    ESTIMATE_ERRORS_PNG,
 };
 
-use crate::report::{draw, esc, estimate, mm, num, pct, proportion, rate_ci, world_label, Section, Table};
+use crate::report::{esc, estimate, mm, num, pct, proportion, rate_ci, world_label, Section, Table};
 use crate::stress::StressStage;
 use crate::{Report, ReportContext};
-
-/// The stress stage's histograms of clearance differences.
-const CLEARANCE_PNG: &str = "clearance_difference.png";
-
-/// Histograms of |clearance in NeRF-sim − in GT-sim| (mm) per sampler, per trajectory and per
-/// step, from the differences the stage wrote ([`clearance_csv`]) for the samplers that have a
-/// confusion matrix; `None` without them.
-fn clearance_figure(dir: &Path, f: &StressFigures) -> Option<Vec<u8>> {
-    let mut groups = Vec::new();
-    for s in f.samplers.iter().filter(|s| s.confusion.is_some()) {
-        let (trajectories, steps) = read_clearance_csv(&dir.join(clearance_csv(s.sampler))).ok()?;
-        let mm = |v: &[f64]| v.iter().map(|x| 1e3 * x).collect::<Vec<f64>>();
-        let name = s.sampler.name().to_uppercase();
-        groups.push(nerfsv_plot::Group { label: format!("{name}, per trajectory"), values: mm(&trajectories) });
-        groups.push(nerfsv_plot::Group { label: format!("{name}, per step"), values: mm(&steps) });
-    }
-    groups.retain(|g| !g.values.is_empty());
-    if groups.is_empty() {
-        return None;
-    }
-    let fig = nerfsv_plot::HistogramFigure {
-        title: "NeRF-sim against GT-sim: |Δ minimum clearance| on the same disturbances".into(),
-        x_title: "|clearance difference| (mm)".into(),
-        y_title: "count".into(),
-        groups,
-        bins: 30,
-    };
-    nerfsv_plot::histograms_png(&fig, 1100, 700).ok()
-}
 
 /// Each world's crash rate and each NeRF world's agreement with GT-sim, a row per world.
 fn transfer_table(t: &nerfsv_study::stress::TransferFigures) -> Table {
@@ -182,7 +151,7 @@ impl Report for StressStage<'_> {
         f.describe()
     }
 
-    fn report(f: &StressFigures, cx: &ReportContext) -> Option<Section> {
+    fn report(f: &StressFigures, _: &ReportContext) -> Option<Section> {
         let title = match f.replay_world {
             Some(_) => "Stress tests: failure probability and NeRF-sim against GT-sim",
             None => "Stress tests: failure probability (nothing replayed in another world)",
@@ -202,7 +171,7 @@ impl Report for StressStage<'_> {
         sampler_tables(&mut s, f);
         confusion_table(&mut s, f);
         estimator_errors_and_failures(&mut s, f);
-        if draw(cx.dir, CLEARANCE_PNG, clearance_figure(cx.dir, f)) {
+        if f.clearance_drawn {
             s.picture(CLEARANCE_PNG, "|clearance in NeRF-sim − in GT-sim| on the same disturbances");
         }
         s.csv(nerfsv_study::stress::TABLE_CSV, "stress_table.csv");

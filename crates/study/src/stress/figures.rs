@@ -230,6 +230,10 @@ pub struct StressFigures {
     /// with the ensemble as NeRF-sim's world (the stress stage of a run with an ensemble).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transfer: Option<TransferFigures>,
+    /// Whether [`CLEARANCE_PNG`](crate::stress::CLEARANCE_PNG) was drawn: the histograms of
+    /// |clearance in NeRF-sim − in GT-sim| of the replayed samplers, when they have any.
+    #[serde(default)]
+    pub clearance_drawn: bool,
 }
 
 /// A failure rate with its Wilson 95 % interval.

@@ -43,24 +43,6 @@ pub fn clearance_csv(sampler: Sampler) -> String {
     format!("clearance_difference_{}.csv", sampler.name())
 }
 
-/// Reads a [`clearance_csv`]: the per-trajectory and the per-step differences, metres.
-pub fn read_clearance_csv(path: &Path) -> Result<(Vec<f64>, Vec<f64>), StudyError> {
-    let text = std::fs::read_to_string(path).map_err(|e| StudyError::io(path, e))?;
-    let (mut trajectories, mut steps) = (Vec::new(), Vec::new());
-    for (i, line) in text.lines().enumerate().skip(1) {
-        let bad =
-            || StudyError::Internal(format!("{}: line {}: expected `trajectory|step,metres`", path.display(), i + 1));
-        let (per, value) = line.split_once(',').ok_or_else(bad)?;
-        let value: f64 = value.parse().map_err(|_| bad())?;
-        match per {
-            "trajectory" => trajectories.push(value),
-            "step" => steps.push(value),
-            _ => return Err(bad()),
-        }
-    }
-    Ok((trajectories, steps))
-}
-
 /// Writes a [`clearance_csv`].
 pub(super) fn write_clearance_csv(path: &Path, a: &nerfsv_validation::Agreement) -> Result<(), StudyError> {
     let mut s = String::from("per,abs_difference_m\n");

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use nerfsv_sim::{World, WorldKind};
 use nerfsv_validation::RolloutRecord;
-use nerfsv_validation::Sampler;
+use nerfsv_validation::{Agreement, Sampler};
 
 use crate::flight::{fly_and_write, FlightFigures, Sortie};
 use crate::{drone_disturbances, EstimateLog, StudyError};
@@ -95,4 +95,37 @@ pub(super) fn write_failure(
         }
     }
     Ok(replayed)
+}
+
+/// The histograms of |clearance in NeRF-sim − in GT-sim| on the same disturbances.
+pub const CLEARANCE_PNG: &str = "clearance_difference.png";
+
+/// [`CLEARANCE_PNG`] under `out`: per replayed sampler, the |clearance difference| (mm) per
+/// trajectory and per step (what [`clearance_csv`](crate::stress::clearance_csv) holds). Returns whether it was drawn: not
+/// without a difference to show.
+pub(super) fn write_clearance_png(out: &Path, agreements: &[(Sampler, Agreement)]) -> Result<bool, StudyError> {
+    let mut groups = Vec::new();
+    for (sampler, a) in agreements {
+        let mm = |v: &[f64]| v.iter().map(|x| 1e3 * x).collect::<Vec<f64>>();
+        let name = sampler.name().to_uppercase();
+        let (trajectories, steps) = (&a.clearance_difference.values, &a.step_clearance_difference.values);
+        groups.push(nerfsv_plot::Group { label: format!("{name}, per trajectory"), values: mm(trajectories) });
+        groups.push(nerfsv_plot::Group { label: format!("{name}, per step"), values: mm(steps) });
+    }
+    groups.retain(|g| !g.values.is_empty());
+    if groups.is_empty() {
+        return Ok(false);
+    }
+    let fig = nerfsv_plot::HistogramFigure {
+        title: "NeRF-sim against GT-sim: |Δ minimum clearance| on the same disturbances".into(),
+        x_title: "|clearance difference| (mm)".into(),
+        y_title: "count".into(),
+        groups,
+        bins: 30,
+    };
+    let png =
+        nerfsv_plot::histograms_png(&fig, 1100, 700).map_err(|e| StudyError::Internal(format!("plotting: {e}")))?;
+    let path = out.join(CLEARANCE_PNG);
+    nerfsv_scene::io::atomic_write_bytes(&path, &png).map_err(|e| StudyError::io(&path, e))?;
+    Ok(true)
 }

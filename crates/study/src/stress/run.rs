@@ -117,13 +117,15 @@ pub fn stress(
         csv(&replay_csv(replay_kind), rs)?;
     }
     let worlds = (search_world.as_ref(), replay_world.as_deref());
-    let mut samplers = Vec::new();
-    let mut table = Vec::new();
+    let (mut samplers, mut table, mut agreements) = (Vec::new(), Vec::new(), Vec::new());
     for (&sampler, estimate) in setup.samplers.iter().zip(estimates) {
-        let figures = sampler_figures(setup, out, sampler, estimate, &records, replays.as_deref(), worlds)?;
+        let (figures, agreement) =
+            sampler_figures(setup, out, sampler, estimate, &records, replays.as_deref(), worlds)?;
         table.extend(figures.table.iter().cloned());
         samplers.push(figures);
+        agreements.extend(agreement.map(|a| (sampler, a)));
     }
+    let clearance_drawn = write_clearance_png(out, &agreements)?;
     write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
     let estimate_errors = write_estimate_errors(out, [(setup.world, &search_log), (replay_kind, &replay_log)])?;
     let seconds = start.elapsed().as_secs_f64();
@@ -141,6 +143,7 @@ pub fn stress(
         seconds,
         rollouts_per_second: flown as f64 / seconds.max(1e-9),
         transfer: None,
+        clearance_drawn,
     };
     Ok((figures, records))
 }

@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use nerfsv_sim::{World, WorldKind};
-use nerfsv_validation::Sampler;
 use nerfsv_validation::{compare, table_row, Label, RolloutRecord, TableRow};
+use nerfsv_validation::{Agreement, Sampler};
 
 use crate::StudyError;
 
@@ -16,7 +16,8 @@ use super::search::*;
 use super::setup::*;
 
 /// One sampler's figures from the searches' `records` and their `replays` (one for one with the
-/// searched records, in order); writes its most likely failure's files. `worlds` are the
+/// searched records, in order), with its comparison against the other world when replayed;
+/// writes its most likely failure's files. `worlds` are the
 /// search's world and the other one.
 pub(super) fn sampler_figures(
     setup: &StressSetup,
@@ -26,7 +27,7 @@ pub(super) fn sampler_figures(
     records: &[RolloutRecord],
     replays: Option<&[RolloutRecord]>,
     worlds: (&dyn World, Option<&dyn World>),
-) -> Result<SamplerFigures, StudyError> {
+) -> Result<(SamplerFigures, Option<Agreement>), StudyError> {
     let mode = setup.prior.mode_step_log_pdf();
     let rows: Vec<TableRow> = match sampler {
         Sampler::Mc => vec![table_row(Label::Mc, records, mode)],
@@ -40,16 +41,16 @@ pub(super) fn sampler_figures(
         .first()
         .cloned()
         .ok_or_else(|| StudyError::Internal(format!("{}: no rollouts to tabulate", sampler.name())))?;
-    let confusion = match replays {
+    let (confusion, agreement) = match replays {
         Some(rs) if sampler.searched(setup.validation) > 0 => {
             let (ours, theirs): (Vec<RolloutRecord>, Vec<RolloutRecord>) =
                 searched(records).zip(rs).filter(|(r, _)| sampler.owns(r)).map(|(r, g)| (r.clone(), g.clone())).unzip();
             let (nerf, gt) = if setup.world == WorldKind::Nerf { (&ours, &theirs) } else { (&theirs, &ours) };
             let agreement = compare(nerf, gt).map_err(StudyError::Internal)?;
             write_clearance_csv(&out.join(clearance_csv(sampler)), &agreement)?;
-            Some(ConfusionFigures::new(&agreement))
+            (Some(ConfusionFigures::new(&agreement)), Some(agreement))
         }
-        _ => None,
+        _ => (None, None),
     };
     let mlf = nerfsv_validation::most_likely_failure(records.iter().filter(|r| sampler.owns(r)), setup.prior);
     let most_likely_failure = match mlf {
@@ -69,7 +70,7 @@ pub(super) fn sampler_figures(
         }
         None => None,
     };
-    Ok(SamplerFigures {
+    let figures = SamplerFigures {
         sampler,
         world: setup.world,
         estimator: setup.estimator,
@@ -89,5 +90,6 @@ pub(super) fn sampler_figures(
         most_likely_failure,
         confusion,
         table: rows,
-    })
+    };
+    Ok((figures, agreement))
 }

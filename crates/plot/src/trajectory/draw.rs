@@ -12,14 +12,8 @@ use crate::stroke::{self, Pen};
 use crate::text::{self, Align, Text};
 use crate::PlotError;
 
-use super::layout::{field_colour, Dash, Glyph, Layout, Marker};
-use super::{Track, TrackKind, TrajectoryFigure, CLEARANCE_RAMP_M};
-
-/// Axis title size at the reference size, pixels per em.
-pub(super) const AXIS_TITLE_PX: f64 = 13.0;
-
-/// Width of the altitude band lines at the reference size, pixels.
-pub(super) const BAND_WIDTH: f64 = 1.5;
+use super::layout::{field_colour, Dash, Glyph, Layout, Marker, AXIS_TITLE_PX, BAND_WIDTH};
+use super::types::{Track, TrackKind, TrajectoryFigure, CLEARANCE_RAMP_M};
 
 pub(super) fn draw_figure<DB: Canvas>(
     root: &DrawingArea<DB, Shift>,

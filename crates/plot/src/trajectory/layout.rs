@@ -8,8 +8,13 @@ use crate::stroke::{DashPattern, Pen};
 use crate::text;
 use crate::PlotError;
 
-use super::draw::{AXIS_TITLE_PX, BAND_WIDTH};
-use super::{TopDownView, TrajectoryFigure, CLEARANCE_RAMP_M, CLEARANCE_STEP_M, MIN_SIZE, ZOOM_MARGIN_M};
+use super::types::{TopDownView, TrajectoryFigure, CLEARANCE_RAMP_M, CLEARANCE_STEP_M, MIN_SIZE, ZOOM_MARGIN_M};
+
+/// Axis title size at the reference size, pixels per em.
+pub(super) const AXIS_TITLE_PX: f64 = 13.0;
+
+/// Width of the altitude band lines at the reference size, pixels.
+pub(super) const BAND_WIDTH: f64 = 1.5;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) enum Marker {

@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::grid::{cell_of, field_geometry, node_positions};
 use super::posterior::{data_term, density_param_count, DensityPosterior};
-use super::{
+use super::types::{
     empty_density, model_id, summarise, FieldFigures, FieldMethod, NodeValues, TrainingView, UncertaintyField,
 };
 use crate::ga::{ga_fit_samples, GaRay};

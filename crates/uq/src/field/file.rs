@@ -9,7 +9,7 @@ use nerfsv_collision::GridGeometry;
 use safetensors::tensor::Dtype;
 use safetensors::SafeTensors;
 
-use super::{FieldFigures, FieldMethod, NodeValues, UncertaintyField, FIELD_FORMAT, FIELD_FORMAT_VERSION};
+use super::types::{FieldFigures, FieldMethod, NodeValues, UncertaintyField, FIELD_FORMAT, FIELD_FORMAT_VERSION};
 use crate::UqError;
 
 impl UncertaintyField {

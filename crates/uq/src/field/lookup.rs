@@ -9,7 +9,7 @@ use nerfsv_scene::Camera;
 use rayon::prelude::*;
 
 use super::grid::{cell_of, interp, interp_masked};
-use super::{FieldMethod, UncertaintyField, BLOCK, LOOKUP_MIN_TRANSMITTANCE};
+use super::types::{FieldMethod, UncertaintyField, BLOCK, LOOKUP_MIN_TRANSMITTANCE};
 use crate::maps::UncertaintyMaps;
 
 /// Below this opacity a ray has no distance (as the renderer).

@@ -8,7 +8,7 @@ use faer::{Accum, Mat, Par, Side};
 use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::Nerf;
 
-use super::TrainingView;
+use super::types::TrainingView;
 use crate::{UqConfig, UqError};
 
 /// Rows of `J` per product into the data term (a multiple of 3: one ray's R, G, B rows).

@@ -2,8 +2,8 @@
 
 use std::fmt::Write as _;
 
-use super::{Fit, Method, Row};
-use crate::GaExclusion;
+use super::rows::{Fit, Row};
+use crate::{GaExclusion, Method};
 
 /// A CSV field, quoted when it holds a separator, a quote or a line break.
 pub fn csv_field(s: &str) -> String {

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use nerfsv_dataset::Split;
 use nerfsv_nerf::Nerf;
 
-use super::{reference, Method, BACKGROUND};
-use crate::{FieldMethod, TrainingView, UncertaintyField, UqConfig, UqError};
+use super::rows::{reference, BACKGROUND};
+use crate::{FieldMethod, Method, TrainingView, UncertaintyField, UqConfig, UqError};
 
 /// Altitude of the slice picture, metres (the drone flies at 0.15–0.5 m).
 pub const FIELD_SLICE_ALTITUDE: f32 = 0.3;

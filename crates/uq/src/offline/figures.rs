@@ -5,8 +5,9 @@ use nerfsv_dataset::Frame;
 use nerfsv_nerf::Nerf;
 use nerfsv_plot::{Group, HistogramFigure, PointGroup, ScatterFigure};
 
-use super::{fit_with_depth_uncertainty, Fit, Method, Row, BACKGROUND};
-use crate::{depth_errors, UqConfig, UqError};
+use super::fit::fit_with_depth_uncertainty;
+use super::rows::{Fit, Row, BACKGROUND};
+use crate::{depth_errors, Method, UqConfig, UqError};
 
 /// A figure of a method.
 pub enum Figure {

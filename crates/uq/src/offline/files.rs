@@ -5,8 +5,8 @@ use std::path::Path;
 
 use super::csv::{csv, csv_name};
 use super::figures::{figures, Figure};
-use super::{Method, Row, FIGURE};
-use crate::{UqConfig, UqError};
+use super::rows::{Row, FIGURE};
+use crate::{Method, UqConfig, UqError};
 
 /// A method's offline files, in memory: its rows ([`csv_name`]) and its figures
 /// ([`figure_files`]).

@@ -5,10 +5,10 @@ use nerfsv_nerf::render::camera_rays;
 use nerfsv_nerf::{Nerf, RayInput};
 use serde::Serialize;
 
-use super::{reference, stride, BlaRow, Fit, GaRow, Method, Row, BACKGROUND};
+use super::rows::{reference, stride, BlaRow, Fit, GaRow, Row, BACKGROUND};
 use crate::{
     bla_image, bla_maps, depth_errors, ga_fit_samples, ga_image, ga_maps_from_samples, mean_ause, sparsification,
-    Sparsification, UqConfig, UqError,
+    Method, Sparsification, UqConfig, UqError,
 };
 
 /// The fit of `method` to `rays` and their reference colours `refs`; an image whose rays all

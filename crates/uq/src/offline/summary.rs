@@ -7,7 +7,8 @@ use std::path::Path;
 use nerfsv_scene::stats::median;
 use serde::Serialize;
 
-use super::{BlaRow, Fit, GaRow, Method, Row};
+use super::rows::{BlaRow, Fit, GaRow, Row};
+use crate::Method;
 
 /// A split's summary (GA fields or BLA fields).
 #[derive(Clone, Debug, PartialEq, Serialize)]

@@ -149,7 +149,10 @@ pub fn render_dataset(
     guard.check().map_err(py_err)?;
     let world = scene_of(scene, mesh.as_deref())?;
     let figures = py
-        .detach(|| nerfsv_pipeline::stages::render_dataset(&world, &out, &opts, &|_, _| {}).map_err(Box::new))
+        .detach(|| {
+            nerfsv_dataset::render(&world, &out, &opts, &|_, _| {})
+                .map_err(|e| format!("writing dataset {}: {e}", out.display()))
+        })
         .map_err(py_err)?;
     crate::to_json(&figures)
 }

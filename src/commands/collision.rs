@@ -5,7 +5,6 @@ use nerfsv_collision::{
     build_ground_truth, check_cells_per_metre, check_grid_memory, field_bounds, scene_field, GridGeometry, SdfGrid,
 };
 use nerfsv_nerf::Nerf;
-use nerfsv_pipeline::stages::build_nerf_field;
 use nerfsv_pipeline::Guard;
 use nerfsv_scene::{Aabb, Scene};
 
@@ -91,8 +90,15 @@ pub fn run(args: CollisionArgs) -> anyhow::Result<()> {
                     (geometry, scene.map(|scene| scene_field(&scene, geometry).1))
                 }
             };
-            let figures =
-                build_nerf_field(&nerf, geometry, args.density_threshold, reference.as_ref(), &args.out, mesh)?;
+            let density = |points: &[nalgebra::Point3<f32>], out: &mut [f32]| nerf.density_into(points, out);
+            let figures = nerfsv_collision::build_model_field(
+                geometry,
+                args.density_threshold,
+                density,
+                reference.as_ref(),
+                &args.out,
+                mesh,
+            )?;
             serde_json::to_value(figures)?
         }
     };

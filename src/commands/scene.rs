@@ -1,8 +1,8 @@
 use std::path::PathBuf;
 
+use anyhow::Context;
 use clap::Args;
 use nerfsv_dataset::GenerateOptions;
-use nerfsv_pipeline::stages::render_dataset;
 use nerfsv_pipeline::Observer;
 
 use crate::commands::world::WorldArgs;
@@ -94,9 +94,10 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
     guard.check()?;
     let scene = args.world.load()?;
     let reporter = Reporter::new(args.json);
-    let figures = render_dataset(&scene, &args.out, &args.options(), &|done, total| {
+    let figures = nerfsv_dataset::render(&scene, &args.out, &args.options(), &|done, total| {
         reporter.progress("scene", done as u64, total as u64, "views rendered")
-    })?;
+    })
+    .with_context(|| format!("writing dataset {}", args.out.display()))?;
     crate::commands::report(args.json, &figures, || {
         format!("wrote {} ({} views) in {:.1} s", args.out.display(), figures.views, figures.seconds)
     })

@@ -9,6 +9,7 @@ use nerfsv_scene::validate::{bytes_for, in_range, InvalidValue, MemoryBudget};
 use nerfsv_scene::{Camera, Intrinsics, RenderSettings, Scene};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
 
 use crate::error::DatasetError;
 use crate::writer::{write_split, FrameToWrite};
@@ -178,6 +179,41 @@ fn close_up_camera(rng: &mut ChaCha8Rng, scene: &Scene, k: Intrinsics) -> Camera
     let pitch = rng.random_range(-25.0f32..5.0).to_radians();
     let dir = Vector3::new(pitch.cos() * yaw.cos(), pitch.cos() * yaw.sin(), pitch.sin());
     Camera::look_at(eye, eye + dir, Vector3::z(), k)
+}
+
+/// What rendering a dataset reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetFigures {
+    /// The scene's name, or the folder a dataset was read from.
+    pub scene: String,
+    pub views: usize,
+    pub width: u32,
+    pub height: u32,
+    pub seconds: f64,
+    /// Primary rays (supersamples included) rendered per second; 0 for a dataset read, not rendered.
+    pub primary_rays_per_second: f64,
+}
+
+/// [`generate`], timed: the dataset's figures.
+pub fn render(
+    scene: &Scene,
+    out: &Path,
+    opts: &GenerateOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<DatasetFigures, DatasetError> {
+    let start = std::time::Instant::now();
+    generate(scene, out, opts, progress)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let views = opts.train + opts.val + opts.test;
+    let rays = views as f64 * (opts.width * opts.height) as f64 * (opts.supersample * opts.supersample) as f64;
+    Ok(DatasetFigures {
+        scene: scene.name.clone(),
+        views,
+        width: opts.width,
+        height: opts.height,
+        seconds,
+        primary_rays_per_second: rays / seconds.max(1e-9),
+    })
 }
 
 /// Renders every split of `scene` into the dataset folder `out`.

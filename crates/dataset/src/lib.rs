@@ -32,7 +32,7 @@ pub mod writer;
 pub use distortion::OpenCvDistortion;
 pub use error::DatasetError;
 pub use folder::{dataset_files, dataset_format, has_split, load_split, probe, DatasetFormat};
-pub use generate::{generate, sample_cameras, GenerateOptions};
+pub use generate::{generate, render, sample_cameras, DatasetFigures, GenerateOptions};
 pub use nerfsv_scene::image::{DepthImage, Image};
 pub use placement::Placement;
 pub use split::{Frame, LoadOptions, Split};

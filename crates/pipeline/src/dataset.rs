@@ -66,38 +66,18 @@ impl DatasetFolder {
     }
 }
 
-/// What the dataset stage reports.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct DatasetFigures {
-    pub scene: String,
-    pub views: usize,
-    pub width: u32,
-    pub height: u32,
-    pub seconds: f64,
-    pub primary_rays_per_second: f64,
-}
+pub use nerfsv_dataset::DatasetFigures;
 
-/// Renders `scene` into the dataset folder `out`, reporting progress per view.
-pub fn render_dataset(
+/// Renders `scene` into the dataset folder `out` ([`nerfsv_dataset::render`]), naming the folder
+/// in the error.
+fn render_dataset(
     scene: &Scene,
     out: &Path,
     opts: &GenerateOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<DatasetFigures, PipelineError> {
-    let start = Instant::now();
-    nerfsv_dataset::generate(scene, out, opts, progress)
-        .map_err(|e| PipelineError::Dataset { context: format!("writing dataset {}", out.display()), error: e })?;
-    let seconds = start.elapsed().as_secs_f64();
-    let views = opts.train + opts.val + opts.test;
-    let rays = views as f64 * (opts.width * opts.height) as f64 * (opts.supersample * opts.supersample) as f64;
-    Ok(DatasetFigures {
-        scene: scene.name.clone(),
-        views,
-        width: opts.width,
-        height: opts.height,
-        seconds,
-        primary_rays_per_second: rays / seconds.max(1e-9),
-    })
+    nerfsv_dataset::render(scene, out, opts, progress)
+        .map_err(|e| PipelineError::Dataset { context: format!("writing dataset {}", out.display()), error: e })
 }
 
 impl Dataset<'_> {

@@ -32,7 +32,7 @@ impl NerfField {
 /// The NeRF's collision field on `geometry` ([`nerfsv_collision::build_model_field`] of its
 /// density), with its agreement with `reference` when given; written to `sdf_path` (and the mesh
 /// to `mesh_path`).
-pub fn build_nerf_field(
+pub(crate) fn build_nerf_field(
     nerf: &Nerf,
     geometry: nerfsv_collision::GridGeometry,
     density_threshold: Option<f32>,

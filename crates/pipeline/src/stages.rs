@@ -4,7 +4,7 @@
 //! import directly, so that a stage's key covers only the stages it reaches.
 
 pub use crate::collision::GroundTruthField;
-pub use crate::dataset::{dataset_digest, load_dataset_split, render_dataset, Dataset, DatasetFigures, DatasetSource};
+pub use crate::dataset::{dataset_digest, load_dataset_split, Dataset, DatasetFigures, DatasetSource};
 pub use crate::eval::{Eval, EvalFigures};
 pub use crate::nerf::{train_status, Train};
-pub use crate::nerf_collision::{build_nerf_field, nerf_field_geometry, NerfField};
+pub use crate::nerf_collision::{nerf_field_geometry, NerfField};

@@ -31,7 +31,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use nerfsv_pipeline::stages::{GroundTruthField, NerfField, Train};
+use nerfsv_pipeline::stages::{CollisionStage, NerfCollisionStage, NerfStage};
 use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{so3_exp, so3_log};
@@ -113,9 +113,9 @@ fn main() -> anyhow::Result<()> {
     }
     let scene = Scene::builtin(&cfg.scene)?;
     let inputs = FlightInputs::load(
-        &std::env::var("CHECKPOINT").map_or_else(|_| Train::checkpoint(&out), PathBuf::from),
-        &out.join(NerfField::NAME).join(NerfField::SDF),
-        Some(&GroundTruthField::sdf_path(&out)),
+        &std::env::var("CHECKPOINT").map_or_else(|_| NerfStage::checkpoint(&out), PathBuf::from),
+        &out.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
+        Some(&CollisionStage::sdf_path(&out)),
     )?;
     let flight = inputs.plan(&cfg.sim)?;
     let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());

@@ -35,7 +35,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use nerfsv_pipeline::stages::{GroundTruthField, NerfField, Train};
+use nerfsv_pipeline::stages::{CollisionStage, NerfCollisionStage, NerfStage};
 use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::{EstimatorKind, WorldKind};
@@ -100,9 +100,9 @@ fn main() -> anyhow::Result<()> {
     let cfg = RunConfig { out: Some(out.clone()), ..RunConfig::default() };
     let scene = Scene::builtin(&cfg.scene)?;
     let inputs = FlightInputs::load(
-        &Train::checkpoint(&out),
-        &out.join(NerfField::NAME).join(NerfField::SDF),
-        Some(&GroundTruthField::sdf_path(&out)),
+        &NerfStage::checkpoint(&out),
+        &out.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
+        Some(&CollisionStage::sdf_path(&out)),
     )?;
     let flight = inputs.plan(&cfg.sim)?;
     let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());

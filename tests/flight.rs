@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use nalgebra::Vector3;
-use nerfsv_pipeline::stages::{Dataset, DatasetSource, GroundTruthField, NerfField, Train};
+use nerfsv_pipeline::stages::{CollisionStage, DatasetSource, DatasetStage, NerfCollisionStage, NerfStage};
 use nerfsv_pipeline::{RunConfig, Runner, Silent, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{rotation_error, so3_exp};
@@ -40,14 +40,14 @@ fn default_run() -> &'static DefaultRun {
         let scene = Scene::builtin(&cfg.scene).unwrap();
         let settings = cfg.nerf_settings();
         let mut r = Runner::new(&out, &Silent).unwrap();
-        r.run(&Dataset { source: DatasetSource::Render { scene: &scene, options: &cfg.dataset } }).unwrap();
-        r.run(&GroundTruthField { scene: &scene, cells_per_metre: cfg.cells_per_metre }).unwrap();
-        r.run(&Train { settings: &settings, steps: cfg.train_steps }).unwrap();
-        r.run(&NerfField { density_threshold: cfg.nerf_density_threshold, own_grid: None }).unwrap();
+        r.run(&DatasetStage { source: DatasetSource::Render { scene: &scene, options: &cfg.dataset } }).unwrap();
+        r.run(&CollisionStage { scene: &scene, cells_per_metre: cfg.cells_per_metre }).unwrap();
+        r.run(&NerfStage { settings: &settings, steps: cfg.train_steps }).unwrap();
+        r.run(&NerfCollisionStage { density_threshold: cfg.nerf_density_threshold, own_grid: None }).unwrap();
         let inputs = FlightInputs::load(
-            &Train::checkpoint(&out),
-            &out.join(NerfField::NAME).join(NerfField::SDF),
-            Some(&GroundTruthField::sdf_path(&out)),
+            &NerfStage::checkpoint(&out),
+            &out.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
+            Some(&CollisionStage::sdf_path(&out)),
         )
         .unwrap();
         let flight = inputs.plan(&cfg.sim).unwrap();

@@ -217,3 +217,56 @@ fn every_stage_run_only_orchestrates() {
     assert!(stages >= 10, "only {stages} stage modules found");
     assert!(bad.is_empty(), "{}", bad.join("\n"));
 }
+
+/// One name per stage: its struct is `{Folder}Stage` (`nerf_collision` → `NerfCollisionStage`),
+/// its module file is named after its folder, and its report section's id is its folder.
+#[test]
+fn every_stage_has_one_name() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut bad = Vec::new();
+    let mut stages = 0;
+    for file in sources(root, "crates/pipeline/src") {
+        let whole = std::fs::read_to_string(root.join(&file)).unwrap();
+        // Code only: a doc example's stage is not one of the pipeline's.
+        let text: String = whole
+            .lines()
+            .take(lines_before_tests(&whole))
+            .filter(|l| !l.trim_start().starts_with("//"))
+            .flat_map(|l| [l, "\n"])
+            .collect();
+        let Some(at) = text.find("impl Stage for ") else { continue };
+        stages += 1;
+        let rest = &text[at + "impl Stage for ".len()..];
+        let name: String = rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+        let folder = match text.find("const NAME: &'static str = \"") {
+            Some(i) => text[i + "const NAME: &'static str = \"".len()..].split('"').next().unwrap().to_string(),
+            // A stage whose name is a library's constant (the stress stage's `STAGE`).
+            None => file.file_stem().unwrap().to_string_lossy().into_owned(),
+        };
+        let camel: String = folder.split('_').map(|w| w[..1].to_uppercase() + &w[1..]).collect::<Vec<_>>().join("");
+        let want = format!("{camel}Stage");
+        if name != want {
+            bad.push(format!("{}: stage `{name}` writes folder `{folder}`: name it `{want}`", file.display()));
+        }
+        if file.file_stem().unwrap().to_string_lossy() != folder {
+            bad.push(format!(
+                "{}: stage `{name}` writes folder `{folder}`: name its module `{folder}.rs`",
+                file.display()
+            ));
+        }
+        let report = file.with_extension("").join("report.rs");
+        if let Ok(r) = std::fs::read_to_string(root.join(&report)) {
+            for (i, _) in r.match_indices("Section::new(") {
+                let id = &r[i + "Section::new(".len()..];
+                if !id.trim_start().starts_with(&format!("{name}::NAME")) && !id.trim_start().starts_with("<") {
+                    bad.push(format!(
+                        "{}: a section of stage `{name}` is not identified by `{name}::NAME`",
+                        report.display()
+                    ));
+                }
+            }
+        }
+    }
+    assert!(stages >= 10, "only {stages} stage modules found");
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}

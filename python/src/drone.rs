@@ -2,7 +2,7 @@
 //! by an executor (the Ray driver in `nerfsv/distributed.py`), and the worker side of that
 //! executor.
 //!
-//! A distributed search is `nerfsv stress` itself ([`run_stress`]): the samplers, the journal,
+//! A distributed search is `nerfsv stress` itself ([`search_into`]): the samplers, the journal,
 //! the records and every output file are the driver's; only the rollouts fly on workers, each
 //! of which rebuilds the same drone from a *context* (the model, the fields' sources and the
 //! config as bytes, [`stress_context`]) and returns exactly what the driver would have computed
@@ -14,15 +14,15 @@ use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use nerfsv_pipeline::stress::{run_stress, StressRequest};
+use nerfsv_pipeline::stress::search_key;
 use nerfsv_pipeline::{RunConfig, Silent};
 use nerfsv_scene::mesh::MeshOptions;
 use nerfsv_scene::Scene;
 use nerfsv_sim::io::MAX_PRIOR_SIGMAS;
 use nerfsv_sim::{check_component, Disturbance, EstimatorKind, Flight, WorldKind, DISTURBANCE_COLUMNS};
-use nerfsv_study::flight::{world as world_of, FlightInputs, FlightRequest};
+use nerfsv_study::flight::{world as world_of, FlightInputs, FlightRequest, Mission};
 use nerfsv_study::remote::{decode_job, encode_result, RemoteRollouts, RemoteSpec, Returned};
-use nerfsv_study::stress::{OnlineSettings, Sampler, SearchSettings};
+use nerfsv_study::stress::{search_into, OnlineSettings, Sampler, StressSetup};
 use nerfsv_study::{drone_disturbances, DroneSystem, EstimateLog, UqMode};
 use nerfsv_uq::{Method, UncertaintyField};
 use nerfsv_validation::{System, Trajectory, ValidationError};
@@ -276,32 +276,27 @@ pub fn stress(
     let worlds =
         py.detach(|| FlightInputs::from_files(model, nerf_field.as_deref(), &ground_truth, 40.0)).map_err(py_err)?;
     checkpoint.check(&worlds.nerf)?;
-    let figures = py
-        .detach(|| -> Result<_, Box<nerfsv_pipeline::PipelineError>> {
-            run_stress(
-                &StressRequest {
-                    config: &cfg,
-                    scene: &ground_truth,
-                    inputs: &worlds,
-                    model,
-                    nerf_field: nerf_field.as_deref(),
-                    search: SearchSettings {
-                        world: kind,
-                        estimator: est,
-                        sampler,
-                        replay,
-                        online,
-                        field: uq_field.as_ref().map(|(p, f)| (*p, f)),
-                        out: &out,
-                        resume,
-                        remote: remote.as_ref().map(|r| r as &dyn RemoteRollouts),
-                    },
-                },
-                &Silent,
-            )
-            .map_err(Box::new)
-        })
-        .map_err(py_err)?;
+    let drone = cfg.drone(Some(&ground_truth));
+    let flight = worlds.plan(drone.sim).map_err(py_err)?;
+    let prior = cfg.disturbance_prior().map_err(py_err)?;
+    let samplers = [sampler];
+    let setup = StressSetup {
+        world: kind,
+        estimator: est,
+        replay,
+        online,
+        field: uq_field.as_ref().map(|(p, f)| (*p, f)),
+        remote: remote.as_ref().map(|r| r as &dyn RemoteRollouts),
+        ..StressSetup::new(
+            Mission { drone, inputs: &worlds, flight: &flight },
+            &cfg.validation,
+            &prior,
+            &samplers,
+            &cfg.uq,
+        )
+    };
+    let key = search_key(&setup, model, nerf_field.as_deref()).map_err(py_err)?;
+    let figures = py.detach(|| search_into(&setup, &out, resume, &key, &Silent)).map_err(py_err)?;
     claimed.keep();
     to_json(&figures)
 }

@@ -6,10 +6,10 @@ use std::sync::Arc;
 
 use nalgebra::{Matrix4, Point3};
 use nerfsv_collision::SdfGrid;
+use nerfsv_dataset::load_linked_split;
 use nerfsv_dataset::Frame;
 use nerfsv_nerf::{Budget, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
-use nerfsv_pipeline::stages::load_dataset_split;
 use nerfsv_scene::{Camera, DepthImage, Image, Intrinsics};
 use nerfsv_study::flight::FlightInputs;
 use nerfsv_uq::offline::{fit_frame, Fit};
@@ -317,7 +317,7 @@ pub fn train(
     let guard =
         nerfsv_pipeline::Guard::new().dataset("data", &data).folder("out", &out, nerfsv_pipeline::OutputKind::Training);
     guard.check().map_err(py_err)?;
-    let split = py.detach(|| load_dataset_split(&data, "train", 1).map_err(Box::new)).map_err(py_err)?;
+    let split = py.detach(|| load_linked_split(&data, "train", 1)).map_err(py_err)?;
     let claimed = guard.claim().map_err(py_err)?;
     let mut failed: Option<PyErr> = None;
     let trained = py.detach(|| {

@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
+use nerfsv_dataset::load_linked_split;
 use nerfsv_dataset::Split;
-use nerfsv_nerf::{evaluate_with_progress, render_split, Budget, EvalOptions, Nerf};
+use nerfsv_nerf::{evaluate_with_progress, render_split, Budget, EvalFigures, EvalOptions, Nerf};
 use nerfsv_pipeline::config::MAX_TRAIN_STEPS;
-use nerfsv_pipeline::stages::{load_dataset_split, train_status, EvalFigures};
 use nerfsv_pipeline::{Guard, Observer, OutputKind};
 use nerfsv_scene::validate::{in_range, positive};
 
@@ -70,7 +70,7 @@ impl ModelOnData {
     /// Loads the model and the split, and checks that the split's cameras see the model's box.
     fn load(&self) -> anyhow::Result<(Nerf, Split)> {
         let nerf = Nerf::load(&self.model)?;
-        let split = load_dataset_split(&self.data, &self.split, self.downscale)?;
+        let split = load_linked_split(&self.data, &self.split, self.downscale)?;
         nerfsv_nerf::check_bounds(&nerf.config, &split)?;
         Ok((nerf, split))
     }
@@ -123,7 +123,7 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         OutputKind::Training,
     );
     guard.check()?;
-    let data = load_dataset_split(&args.data, "train", args.downscale)?;
+    let data = load_linked_split(&args.data, "train", args.downscale)?;
     // A failed training leaves no folder it made (a divergence keeps the checkpoint it had
     // written, so the folder stays if it holds anything but the marker).
     let claimed = guard.claim()?;
@@ -134,7 +134,7 @@ pub fn run_train(args: TrainArgs) -> anyhow::Result<()> {
             Budget::Steps(n) => (p.step, n),
             Budget::Seconds(t) => (p.elapsed_s as u64, t.ceil() as u64),
         };
-        reporter.progress("training", done, total, &train_status(p));
+        reporter.progress("training", done, total, &p.status());
     };
     let trained = nerfsv_nerf::train(&data, &args.out, budget, args.resume, s.nerf, s.train, &mut show);
     let (_, stats) = trained.with_context(|| format!("training into {}", args.out.display()))?;

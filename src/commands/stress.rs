@@ -1,9 +1,10 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use nerfsv_pipeline::stress::{run_stress, StressRequest};
+use nerfsv_pipeline::stress::search_key;
 use nerfsv_pipeline::{Guard, OutputKind};
-use nerfsv_study::stress::{journal_dir, OnlineSettings, Sampler, SearchSettings};
+use nerfsv_study::flight::Mission;
+use nerfsv_study::stress::{journal_dir, search_into, OnlineSettings, Sampler, StressSetup};
 use nerfsv_study::UqMode;
 use nerfsv_uq::{Method, UncertaintyField};
 use nerfsv_validation::Journal;
@@ -90,28 +91,27 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let (scene, worlds) = d.load()?;
     let field = args.field.as_deref().map(|p| UncertaintyField::load(p).map(|f| (p, f))).transpose()?;
     let reporter = crate::progress::Reporter::new(args.json);
+    let drone = cfg.drone(Some(&scene));
+    let flight = worlds.plan(drone.sim)?;
+    let prior = cfg.disturbance_prior()?;
+    let samplers = [args.sampler];
+    let setup = StressSetup {
+        world: d.world,
+        estimator: d.estimator,
+        replay: args.replay,
+        online,
+        field: field.as_ref().map(|(p, f)| (*p, f)),
+        ..StressSetup::new(
+            Mission { drone, inputs: &worlds, flight: &flight },
+            &cfg.validation,
+            &prior,
+            &samplers,
+            &cfg.uq,
+        )
+    };
+    let key = search_key(&setup, &d.model, d.nerf_field.as_deref())?;
     let claimed = guard.claim()?;
-    let figures = run_stress(
-        &StressRequest {
-            config: &cfg,
-            scene: &scene,
-            inputs: &worlds,
-            model: &d.model,
-            nerf_field: d.nerf_field.as_deref(),
-            search: SearchSettings {
-                world: d.world,
-                estimator: d.estimator,
-                sampler: args.sampler,
-                replay: args.replay,
-                online,
-                field: field.as_ref().map(|(p, f)| (*p, f)),
-                out: &args.out,
-                resume: args.resume,
-                remote: None,
-            },
-        },
-        &reporter,
-    )?;
+    let figures = search_into(&setup, &args.out, args.resume, &key, &reporter)?;
     claimed.keep();
     let one = &figures.samplers[0];
     crate::commands::report(args.json, one, || figures.describe())

@@ -23,6 +23,9 @@ pub enum DatasetError {
     /// another kind of nerfsv folder, a file, …).
     #[error(transparent)]
     Folder(Box<nerfsv_scene::folder::FolderError>),
+    /// A split of a dataset folder could not be loaded ([`crate::load_linked_split`]).
+    #[error("loading the {split} split of {}: {error}", folder.display())]
+    Split { split: String, folder: PathBuf, error: Box<DatasetError> },
 }
 
 impl From<nerfsv_scene::folder::FolderError> for DatasetError {

@@ -96,7 +96,7 @@ pub use error::NerfError;
 pub use fields::RayInput;
 pub use jacobian::RayJacobians;
 pub use memory::{check_training_memory, training_memory_bytes};
-pub use metrics::{evaluate, evaluate_with_progress, psnr, ssim, EvalOptions, EvalReport, ImageMetrics};
+pub use metrics::{evaluate, evaluate_with_progress, psnr, ssim, EvalFigures, EvalOptions, EvalReport, ImageMetrics};
 pub use model::{Nerf, RayOutputs};
 pub use param_jacobian::{RaySamples, SigmaNetJacobians};
 pub use render::{comparison_image, render_split, RenderedView};

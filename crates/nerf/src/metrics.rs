@@ -95,6 +95,29 @@ pub struct EvalReport {
     pub per_image: Vec<ImageMetrics>,
 }
 
+/// What an evaluation reports without its per-image rows (`nerfsv run`'s eval stage, `nerfsv
+/// nerf eval --json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalFigures {
+    pub psnr: f64,
+    pub ssim: f64,
+    pub depth_median_abs_err_m: Option<f64>,
+    pub images: usize,
+    pub background: [f32; 3],
+}
+
+impl From<&EvalReport> for EvalFigures {
+    fn from(r: &EvalReport) -> Self {
+        Self {
+            psnr: r.psnr,
+            ssim: r.ssim,
+            depth_median_abs_err_m: r.depth_median_abs_err_m,
+            images: r.images,
+            background: r.background,
+        }
+    }
+}
+
 /// Options of [`evaluate`].
 #[derive(Clone, Copy, Debug)]
 pub struct EvalOptions {
@@ -149,20 +172,15 @@ pub fn evaluate_with_progress(
         let gt: Vec<f32> =
             f.image.rgba.chunks_exact(4).flat_map(|p| [0, 1, 2].map(|c| p[c] * p[3] + bg[c] * (1.0 - p[3]))).collect();
         let depth_err = f.depth.and_then(|d| {
-            let mut errs: Vec<f32> = d
+            let errs: Vec<f64> = d
                 .metres
                 .iter()
                 .zip(&v.depth)
                 .zip(&v.opacity)
                 .filter(|((&g, _), &o)| g > 0.0 && o > 0.5)
-                .map(|((&g, &p), _)| (p - g).abs())
+                .map(|((&g, &p), _)| f64::from((p - g).abs()))
                 .collect();
-            if errs.is_empty() {
-                return None;
-            }
-            errs.sort_by(f32::total_cmp);
-            let k = errs.len();
-            Some(if k % 2 == 1 { errs[k / 2] as f64 } else { 0.5 * (errs[k / 2 - 1] + errs[k / 2]) as f64 })
+            nerfsv_scene::stats::median(errs)
         });
         per_image.push(ImageMetrics {
             index: i,

@@ -422,6 +422,21 @@ pub struct Progress {
     pub checkpointed: bool,
 }
 
+impl Progress {
+    /// The status line of a training step, as the progress bars show it.
+    pub fn status(&self) -> String {
+        format!(
+            "step {:>5} loss {:.5} psnr {:5.2} dB {:>6.0} rays/s {:>4.1} spr{}",
+            self.step,
+            self.loss,
+            self.psnr,
+            self.rays_per_s,
+            self.samples_per_ray,
+            if self.checkpointed { " [saved]" } else { "" }
+        )
+    }
+}
+
 /// The file beside a checkpoint with its run's [`TrainStats`], wall-clock figures included.
 pub fn train_stats_path(checkpoint: &Path) -> PathBuf {
     checkpoint.with_file_name("train_stats.json")

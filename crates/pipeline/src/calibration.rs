@@ -15,14 +15,15 @@ use nerfsv_study::calibration::{
 use nerfsv_study::flight::{Calibration, Drone, Mission};
 use serde::Serialize;
 
-use crate::collision::GroundTruthField;
-use crate::dataset::{load_dataset_split, Dataset};
+use crate::collision::CollisionStage;
+use crate::dataset::DatasetStage;
 use crate::ensemble::EnsembleStage;
 use crate::flight::flight_inputs;
-use crate::nerf::Train;
-use crate::nerf_collision::NerfField;
+use crate::nerf::NerfStage;
+use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::{Stage, StageContext};
 use crate::PipelineError;
+use nerfsv_dataset::load_linked_split;
 
 /// The calibration stage.
 pub struct CalibrationStage<'a> {
@@ -55,13 +56,13 @@ impl Stage for CalibrationStage<'_> {
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::VIEWS_CSV, Self::MODEL_JSON, Self::ROUTE_PNG];
     const INPUTS: &'static [&'static str] =
-        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME];
+        &[DatasetStage::NAME, CollisionStage::NAME, NerfStage::NAME, NerfCollisionStage::NAME, EnsembleStage::NAME];
     type Figures = CalibrationFigures;
 
     fn inputs(&self) -> &'static [&'static str] {
         match self.drone.scene.is_some() {
             true => Self::INPUTS,
-            false => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
+            false => &[DatasetStage::NAME, NerfStage::NAME, NerfCollisionStage::NAME, EnsembleStage::NAME],
         }
     }
 
@@ -86,7 +87,7 @@ impl Stage for CalibrationStage<'_> {
         inputs.members = crate::members::load_members(cx.root)?;
         let flight = inputs.plan(self.drone.sim)?;
         let split = match self.perception.held_out_split {
-            true => Some(load_dataset_split(&cx.input_dir(Dataset::NAME), "test", 1)?),
+            true => Some(load_linked_split(&cx.input_dir(DatasetStage::NAME), "test", 1)?),
             false => None,
         };
         let request = CalibrationRequest {

@@ -13,12 +13,12 @@ use crate::PipelineError;
 
 /// The scene's signed collision field and surface: `RUN/collision/gt_sdf.safetensors`,
 /// `gt_mesh.ply`.
-pub struct GroundTruthField<'a> {
+pub struct CollisionStage<'a> {
     pub scene: &'a Scene,
     pub cells_per_metre: f32,
 }
 
-impl GroundTruthField<'_> {
+impl CollisionStage<'_> {
     pub const SDF: &'static str = "gt_sdf.safetensors";
     pub const MESH: &'static str = "gt_mesh.ply";
 
@@ -28,7 +28,7 @@ impl GroundTruthField<'_> {
     }
 }
 
-impl Stage for GroundTruthField<'_> {
+impl Stage for CollisionStage<'_> {
     const NAME: &'static str = "collision";
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];

@@ -6,38 +6,17 @@ mod report;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nerfsv_dataset::{load_split, GenerateOptions, LoadOptions, Placement, Split};
+use nerfsv_dataset::{load_linked_split, GenerateOptions, LinkedFolder, Placement, LINK_FILE};
 use nerfsv_scene::Scene;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::stage::{write_json, Stage, StageContext};
 use crate::PipelineError;
 
-/// Loads a split of a dataset folder, naming the folder in the error. `dir` is a dataset
-/// folder ([`nerfsv_dataset::load_split`]'s formats) or a run's dataset stage folder
-/// ([`Dataset::folder`]): the dataset rendered there, or the user's folder its `source.json`
-/// names, with that dataset's poses placed in the world as the run's `[world]` table placed them.
-pub fn load_dataset_split(dir: &Path, split: &str, downscale: u32) -> Result<Split, PipelineError> {
-    let source = dir.join(Dataset::SOURCE);
-    let (folder, placement) = match nerfsv_dataset::dataset_format(dir).is_none() && source.is_file() {
-        true => {
-            let f = DatasetFolder::read(&source)?;
-            (f.folder, f.placement)
-        }
-        false => (dir.to_path_buf(), Placement::default()),
-    };
-    let mut s =
-        load_split(&folder, split, LoadOptions { downscale, load_depth: true, ..Default::default() }).map_err(|e| {
-            PipelineError::Dataset { context: format!("loading the {split} split of {}", folder.display()), error: e }
-        })?;
-    placement.place(&mut s);
-    Ok(s)
-}
-
 /// The dataset the NeRF learns from: the scene's Blender-format dataset rendered into
 /// `RUN/dataset/`, or a user's folder used as is (`RUN/dataset/source.json` names it and where
 /// its poses lie in the world).
-pub struct Dataset<'a> {
+pub struct DatasetStage<'a> {
     pub source: DatasetSource<'a>,
 }
 
@@ -48,22 +27,6 @@ pub enum DatasetSource<'a> {
     /// A dataset folder (any format [`nerfsv_dataset::load_split`] reads), read where it is,
     /// its poses placed in the world by `placement`.
     Folder { folder: &'a Path, placement: Placement },
-}
-
-/// `RUN/dataset/source.json`: the folder a run's dataset is read from, and where its poses lie
-/// in the world (absent: as they are).
-#[derive(Serialize, Deserialize)]
-struct DatasetFolder {
-    folder: PathBuf,
-    #[serde(default, skip_serializing_if = "Placement::is_identity")]
-    placement: Placement,
-}
-
-impl DatasetFolder {
-    fn read(source: &Path) -> Result<Self, PipelineError> {
-        let text = std::fs::read_to_string(source).map_err(|e| PipelineError::io(source, e))?;
-        serde_json::from_str(&text).map_err(|e| PipelineError::Internal(format!("{}: {e}", source.display())))
-    }
 }
 
 pub use nerfsv_dataset::DatasetFigures;
@@ -80,18 +43,18 @@ fn render_dataset(
         .map_err(|e| PipelineError::Dataset { context: format!("writing dataset {}", out.display()), error: e })
 }
 
-impl Dataset<'_> {
-    /// The file naming a user's dataset folder.
-    pub const SOURCE: &'static str = "source.json";
+impl DatasetStage<'_> {
+    /// The file naming a user's dataset folder ([`nerfsv_dataset::LinkedFolder`]).
+    pub const SOURCE: &'static str = LINK_FILE;
 
-    /// The folder [`load_dataset_split`] reads run `root`'s dataset from: `RUN/dataset/`, which
+    /// The folder [`load_linked_split`] reads run `root`'s dataset from: `RUN/dataset/`, which
     /// holds the rendered dataset or names the user's folder and its placement.
     pub fn folder(root: &Path) -> Result<PathBuf, PipelineError> {
-        let dir = root.join(Dataset::NAME);
+        let dir = root.join(DatasetStage::NAME);
         let source = dir.join(Self::SOURCE);
         if source.exists() {
             // A broken record fails here, before a stage opens it.
-            DatasetFolder::read(&source)?;
+            LinkedFolder::read(&source)?;
         }
         Ok(dir)
     }
@@ -115,7 +78,7 @@ pub fn dataset_digest(folder: &Path) -> u64 {
     crate::digest::files_digest(folder, &rels, read).unwrap_or(0)
 }
 
-impl Stage for Dataset<'_> {
+impl Stage for DatasetStage<'_> {
     const NAME: &'static str = "dataset";
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &["transforms_train.json", "transforms_val.json", "transforms_test.json"];
@@ -157,13 +120,13 @@ impl Stage for Dataset<'_> {
 }
 
 /// Reads every split of the dataset `folder` (so that a broken dataset stops the run before
-/// training) and records where it lies and how its poses are placed ([`Dataset::SOURCE`]).
+/// training) and records where it lies and how its poses are placed ([`DatasetStage::SOURCE`]).
 fn read_folder(folder: &Path, placement: Placement, cx: &StageContext) -> Result<DatasetFigures, PipelineError> {
     let start = Instant::now();
     let mut views = 0;
     let mut size = (0, 0);
     for (i, split) in ["train", "val", "test"].into_iter().enumerate() {
-        let s = load_dataset_split(folder, split, 1)?;
+        let s = load_linked_split(folder, split, 1)?;
         views += s.frames.len();
         if let Some(f) = s.frames.first() {
             size = (f.image.width, f.image.height);
@@ -171,7 +134,7 @@ fn read_folder(folder: &Path, placement: Placement, cx: &StageContext) -> Result
         cx.progress(i as u64 + 1, 3, "splits read");
     }
     let absolute = std::path::absolute(folder).map_err(|e| PipelineError::io(folder, e))?;
-    write_json(&cx.dir.join(Dataset::SOURCE), &DatasetFolder { folder: absolute, placement })?;
+    write_json(&cx.dir.join(DatasetStage::SOURCE), &LinkedFolder { folder: absolute, placement })?;
     Ok(DatasetFigures {
         scene: folder.display().to_string(),
         views,

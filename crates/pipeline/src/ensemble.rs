@@ -13,13 +13,13 @@ use nerfsv_nerf::{Budget, EvalOptions, Nerf, TrainStats};
 use nerfsv_scene::views::{Bootstrap, PosedImages};
 use serde::{Deserialize, Serialize};
 
-use crate::collision::GroundTruthField;
+use crate::collision::CollisionStage;
 use crate::config::{EnsembleConfig, NerfSettings};
-use crate::dataset::{load_dataset_split, Dataset};
-use crate::nerf::train_status;
+use crate::dataset::DatasetStage;
 use crate::nerf_collision::{build_nerf_field, nerf_field_geometry};
 use crate::stage::{write_json, Stage, StageContext};
 use crate::PipelineError;
+use nerfsv_dataset::load_linked_split;
 
 /// Trains members 1..K of the ensemble into `RUN/ensemble/member_k/` (checkpoint and signed
 /// field each) and lists them in `members.json`. Resumable member by member: a killed run keeps
@@ -96,13 +96,13 @@ impl Stage for EnsembleStage<'_> {
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::MEMBERS];
     const RESUMABLE: bool = true;
-    const INPUTS: &'static [&'static str] = &[Dataset::NAME, GroundTruthField::NAME, crate::nerf::Train::NAME];
+    const INPUTS: &'static [&'static str] = &[DatasetStage::NAME, CollisionStage::NAME, crate::nerf::NerfStage::NAME];
     type Figures = EnsembleFigures;
 
     fn inputs(&self) -> &'static [&'static str] {
         match self.own_grid {
             None => Self::INPUTS,
-            Some(_) => &[Dataset::NAME, crate::nerf::Train::NAME],
+            Some(_) => &[DatasetStage::NAME, crate::nerf::NerfStage::NAME],
         }
     }
 
@@ -115,13 +115,13 @@ impl Stage for EnsembleStage<'_> {
         let mut trained = Vec::new();
         let mut deployed_test_psnr = None;
         if self.ensemble.members > 1 {
-            let folder = Dataset::folder(cx.root)?;
-            let data = load_dataset_split(&folder, "train", 1)?;
-            let test = load_dataset_split(&folder, "test", 1)?;
+            let folder = DatasetStage::folder(cx.root)?;
+            let data = load_linked_split(&folder, "train", 1)?;
+            let test = load_linked_split(&folder, "test", 1)?;
             for k in 1..self.ensemble.members {
                 trained.push(self.member(cx, k, steps, &data, &test)?);
             }
-            let deployed = Nerf::load(&crate::nerf::Train::checkpoint(cx.root))?;
+            let deployed = Nerf::load(&crate::nerf::NerfStage::checkpoint(cx.root))?;
             let options = EvalOptions { max_images: Some(Self::EVAL_VIEWS), ..EvalOptions::default() };
             deployed_test_psnr = Some(nerfsv_nerf::evaluate_with_progress(&deployed, &test, options, &|_, _| {})?.psnr);
         }
@@ -159,7 +159,7 @@ impl EnsembleStage<'_> {
         let members = self.ensemble.members - 1;
         let mut report = |p: &nerfsv_nerf::Progress| {
             let done = (k as u64 - 1) * steps + p.step;
-            cx.progress(done, members as u64 * steps, &format!("member {k}: {}", train_status(p)))
+            cx.progress(done, members as u64 * steps, &format!("member {k}: {}", p.status()))
         };
         // A member whose checkpoint is there continues from it (and one at its last step is done).
         let resume = dir.join(Self::CHECKPOINT).exists();

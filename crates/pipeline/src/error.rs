@@ -17,6 +17,9 @@ pub enum PipelineError {
     Scene(#[from] nerfsv_scene::SceneError),
     #[error("{context}: {error}")]
     Dataset { context: String, error: nerfsv_dataset::DatasetError },
+    /// A dataset read by a stage ([`nerfsv_dataset::load_linked_split`]: its error names the split and folder).
+    #[error(transparent)]
+    DatasetLoad(#[from] nerfsv_dataset::DatasetError),
     #[error(transparent)]
     Nerf(#[from] nerfsv_nerf::NerfError),
     #[error(transparent)]

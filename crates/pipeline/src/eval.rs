@@ -3,40 +3,21 @@
 mod report;
 
 use nerfsv_nerf::{EvalOptions, Nerf};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-use crate::dataset::{load_dataset_split, Dataset};
-use crate::nerf::Train;
+use crate::dataset::DatasetStage;
+use crate::nerf::NerfStage;
 use crate::stage::{write_json, Stage, StageContext};
 use crate::PipelineError;
+use nerfsv_dataset::load_linked_split;
 
 /// Evaluates the NeRF on the test split: `RUN/eval/metrics.json` (overall and per image) and
 /// `compare.png` (ground truth | NeRF for the first four test views).
-pub struct Eval;
+pub struct EvalStage;
 
-/// What an evaluation reports (the per-image figures are in `metrics.json`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct EvalFigures {
-    pub psnr: f64,
-    pub ssim: f64,
-    pub depth_median_abs_err_m: Option<f64>,
-    pub images: usize,
-    pub background: [f32; 3],
-}
+pub use nerfsv_nerf::EvalFigures;
 
-impl From<&nerfsv_nerf::EvalReport> for EvalFigures {
-    fn from(r: &nerfsv_nerf::EvalReport) -> Self {
-        Self {
-            psnr: r.psnr,
-            ssim: r.ssim,
-            depth_median_abs_err_m: r.depth_median_abs_err_m,
-            images: r.images,
-            background: r.background,
-        }
-    }
-}
-
-impl Eval {
+impl EvalStage {
     pub const METRICS: &'static str = "metrics.json";
     pub const COMPARE: &'static str = "compare.png";
     /// Test views shown in `compare.png`, and their enlargement.
@@ -44,18 +25,18 @@ impl Eval {
     const SCALE: u32 = 2;
 }
 
-impl Stage for Eval {
+impl Stage for EvalStage {
     const NAME: &'static str = "eval";
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::METRICS, Self::COMPARE];
-    const INPUTS: &'static [&'static str] = &[Dataset::NAME, Train::NAME];
+    const INPUTS: &'static [&'static str] = &[DatasetStage::NAME, NerfStage::NAME];
     type Figures = EvalFigures;
 
     fn config(&self) -> impl Serialize {}
 
     fn run(&self, cx: &StageContext) -> Result<EvalFigures, PipelineError> {
-        let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
-        let test = load_dataset_split(&Dataset::folder(cx.root)?, "test", 1)?;
+        let nerf = Nerf::load(&NerfStage::checkpoint(cx.root))?;
+        let test = load_linked_split(&DatasetStage::folder(cx.root)?, "test", 1)?;
         let report = nerfsv_nerf::evaluate_with_progress(&nerf, &test, EvalOptions::default(), &|done, total| {
             cx.progress(done as u64, total as u64, "test views evaluated")
         })?;

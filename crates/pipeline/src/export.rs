@@ -32,10 +32,10 @@ use nerfsv_study::stress::{most_likely_failure_stem, replay_csv, Sampler, ROLLOU
 use nerfsv_validation::{Label, RolloutRecord};
 use serde::{Deserialize, Serialize};
 
-use crate::collision::GroundTruthField;
+use crate::collision::CollisionStage;
 use crate::flight::FlightStage;
 use crate::layout::{summary_path, RECORD};
-use crate::nerf_collision::NerfField;
+use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::Stage;
 use crate::stress::StressStage;
 use crate::PipelineError;
@@ -355,8 +355,8 @@ pub fn failures_scene(root: &Path, options: ExportOptions) -> Result<(GlbScene, 
     }
     let mut f = ExportFigures::default();
     let mut scene = GlbScene { materials: materials(), nodes: Vec::new() };
-    let gt = root.join(GroundTruthField::NAME).join(GroundTruthField::MESH);
-    let nerf = root.join(NerfField::NAME).join(NerfField::MESH);
+    let gt = root.join(CollisionStage::NAME).join(CollisionStage::MESH);
+    let nerf = root.join(NerfCollisionStage::NAME).join(NerfCollisionStage::MESH);
     scene.nodes.extend(mesh_node(&gt, "GT mesh", GT_MESH, &mut f)?);
     scene.nodes.extend(mesh_node(&nerf, "NeRF mesh", NERF_MESH, &mut f)?);
     match read_figures::<FlightRoute>(root, FlightStage::NAME)? {

@@ -12,10 +12,10 @@ use nerfsv_study::flight::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::collision::GroundTruthField;
-use crate::dataset::Dataset;
-use crate::nerf::Train;
-use crate::nerf_collision::NerfField;
+use crate::collision::CollisionStage;
+use crate::dataset::DatasetStage;
+use crate::nerf::NerfStage;
+use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::{Stage, StageContext};
 use crate::PipelineError;
 
@@ -23,9 +23,9 @@ use crate::PipelineError;
 /// ground truth), the model and its field.
 pub(crate) const fn drone_inputs(ground_truth: bool) -> &'static [&'static str] {
     if ground_truth {
-        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME]
+        &[DatasetStage::NAME, CollisionStage::NAME, NerfStage::NAME, NerfCollisionStage::NAME]
     } else {
-        &[Dataset::NAME, Train::NAME, NerfField::NAME]
+        &[DatasetStage::NAME, NerfStage::NAME, NerfCollisionStage::NAME]
     }
 }
 
@@ -33,9 +33,9 @@ pub(crate) const fn drone_inputs(ground_truth: bool) -> &'static [&'static str] 
 /// that made them.
 pub fn flight_inputs(root: &Path, ground_truth: bool) -> Result<FlightInputs, PipelineError> {
     Ok(FlightInputs::load(
-        &Train::checkpoint(root),
-        &root.join(NerfField::NAME).join(NerfField::SDF),
-        ground_truth.then(|| GroundTruthField::sdf_path(root)).as_deref(),
+        &NerfStage::checkpoint(root),
+        &root.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
+        ground_truth.then(|| CollisionStage::sdf_path(root)).as_deref(),
     )?)
 }
 

@@ -34,7 +34,7 @@
 //!     fn config(&self) -> impl Serialize {}
 //!
 //!     fn run(&self, cx: &StageContext) -> Result<usize, PipelineError> {
-//!         let test = nerfsv_pipeline::stages::load_dataset_split(&cx.input_dir("dataset"), "test", 1)?;
+//!         let test = nerfsv_dataset::load_linked_split(&cx.input_dir("dataset"), "test", 1)?;
 //!         let n = test.frames.len();
 //!         std::fs::write(cx.dir.join("count.txt"), n.to_string()).map_err(|e| PipelineError::io(&cx.dir, e))?;
 //!         Ok(n)

@@ -9,14 +9,14 @@ use nerfsv_collision::{DensityFieldFigures, SdfGrid};
 use nerfsv_nerf::Nerf;
 use serde::Serialize;
 
-use crate::collision::GroundTruthField;
-use crate::nerf::Train;
+use crate::collision::CollisionStage;
+use crate::nerf::NerfStage;
 use crate::stage::{Stage, StageContext};
 use crate::PipelineError;
 
 /// The NeRF's signed collision field on the ground-truth field's grid, and its agreement with
 /// it: `RUN/nerf_collision/nerf_sdf.safetensors`, `nerf_mesh.ply`.
-pub struct NerfField {
+pub struct NerfCollisionStage {
     /// Density (1/m) above which the NeRF is solid; `None`: ln 2 / cell.
     pub density_threshold: Option<f32>,
     /// `None`: on the ground truth's grid, compared with it. `Some(cells per metre)`: over the
@@ -24,7 +24,7 @@ pub struct NerfField {
     pub own_grid: Option<f32>,
 }
 
-impl NerfField {
+impl NerfCollisionStage {
     pub const SDF: &'static str = "nerf_sdf.safetensors";
     pub const MESH: &'static str = "nerf_mesh.ply";
 }
@@ -54,7 +54,7 @@ pub fn nerf_field_geometry(
 ) -> Result<(nerfsv_collision::GridGeometry, Option<SdfGrid>), PipelineError> {
     Ok(match own_grid {
         None => {
-            let reference = SdfGrid::load(GroundTruthField::sdf_path(root))?;
+            let reference = SdfGrid::load(CollisionStage::sdf_path(root))?;
             (reference.geometry, Some(reference))
         }
         Some(cells_per_metre) => {
@@ -66,17 +66,17 @@ pub fn nerf_field_geometry(
     })
 }
 
-impl Stage for NerfField {
+impl Stage for NerfCollisionStage {
     const NAME: &'static str = "nerf_collision";
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::SDF, Self::MESH];
-    const INPUTS: &'static [&'static str] = &[Train::NAME, GroundTruthField::NAME];
+    const INPUTS: &'static [&'static str] = &[NerfStage::NAME, CollisionStage::NAME];
     type Figures = DensityFieldFigures;
 
     fn inputs(&self) -> &'static [&'static str] {
         match self.own_grid {
             None => Self::INPUTS,
-            Some(_) => &[Train::NAME],
+            Some(_) => &[NerfStage::NAME],
         }
     }
 
@@ -85,7 +85,7 @@ impl Stage for NerfField {
     }
 
     fn run(&self, cx: &StageContext) -> Result<DensityFieldFigures, PipelineError> {
-        let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
+        let nerf = Nerf::load(&NerfStage::checkpoint(cx.root))?;
         let (geometry, reference) = nerf_field_geometry(cx.root, self.own_grid, &nerf)?;
         build_nerf_field(
             &nerf,

@@ -12,10 +12,10 @@ use nerfsv_validation::ValidationConfig;
 use serde::Serialize;
 
 use self::config::OnlineConfig;
-use crate::collision::GroundTruthField;
-use crate::dataset::Dataset;
-use crate::nerf::Train;
-use crate::nerf_collision::NerfField;
+use crate::collision::CollisionStage;
+use crate::dataset::DatasetStage;
+use crate::nerf::NerfStage;
+use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::{Stage, StageContext};
 use crate::stress::StressStage;
 use crate::PipelineError;
@@ -46,7 +46,7 @@ impl Stage for OnlineStage<'_> {
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[ONLINE_TABLE_CSV];
     const INPUTS: &'static [&'static str] =
-        &[Dataset::NAME, GroundTruthField::NAME, Train::NAME, NerfField::NAME, StressStage::NAME];
+        &[DatasetStage::NAME, CollisionStage::NAME, NerfStage::NAME, NerfCollisionStage::NAME, StressStage::NAME];
     const RESUMABLE: bool = true;
     type Figures = OnlineFigures;
 

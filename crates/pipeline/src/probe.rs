@@ -31,15 +31,15 @@ impl ProbeConfig {
 }
 
 /// Writes `lines` numbered lines to `probe.txt`.
-pub struct Probe<'a> {
+pub struct ProbeStage<'a> {
     pub probe: &'a ProbeConfig,
 }
 
-impl Probe<'_> {
+impl ProbeStage<'_> {
     pub const TXT: &'static str = "probe.txt";
 }
 
-impl Stage for Probe<'_> {
+impl Stage for ProbeStage<'_> {
     const NAME: &'static str = "probe";
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::TXT];
@@ -57,7 +57,7 @@ impl Stage for Probe<'_> {
     }
 }
 
-impl Report for Probe<'_> {
+impl Report for ProbeStage<'_> {
     const ABOUT: &'static str = "writes numbered lines";
 
     fn describe(lines: &u32) -> String {
@@ -65,7 +65,7 @@ impl Report for Probe<'_> {
     }
 
     fn report(lines: &u32, _: &ReportContext) -> Option<Section> {
-        let mut s = Section::new("probe", "Probe", "lines");
+        let mut s = Section::new("probe", "ProbeStage", "lines");
         s.table(Table::new(&["lines"]).row(vec![lines.to_string()]));
         Some(s)
     }
@@ -97,8 +97,8 @@ mod tests {
         // Its run line runs it with the table's values.
         let cfg = RunConfig::default().set(&["probe.lines=2".to_owned()]).unwrap();
         let mut r = Runner::new(dir.path().join("run"), &Silent).unwrap();
-        assert_eq!(r.run(&Probe { probe: &cfg.probe }).unwrap(), 2);
-        let text = std::fs::read_to_string(dir.path().join("run/probe").join(Probe::TXT)).unwrap();
+        assert_eq!(r.run(&ProbeStage { probe: &cfg.probe }).unwrap(), 2);
+        let text = std::fs::read_to_string(dir.path().join("run/probe").join(ProbeStage::TXT)).unwrap();
         assert_eq!(text, "line 1\nline 2\n");
     }
 }

@@ -20,9 +20,9 @@ use nerfsv_sim::WorldKind;
 use nerfsv_study::stress::{Sampler, StressFigures, TransferFigures};
 
 use crate::config::MAX_MEMBERS;
-use crate::eval::{Eval, EvalFigures};
+use crate::eval::{EvalFigures, EvalStage};
 use crate::stress::StressStage;
-use crate::uq::{Uncertainty, UqFigures};
+use crate::uq::{UqFigures, UqStage};
 use crate::{Observer, PipelineError, RunConfig, Stage, Summary, Validate};
 
 /// The run folder of training seed `seed` below `out`.
@@ -31,7 +31,7 @@ pub fn seed_folder(out: &Path, seed: u64) -> PathBuf {
 }
 
 /// The stages every replicate shares with the first (they do not depend on training).
-const SHARED_STAGES: [&str; 2] = [crate::dataset::Dataset::NAME, crate::collision::GroundTruthField::NAME];
+const SHARED_STAGES: [&str; 2] = [crate::dataset::DatasetStage::NAME, crate::collision::CollisionStage::NAME];
 
 /// The headline figures, as (label, how to read it from a run's figures). A figure a run does
 /// not have (a stage skipped, a world without a ground truth) is left empty in its row.
@@ -76,9 +76,9 @@ struct RunFigures<'a> {
 impl<'a> RunFigures<'a> {
     fn of(summary: &'a Summary) -> Self {
         Self {
-            eval: summary.figures::<Eval>(),
+            eval: summary.figures::<EvalStage>(),
             stress: summary.figures::<StressStage>(),
-            uq: summary.figures::<Uncertainty>(),
+            uq: summary.figures::<UqStage>(),
         }
     }
 
@@ -301,7 +301,7 @@ mod tests {
         let summary = |stages: Vec<StageFigure>| Summary { run: PathBuf::new(), stages: crate::StageFigures(stages) };
         // The stress stage's figures under another stage's name are not the stress stage's.
         let ran = summary(vec![
-            StageFigure::new(Eval::NAME, eval.clone()).unwrap(),
+            StageFigure::new(EvalStage::NAME, eval.clone()).unwrap(),
             StageFigure::new("stress", 3u32).unwrap(),
         ]);
         let values = RunFigures::of(&ran).headlines();
@@ -309,7 +309,7 @@ mod tests {
         assert_eq!(values[0], Some(27.5));
         assert!(values[1..].iter().all(Option::is_none), "{values:?}");
         // A NaN figure is empty, as summary.json writes it.
-        let nan = summary(vec![StageFigure::new(Eval::NAME, EvalFigures { psnr: f64::NAN, ..eval }).unwrap()]);
+        let nan = summary(vec![StageFigure::new(EvalStage::NAME, EvalFigures { psnr: f64::NAN, ..eval }).unwrap()]);
         assert_eq!(RunFigures::of(&nan).headlines()[0], None);
         assert_eq!(serde_json::to_value(&nan).unwrap()["eval"]["psnr"], serde_json::Value::Null);
     }

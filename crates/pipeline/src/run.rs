@@ -85,15 +85,15 @@ pub fn run_in(
         (None, Some(scene)) => crate::dataset::DatasetSource::Render { scene, options: &cfg.dataset },
         (None, None) => return Err(PipelineError::Internal("a world needs a dataset or a scene".into())),
     };
-    r.run(&crate::dataset::Dataset { source })?;
+    r.run(&crate::dataset::DatasetStage { source })?;
     match scene {
         Some(scene) => {
-            r.run(&crate::collision::GroundTruthField { scene, cells_per_metre: cfg.cells_per_metre })?;
+            r.run(&crate::collision::CollisionStage { scene, cells_per_metre: cfg.cells_per_metre })?;
         }
-        None => r.skip::<crate::collision::GroundTruthField>(NO_GROUND_TRUTH)?,
+        None => r.skip::<crate::collision::CollisionStage>(NO_GROUND_TRUTH)?,
     }
-    r.run(&crate::nerf::Train { settings: &settings, steps: cfg.train_steps })?;
-    r.run(&crate::eval::Eval)?;
+    r.run(&crate::nerf::NerfStage { settings: &settings, steps: cfg.train_steps })?;
+    r.run(&crate::eval::EvalStage)?;
     r.run(&ensemble::EnsembleStage {
         settings: &settings,
         ensemble: &cfg.ensemble,
@@ -101,8 +101,8 @@ pub fn run_in(
         density_threshold: cfg.nerf_density_threshold,
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
     })?;
-    r.run(&uq::Uncertainty { uq: &cfg.uq, offline: &cfg.uq_offline, ensemble: cfg.ensemble.members > 1 })?;
-    r.run(&crate::nerf_collision::NerfField {
+    r.run(&uq::UqStage { uq: &cfg.uq, offline: &cfg.uq_offline, ensemble: cfg.ensemble.members > 1 })?;
+    r.run(&crate::nerf_collision::NerfCollisionStage {
         density_threshold: cfg.nerf_density_threshold,
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
     })?;

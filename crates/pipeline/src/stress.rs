@@ -6,13 +6,12 @@ mod report;
 use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
-use nerfsv_scene::Scene;
 use nerfsv_sim::{CalibratedWorld, Flight, NerfWorldSource, SimConfig, WorldKind};
 use nerfsv_study::calibration::PerceptionConfig;
 use nerfsv_study::flight::{Drone, FlightInputs, Mission};
 use nerfsv_study::stress::{
-    measure_at_poses, replay_csv, search_into, searched, stress, Sampler, SearchRequest, SearchSettings,
-    StepAurocFigures, StressFigures, StressSetup, TransferFigures, ROLLOUTS_CSV, STAGE, TABLE_CSV,
+    measure_at_poses, replay_csv, searched, stress, Sampler, StepAurocFigures, StressFigures, StressSetup,
+    TransferFigures, ROLLOUTS_CSV, STAGE, TABLE_CSV,
 };
 use nerfsv_study::{online_pixels, EnsembleUncertainty};
 use nerfsv_uq::UqConfig;
@@ -20,14 +19,14 @@ use nerfsv_validation::{read_csv_file, Label, Prior, RolloutRecord, ValidationCo
 use serde::Serialize;
 
 use crate::calibration::CalibrationStage;
-use crate::collision::GroundTruthField;
-use crate::dataset::Dataset;
+use crate::collision::CollisionStage;
+use crate::dataset::DatasetStage;
 use crate::ensemble::EnsembleStage;
 use crate::flight::{drone_inputs, flight_inputs};
-use crate::nerf::Train;
-use crate::nerf_collision::NerfField;
-use crate::stage::{stage_key, Observer, Stage, StageContext};
-use crate::{PipelineError, RunConfig};
+use crate::nerf::NerfStage;
+use crate::nerf_collision::NerfCollisionStage;
+use crate::stage::{stage_key, Stage, StageContext};
+use crate::PipelineError;
 
 /// The stress stage of `nerfsv run`: MC and CEM in NeRF-sim with the vision estimator, every
 /// rollout of their searches replayed in GT-sim; then, with `subset`, subset simulation's
@@ -92,14 +91,22 @@ impl Stage for StressStage<'_> {
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        const GT: &str = GroundTruthField::NAME;
+        const GT: &str = CollisionStage::NAME;
         const CAL: &str = CalibrationStage::NAME;
         match (self.drone.scene.is_some(), self.ensemble, self.calibrated()) {
             (_, false, _) => drone_inputs(self.drone.scene.is_some()),
-            (true, true, false) => &[Dataset::NAME, GT, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
-            (false, true, false) => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME],
-            (true, true, true) => &[Dataset::NAME, GT, Train::NAME, NerfField::NAME, EnsembleStage::NAME, CAL],
-            (false, true, true) => &[Dataset::NAME, Train::NAME, NerfField::NAME, EnsembleStage::NAME, CAL],
+            (true, true, false) => {
+                &[DatasetStage::NAME, GT, NerfStage::NAME, NerfCollisionStage::NAME, EnsembleStage::NAME]
+            }
+            (false, true, false) => {
+                &[DatasetStage::NAME, NerfStage::NAME, NerfCollisionStage::NAME, EnsembleStage::NAME]
+            }
+            (true, true, true) => {
+                &[DatasetStage::NAME, GT, NerfStage::NAME, NerfCollisionStage::NAME, EnsembleStage::NAME, CAL]
+            }
+            (false, true, true) => {
+                &[DatasetStage::NAME, NerfStage::NAME, NerfCollisionStage::NAME, EnsembleStage::NAME, CAL]
+            }
         }
     }
 
@@ -244,68 +251,33 @@ impl StressStage<'_> {
     }
 }
 
-/// One search outside `nerfsv run`, as `nerfsv stress` (and any other front end) asks for it:
-/// one sampler over the drone of a checkpoint, its field and a ground truth, into a folder of
-/// its own, keyed as the stress stage keys its results.
-pub struct StressRequest<'a> {
-    /// The run config: `[sim]` (the drone), `[validation]` (prior, samplers, seed), `[dataset]`
-    /// (the camera), `[uq]` (the online measurement's settings).
-    pub config: &'a RunConfig,
-    /// The ground truth (GT-sim's world and the replays).
-    pub scene: &'a Scene,
-    /// The drone's worlds, read from `model` and `nerf_field`
-    /// ([`FlightInputs::from_files`](nerfsv_study::flight::FlightInputs::from_files)).
-    pub inputs: &'a FlightInputs,
-    /// The files the worlds were read from: their bytes enter the key (with the field's).
-    pub model: &'a Path,
-    pub nerf_field: Option<&'a Path>,
-    /// The search (where it runs, `remote`, is not part of the key).
-    pub search: SearchSettings<'a>,
+/// The key of one search outside `nerfsv run` (`nerfsv stress`, the Python package), for
+/// [`search_into`](nerfsv_study::stress::search_into): everything its rollouts depend on, keyed
+/// as the stress stage of `nerfsv run` keys its results (the code it runs included), so that a
+/// resume into the results of anything else is refused. `model` and `nerf_field` are the files
+/// the drone's worlds were read from: their bytes enter the key, with the uncertainty field's.
+/// Where the rollouts fly (`remote`) is not part of it.
+pub fn search_key(setup: &StressSetup, model: &Path, nerf_field: Option<&Path>) -> Result<String, PipelineError> {
+    stage_key(
+        STAGE,
+        <StressStage as Stage>::MODULE,
+        &(
+            setup.mission.drone.key(),
+            setup.validation,
+            setup.world,
+            setup.estimator,
+            setup.samplers,
+            file_hash(model)?,
+            nerf_field.map(file_hash).transpose()?,
+            setup.online,
+            setup.online.map(|_| setup.uq),
+            setup.field.map(|(p, _)| file_hash(p)).transpose()?,
+        ),
+        &[],
+    )
 }
 
-impl StressRequest<'_> {
-    /// Everything the rollouts depend on, keyed as the stress stage of `nerfsv run` keys its
-    /// results (the code it runs included): a resume into the results of anything else is
-    /// refused.
-    pub fn key(&self) -> Result<String, PipelineError> {
-        let cfg = self.config;
-        stage_key(
-            STAGE,
-            <StressStage as Stage>::MODULE,
-            &(
-                cfg.drone(Some(self.scene)).key(),
-                &cfg.validation,
-                self.search.world,
-                self.search.estimator,
-                self.search.sampler,
-                file_hash(self.model)?,
-                self.nerf_field.map(file_hash).transpose()?,
-                self.search.online,
-                self.search.online.map(|_| &cfg.uq),
-                self.search.field.map(|(p, _)| file_hash(p)).transpose()?,
-            ),
-            &[],
-        )
-    }
-}
-
-/// FNV-1a of a file's bytes, for a request's key.
+/// FNV-1a of a file's bytes, for a search's key.
 fn file_hash(path: &Path) -> Result<u64, PipelineError> {
     std::fs::read(path).map(|b| fnv1a(&b)).map_err(|e| PipelineError::io(path, e))
-}
-
-/// Runs one [`StressRequest`] ([`search_into`] keyed by [`StressRequest::key`]): the figures
-/// `stress.json` holds.
-pub fn run_stress(request: &StressRequest, observer: &dyn Observer) -> Result<StressFigures, PipelineError> {
-    let cfg = request.config;
-    let prior = cfg.disturbance_prior()?;
-    let search = SearchRequest {
-        drone: cfg.drone(Some(request.scene)),
-        inputs: request.inputs,
-        validation: &cfg.validation,
-        prior: &prior,
-        uq: &cfg.uq,
-        search: request.search,
-    };
-    Ok(search_into(&search, &request.key()?, observer)?)
 }

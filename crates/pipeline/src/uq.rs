@@ -15,17 +15,18 @@ use nerfsv_uq::UqConfig;
 use serde::Serialize;
 
 use self::config::UqOfflineConfig;
-use crate::dataset::{load_dataset_split, Dataset};
-use crate::nerf::Train;
+use crate::dataset::DatasetStage;
+use crate::nerf::NerfStage;
 use crate::stage::{Stage, StageContext};
 use crate::PipelineError;
+use nerfsv_dataset::load_linked_split;
 
 /// The offline uncertainty stage of `nerfsv run`: GA on the images of every split (at most
 /// `ga_images_per_split` each, an even stride), BLA on `bla_images_per_split` of each, and the
 /// depth AUSE of both on their test images. `RUN/uq/` holds `uq_ga.csv` and `uq_bla.csv` (the columns
 /// of `nerfsv uq offline`), `ause.csv` (a row per test image and method) and the figures of
 /// `nerfsv uq offline` (PNG and SVG).
-pub struct Uncertainty<'a> {
+pub struct UqStage<'a> {
     pub uq: &'a UqConfig,
     pub offline: &'a UqOfflineConfig,
     /// Whether the run has an ensemble (`[ensemble] members` ≥ 2): its depth AUSE joins GA's
@@ -33,7 +34,7 @@ pub struct Uncertainty<'a> {
     pub ensemble: bool,
 }
 
-impl Uncertainty<'_> {
+impl UqStage<'_> {
     pub const GA_CSV: &'static str = csv_name(Method::Ga);
     pub const BLA_CSV: &'static str = csv_name(Method::Bla);
     pub const AUSE_CSV: &'static str = nerfsv_uq::study::AUSE_CSV;
@@ -42,7 +43,7 @@ impl Uncertainty<'_> {
     pub const ENSEMBLE_FIELD: &'static str = nerfsv_uq::study::ENSEMBLE_FIELD;
 }
 
-impl Stage for Uncertainty<'_> {
+impl Stage for UqStage<'_> {
     const NAME: &'static str = "uq";
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[
@@ -60,15 +61,15 @@ impl Stage for Uncertainty<'_> {
         "uq_bla_trace_rmv.png",
         "uq_bla_trace_rmv.svg",
     ];
-    const INPUTS: &'static [&'static str] = &[Dataset::NAME, Train::NAME];
+    const INPUTS: &'static [&'static str] = &[DatasetStage::NAME, NerfStage::NAME];
     type Figures = UqFigures;
 
     fn outputs(&self) -> &'static [&'static str] {
-        const WITH_ENSEMBLE: [&str; Uncertainty::OUTPUTS.len() + 1] = {
-            let mut all = [Uncertainty::ENSEMBLE_FIELD; Uncertainty::OUTPUTS.len() + 1];
+        const WITH_ENSEMBLE: [&str; UqStage::OUTPUTS.len() + 1] = {
+            let mut all = [UqStage::ENSEMBLE_FIELD; UqStage::OUTPUTS.len() + 1];
             let mut i = 0;
-            while i < Uncertainty::OUTPUTS.len() {
-                all[i] = Uncertainty::OUTPUTS[i];
+            while i < UqStage::OUTPUTS.len() {
+                all[i] = UqStage::OUTPUTS[i];
                 i += 1;
             }
             all
@@ -85,16 +86,16 @@ impl Stage for Uncertainty<'_> {
     }
 
     fn run(&self, cx: &StageContext) -> Result<UqFigures, PipelineError> {
-        let nerf = Nerf::load(&Train::checkpoint(cx.root))?;
+        let nerf = Nerf::load(&NerfStage::checkpoint(cx.root))?;
         let members = match self.ensemble {
             true => crate::members::load_members(cx.root)?,
             false => Vec::new(),
         };
         let others: Vec<&Nerf> = members.iter().map(|m| &m.nerf).collect();
-        let data = Dataset::folder(cx.root)?;
-        let [train, val, test] = SPLITS.map(|name| load_dataset_split(&data, name, 1));
+        let data = DatasetStage::folder(cx.root)?;
+        let [train, val, test] = SPLITS.map(|name| load_linked_split(&data, name, 1));
         // Named relative to the run's folder, so that the file does not depend on where the run is.
-        let path = Train::checkpoint(cx.root);
+        let path = NerfStage::checkpoint(cx.root);
         let checkpoint = path.strip_prefix(cx.root).unwrap_or(&path).display().to_string();
         let study = DatasetStudy {
             nerf: &nerf,
@@ -111,7 +112,7 @@ impl Stage for Uncertainty<'_> {
 
     fn inputs(&self) -> &'static [&'static str] {
         if self.ensemble {
-            &[Dataset::NAME, Train::NAME, crate::ensemble::EnsembleStage::NAME]
+            &[DatasetStage::NAME, NerfStage::NAME, crate::ensemble::EnsembleStage::NAME]
         } else {
             Self::INPUTS
         }

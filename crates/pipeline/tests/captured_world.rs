@@ -5,8 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
+use nerfsv_dataset::load_linked_split;
 use nerfsv_dataset::{load_split, LoadOptions, Placement};
-use nerfsv_pipeline::stages::{load_dataset_split, Dataset, DatasetSource};
+use nerfsv_pipeline::stages::{DatasetSource, DatasetStage};
 use nerfsv_pipeline::{RunConfig, Validate};
 use nerfsv_pipeline::{Runner, Silent};
 use nerfsv_scene::mesh::UpAxis;
@@ -84,13 +85,13 @@ fn the_dataset_stage_records_the_placement_and_later_readers_get_placed_poses() 
     let placement = Placement { scale: 2.0, up: UpAxis::Y, centre: [0.5, 0.8, -0.2] };
     let folder = colmap();
     let mut runner = Runner::new(&root, &Silent).unwrap();
-    runner.run(&Dataset { source: DatasetSource::Folder { folder: &folder, placement } }).unwrap();
+    runner.run(&DatasetStage { source: DatasetSource::Folder { folder: &folder, placement } }).unwrap();
     let source: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(root.join("dataset/source.json")).unwrap()).unwrap();
     assert_eq!(source["placement"]["scale"], 2.0);
     assert_eq!(source["placement"]["up"], "y");
     let raw = load_split(&folder, "train", LoadOptions::default()).unwrap();
-    let placed = load_dataset_split(&Dataset::folder(&root).unwrap(), "train", 1).unwrap();
+    let placed = load_linked_split(&DatasetStage::folder(&root).unwrap(), "train", 1).unwrap();
     assert_eq!(placed.frames.len(), raw.frames.len());
     for (p, r) in placed.frames.iter().zip(&raw.frames) {
         let c = r.camera.position().coords - Vector3::new(0.5, 0.8, -0.2);
@@ -102,11 +103,11 @@ fn the_dataset_stage_records_the_placement_and_later_readers_get_placed_poses() 
     let root = dir.path().join("plain");
     let mut runner = Runner::new(&root, &Silent).unwrap();
     runner
-        .run(&Dataset { source: DatasetSource::Folder { folder: &folder, placement: Placement::default() } })
+        .run(&DatasetStage { source: DatasetSource::Folder { folder: &folder, placement: Placement::default() } })
         .unwrap();
     let text = std::fs::read_to_string(root.join("dataset/source.json")).unwrap();
     assert!(!text.contains("placement"), "{text}");
-    let plain = load_dataset_split(&Dataset::folder(&root).unwrap(), "train", 1).unwrap();
+    let plain = load_linked_split(&DatasetStage::folder(&root).unwrap(), "train", 1).unwrap();
     assert_eq!(plain.frames[0].camera.c2w, raw.frames[0].camera.c2w);
 }
 
@@ -135,7 +136,8 @@ fn the_dataset_stages_key_hashes_the_files_the_loader_reads_and_no_others() {
         let folder = dir.path().join(name);
         copy_folder(&fixtures().join("captures").join(name), &folder);
         let key = || {
-            let stage = Dataset { source: DatasetSource::Folder { folder: &folder, placement: Placement::default() } };
+            let stage =
+                DatasetStage { source: DatasetSource::Folder { folder: &folder, placement: Placement::default() } };
             let key = serde_json::to_string(&stage.config()).unwrap();
             key
         };

@@ -176,19 +176,19 @@ fn redone_by(edit: impl FnOnce(&Path)) -> Vec<&'static str> {
     use nerfsv_pipeline::ensemble::EnsembleStage;
     use nerfsv_pipeline::flight::FlightStage;
     use nerfsv_pipeline::online::OnlineStage;
-    use nerfsv_pipeline::stages::{Dataset, Eval, GroundTruthField, NerfField, Train};
+    use nerfsv_pipeline::stages::{CollisionStage, DatasetStage, EvalStage, NerfCollisionStage, NerfStage};
     use nerfsv_pipeline::stress::StressStage;
-    use nerfsv_pipeline::uq::Uncertainty;
+    use nerfsv_pipeline::uq::UqStage;
     use nerfsv_pipeline::Stage;
 
     let stages: [(&'static str, &str); 11] = [
-        (Dataset::NAME, Dataset::MODULE),
-        (GroundTruthField::NAME, GroundTruthField::MODULE),
-        (Train::NAME, Train::MODULE),
-        (Eval::NAME, Eval::MODULE),
+        (DatasetStage::NAME, DatasetStage::MODULE),
+        (CollisionStage::NAME, CollisionStage::MODULE),
+        (NerfStage::NAME, NerfStage::MODULE),
+        (EvalStage::NAME, EvalStage::MODULE),
         (EnsembleStage::NAME, EnsembleStage::MODULE),
-        (Uncertainty::NAME, Uncertainty::MODULE),
-        (NerfField::NAME, NerfField::MODULE),
+        (UqStage::NAME, UqStage::MODULE),
+        (NerfCollisionStage::NAME, NerfCollisionStage::MODULE),
         (FlightStage::NAME, FlightStage::MODULE),
         (CalibrationStage::NAME, CalibrationStage::MODULE),
         (StressStage::NAME, StressStage::MODULE),

@@ -8,7 +8,7 @@ use nerfsv_study::calibration::CalibrationFigures;
 
 use crate::calibration::CalibrationStage;
 use crate::report::{num, Section, Table};
-use crate::{Report, ReportContext};
+use crate::{Report, ReportContext, Stage};
 
 impl Report for CalibrationStage<'_> {
     const ABOUT: &'static str = "the estimator's error on views the NeRF never saw, and its error model";
@@ -29,7 +29,8 @@ impl Report for CalibrationStage<'_> {
     }
 
     fn report(f: &CalibrationFigures, _: &ReportContext) -> Option<Section> {
-        let mut s = Section::new("calibration", "Calibration: how the estimator errs on real images", "calibration");
+        let mut s =
+            Section::new(CalibrationStage::NAME, "Calibration: how the estimator errs on real images", "calibration");
         s.paragraph(format!(
             "The vision estimator fitted, as in flight, to images of the world at known poses that the deployed NeRF \
              never trained on: {} views of a route capture (ground-truth renders along the planned route, each moved \

@@ -2,11 +2,11 @@
 //!
 //! Presentation only: no stage's key covers a `report` module, so a change here redoes no stage.
 
-use super::GroundTruthField;
+use super::CollisionStage;
 use crate::Report;
 use nerfsv_collision::GroundTruthFigures;
 
-impl Report for GroundTruthField<'_> {
+impl Report for CollisionStage<'_> {
     const ABOUT: &'static str = "ground-truth signed collision field";
 
     fn describe(f: &GroundTruthFigures) -> String {

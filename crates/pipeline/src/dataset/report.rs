@@ -2,10 +2,10 @@
 //!
 //! Presentation only: no stage's key covers a `report` module, so a change here redoes no stage.
 
-use super::{Dataset, DatasetFigures};
+use super::{DatasetFigures, DatasetStage};
 use crate::Report;
 
-impl Report for Dataset<'_> {
+impl Report for DatasetStage<'_> {
     const ABOUT: &'static str = "ground-truth renders of the scene (train, val, test)";
 
     fn describe(f: &DatasetFigures) -> String {

@@ -3,9 +3,9 @@
 //! Presentation only: a stage's key digests its own module file, not this child module, so a
 //! change here redoes no stage.
 
-use crate::ensemble::EnsembleFigures;
+use crate::ensemble::{EnsembleFigures, EnsembleStage};
 use crate::report::{num, Section, Table};
-use crate::{Report, ReportContext};
+use crate::{Report, ReportContext, Stage};
 
 impl Report for crate::ensemble::EnsembleStage<'_> {
     const ABOUT: &'static str = "the ensemble's other NeRFs and their collision fields";
@@ -24,7 +24,8 @@ impl Report for crate::ensemble::EnsembleStage<'_> {
         if f.trained.is_empty() {
             return None;
         }
-        let mut s = Section::new("ensemble", "The ensemble: the NeRFs the same data could have given", "ensemble");
+        let mut s =
+            Section::new(EnsembleStage::NAME, "The ensemble: the NeRFs the same data could have given", "ensemble");
         s.paragraph(format!(
             "{} NeRFs: the deployed model (member 0) and {} more trained like it for {} steps with seeds of their own{}. \
              Their disagreement stands for what the training views leave undetermined; with sim.nerf_world = \

@@ -10,7 +10,7 @@ use nerfsv_study::flight::{estimate_error_png, ESTIMATE_ERRORS, FIELDS_PNG};
 
 use crate::flight::{FlightStage, FlightStageFigures};
 use crate::report::{num, world_label, yes_no, Section, Table};
-use crate::{Report, ReportContext};
+use crate::{Report, ReportContext, Stage};
 
 impl Report for FlightStage<'_> {
     const ABOUT: &'static str = "nominal flights in both worlds";
@@ -25,7 +25,7 @@ impl Report for FlightStage<'_> {
     }
 
     fn report(f: &FlightStageFigures, _: &ReportContext) -> Option<Section> {
-        let mut s = Section::new("flight", "Nominal flights", "nominal flights");
+        let mut s = Section::new(FlightStage::NAME, "Nominal flights", "nominal flights");
         s.table(
             Table::new(&[
                 "flight",

@@ -2,11 +2,11 @@
 //!
 //! Presentation only: no stage's key covers a `report` module, so a change here redoes no stage.
 
-use super::Train;
+use super::NerfStage;
 use crate::Report;
 use nerfsv_nerf::TrainStats;
 
-impl Report for Train<'_> {
+impl Report for NerfStage<'_> {
     const ABOUT: &'static str = "NeRF training";
 
     fn describe(f: &TrainStats) -> String {

@@ -2,12 +2,12 @@
 //!
 //! Presentation only: no stage's key covers a `report` module, so a change here redoes no stage.
 
-use super::NerfField;
+use super::NerfCollisionStage;
 use crate::report::{num, Section, Table};
-use crate::{Report, ReportContext};
+use crate::{Report, ReportContext, Stage};
 use nerfsv_collision::DensityFieldFigures;
 
-impl Report for NerfField {
+impl Report for NerfCollisionStage {
     const ABOUT: &'static str = "the NeRF's collision field";
 
     fn describe(f: &DensityFieldFigures) -> String {
@@ -27,7 +27,7 @@ impl Report for NerfField {
             Some(_) => "Collision fields: the NeRF's against the ground truth",
             None => "The NeRF's collision field (no ground truth to compare it with)",
         };
-        let mut s = Section::new("nerf_collision", title, "collision fields");
+        let mut s = Section::new(NerfCollisionStage::NAME, title, "collision fields");
         let header = ["occupancy IoU", "IoU in the flight band", "|SDF diff| mean (m)", "|SDF diff| p95 (m)"];
         match &f.agreement_with_ground_truth {
             Some(a) => s.table(Table::new(&header).row(vec![

@@ -5,7 +5,7 @@
 
 use crate::online::{OnlineFigures, OnlineStage};
 use crate::report::{esc, num, pct, proportion, step_auroc_with_interval, yes_no, Section, Table};
-use crate::{Report, ReportContext};
+use crate::{Report, ReportContext, Stage};
 
 impl Report for OnlineStage<'_> {
     const ABOUT: &'static str = "per-step uncertainty and the rewards (Tables 1–2)";
@@ -15,8 +15,11 @@ impl Report for OnlineStage<'_> {
     }
 
     fn report(f: &OnlineFigures, _: &ReportContext) -> Option<Section> {
-        let mut s =
-            Section::new("online", "Tables 1–2: uncertainty in the search, with and without reward", "Tables 1–2");
+        let mut s = Section::new(
+            OnlineStage::NAME,
+            "Tables 1–2: uncertainty in the search, with and without reward",
+            "Tables 1–2",
+        );
         if !f.step_auroc.is_empty() {
             s.answer(50, step_auroc_answer(f));
         } else if !f.studies.is_empty() {

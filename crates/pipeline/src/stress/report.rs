@@ -11,7 +11,7 @@ use nerfsv_study::stress::{
 
 use crate::report::{esc, estimate, mm, num, pct, proportion, rate_ci, world_label, Section, Table};
 use crate::stress::StressStage;
-use crate::{Report, ReportContext};
+use crate::{Report, ReportContext, Stage};
 
 /// Each world's crash rate and each NeRF world's agreement with GT-sim, a row per world.
 fn transfer_table(t: &nerfsv_study::stress::TransferFigures) -> Table {
@@ -156,7 +156,7 @@ impl Report for StressStage<'_> {
             Some(_) => "Stress tests: failure probability and NeRF-sim against GT-sim",
             None => "Stress tests: failure probability (nothing replayed in another world)",
         };
-        let mut s = Section::new("stress", title, "stress tests");
+        let mut s = Section::new(StressStage::NAME, title, "stress tests");
         stress_answer(&mut s, f);
         if let Some(t) = &f.transfer {
             transfer_part(&mut s, t);

@@ -6,12 +6,12 @@
 use std::path::Path;
 
 use crate::report::{num, Section, Table};
-use crate::uq::{Uncertainty, UqFigures};
-use crate::{Report, ReportContext};
+use crate::uq::{UqFigures, UqStage};
+use crate::{Report, ReportContext, Stage};
 use nerfsv_uq::offline::{figure_stems, short, MAPS_PNG};
 use nerfsv_uq::Method;
 
-impl Report for Uncertainty<'_> {
+impl Report for UqStage<'_> {
     const ABOUT: &'static str = "offline uncertainty: GA, BLA, depth AUSE";
 
     fn describe(f: &UqFigures) -> String {
@@ -31,7 +31,8 @@ impl Report for Uncertainty<'_> {
     }
 
     fn report(u: &UqFigures, _: &ReportContext) -> Option<Section> {
-        let mut s = Section::new("uq", "Offline uncertainty per image, and its calibration", "offline uncertainty");
+        let mut s =
+            Section::new(UqStage::NAME, "Offline uncertainty per image, and its calibration", "offline uncertainty");
         let t = &u.test;
         s.answer(
             40,
@@ -75,19 +76,19 @@ impl Report for Uncertainty<'_> {
             s.picture(&format!("{stem}.png"), caption);
         }
         if u.ensemble_field.is_some() {
-            let slice = nerfsv_uq::offline::field_slice_path(Path::new(Uncertainty::ENSEMBLE_FIELD));
+            let slice = nerfsv_uq::offline::field_slice_path(Path::new(UqStage::ENSEMBLE_FIELD));
             s.picture(
                 &slice.to_string_lossy(),
                 &format!(
                     "The ensemble's uncertainty field at z = {:.2} m: the members' density standard deviation ({}, with `nerfsv uq field --method ensemble`'s format)",
                     nerfsv_uq::offline::FIELD_SLICE_ALTITUDE,
-                    Uncertainty::ENSEMBLE_FIELD
+                    UqStage::ENSEMBLE_FIELD
                 ),
             );
         }
-        s.csv(Uncertainty::AUSE_CSV, "ause.csv");
-        s.csv(Uncertainty::GA_CSV, "uq_ga.csv");
-        s.csv(Uncertainty::BLA_CSV, "uq_bla.csv");
+        s.csv(UqStage::AUSE_CSV, "ause.csv");
+        s.csv(UqStage::GA_CSV, "uq_ga.csv");
+        s.csv(UqStage::BLA_CSV, "uq_bla.csv");
         Some(s)
     }
 }

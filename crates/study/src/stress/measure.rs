@@ -52,7 +52,7 @@ pub(super) fn view_meter<'a>(
                 cfg: setup.uq,
             }),
             UqMode::Field => {
-                let field = setup.field.ok_or_else(|| {
+                let (_, field) = setup.field.ok_or_else(|| {
                     StudyError::Internal("field mode needs an uncertainty field (`nerfsv uq field`)".into())
                 })?;
                 Box::new(FieldUncertainty { field, pixels, background })

@@ -27,7 +27,7 @@ pub use files::*;
 pub use measure::{measure_at_poses, measure_recorded};
 pub use nerfsv_validation::Sampler;
 pub use pictures::{most_likely_failure_png, most_likely_failure_stem, CLEARANCE_PNG, ESTIMATE_ERRORS_PNG};
-pub use request::{search_into, SearchRequest, SearchSettings};
+pub use request::search_into;
 pub use run::stress;
 pub use search::searched;
 pub use setup::{other_world, Flown, StressSetup};

@@ -22,7 +22,7 @@ pub const ESTIMATE_ERRORS_PNG: &str = "estimate_errors.png";
 pub(super) fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<Vec<u8>, StudyError> {
     let mut all: Vec<f64> = logs.iter().flat_map(|(_, e)| e.iter().map(|e| 1e3 * e[0])).collect();
     all.sort_by(f64::total_cmp);
-    let cut = all.get(((all.len().max(1) - 1) as f64 * 0.99).round() as usize).copied().unwrap_or(f64::INFINITY);
+    let cut = if all.is_empty() { f64::INFINITY } else { nerfsv_scene::stats::quantile_sorted(&all, 0.99) };
     let left_out = all.iter().filter(|&&v| v > cut).count();
     let groups = logs
         .iter()

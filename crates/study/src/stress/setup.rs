@@ -21,8 +21,10 @@ pub fn other_world(kind: WorldKind) -> WorldKind {
     }
 }
 
-/// What a stress run needs. [`StressSetup::new`] is the stress stage's search; a caller
-/// changes what differs with struct update syntax.
+/// The one description of a search: what the stress and online stages, `nerfsv stress` and the
+/// Python package all build. [`StressSetup::new`] is the stress stage's search; a caller changes
+/// what differs with struct update syntax (one sampler in the world and with the estimator
+/// the user picked, for a search outside `nerfsv run`).
 pub struct StressSetup<'a> {
     pub mission: Mission<'a>,
     pub validation: &'a ValidationConfig,
@@ -35,8 +37,10 @@ pub struct StressSetup<'a> {
     pub online: Option<OnlineSettings>,
     /// GA and BLA settings, the online pixels and the reward's penalty.
     pub uq: &'a UqConfig,
-    /// The uncertainty field `UqMode::Field` looks the uncertainty up in.
-    pub field: Option<&'a UncertaintyField>,
+    /// The uncertainty field `UqMode::Field` looks the uncertainty up in, with the file it came
+    /// from. [`search_into`](super::search_into) refuses one whose method is not the online
+    /// measurement's or that was built from another model.
+    pub field: Option<(&'a Path, &'a UncertaintyField)>,
     /// The name progress and notes are reported under ([`STAGE`], or the calling stage's).
     pub stage: &'static str,
     /// Where the rollouts fly, if not in this process (searches without `online` only).

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use nerfsv_dataset::Split;
 use nerfsv_nerf::Nerf;
+use nerfsv_scene::stats::quantile_sorted;
 
 use super::rows::{reference, BACKGROUND};
 use crate::{FieldMethod, Method, TrainingView, UncertaintyField, UqConfig, UqError};
@@ -78,12 +79,12 @@ pub fn field_slice_png(field: &UncertaintyField) -> Result<Option<Vec<u8>>, UqEr
         .collect();
     let mut positive: Vec<f64> = values.iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
     positive.sort_by(f64::total_cmp);
-    let values = match (
-        positive.get(positive.len() * 2 / 100),
-        positive.get((positive.len() * 98 / 100).min(positive.len().saturating_sub(1))),
-    ) {
-        (Some(&lo), Some(&hi)) => values.iter().map(|&v| if v > 0.0 { v.clamp(lo, hi) } else { v }).collect(),
-        _ => values,
+    let values = match positive.is_empty() {
+        true => values,
+        false => {
+            let (lo, hi) = (quantile_sorted(&positive, 0.02), quantile_sorted(&positive, 0.98));
+            values.iter().map(|&v| if v > 0.0 { v.clamp(lo, hi) } else { v }).collect()
+        }
     };
     let method = field.method.name().to_uppercase();
     let quantity = match field.method {

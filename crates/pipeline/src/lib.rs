@@ -22,9 +22,9 @@
 //! use serde::Serialize;
 //!
 //! /// Counts the views of the dataset stage's test split.
-//! struct CountTestViews;
+//! struct CountStage;
 //!
-//! impl Stage for CountTestViews {
+//! impl Stage for CountStage {
 //!     const NAME: &'static str = "count";
 //!     const MODULE: &'static str = module_path!();
 //!     const OUTPUTS: &'static [&'static str] = &["count.txt"];
@@ -41,7 +41,7 @@
 //!     }
 //! }
 //!
-//! impl Report for CountTestViews {
+//! impl Report for CountStage {
 //!     const ABOUT: &'static str = "counts the test views";
 //!
 //!     fn describe(n: &usize) -> String {
@@ -49,7 +49,7 @@
 //!     }
 //!
 //!     fn report(n: &usize, _: &ReportContext) -> Option<Section> {
-//!         let mut s = Section::new("count", "Test views", "test views");
+//!         let mut s = Section::new(CountStage::NAME, "Test views", "test views");
 //!         s.table(Table::new(&["test views"]).row(vec![n.to_string()]));
 //!         Some(s)
 //!     }
@@ -60,8 +60,8 @@
 //! # let options = nerfsv_dataset::GenerateOptions { width: 4, height: 4, train: 1, val: 1, test: 2,
 //! #     supersample: 1, ..Default::default() };
 //! let mut runner = Runner::new(root.path(), &Silent)?;
-//! runner.run(&nerfsv_pipeline::stages::Dataset { source: nerfsv_pipeline::stages::DatasetSource::Render { scene: &scene, options: &options } })?;
-//! assert_eq!(runner.run(&CountTestViews)?, 2); // the new item
+//! runner.run(&nerfsv_pipeline::stages::DatasetStage { source: nerfsv_pipeline::stages::DatasetSource::Render { scene: &scene, options: &options } })?;
+//! assert_eq!(runner.run(&CountStage)?, 2); // the new item
 //! # Ok::<(), PipelineError>(())
 //! ```
 

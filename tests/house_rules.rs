@@ -270,3 +270,40 @@ fn every_stage_has_one_name() {
     assert!(stages >= 10, "only {stages} stage modules found");
     assert!(bad.is_empty(), "{}", bad.join("\n"));
 }
+
+/// The wheel's build (maturin builds the Python package alone) reuses the test suite's: every
+/// crate the package shares with the workspace resolves to the same features both ways, or
+/// maturin rebuilds every workspace crate (see `python/Cargo.toml`).
+#[test]
+fn the_python_package_builds_with_the_workspaces_features() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let features = |scope: &[&str]| -> std::collections::BTreeMap<String, std::collections::BTreeSet<String>> {
+        let out = std::process::Command::new(&cargo)
+            .args(["tree", "--offline", "--prefix", "none", "-f", "{p}|{f}"])
+            .args(scope)
+            .current_dir(root)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "cargo tree: {}", String::from_utf8_lossy(&out.stderr));
+        let mut map = std::collections::BTreeMap::<String, std::collections::BTreeSet<String>>::new();
+        for line in String::from_utf8_lossy(&out.stdout).lines() {
+            let line = line.trim_end_matches(" (*)");
+            if let Some((package, features)) = line.split_once('|') {
+                let entry = map.entry(package.to_string()).or_default();
+                entry.extend(features.split(',').filter(|f| !f.is_empty()).map(str::to_string));
+            }
+        }
+        map
+    };
+    let (python, workspace) = (features(&["-p", "nerfsv-python"]), features(&["--workspace"]));
+    assert!(python.len() > 50, "only {} packages under the Python package", python.len());
+    let differ: Vec<String> = python
+        .iter()
+        .filter_map(|(p, f)| {
+            let w = workspace.get(p)?;
+            (w != f).then(|| format!("{p}: the workspace's {w:?}, the Python package's alone {f:?}"))
+        })
+        .collect();
+    assert!(differ.is_empty(), "{}", differ.join("\n"));
+}

@@ -6,19 +6,18 @@
 
 mod report;
 
-use std::path::Path;
-
 use nerfsv_sim::{NerfWorldSource, SimConfig};
 use nerfsv_study::calibration::{
-    self, calibrate, CalibrationFigures, CalibrationRequest, CalibrationView, ErrorModels, PerceptionConfig,
+    self, calibrate, CalibrationFigures, CalibrationRequest, CalibrationView, PerceptionConfig,
 };
-use nerfsv_study::flight::{Calibration, Drone, Mission};
+use nerfsv_study::flight::{Drone, Mission};
 use serde::Serialize;
 
 use crate::collision::CollisionStage;
 use crate::dataset::DatasetStage;
 use crate::ensemble::EnsembleStage;
 use crate::flight::flight_inputs;
+use crate::inputs::load_members;
 use crate::nerf::NerfStage;
 use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::{Stage, StageContext};
@@ -36,23 +35,14 @@ pub struct CalibrationStage<'a> {
 impl CalibrationStage<'_> {
     /// One row per fit ([`nerfsv_study::calibration::CalibrationRecord`]).
     pub const VIEWS_CSV: &'static str = calibration::VIEWS_CSV;
-    /// The fitted models ([`ErrorModels`]: the real error's and one per member).
+    /// The fitted models ([`ErrorModels`](nerfsv_study::calibration::ErrorModels): the real error's and one per member).
     pub const MODEL_JSON: &'static str = calibration::MODEL_JSON;
     /// The errors along the route and the model's band.
     pub const ROUTE_PNG: &'static str = calibration::ROUTE_PNG;
-
-    /// The calibrated world's draws from the model this stage wrote into `root`.
-    pub fn load(root: &Path, perception: &PerceptionConfig, seed: u64) -> Result<Calibration, PipelineError> {
-        let path = root.join(<Self as Stage>::NAME).join(Self::MODEL_JSON);
-        let text = std::fs::read_to_string(&path).map_err(|e| PipelineError::io(&path, e))?;
-        let models: ErrorModels = serde_json::from_str(&text)
-            .map_err(|e| PipelineError::Internal(format!("{}: not error models: {e}", path.display())))?;
-        Ok(Calibration { models: models.members, draws_per_member: perception.draws_per_member, seed })
-    }
 }
 
 impl Stage for CalibrationStage<'_> {
-    const NAME: &'static str = "calibration";
+    const NAME: &'static str = calibration::STAGE;
     const MODULE: &'static str = module_path!();
     const OUTPUTS: &'static [&'static str] = &[Self::VIEWS_CSV, Self::MODEL_JSON, Self::ROUTE_PNG];
     const INPUTS: &'static [&'static str] =
@@ -84,7 +74,7 @@ impl Stage for CalibrationStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<CalibrationFigures, PipelineError> {
         let mut inputs = flight_inputs(cx.root, self.drone.scene.is_some())?;
         // Each member's own images of the calibration views.
-        inputs.members = crate::members::load_members(cx.root)?;
+        inputs.members = load_members(cx.root)?;
         let flight = inputs.plan(self.drone.sim)?;
         let split = match self.perception.held_out_split {
             true => Some(load_linked_split(&cx.input_dir(DatasetStage::NAME), "test", 1)?),

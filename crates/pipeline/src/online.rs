@@ -14,6 +14,7 @@ use serde::Serialize;
 use self::config::OnlineConfig;
 use crate::collision::CollisionStage;
 use crate::dataset::DatasetStage;
+use crate::inputs::drone_worlds;
 use crate::nerf::NerfStage;
 use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::{Stage, StageContext};
@@ -59,7 +60,8 @@ impl Stage for OnlineStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
         let s = self.search;
         // Its rewarded searches fly in the stress stage's NeRF world.
-        let inputs = s.load_inputs(cx.root)?;
+        let calibration = s.calibrated().then_some((s.perception, s.validation.seed));
+        let inputs = drone_worlds(cx.root, s.drone.scene.is_some(), s.ensemble, calibration)?;
         let flight = inputs.plan(s.drone.sim)?;
         let validation = self.validation();
         let stress_dir = cx.input_dir(StressStage::NAME);

@@ -22,7 +22,8 @@ use crate::calibration::CalibrationStage;
 use crate::collision::CollisionStage;
 use crate::dataset::DatasetStage;
 use crate::ensemble::EnsembleStage;
-use crate::flight::{drone_inputs, flight_inputs};
+use crate::flight::drone_inputs;
+use crate::inputs::drone_worlds;
 use crate::nerf::NerfStage;
 use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::{stage_key, Stage, StageContext};
@@ -55,14 +56,8 @@ impl StressStage<'_> {
     /// The drone's worlds in the run folder `root`: the model and the fields, with the ensemble's
     /// other members and the calibrated world's error model where this stage flies them.
     pub fn load_inputs(&self, root: &Path) -> Result<FlightInputs, PipelineError> {
-        let mut inputs = flight_inputs(root, self.drone.scene.is_some())?;
-        if self.ensemble {
-            inputs.members = crate::members::load_members(root)?;
-        }
-        if self.calibrated() {
-            inputs.calibration = Some(CalibrationStage::load(root, self.perception, self.validation.seed)?);
-        }
-        Ok(inputs)
+        let calibration = self.calibrated().then_some((self.perception, self.validation.seed));
+        drone_worlds(root, self.drone.scene.is_some(), self.ensemble, calibration)
     }
 
     fn samplers(&self) -> &'static [Sampler] {

@@ -88,7 +88,7 @@ impl Stage for UqStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<UqFigures, PipelineError> {
         let nerf = Nerf::load(&NerfStage::checkpoint(cx.root))?;
         let members = match self.ensemble {
-            true => crate::members::load_members(cx.root)?,
+            true => crate::inputs::load_members(cx.root)?,
             false => Vec::new(),
         };
         let others: Vec<&Nerf> = members.iter().map(|m| &m.nerf).collect();

@@ -462,6 +462,8 @@ pub struct CalibrationRequest<'a> {
     pub stage: &'static str,
 }
 
+/// The calibration stage's folder in a run, where the calibrated world's error model is read from.
+pub const STAGE: &str = "calibration";
 /// One row per fit ([`CalibrationRecord`]).
 pub const VIEWS_CSV: &str = "calibration_fits.csv";
 /// The fitted models ([`ErrorModels`]: the real error's and one per member, each as its samples

@@ -287,13 +287,7 @@ pub fn stress(
         online,
         field: uq_field.as_ref().map(|(p, f)| (*p, f)),
         remote: remote.as_ref().map(|r| r as &dyn RemoteRollouts),
-        ..StressSetup::new(
-            Mission { drone, inputs: &worlds, flight: &flight },
-            &cfg.validation,
-            &prior,
-            &samplers,
-            &cfg.uq,
-        )
+        ..cfg.search(Mission { drone, inputs: &worlds, flight: &flight }, &prior, &samplers)
     };
     let key = search_key(&setup, model, nerf_field.as_deref()).map_err(py_err)?;
     let figures = py.detach(|| search_into(&setup, &out, resume, &key, &Silent)).map_err(py_err)?;

@@ -101,13 +101,7 @@ pub fn run(args: StressArgs) -> anyhow::Result<()> {
         replay: args.replay,
         online,
         field: field.as_ref().map(|(p, f)| (*p, f)),
-        ..StressSetup::new(
-            Mission { drone, inputs: &worlds, flight: &flight },
-            &cfg.validation,
-            &prior,
-            &samplers,
-            &cfg.uq,
-        )
+        ..cfg.search(Mission { drone, inputs: &worlds, flight: &flight }, &prior, &samplers)
     };
     let key = search_key(&setup, &d.model, d.nerf_field.as_deref())?;
     let claimed = guard.claim()?;

@@ -495,6 +495,18 @@ impl RunConfig {
         let step = self.validation.disturbance.to_gaussian().map_err(|e| e.within("validation.disturbance"))?;
         Ok(nerfsv_validation::Prior::new(step, self.sim.steps))
     }
+
+    /// The stress stage's search of `samplers` flying `mission` under `prior` with this
+    /// config's `[validation]` and `[uq]` ([`StressSetup::new`](nerfsv_study::stress::StressSetup::new)):
+    /// what `nerfsv stress` and Python change the world, estimator and the rest of.
+    pub fn search<'a>(
+        &'a self,
+        mission: nerfsv_study::flight::Mission<'a>,
+        prior: &'a nerfsv_validation::Prior,
+        samplers: &'a [nerfsv_validation::Sampler],
+    ) -> nerfsv_study::stress::StressSetup<'a> {
+        nerfsv_study::stress::StressSetup::new(mission, &self.validation, prior, samplers, &self.uq)
+    }
 }
 
 impl RunConfig {

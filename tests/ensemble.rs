@@ -112,3 +112,49 @@ fn a_tiny_run_with_an_ensemble_writes_the_transfer_table_and_resumes_to_the_same
     assert!(member.params == trained.params, "member 1's weights are `nerfsv train --seed 1`'s bit for bit");
     assert!(member.grid.density == trained.grid.density);
 }
+
+#[test]
+fn a_recorded_route_capture_joins_the_calibration_and_a_missing_one_is_refused_by_its_key() {
+    let dir = tempfile::tempdir().unwrap();
+    // Four views at known poses (two training, one validation, one test view of the world).
+    common::tiny_dataset(&dir.path().join("route"), "2", "1");
+    let cfg = config(dir.path());
+    let calibrated =
+        std::fs::read_to_string(&cfg).unwrap().replace("nerf_world = \"ensemble\"", "nerf_world = \"calibrated\"");
+    let with_route = |folder: &str| {
+        std::fs::write(
+            &cfg,
+            format!("{calibrated}[perception]\nroute_views = 2\nfits_per_view = 1\nroute_dataset = \"{folder}\"\n"),
+        )
+        .unwrap()
+    };
+    with_route("route/ds");
+    let out = dir.path().join("run");
+    let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&out)]);
+    assert!(ok, "{err}");
+    let c = &summary(&out)["calibration"];
+    assert_eq!((c["route_views"].as_u64(), c["route_dataset_views"].as_u64()), (Some(2), Some(4)), "{c:#}");
+    let fits = std::fs::read_to_string(out.join("calibration/calibration_fits.csv")).unwrap();
+    let recorded: Vec<&str> = fits.lines().filter(|l| l.starts_with("route_dataset,")).collect();
+    assert_eq!(recorded.len(), 4, "{fits}");
+    // Each found along the route.
+    for l in recorded {
+        let fraction: f64 = l.split(',').nth(3).unwrap().parse().unwrap();
+        assert!((0.0..=1.0).contains(&fraction), "{l}");
+    }
+    // The filter's model error rests on the fits it would take (a tiny NeRF's may all be lost).
+    let header: Vec<&str> = fits.lines().next().unwrap().split(',').collect();
+    let vf = header.iter().position(|h| *h == "variance_factor").unwrap();
+    let taken = fits.lines().skip(1).filter(|l| l.split(',').nth(vf).unwrap().parse::<f64>().unwrap() <= 5.0).count();
+    match taken {
+        0 => assert!(c["model_error"].is_null(), "{c:#}"),
+        n => assert_eq!(c["model_error"]["fits"].as_u64(), Some(n as u64), "{c:#}"),
+    }
+
+    with_route("nowhere");
+    let fresh = dir.path().join("fresh");
+    let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&fresh)]);
+    assert!(!ok);
+    assert!(err.contains("perception.route_dataset") && err.contains("nowhere"), "{err}");
+    assert!(!fresh.join("dataset").exists(), "refused before any stage");
+}

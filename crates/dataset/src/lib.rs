@@ -34,7 +34,7 @@ pub use distortion::OpenCvDistortion;
 pub use error::DatasetError;
 pub use folder::{dataset_files, dataset_format, has_split, load_split, probe, DatasetFormat};
 pub use generate::{generate, render, sample_cameras, DatasetFigures, GenerateOptions};
-pub use linked::{load_linked_split, LinkedFolder, LINK_FILE};
+pub use linked::{load_all_frames, load_linked_split, LinkedFolder, LINK_FILE};
 pub use nerfsv_scene::image::{DepthImage, Image};
 pub use placement::Placement;
 pub use split::{Frame, LoadOptions, Split};

@@ -51,6 +51,28 @@ pub fn load_linked_split(dir: &Path, split: &str, downscale: u32) -> Result<Spli
     Ok(s)
 }
 
+/// Every frame of the dataset folder `dir`, placed by `placement`: the frames of its splits
+/// (those it has: [`crate::has_split`]) once each, in split order (a frame two splits share, as
+/// `val` and `test` of a `transforms.json` without split lists do, once). Without depth.
+pub fn load_all_frames(dir: &Path, placement: Placement) -> Result<Vec<crate::Frame>, DatasetError> {
+    let options = LoadOptions { downscale: 1, load_depth: false, ..Default::default() };
+    let mut frames: Vec<crate::Frame> = Vec::new();
+    for split in crate::SPLITS.into_iter().filter(|s| crate::has_split(dir, s)) {
+        let mut s = load_split(dir, split, options).map_err(|error| DatasetError::Split {
+            split: split.to_string(),
+            folder: dir.to_path_buf(),
+            error: Box::new(error),
+        })?;
+        placement.place(&mut s);
+        for f in s.frames {
+            if !frames.iter().any(|g| g.image_path == f.image_path) {
+                frames.push(f);
+            }
+        }
+    }
+    Ok(frames)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -664,3 +664,27 @@ fn a_nerfstudio_frames_exif_orientation_is_applied_where_the_frame_has_the_turne
     let e = load_split(untagged.path(), "train", LoadOptions::default()).unwrap_err().to_string();
     assert!(e.contains("frame_00.jpg") && e.contains("image is 16×12, transforms say 12×16"), "{e}");
 }
+
+#[test]
+fn every_frame_of_a_capture_loads_once_whatever_its_splits() {
+    let truth = expected();
+    // Split lists: each frame in one split.
+    let frames = nerfsv_dataset::load_all_frames(&fixtures().join("nerfstudio"), Placement::default()).unwrap();
+    let mut names: Vec<&str> = frames.iter().map(|f| f.file_path.as_str()).collect();
+    names.sort_unstable();
+    let mut want: Vec<&str> =
+        truth["nerfstudio"]["frames"].as_array().unwrap().iter().map(|v| v["file_path"].as_str().unwrap()).collect();
+    want.sort_unstable();
+    assert_eq!(names, want);
+    // COLMAP without lists: val and test are the same every-8th frames, read once.
+    for model in ["colmap_text", "colmap_bin"] {
+        let frames = nerfsv_dataset::load_all_frames(&fixtures().join(model), Placement::default()).unwrap();
+        assert_eq!(frames.len(), truth["colmap"]["images"].as_array().unwrap().len(), "{model}");
+    }
+    // Placed as the placement says.
+    let placement = Placement { scale: 2.0, ..Placement::default() };
+    let placed = nerfsv_dataset::load_all_frames(&fixtures().join("nerfstudio"), placement).unwrap();
+    let unplaced = nerfsv_dataset::load_all_frames(&fixtures().join("nerfstudio"), Placement::default()).unwrap();
+    let (a, b) = (placed[0].camera.position(), unplaced[0].camera.position());
+    assert!((a.coords - 2.0 * b.coords).norm() < 1e-5, "{a} against 2 × {b}");
+}

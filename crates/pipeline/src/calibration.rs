@@ -8,13 +8,13 @@ mod report;
 
 use nerfsv_sim::{NerfWorldSource, SimConfig};
 use nerfsv_study::calibration::{
-    self, calibrate, CalibrationFigures, CalibrationRequest, CalibrationView, PerceptionConfig,
+    self, calibrate, CalibrationFigures, CalibrationRequest, CalibrationView, PerceptionConfig, ViewSource,
 };
 use nerfsv_study::flight::{Drone, Mission};
 use serde::Serialize;
 
 use crate::collision::CollisionStage;
-use crate::dataset::DatasetStage;
+use crate::dataset::{dataset_digest, DatasetStage};
 use crate::ensemble::EnsembleStage;
 use crate::flight::flight_inputs;
 use crate::inputs::load_members;
@@ -22,12 +22,14 @@ use crate::nerf::NerfStage;
 use crate::nerf_collision::NerfCollisionStage;
 use crate::stage::{Stage, StageContext};
 use crate::PipelineError;
-use nerfsv_dataset::load_linked_split;
+use nerfsv_dataset::{load_all_frames, load_linked_split, Frame, Placement};
 
 /// The calibration stage.
 pub struct CalibrationStage<'a> {
     pub drone: Drone<'a>,
     pub perception: &'a PerceptionConfig,
+    /// Where `perception.route_dataset`'s poses lie in the world: the `[world]` dataset's placement.
+    pub placement: Placement,
     /// Seeds the route capture's poses and each fit's pixels and start.
     pub seed: u64,
 }
@@ -68,6 +70,8 @@ impl Stage for CalibrationStage<'_> {
             self.drone.render.supersample,
             (p.route_views, p.route_jitter, p.held_out_split, p.fits_per_view),
             self.seed,
+            // A recorded route capture by the files its loader reads, and where it lies.
+            p.route_dataset.as_ref().map(|f| (f, format!("{:016x}", dataset_digest(f)), self.placement)),
         )
     }
 
@@ -76,22 +80,28 @@ impl Stage for CalibrationStage<'_> {
         // Each member's own images of the calibration views.
         inputs.members = load_members(cx.root)?;
         let flight = inputs.plan(self.drone.sim)?;
-        let split = match self.perception.held_out_split {
-            true => Some(load_linked_split(&cx.input_dir(DatasetStage::NAME), "test", 1)?),
-            false => None,
+        let held_out = match self.perception.held_out_split {
+            true => load_linked_split(&cx.input_dir(DatasetStage::NAME), "test", 1)?.frames,
+            false => Vec::new(),
+        };
+        let route = match &self.perception.route_dataset {
+            Some(folder) => load_all_frames(folder, self.placement)?,
+            None => Vec::new(),
         };
         let request = CalibrationRequest {
             mission: Mission { drone: self.drone, inputs: &inputs, flight: &flight },
             perception: self.perception,
-            held_out: split
-                .iter()
-                .flat_map(|s| &s.frames)
-                .map(|f| CalibrationView::held_out(&f.camera, &f.image))
-                .collect(),
+            held_out: views(&held_out, ViewSource::HeldOut),
+            route_dataset: views(&route, ViewSource::RouteDataset),
             seed: self.seed,
             out: &cx.dir,
             stage: Self::NAME,
         };
         Ok(calibrate(&request, cx.observer)?)
     }
+}
+
+/// The calibration views of recorded `frames` from `source`.
+fn views(frames: &[Frame], source: ViewSource) -> Vec<CalibrationView<'_>> {
+    frames.iter().map(|f| CalibrationView::recorded(source, &f.camera, &f.image)).collect()
 }

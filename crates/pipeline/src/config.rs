@@ -403,7 +403,8 @@ impl RunConfig {
     fn load_onto(path: &Path, base: Self) -> Result<Self, PipelineError> {
         let mut cfg: Self = load_toml_onto(path, base)?;
         let folder = path.parent().unwrap_or(Path::new(""));
-        for p in [&mut cfg.world.mesh, &mut cfg.world.dataset].into_iter().flatten() {
+        for p in [&mut cfg.world.mesh, &mut cfg.world.dataset, &mut cfg.perception.route_dataset].into_iter().flatten()
+        {
             if p.is_relative() {
                 *p = folder.join(&*p);
             }
@@ -640,12 +641,16 @@ impl RunConfig {
 
     /// The `[world]` dataset opened as the run will read it, one frame of it
     /// ([`nerfsv_dataset::probe`]), with or without a mesh.
+    /// The same of `[perception] route_dataset`.
     fn check_dataset(&self) -> Result<(), PipelineError> {
-        let Some(folder) = &self.world.dataset else { return Ok(()) };
-        nerfsv_dataset::probe(folder).map(drop).map_err(|message| PipelineError::World {
-            key: "world.dataset",
-            message: format!("{}: {message}", folder.display()),
-        })
+        for (key, folder) in
+            [("world.dataset", &self.world.dataset), ("perception.route_dataset", &self.perception.route_dataset)]
+        {
+            let Some(folder) = folder else { continue };
+            nerfsv_dataset::probe(folder)
+                .map_err(|message| PipelineError::World { key, message: format!("{}: {message}", folder.display()) })?;
+        }
+        Ok(())
     }
 
     /// A user's dataset must show the user's mesh: the principal ray of at least half of its

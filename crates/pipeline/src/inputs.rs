@@ -43,7 +43,13 @@ pub fn load_calibration(root: &Path, perception: &PerceptionConfig, seed: u64) -
     let text = std::fs::read_to_string(&path).map_err(|e| PipelineError::io(&path, e))?;
     let models: ErrorModels = serde_json::from_str(&text)
         .map_err(|e| PipelineError::Internal(format!("{}: not error models: {e}", path.display())))?;
-    Ok(Calibration { models: models.members, draws_per_member: perception.draws_per_member, seed })
+    let model_error = models.model_error_per_rmse.filter(|_| perception.filter_model_error);
+    Ok(Calibration {
+        models: models.members,
+        draws_per_member: perception.draws_per_member,
+        seed,
+        model_error_per_rmse: model_error.map(|m| m.per_rmse),
+    })
 }
 
 /// The worlds the drone flies in: [`flight_inputs`], with the ensemble's other members

@@ -53,8 +53,7 @@ impl Stage for OnlineStage<'_> {
 
     fn config(&self) -> impl Serialize {
         let s = self.search;
-        let draws = s.calibrated().then_some(s.perception.draws_per_member);
-        (s.drone.key(), self.validation(), self.uq, self.online, draws)
+        (s.drone.key(), self.validation(), self.uq, self.online, s.calibration_key())
     }
 
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
@@ -62,6 +61,9 @@ impl Stage for OnlineStage<'_> {
         // Its rewarded searches fly in the stress stage's NeRF world.
         let calibration = s.calibrated().then_some((s.perception, s.validation.seed));
         let inputs = drone_worlds(cx.root, s.drone.scene.is_some(), s.ensemble, calibration)?;
+        // The filter the stress stage flew.
+        let sim = inputs.filter_sim(s.drone.sim);
+        let s = &s.with_sim(&sim);
         let flight = inputs.plan(s.drone.sim)?;
         let validation = self.validation();
         let stress_dir = cx.input_dir(StressStage::NAME);

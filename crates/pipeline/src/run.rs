@@ -53,10 +53,14 @@ pub fn run_guard(cfg: &RunConfig, out: &str) -> Guard {
     world_inputs(cfg, Guard::new().folder(out, &cfg.run_folder(), crate::OutputKind::Run))
 }
 
-/// `guard` with what the config's world reads: the `[world]` table's dataset and mesh.
+/// `guard` with what the config's world reads: the `[world]` table's dataset and mesh, and the
+/// calibration's recorded route capture.
 pub fn world_inputs(cfg: &RunConfig, mut guard: Guard) -> Guard {
     if let Some(dataset) = &cfg.world.dataset {
         guard = guard.dataset("world.dataset", dataset);
+    }
+    if let Some(dataset) = &cfg.perception.route_dataset {
+        guard = guard.dataset("perception.route_dataset", dataset);
     }
     if let Some(mesh) = &cfg.world.mesh {
         guard = guard.mesh("world.mesh", mesh);
@@ -111,6 +115,7 @@ pub fn run_in(
         r.run(&calibration::CalibrationStage {
             drone: cfg.drone(scene),
             perception: &cfg.perception,
+            placement: cfg.world.placement(),
             seed: cfg.validation.seed,
         })?;
     }

@@ -106,29 +106,45 @@ impl Stage for StressStage<'_> {
     }
 
     fn config(&self) -> impl Serialize {
-        let draws = self.calibrated().then_some(self.perception.draws_per_member);
-        (self.drone.key(), self.validation, self.samplers(), draws)
+        (self.drone.key(), self.validation, self.samplers(), self.calibration_key())
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
         let inputs = self.load_inputs(cx.root)?;
+        let sim = inputs.filter_sim(self.drone.sim);
+        self.with_sim(&sim).search(cx, &inputs)
+    }
+}
+
+impl StressStage<'_> {
+    /// What the calibrated world adds to the key: its draws and whose model error the filter
+    /// takes (the calibration's own figures enter through its folder's key).
+    pub fn calibration_key(&self) -> Option<(usize, bool)> {
+        self.calibrated().then_some((self.perception.draws_per_member, self.perception.filter_model_error))
+    }
+
+    /// This stage with the drone's simulator settings `sim` (those it flies with its inputs:
+    /// [`FlightInputs::filter_sim`]).
+    pub fn with_sim<'b>(&'b self, sim: &'b SimConfig) -> StressStage<'b> {
+        StressStage { drone: Drone { sim, ..self.drone }, ..*self }
+    }
+
+    fn search(&self, cx: &StageContext, inputs: &FlightInputs) -> Result<StressFigures, PipelineError> {
         let flight = inputs.plan(self.drone.sim)?;
         let uq = UqConfig::default();
         let setup = StressSetup {
             replay: self.drone.scene.is_some(),
-            ..StressSetup::new(self.mission(&inputs, &flight), self.validation, self.prior, self.samplers(), &uq)
+            ..StressSetup::new(self.mission(inputs, &flight), self.validation, self.prior, self.samplers(), &uq)
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
         let (mut figures, records) = stress(&setup, &cx.dir, Self::NAME, cx.resume, cx.observer)?;
         if self.ensemble && self.drone.scene.is_some() && self.samplers().contains(&Sampler::Mc) {
-            figures.transfer = Some(self.transfer(cx, &inputs, &flight, &records)?);
+            figures.transfer = Some(self.transfer(cx, inputs, &flight, &records)?);
         }
         Ok(figures)
     }
-}
 
-impl StressStage<'_> {
     /// The searched rollouts with the ensemble's uncertainty of each step's view.
     pub const STEP_UNCERTAINTY_CSV: &'static str = "ensemble_step_uncertainty.csv";
 

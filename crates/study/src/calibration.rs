@@ -46,14 +46,31 @@ pub struct PerceptionConfig {
     /// Fits per view: one from the true pose, the others from starts drawn from the prior of the
     /// first image after a disturbance (each with its own pixels).
     pub fits_per_view: usize,
+    /// A folder of your own route capture: images along the planned route at known poses, in
+    /// any format `[world] dataset` takes (every frame of every split), placed in the world as
+    /// the `[world]` dataset is. Its views join the rendered route capture's, for a world known
+    /// only by a dataset as for any other. Unset: none.
+    pub route_dataset: Option<std::path::PathBuf>,
     /// Error functions drawn per ensemble member: the calibrated world's rollouts fall into
     /// `members × draws_per_member` worlds.
     pub draws_per_member: usize,
+    /// The filter's model error per unit of colour RMSE (`sim.vision.model_error_per_rmse`) as
+    /// the calibration measured it ([`filter_model_error`]), in every world the calibrated study
+    /// flies (NeRF-sim's and GT-sim's: one estimator ships); false: the config's value.
+    pub filter_model_error: bool,
 }
 
 impl Default for PerceptionConfig {
     fn default() -> Self {
-        Self { route_views: 50, route_jitter: [0.05, 2.0], held_out_split: true, fits_per_view: 3, draws_per_member: 5 }
+        Self {
+            route_views: 50,
+            route_jitter: [0.05, 2.0],
+            held_out_split: true,
+            fits_per_view: 3,
+            route_dataset: None,
+            draws_per_member: 5,
+            filter_model_error: true,
+        }
     }
 }
 
@@ -72,10 +89,23 @@ impl PerceptionConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ViewSource {
-    /// The route capture.
+    /// The route capture rendered by the ground truth.
     Route,
     /// The dataset's held-out split.
     HeldOut,
+    /// A recorded route capture (`[perception] route_dataset`).
+    RouteDataset,
+}
+
+impl ViewSource {
+    /// Its name in the fits' CSV.
+    pub fn name(self) -> &'static str {
+        match self {
+            ViewSource::Route => "route",
+            ViewSource::HeldOut => "held_out",
+            ViewSource::RouteDataset => "route_dataset",
+        }
+    }
 }
 
 /// What a calibration view's image is: a world rendered at the view (the ground truth) or a
@@ -128,6 +158,20 @@ fn normal(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
     let u: f64 = 1.0 - rng.random::<f64>();
     let v: f64 = rng.random();
     (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+}
+
+/// Where along the planned `flight` the point `position` lies, `[0, 1]`: the fraction of the
+/// flight's time at which its route passes closest (to a thousandth of the flight).
+pub fn route_fraction(flight: &Flight, position: &Vector3<f64>) -> f64 {
+    const STEPS: usize = 1000;
+    let duration = flight.reference.duration();
+    (0..=STEPS)
+        .map(|i| i as f64 / STEPS as f64)
+        .min_by(|a, b| {
+            let d = |f: f64| (flight.reference.at_rest(f * duration).position - position).norm_squared();
+            d(*a).total_cmp(&d(*b))
+        })
+        .unwrap_or(0.0)
 }
 
 /// One fit of one calibration view.
@@ -237,10 +281,7 @@ pub fn write_records_csv(path: &Path, records: &[CalibrationRecord]) -> Result<(
     nerfsv_scene::io::atomic_write(path, |w| {
         w.write_all(header.as_bytes())?;
         for r in records {
-            let source = match r.source {
-                ViewSource::Route => "route",
-                ViewSource::HeldOut => "held_out",
-            };
+            let source = r.source.name();
             let fraction = r.route_fraction.map_or(String::new(), |f| f.to_string());
             let at: Vec<String> = r.at.position.iter().chain(&r.at.forward).map(f64::to_string).collect();
             let e: Vec<String> = r.error.iter().map(f64::to_string).collect();
@@ -269,6 +310,74 @@ pub fn write_records_csv(path: &Path, records: &[CalibrationRecord]) -> Result<(
 pub struct ErrorModels {
     pub real: ErrorModel,
     pub members: Vec<ErrorModel>,
+    /// The filter's model error the fits measured ([`filter_model_error`]); none without a fit
+    /// the filter would take.
+    #[serde(default)]
+    pub model_error_per_rmse: Option<ModelError>,
+}
+
+/// The filter's model error measured on calibration fits: the standard deviation per axis of a
+/// fit's error per unit of its colour RMSE (`sim.vision.model_error_per_rmse`'s meaning), with a
+/// 95 % interval from a bootstrap over views.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ModelError {
+    /// `[metres, degrees]` per unit of RMSE.
+    pub per_rmse: [f64; 2],
+    pub position_ci95: [f64; 2],
+    pub rotation_ci95: [f64; 2],
+    /// The fits it rests on (those the filter would take) and their views.
+    pub fits: usize,
+    pub views: usize,
+}
+
+/// Bootstrap resamples of [`filter_model_error`]'s interval.
+const MODEL_ERROR_RESAMPLES: usize = 1000;
+
+/// The filter's model error of the fits `records` (one view's fits share its `view`): per unit
+/// of each fit's colour RMSE, the root mean square of its error over the position axes (metres)
+/// and over the rotation axes (degrees), `sqrt(mean(e² / rmse²))`, the maximum-likelihood scale
+/// of an error that is normal with standard deviation `k · rmse` per axis. Fits the filter
+/// refuses as lost (variance factor above `lost_variance_factor`) and fits without a residual
+/// are left out. The interval resamples views (a view's fits share its bias), seeded by `seed`.
+/// None without a fit left.
+pub fn filter_model_error(records: &[CalibrationRecord], lost_variance_factor: f64, seed: u64) -> Option<ModelError> {
+    // Per view: the sums of e²/rmse² over its fits' position and rotation axes, and its fits.
+    let mut per_view: std::collections::BTreeMap<(&str, usize), ([f64; 2], usize)> = Default::default();
+    for r in records.iter().filter(|r| r.variance_factor <= lost_variance_factor && r.rmse > 0.0) {
+        let entry = per_view.entry((r.source.name(), r.view)).or_default();
+        let w = 1.0 / (r.rmse * r.rmse);
+        entry.0[0] += w * r.error[..3].iter().map(|e| e * e).sum::<f64>();
+        entry.0[1] += w * r.error[3..].iter().map(|e| e.to_degrees().powi(2)).sum::<f64>();
+        entry.1 += 1;
+    }
+    let views: Vec<([f64; 2], usize)> = per_view.into_values().collect();
+    let scale = |picked: &mut dyn Iterator<Item = &([f64; 2], usize)>| -> [f64; 2] {
+        let (mut sum, mut n) = ([0.0; 2], 0);
+        for (s, k) in picked {
+            sum = [sum[0] + s[0], sum[1] + s[1]];
+            n += k;
+        }
+        sum.map(|s| (s / (3 * n.max(1)) as f64).sqrt())
+    };
+    let fits: usize = views.iter().map(|v| v.1).sum();
+    if fits == 0 {
+        return None;
+    }
+    let per_rmse = scale(&mut views.iter());
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mix(seed, 0x30de1, 0));
+    let mut draws: [Vec<f64>; 2] = Default::default();
+    for _ in 0..MODEL_ERROR_RESAMPLES {
+        let k = scale(&mut (0..views.len()).map(|_| &views[rng.random_range(0..views.len())]));
+        draws[0].push(k[0]);
+        draws[1].push(k[1]);
+    }
+    let ci = |mut v: Vec<f64>| -> [f64; 2] {
+        v.sort_by(f64::total_cmp);
+        [nerfsv_scene::stats::quantile_sorted(&v, 0.025), nerfsv_scene::stats::quantile_sorted(&v, 0.975)]
+    };
+    let [p, r] = draws;
+    Some(ModelError { per_rmse, position_ci95: ci(p), rotation_ci95: ci(r), fits, views: views.len() })
 }
 
 /// The paired differences `real − member` of fits of the same views with the same pixels and
@@ -362,6 +471,9 @@ pub fn cross_validate(samples: &[ErrorSample], folds: usize) -> CrossValidation 
 pub struct CalibrationFigures {
     pub route_views: usize,
     pub held_out_views: usize,
+    /// Views of the recorded route capture (`[perception] route_dataset`).
+    #[serde(default)]
+    pub route_dataset_views: usize,
     pub fits: usize,
     /// Median and 90th percentile of the fits' position (mm) and rotation (°) errors.
     pub position_error_mm: [f64; 2],
@@ -377,6 +489,13 @@ pub struct CalibrationFigures {
     /// ([`AXES`]): the correction the calibrated world's draws for that member are centred near.
     #[serde(default)]
     pub member_mean_difference: Vec<[f64; 6]>,
+    /// The filter's model error the fits measured, and the config's it replaces where
+    /// `[perception] filter_model_error` ([`filter_model_error`]).
+    #[serde(default)]
+    pub model_error: Option<ModelError>,
+    /// The config's model error (`sim.vision.model_error_per_rmse`, `[m, °]` per RMSE).
+    #[serde(default)]
+    pub config_model_error: [f64; 2],
     /// Seconds spent fitting views, and fitting and validating the model.
     pub measure_seconds: f64,
     pub model_seconds: f64,
@@ -400,6 +519,7 @@ impl CalibrationFigures {
         Self {
             route_views: count(ViewSource::Route),
             held_out_views: count(ViewSource::HeldOut),
+            route_dataset_views: count(ViewSource::RouteDataset),
             fits: records.len(),
             position_error_mm: q(records.iter().map(|r| r.position_error_m() * 1e3).collect()),
             rotation_error_deg: q(records.iter().map(CalibrationRecord::rotation_error_deg).collect()),
@@ -408,6 +528,8 @@ impl CalibrationFigures {
             kernels: model.kernels().to_vec(),
             cross_validation: cv,
             member_mean_difference: Vec::new(),
+            model_error: None,
+            config_model_error: [f64::NAN; 2],
             measure_seconds: 0.0,
             model_seconds: 0.0,
         }
@@ -451,8 +573,11 @@ pub struct CalibrationRequest<'a> {
     /// (`inputs.members`) and the ground truth, where there is one (the route capture's images).
     pub mission: Mission<'a>,
     pub perception: &'a PerceptionConfig,
-    /// The dataset's held-out views ([`CalibrationView::held_out`]), when `perception.held_out_split`.
+    /// The dataset's held-out views ([`CalibrationView::recorded`]), when `perception.held_out_split`.
     pub held_out: Vec<CalibrationView<'a>>,
+    /// The views of `perception.route_dataset` ([`ViewSource::RouteDataset`]), where along the
+    /// route each is found here.
+    pub route_dataset: Vec<CalibrationView<'a>>,
     /// Seeds the route capture's poses and each fit's pixels and start.
     pub seed: u64,
     /// The folder the files go to (which exists): [`VIEWS_CSV`], a `calibration_fits_member_{k}.csv`
@@ -475,11 +600,12 @@ pub const ROUTE_PNG: &str = "route_errors.png";
 pub const FOLDS: usize = 5;
 
 impl<'a> CalibrationView<'a> {
-    /// A held-out image of the dataset taken by `camera`.
-    pub fn held_out(camera: &nerfsv_scene::Camera, image: &'a Image) -> Self {
+    /// An image from `source` taken by `camera` (where along the route: [`calibrate`] finds it
+    /// for a route view).
+    pub fn recorded(source: ViewSource, camera: &nerfsv_scene::Camera, image: &'a Image) -> Self {
         let rotation: Matrix3<f64> = camera.rotation().map(f64::from);
         CalibrationView {
-            source: ViewSource::HeldOut,
+            source,
             route_fraction: None,
             position: camera.position().coords.map(f64::from),
             rotation: CalibrationView::body_rotation(&rotation),
@@ -516,6 +642,9 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
             });
         }
     }
+    for v in &req.route_dataset {
+        views.push(CalibrationView { route_fraction: Some(route_fraction(flight, &v.position)), ..*v });
+    }
     views.extend(req.held_out.iter().copied());
     let progress = |done, status: &str| observer.progress(req.stage, done, 2, status);
     progress(0, &format!("fitting {} views {} times each", views.len(), p.fits_per_view));
@@ -540,8 +669,12 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
     let model = ErrorModel::fit(&samples);
     let cv = cross_validate(&samples, FOLDS);
     let member_samples: Vec<Vec<_>> = member_records.iter().map(|rs| differences(&records, rs)).collect();
-    let models =
-        ErrorModels { real: model.clone(), members: member_samples.iter().map(|d| ErrorModel::fit(d)).collect() };
+    let model_error = filter_model_error(&records, sim.vision.lost_variance_factor, req.seed);
+    let models = ErrorModels {
+        real: model.clone(),
+        members: member_samples.iter().map(|d| ErrorModel::fit(d)).collect(),
+        model_error_per_rmse: model_error,
+    };
     let member_mean_difference = member_samples
         .iter()
         .map(|d| std::array::from_fn(|a| d.iter().map(|s| s.error[a]).sum::<f64>() / d.len().max(1) as f64))
@@ -555,6 +688,8 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
         measure_seconds,
         model_seconds,
         member_mean_difference,
+        model_error,
+        config_model_error: sim.vision.model_error_per_rmse,
         ..CalibrationFigures::of(&records, &model, cv)
     })
 }
@@ -609,6 +744,41 @@ mod tests {
         assert_eq!(d.iter().map(|s| s.view).collect::<Vec<_>>(), [0, 0, 1]);
         // A fit the member lacks is left out.
         assert_eq!(differences(&real, &member[..1]).len(), 1);
+    }
+
+    #[test]
+    fn the_filter_model_error_recovers_a_known_scale_and_leaves_lost_fits_out() {
+        // Errors normal per axis with sd k · rmse (k = 0.4 m and 12° per unit of RMSE), the RMSE
+        // varying from fit to fit; lost fits with errors 100 times larger are left out.
+        let mut state = 7u64;
+        let mut uniform = || {
+            state = nerfsv_scene::seed::splitmix64(state);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let k = [0.4, 12.0_f64.to_radians()];
+        let mut records = Vec::new();
+        for view in 0..200 {
+            for fit in 0..3 {
+                let rmse = 0.02 + 0.06 * uniform();
+                let lost = fit == 2 && view % 4 == 0;
+                let error = std::array::from_fn(|a| {
+                    let z: f64 = (0..12).map(|_| uniform()).sum::<f64>() - 6.0;
+                    k[a / 3] * rmse * z * if lost { 100.0 } else { 1.0 }
+                });
+                let variance_factor = if lost { 50.0 } else { 1.0 };
+                records.push(CalibrationRecord { error, rmse, variance_factor, ..record(view, fit, 0.0) });
+            }
+        }
+        let m = filter_model_error(&records, 5.0, 3).unwrap();
+        assert_eq!((m.fits, m.views), (550, 200));
+        assert!((m.per_rmse[0] / 0.4 - 1.0).abs() < 0.05, "{m:?}");
+        assert!((m.per_rmse[1] / 12.0 - 1.0).abs() < 0.05, "{m:?}");
+        assert!(m.position_ci95[0] < 0.4 && 0.4 < m.position_ci95[1], "{m:?}");
+        assert!(m.rotation_ci95[0] < 12.0 && 12.0 < m.rotation_ci95[1], "{m:?}");
+        assert!(m.position_ci95[1] - m.position_ci95[0] < 0.05, "{m:?}");
+        // Every fit lost: nothing to measure.
+        let lost: Vec<_> = records.iter().map(|r| CalibrationRecord { variance_factor: 50.0, ..*r }).collect();
+        assert_eq!(filter_model_error(&lost, 5.0, 3), None);
     }
 
     #[test]

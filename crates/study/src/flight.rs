@@ -409,6 +409,10 @@ pub struct Calibration {
     /// Seeds the draws (the validation seed: a rollout's world is a function of it and the
     /// rollout's own seed).
     pub seed: u64,
+    /// `[metres, degrees]` per unit of RMSE: the filter's model error the calibration measured
+    /// ([`crate::calibration::filter_model_error`]), which replaces the config's in every world
+    /// ([`FlightInputs::filter_sim`]); none: the config's.
+    pub model_error_per_rmse: Option<[f64; 2]>,
 }
 
 /// One member of an ensemble as a world: its NeRF and its signed field.
@@ -447,6 +451,16 @@ impl FlightInputs {
             }
         };
         Ok(Self { nerf, nerf_field, gt_field: Some(gt.sdf), members: Vec::new(), calibration: None })
+    }
+
+    /// `cfg` as the drone flies it with these inputs: the filter's model error the calibration
+    /// measured, where it replaces the config's ([`Calibration::model_error_per_rmse`]).
+    pub fn filter_sim(&self, cfg: &SimConfig) -> SimConfig {
+        let mut sim = cfg.clone();
+        if let Some(k) = self.calibration.as_ref().and_then(|c| c.model_error_per_rmse) {
+            sim.vision.model_error_per_rmse = k;
+        }
+        sim
     }
 
     pub fn plan(&self, cfg: &SimConfig) -> Result<Flight, StudyError> {

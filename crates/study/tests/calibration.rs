@@ -1,7 +1,8 @@
 //! The calibration and the calibrated world against a small NeRF trained here (the sphere on a
 //! slab of the NeRF crate's own tests): the perception error model recovers a known bias of a
 //! world whose renderer is shifted by it, a calibrated world with no error is the ensemble world
-//! byte for byte, and a rollout's world is a function of its seed.
+//! byte for byte, a rollout's world is a function of its seed, and the filter flies with the
+//! model error the calibration measured.
 
 #[path = "../../nerf/tests/common/mod.rs"]
 mod tiny_scene;
@@ -176,4 +177,21 @@ fn a_rollouts_world_is_a_function_of_the_seeds_and_its_error_reaches_the_estimat
         let shift = mean_dy(&a) - mean_dy(&plain);
         assert!((0.01..0.03).contains(&shift), "seed {seed}: the estimate's mean error along y moved by {shift}");
     }
+}
+
+#[test]
+fn the_filter_takes_the_model_error_the_calibration_measured_and_the_configs_without_one() {
+    use nerfsv_study::flight::{Calibration, FlightInputs};
+    let inputs = |model_error_per_rmse| FlightInputs {
+        nerf: nerfs()[0].clone(),
+        nerf_field: free_field(),
+        gt_field: None,
+        members: Vec::new(),
+        calibration: Some(Calibration { models: Vec::new(), draws_per_member: 1, seed: 0, model_error_per_rmse }),
+    };
+    let cfg = SimConfig::default();
+    let measured = inputs(Some([0.3, 9.0])).filter_sim(&cfg);
+    assert_eq!(measured.vision.model_error_per_rmse, [0.3, 9.0]);
+    assert_eq!(SimConfig { vision: cfg.vision.clone(), ..measured }, cfg, "nothing else changes");
+    assert_eq!(inputs(None).filter_sim(&cfg), cfg);
 }

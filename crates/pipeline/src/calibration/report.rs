@@ -16,9 +16,10 @@ impl Report for CalibrationStage<'_> {
     fn describe(f: &CalibrationFigures) -> String {
         let cv = &f.cross_validation.gaussian_process.coverage90;
         format!(
-            "{} route and {} held-out views, {} fits: median error {:.1} mm / {:.2}°; the model's 90 % interval covers \
+            "{} route, {} recorded route and {} held-out views, {} fits: median error {:.1} mm / {:.2}°; the model's 90 % interval covers \
              {:.0}–{:.0} % of held-out fits per axis",
             f.route_views,
+            f.route_dataset_views,
             f.held_out_views,
             f.fits,
             f.position_error_mm[0],
@@ -34,12 +35,16 @@ impl Report for CalibrationStage<'_> {
         s.paragraph(format!(
             "The vision estimator fitted, as in flight, to images of the world at known poses that the deployed NeRF \
              never trained on: {} views of a route capture (ground-truth renders along the planned route, each moved \
-             off it as a disturbed drone is) and {} views of the dataset's held-out test split, {} fits in all (one from \
+             off it as a disturbed drone is){} and {} views of the dataset's held-out test split, {} fits in all (one from \
              the true pose, the others from starts drawn like the filter's prediction). Their errors: median {} mm \
              (p90 {}) and {}° (p90 {}), {} renders a fit. A Gaussian process per error axis over the camera's position \
              and viewing direction models them; NeRF-sim's calibrated world renders each rollout's images from the true \
              pose displaced by one draw of it.",
             f.route_views,
+            match f.route_dataset_views {
+                0 => String::new(),
+                n => format!(", {n} views of your own route capture (`[perception] route_dataset`)"),
+            },
             f.held_out_views,
             f.fits,
             num(f.position_error_mm[0], 1),
@@ -104,6 +109,26 @@ impl Report for CalibrationStage<'_> {
                     row.extend(d.iter().map(|v| num(v * 1e3, 2)));
                     row
                 }),
+            ));
+        }
+        if let Some(m) = &f.model_error {
+            s.paragraph(format!(
+                "The filter's model error measured on the same fits: a fit's error has a standard deviation of {} m \
+                 [{}, {}] per axis of position and {}° [{}, {}] per axis of attitude per unit of its colour RMSE (root \
+                 mean square of error ÷ RMSE over {} fits of {} views, lost fits left out; 95 % intervals from a \
+                 bootstrap over views), against the config's {} m and {}° (`sim.vision.model_error_per_rmse`). With \
+                 `[perception] filter_model_error` (the default) the stress and online stages' filter takes the \
+                 measured value in every world, GT-sim's included: one estimator ships.",
+                num(m.per_rmse[0], 3),
+                num(m.position_ci95[0], 3),
+                num(m.position_ci95[1], 3),
+                num(m.per_rmse[1], 1),
+                num(m.rotation_ci95[0], 1),
+                num(m.rotation_ci95[1], 1),
+                m.fits,
+                m.views,
+                num(f.config_model_error[0], 3),
+                num(f.config_model_error[1], 1),
             ));
         }
         s.csv(CalibrationStage::VIEWS_CSV, "calibration_fits.csv");

@@ -493,6 +493,11 @@ pub struct CalibrationFigures {
     /// `[perception] filter_model_error` ([`filter_model_error`]).
     #[serde(default)]
     pub model_error: Option<ModelError>,
+    /// The same measured on each source's fits alone (route, held-out, recorded route), for
+    /// the sources with fits the filter would take: whether the error's scale per unit of RMSE
+    /// is one across the kinds of view.
+    #[serde(default)]
+    pub model_error_by_source: Vec<(ViewSource, ModelError)>,
     /// The config's model error (`sim.vision.model_error_per_rmse`, `[m, °]` per RMSE).
     #[serde(default)]
     pub config_model_error: [f64; 2],
@@ -529,6 +534,7 @@ impl CalibrationFigures {
             cross_validation: cv,
             member_mean_difference: Vec::new(),
             model_error: None,
+            model_error_by_source: Vec::new(),
             config_model_error: [f64::NAN; 2],
             measure_seconds: 0.0,
             model_seconds: 0.0,
@@ -669,7 +675,15 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
     let model = ErrorModel::fit(&samples);
     let cv = cross_validate(&samples, FOLDS);
     let member_samples: Vec<Vec<_>> = member_records.iter().map(|rs| differences(&records, rs)).collect();
-    let model_error = filter_model_error(&records, sim.vision.lost_variance_factor, req.seed);
+    let lost = sim.vision.lost_variance_factor;
+    let model_error = filter_model_error(&records, lost, req.seed);
+    let model_error_by_source = [ViewSource::Route, ViewSource::HeldOut, ViewSource::RouteDataset]
+        .into_iter()
+        .filter_map(|source| {
+            let own: Vec<CalibrationRecord> = records.iter().filter(|r| r.source == source).copied().collect();
+            Some((source, filter_model_error(&own, lost, req.seed)?))
+        })
+        .collect();
     let models = ErrorModels {
         real: model.clone(),
         members: member_samples.iter().map(|d| ErrorModel::fit(d)).collect(),
@@ -689,6 +703,7 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
         model_seconds,
         member_mean_difference,
         model_error,
+        model_error_by_source,
         config_model_error: sim.vision.model_error_per_rmse,
         ..CalibrationFigures::of(&records, &model, cv)
     })

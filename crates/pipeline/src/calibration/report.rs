@@ -43,7 +43,7 @@ impl Report for CalibrationStage<'_> {
             f.route_views,
             match f.route_dataset_views {
                 0 => String::new(),
-                n => format!(", {n} views of your own route capture (`[perception] route_dataset`)"),
+                n => format!(", {n} views of your own route capture ([perception] route_dataset)"),
             },
             f.held_out_views,
             f.fits,
@@ -116,8 +116,8 @@ impl Report for CalibrationStage<'_> {
                 "The filter's model error measured on the same fits: a fit's error has a standard deviation of {} m \
                  [{}, {}] per axis of position and {}° [{}, {}] per axis of attitude per unit of its colour RMSE (root \
                  mean square of error ÷ RMSE over {} fits of {} views, lost fits left out; 95 % intervals from a \
-                 bootstrap over views), against the config's {} m and {}° (`sim.vision.model_error_per_rmse`). With \
-                 `[perception] filter_model_error` (the default) the stress and online stages' filter takes the \
+                 bootstrap over views), against the config's {} m and {}° (sim.vision.model_error_per_rmse). With \
+                 [perception] filter_model_error (the default) the stress and online stages' filter takes the \
                  measured value in every world, GT-sim's included: one estimator ships.",
                 num(m.per_rmse[0], 3),
                 num(m.position_ci95[0], 3),
@@ -130,6 +130,20 @@ impl Report for CalibrationStage<'_> {
                 num(f.config_model_error[0], 3),
                 num(f.config_model_error[1], 1),
             ));
+        }
+        if f.model_error_by_source.len() > 1 {
+            let mut t = Table::new(&["views", "fits", "m per RMSE [95 %]", "° per RMSE [95 %]"]);
+            for (source, m) in &f.model_error_by_source {
+                let at = |v: f64, ci: [f64; 2], p| format!("{} [{}, {}]", num(v, p), num(ci[0], p), num(ci[1], p));
+                t = t.row(vec![
+                    source.name().replace('_', " "),
+                    m.fits.to_string(),
+                    at(m.per_rmse[0], m.position_ci95, 3),
+                    at(m.per_rmse[1], m.rotation_ci95, 1),
+                ]);
+            }
+            s.paragraph("The same measured on each kind of view alone (the filter takes the value over all of them):");
+            s.table(t);
         }
         s.csv(CalibrationStage::VIEWS_CSV, "calibration_fits.csv");
         Some(s)

@@ -95,11 +95,11 @@ fn stress_answer(s: &mut Section, f: &StressFigures) {
             let _ = std::fmt::Write::write_fmt(
                 &mut line,
                 format_args!(
-                    "; Monte Carlo alone: {} of {} [{}, {}]",
-                    pct(mc.p_fail),
-                    mc.rollouts,
+                    "; Monte Carlo alone: {} [{}, {}] ({} rollouts)",
+                    num(mc.p_fail, 3),
                     num(mc.p_fail_interval.0, 3),
-                    num(mc.p_fail_interval.1, 3)
+                    num(mc.p_fail_interval.1, 3),
+                    mc.rollouts
                 ),
             );
         }

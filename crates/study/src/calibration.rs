@@ -761,15 +761,20 @@ mod tests {
         assert_eq!(differences(&real, &member[..1]).len(), 1);
     }
 
+    /// Uniform draws in `[0, 1)` from `seed`.
+    fn uniforms(seed: u64) -> impl FnMut() -> f64 {
+        let mut state = seed;
+        move || {
+            state = nerfsv_scene::seed::splitmix64(state);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     #[test]
     fn the_filter_model_error_recovers_a_known_scale_and_leaves_lost_fits_out() {
         // Errors normal per axis with sd k · rmse (k = 0.4 m and 12° per unit of RMSE), the RMSE
         // varying from fit to fit; lost fits with errors 100 times larger are left out.
-        let mut state = 7u64;
-        let mut uniform = || {
-            state = nerfsv_scene::seed::splitmix64(state);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut uniform = uniforms(7);
         let k = [0.4, 12.0_f64.to_radians()];
         let mut records = Vec::new();
         for view in 0..200 {
@@ -800,11 +805,7 @@ mod tests {
     fn cross_validation_covers_about_ninety_percent_of_noise_and_the_gp_beats_a_constant_on_a_bias_field() {
         // A bias that changes sign along x, plus noise of 5 mm: both models' 90 % intervals
         // cover about 90 %, and the GP's density is higher (it knows where the bias is).
-        let mut state = 1u64;
-        let mut noise = || {
-            state = nerfsv_scene::seed::splitmix64(state);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut noise = uniforms(1);
         let samples: Vec<ErrorSample> = (0..60)
             .flat_map(|v| {
                 let x = v as f64 / 60.0;

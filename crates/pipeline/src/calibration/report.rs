@@ -117,8 +117,10 @@ impl Report for CalibrationStage<'_> {
                  [{}, {}] per axis of position and {}° [{}, {}] per axis of attitude per unit of its colour RMSE (root \
                  mean square of error ÷ RMSE over {} fits of {} views, lost fits left out; 95 % intervals from a \
                  bootstrap over views), against the config's {} m and {}° (sim.vision.model_error_per_rmse). With \
-                 [perception] filter_model_error (the default) the stress and online stages' filter takes the \
-                 measured value in every world, GT-sim's included: one estimator ships.",
+                 [perception] filter_model_error = true the stress and online stages' filter takes the measured \
+                 value in every world, GT-sim's included (one estimator ships); by default it keeps the config's, as \
+                 images taken close together in flight share their error, which this measurement of single fits \
+                 does not see.",
                 num(m.per_rmse[0], 3),
                 num(m.position_ci95[0], 3),
                 num(m.position_ci95[1], 3),

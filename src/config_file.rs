@@ -12,9 +12,10 @@ use nerfsv_uq::UqConfig;
 /// `--set TABLE.KEY=VALUE`, repeatable: overrides of the run config's keys, after `--config`.
 #[derive(Args, Clone, Default)]
 pub struct Sets {
-    /// Override one key of the run config, after --config's file: `--set sim.steps=20`,
-    /// `--set validation.cem.m=50`, `--set train.seed=3`; repeat for more. The value is TOML (a
-    /// bare word is a string); `nerfsv config` prints every key.
+    /// Override one key of the run config, after the config file's (where the command takes one):
+    /// `--set train.seed=3`, `--set nerf.grid_resolution=64`, `--set validation.cem.m=50`;
+    /// repeat for more. Each command reads the tables it needs. The value is TOML (a bare word is
+    /// a string); `nerfsv config` prints every key.
     #[arg(long = "set", value_name = "TABLE.KEY=VALUE")]
     pub sets: Vec<String>,
 }

@@ -15,11 +15,12 @@ use clap::{Parser, Subcommand};
 /// Start with `nerfsv run`: on the default Stonehenge scene it renders the dataset, builds the
 /// ground-truth collision field, trains and evaluates the NeRF, measures its uncertainty image
 /// by image (GA, BLA, depth AUSE), builds the NeRF's collision field, flies the drone along its
-/// planned path in NeRF-sim and GT-sim, stress-tests it (Monte Carlo and the Cross-Entropy
-/// Method in NeRF-sim, replayed in GT-sim), and repeats the search measuring every step's
-/// uncertainty and ranking by the paper's rewards, into `runs/stonehenge/` (figures in
-/// `summary.json`). The other subcommands run one stage each, for your own datasets and
-/// checkpoints.
+/// planned path in NeRF-sim and GT-sim, trains an ensemble of three more NeRFs and calibrates
+/// NeRF-sim against views the NeRF never saw, stress-tests the drone (Monte Carlo, the
+/// Cross-Entropy Method and subset simulation in NeRF-sim's calibrated world, replayed in
+/// GT-sim), and repeats the search measuring every step's uncertainty and ranking by the paper's
+/// rewards, into `runs/stonehenge/` (figures in `summary.json`, an HTML report). The other
+/// subcommands run one stage each, for your own datasets and checkpoints.
 #[derive(Parser)]
 #[command(name = "nerfsv", version, about, long_about)]
 struct Cli {
@@ -43,9 +44,10 @@ enum Command {
     Config(commands::config::ConfigArgs),
     /// Rebuild a run folder's HTML report (`RUN_DIR/report/index.html`) from its stage outputs.
     Report(commands::report_page::ReportArgs),
-    /// Render a built-in ground-truth scene into a Blender-format dataset.
+    /// Render a built-in ground-truth scene (or a mesh, --mesh) into a Blender-format dataset.
     Scene(commands::scene::SceneArgs),
-    /// Train a NeRF on a Blender-format dataset (checkpoints in safetensors; --resume continues).
+    /// Train a NeRF on a dataset: Blender, nerfstudio / instant-ngp or COLMAP (checkpoints in
+    /// safetensors; --resume continues).
     Train(commands::nerf::TrainArgs),
     /// Report PSNR, SSIM and depth error of a NeRF on a dataset split.
     Eval(commands::nerf::EvalArgs),
@@ -55,8 +57,9 @@ enum Command {
     Collision(commands::collision::CollisionArgs),
     /// Fly the drone once along the planned path in NeRF-sim or GT-sim (trajectory CSV + plot).
     Fly(commands::fly::FlyArgs),
-    /// Search for the disturbances that crash the drone (Monte Carlo or Cross-Entropy Method),
-    /// estimate the failure probability, and replay the rollouts in the other world.
+    /// Search for the disturbances that crash the drone (Monte Carlo, the Cross-Entropy Method or
+    /// subset simulation), estimate the failure probability, and replay the rollouts in the other
+    /// world.
     Stress(commands::stress::StressArgs),
     /// Write a run folder's ground-truth and NeRF meshes, planned route and failures (each
     /// sampler's most likely failure, true and estimated tracks, and the failing rollouts) as one
@@ -67,6 +70,9 @@ enum Command {
     /// (CSV and figures), `uq ause` scores them against ground-truth depth, `uq field` builds the
     /// uncertainty field.
     Uq(commands::uq::UqArgs),
+    /// Print the completion script of a shell (bash, zsh, fish, elvish, powershell) for every
+    /// subcommand and flag: `nerfsv completions bash > ~/.local/share/bash-completion/completions/nerfsv`.
+    Completions(commands::completions::CompletionsArgs),
 }
 
 fn main() -> ExitCode {
@@ -103,6 +109,7 @@ fn main() -> ExitCode {
         Command::Train(a) => commands::nerf::run_train(a),
         Command::Eval(a) => commands::nerf::run_eval(a),
         Command::Render(a) => commands::nerf::run_render(a),
+        Command::Completions(a) => commands::completions::run::<Cli>(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,5 +1,7 @@
-//! Progress on stderr: bars on a terminal, a plain line every few seconds in a log, nothing
-//! with `--json`.
+//! Progress on stderr: bars on a terminal, a plain line every few seconds in a log, and with
+//! `--json` (whose figures go to stdout) one JSON object a line, as often as a log's lines:
+//! `{"stage", "done", "total", "seconds", "status"}` for progress, `{"stage", "note"}` for a
+//! note.
 
 use std::io::IsTerminal;
 use std::sync::Mutex;
@@ -13,7 +15,7 @@ const LOG_EVERY: Duration = Duration::from_secs(5);
 
 /// Shows what stages report.
 pub struct Reporter {
-    quiet: bool,
+    json: bool,
     terminal: bool,
     state: Mutex<State>,
 }
@@ -28,9 +30,9 @@ struct State {
 }
 
 impl Reporter {
-    /// `quiet`: print nothing (the command prints JSON).
-    pub fn new(quiet: bool) -> Self {
-        Self { quiet, terminal: std::io::stderr().is_terminal(), state: Mutex::new(State::default()) }
+    /// `json`: JSON lines (the command prints its figures as JSON on stdout).
+    pub fn new(json: bool) -> Self {
+        Self { json, terminal: !json && std::io::stderr().is_terminal(), state: Mutex::new(State::default()) }
     }
 
     fn bar(total: u64, stage: &str) -> ProgressBar {
@@ -47,9 +49,6 @@ impl Reporter {
 
 impl Observer for Reporter {
     fn progress(&self, stage: &str, done: u64, total: u64, status: &str) {
-        if self.quiet {
-            return;
-        }
         let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
         if s.bar.as_ref().is_none_or(|(name, _)| name != stage) {
             if let Some((_, old)) = s.bar.take() {
@@ -76,14 +75,22 @@ impl Observer for Reporter {
                     String::new()
                 };
                 let pct = 100.0 * done as f64 / total.max(1) as f64;
-                eprintln!("{stage}: {done}/{total} ({pct:.0} %) after {elapsed:.0} s{eta}  {status}");
+                if self.json {
+                    let line = serde_json::json!({
+                        "stage": stage, "done": done, "total": total, "seconds": elapsed, "status": status,
+                    });
+                    eprintln!("{line}");
+                } else {
+                    eprintln!("{stage}: {done}/{total} ({pct:.0} %) after {elapsed:.0} s{eta}  {status}");
+                }
                 s.last_logged = Some(now);
             }
         }
     }
 
     fn note(&self, stage: &str, message: &str) {
-        if self.quiet {
+        if self.json {
+            eprintln!("{}", serde_json::json!({ "stage": stage, "note": message }));
             return;
         }
         let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());

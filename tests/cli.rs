@@ -96,6 +96,11 @@ fn scene_writes_a_dataset_and_reports_json() {
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
     assert_eq!(v["views"], 4);
+    // Progress as JSON lines on stderr, the last at the end of its work.
+    let lines: Vec<serde_json::Value> =
+        err.lines().map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l:?}"))).collect();
+    let last = lines.iter().rev().find(|l| l.get("done").is_some()).unwrap_or_else(|| panic!("no progress: {err}"));
+    assert!(last["stage"].is_string() && last["done"] == last["total"] && last["seconds"].is_number(), "{err}");
     for f in
         ["transforms_train.json", "transforms_val.json", "transforms_test.json", "train/r_1.png", "test/r_0_depth.png"]
     {
@@ -470,6 +475,21 @@ fn train_reads_the_printed_default_config_and_its_overrides() {
     let (ok, plain, err) = nerfsv(&["config"]);
     assert!(ok, "{err}");
     assert_eq!(plain, nerfsv(&["config", "--default"]).1);
+    assert!(plain.contains("[validation.subset]\n") && plain.contains("\nsamples = 200\n"), "{plain}");
+    // The config a file and overrides give, every key, and it reads back as that config.
+    let mine = dir.path().join("mine.toml");
+    std::fs::write(&mine, "train_steps = 7\n[validation.cem]\nm = 40\n").unwrap();
+    let (ok, effective, err) = nerfsv(&["config", mine.to_str().unwrap(), "--set", "validation.cem.k_max=3"]);
+    assert!(ok, "{err}");
+    let table: toml::Table = toml::from_str(&effective).unwrap_or_else(|e| panic!("{e}\n{effective}"));
+    assert_eq!(table["train_steps"].as_integer(), Some(7));
+    let cem = &table["validation"]["cem"];
+    assert_eq!((cem["m"].as_integer(), cem["k_max"].as_integer()), (Some(40), Some(3)), "{effective}");
+    assert_eq!(table["validation"]["subset"]["samples"].as_integer(), Some(200));
+    let keys = |t: &str| t.lines().filter(|l| !l.is_empty() && !l.starts_with(['#', '['])).count();
+    assert_eq!(keys(&effective), keys(&plain), "every key, as the default has");
+    let (ok, _, err) = nerfsv(&["config", mine.to_str().unwrap(), "--set", "validation.cem.kmax=3"]);
+    assert!(!ok && err.contains("validation.cem.kmax=3"), "{err}");
     let cfg = dir.path().join("nerfsv.toml");
     std::fs::write(&cfg, &plain).unwrap();
     let ds = common::tiny_dataset(dir.path(), "6", "1");
@@ -485,4 +505,27 @@ fn train_reads_the_printed_default_config_and_its_overrides() {
     assert!(ok, "{err}");
     let model = nerfsv_nerf::Nerf::load(&out.join("checkpoint.safetensors")).unwrap();
     assert_eq!(model.config.grid_resolution, 32);
+}
+
+/// `nerfsv completions SHELL` prints each shell's script naming every subcommand; bash's parses.
+#[test]
+fn completion_scripts_name_every_subcommand_and_bash_reads_its_own() {
+    let subcommands = ["run", "replicate", "config", "report", "stress", "export", "uq", "completions"];
+    for (shell, marker) in [("bash", "_nerfsv()"), ("zsh", "#compdef nerfsv"), ("fish", "complete -c nerfsv")] {
+        let (ok, script, err) = nerfsv(&["completions", shell]);
+        assert!(ok, "{shell}: {err}");
+        assert!(script.contains(marker), "{shell}: {script}");
+        for sub in subcommands {
+            assert!(script.contains(sub), "{shell}: no {sub}");
+        }
+        if shell == "bash" {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("nerfsv.bash");
+            std::fs::write(&path, &script).unwrap();
+            let status = std::process::Command::new("bash").arg("-n").arg(&path).status().unwrap();
+            assert!(status.success(), "bash -n refused the script");
+        }
+    }
+    let (ok, _, err) = nerfsv(&["completions", "tcsh"]);
+    assert!(!ok && err.contains("tcsh"), "{err}");
 }

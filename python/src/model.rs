@@ -159,8 +159,8 @@ impl Model {
     /// The paper's uncertainty of one image: `method` `"ga"` (σ_d of eq. 10, on every pixel) or
     /// `"bla"` (eq. 11's normalised trace and rmv). `image` `[h, w, 4]` RGBA (straight alpha)
     /// or `[h, w, 3]` RGB, in `[0, 1]`; `config` a run config whose `[uq]` table sets the fit
-    /// (default: the embedded one). Returns the figures (dict), `None` values when every ray
-    /// misses the model.
+    /// (default: the embedded one). Returns the figures as JSON text, `null` when every ray
+    /// misses the model (`nerfsv.uncertainty` gives them as a dict, or `None`).
     #[pyo3(signature = (method, pose, width, height, intrinsics, image, config = None, overrides = None))]
     #[allow(clippy::too_many_arguments)]
     fn uncertainty(

@@ -1,26 +1,54 @@
-//! `nerfsv config --default`: the embedded default run config as TOML, every key preceded by
-//! its documentation (what it is, its unit) taken from the doc comments of the config structs
-//! themselves (`#[derive(FieldDocs)]`, `nerfsv-derive`), so the file and the code cannot drift
-//! apart. Saved to a file, it is a starting
-//! point for `nerfsv run my.toml` and loads back to exactly the default.
+//! `nerfsv config [CONFIG] [--set TABLE.KEY=VALUE …]`: the run config `nerfsv run` would use (the
+//! embedded default without a file) as TOML, every key preceded by its documentation (what it
+//! is, its unit) taken from the doc comments of the config structs themselves
+//! (`#[derive(FieldDocs)]`, `nerfsv-derive`), so the file and the code cannot drift apart. Saved
+//! to a file, it is a starting point for `nerfsv run my.toml` and loads back to exactly the same
+//! config.
+
+use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
 use nerfsv_pipeline::RunConfig;
 
+use crate::config_file::{run_config, Sets};
+
 #[derive(Args)]
 pub struct ConfigArgs {
-    /// Print the embedded default run config (what `nerfsv run` uses without a file) as TOML,
-    /// every key with its documentation: what `nerfsv config` prints with or without it.
+    /// A run config (TOML): print the config `nerfsv run CONFIG` would use with it and the
+    /// overrides, every key. Without it, the embedded default with the overrides.
+    #[arg(conflicts_with = "default")]
+    pub config: Option<PathBuf>,
+    /// Print the embedded default run config (what `nerfsv run` uses without a file), whatever
+    /// else is given.
     #[arg(long)]
     pub default: bool,
+    #[command(flatten)]
+    pub sets: Sets,
 }
 
 /// Comment lines are wrapped at this width.
 const WIDTH: usize = 96;
 
-pub fn run(_: ConfigArgs) -> anyhow::Result<()> {
-    print!("{}", default_toml()?);
+pub fn run(args: ConfigArgs) -> anyhow::Result<()> {
+    if args.default || (args.config.is_none() && args.sets.sets.is_empty()) {
+        print!("{}", default_toml()?);
+    } else {
+        let cfg = run_config(args.config.as_deref(), &args.sets)?;
+        let source = match &args.config {
+            Some(path) => format!("`nerfsv run {}`", path.display()),
+            None => "`nerfsv run`".to_owned(),
+        };
+        let sets = match args.sets.sets.len() {
+            0 => String::new(),
+            n => format!(" with {n} override(s) ({})", args.sets.sets.join(", ")),
+        };
+        let header = format!(
+            "The run config {source}{sets} uses, every key with its documentation. It loads back to the same \
+             config: `nerfsv run` with this file and no overrides."
+        );
+        print!("{}", config_toml(&cfg, &header)?);
+    }
     Ok(())
 }
 
@@ -42,14 +70,27 @@ fn comment(text: &str, out: &mut String) {
 
 /// The default config as commented TOML.
 pub fn default_toml() -> anyhow::Result<String> {
-    let value = toml::Table::try_from(RunConfig::default()).context("serialising the default config")?;
+    config_toml(
+        &RunConfig::default(),
+        "The default nerfsv run config (`nerfsv config --default`): what `nerfsv run` uses without a file. \
+         Every key is optional; a file that sets some of them keeps the defaults below for the rest. Values \
+         are the defaults.",
+    )
+}
+
+/// `cfg` as commented TOML under the comment `header`: every key, subset simulation's too.
+pub fn config_toml(cfg: &RunConfig, header: &str) -> anyhow::Result<String> {
+    let mut value = toml::Table::try_from(cfg).context("serialising the config")?;
+    // `[validation.subset]` is left out of the serialised config while it holds the defaults
+    // (the cache keys of results from before it existed); printed all the same.
+    if let Some(toml::Value::Table(v)) = value.get_mut("validation") {
+        if !v.contains_key("subset") {
+            let subset = toml::Table::try_from(&cfg.validation.subset).context("serialising validation.subset")?;
+            v.insert("subset".to_owned(), toml::Value::Table(subset));
+        }
+    }
     let mut out = String::new();
-    comment(
-        "The default nerfsv run config (`nerfsv config --default`): what `nerfsv run` uses without a \
-         file. Every key is optional; a file that sets some of them keeps the defaults below for the rest. \
-         Values are the defaults.",
-        &mut out,
-    );
+    comment(header, &mut out);
     table("", &value, None, &mut out)?;
     Ok(out)
 }
@@ -163,6 +204,8 @@ mod tests {
             }
         }
         assert!(text.contains("[validation.cem]\n") && text.contains("[online]\n"), "{text}");
+        // Subset simulation's table too, though the serialised config leaves it out at its defaults.
+        assert!(text.contains("[validation.subset]\n") && text.contains("\nsamples = 200\n"), "{text}");
     }
 
     /// Doc comments become data: each line trimmed, the lines joined by one space, intra-doc

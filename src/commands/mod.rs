@@ -1,4 +1,5 @@
 pub mod collision;
+pub mod completions;
 pub mod config;
 pub mod export;
 pub mod fly;

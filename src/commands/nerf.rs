@@ -44,7 +44,7 @@ pub struct TrainArgs {
     pub config: Option<PathBuf>,
     #[command(flatten)]
     pub sets: crate::config_file::Sets,
-    /// Print one JSON object with the figures instead of progress.
+    /// Print one JSON object with the figures on stdout, and progress as JSON lines on stderr.
     #[arg(long)]
     pub json: bool,
 }

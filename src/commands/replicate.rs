@@ -17,7 +17,7 @@ pub struct ReplicateArgs {
     /// config's run folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print one JSON object with the figures instead of progress.
+    /// Print one JSON object with the figures on stdout, and progress as JSON lines on stderr.
     #[arg(long)]
     pub json: bool,
 }

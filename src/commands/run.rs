@@ -8,8 +8,8 @@ use crate::progress::Reporter;
 
 #[derive(Args)]
 pub struct RunArgs {
-    /// TOML config; every key is optional (see `RunConfig` in crates/pipeline). Without it,
-    /// the embedded default.
+    /// TOML config; every key is optional (`nerfsv config` prints them all, with their
+    /// documentation). Without it, the embedded default.
     pub config: Option<PathBuf>,
     #[command(flatten)]
     pub sets: Sets,
@@ -18,7 +18,7 @@ pub struct RunArgs {
     /// `nerfsv-folder.json`); anything else is refused before any work.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print one JSON object with the figures instead of progress.
+    /// Print one JSON object with the figures on stdout, and progress as JSON lines on stderr.
     #[arg(long)]
     pub json: bool,
     /// Check the config (values, start and goal, memory, paths) and write nothing.

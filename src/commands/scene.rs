@@ -43,7 +43,7 @@ pub struct SceneArgs {
     /// Seed of the camera placement.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Print one JSON object with the figures instead of progress.
+    /// Print one JSON object with the figures on stdout, and progress as JSON lines on stderr.
     #[arg(long)]
     pub json: bool,
 }

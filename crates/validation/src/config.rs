@@ -21,8 +21,10 @@ pub struct ValidationConfig {
     /// The Cross-Entropy Method and its importance-sampling estimate.
     #[docs(table)]
     pub cem: CemConfig,
-    /// Subset simulation (`nerfsv stress --sampler subset`). Left out of the serialised config
-    /// while it holds the defaults, so the keys of results cached before it existed still match.
+    /// Subset simulation (`nerfsv stress --sampler subset`, and the stress stage with
+    /// `stress_subset`).
+    // Left out of the serialised config while it holds the defaults, so the keys of results
+    // cached before it existed still match.
     #[serde(skip_serializing_if = "SubsetConfig::is_default")]
     #[docs(table)]
     pub subset: SubsetConfig,

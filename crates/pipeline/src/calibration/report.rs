@@ -111,43 +111,48 @@ impl Report for CalibrationStage<'_> {
                 }),
             ));
         }
-        if let Some(m) = &f.model_error {
-            s.paragraph(format!(
-                "The filter's model error measured on the same fits: a fit's error has a standard deviation of {} m \
-                 [{}, {}] per axis of position and {}° [{}, {}] per axis of attitude per unit of its colour RMSE (root \
-                 mean square of error ÷ RMSE over {} fits of {} views, lost fits left out; 95 % intervals from a \
-                 bootstrap over views), against the config's {} m and {}° (sim.vision.model_error_per_rmse). With \
-                 [perception] filter_model_error = true the stress and online stages' filter takes the measured \
-                 value in every world, GT-sim's included (one estimator ships); by default it keeps the config's, as \
-                 images taken close together in flight share their error, which this measurement of single fits \
-                 does not see.",
-                num(m.per_rmse[0], 3),
-                num(m.position_ci95[0], 3),
-                num(m.position_ci95[1], 3),
-                num(m.per_rmse[1], 1),
-                num(m.rotation_ci95[0], 1),
-                num(m.rotation_ci95[1], 1),
-                m.fits,
-                m.views,
-                num(f.config_model_error[0], 3),
-                num(f.config_model_error[1], 1),
-            ));
-        }
-        if f.model_error_by_source.len() > 1 {
-            let mut t = Table::new(&["views", "fits", "m per RMSE [95 %]", "° per RMSE [95 %]"]);
-            for (source, m) in &f.model_error_by_source {
-                let at = |v: f64, ci: [f64; 2], p| format!("{} [{}, {}]", num(v, p), num(ci[0], p), num(ci[1], p));
-                t = t.row(vec![
-                    source.name().replace('_', " "),
-                    m.fits.to_string(),
-                    at(m.per_rmse[0], m.position_ci95, 3),
-                    at(m.per_rmse[1], m.rotation_ci95, 1),
-                ]);
-            }
-            s.paragraph("The same measured on each kind of view alone (the filter takes the value over all of them):");
-            s.table(t);
-        }
+        model_error(f, &mut s);
         s.csv(CalibrationStage::VIEWS_CSV, "calibration_fits.csv");
         Some(s)
+    }
+}
+
+/// The filter's model error the calibration measured, pooled and per kind of view.
+fn model_error(f: &CalibrationFigures, s: &mut Section) {
+    if let Some(m) = &f.model_error {
+        s.paragraph(format!(
+            "The filter's model error measured on the same fits: a fit's error has a standard deviation of {} m \
+             [{}, {}] per axis of position and {}° [{}, {}] per axis of attitude per unit of its colour RMSE (root \
+             mean square of error ÷ RMSE over {} fits of {} views, lost fits left out; 95 % intervals from a \
+             bootstrap over views), against the config's {} m and {}° (sim.vision.model_error_per_rmse). With \
+             [perception] filter_model_error = true the stress and online stages' filter takes the measured \
+             value in every world, GT-sim's included (one estimator ships); by default it keeps the config's, as \
+             images taken close together in flight share their error, which this measurement of single fits \
+             does not see.",
+            num(m.per_rmse[0], 3),
+            num(m.position_ci95[0], 3),
+            num(m.position_ci95[1], 3),
+            num(m.per_rmse[1], 1),
+            num(m.rotation_ci95[0], 1),
+            num(m.rotation_ci95[1], 1),
+            m.fits,
+            m.views,
+            num(f.config_model_error[0], 3),
+            num(f.config_model_error[1], 1),
+        ));
+    }
+    if f.model_error_by_source.len() > 1 {
+        let mut t = Table::new(&["views", "fits", "m per RMSE [95 %]", "° per RMSE [95 %]"]);
+        for (source, m) in &f.model_error_by_source {
+            let at = |v: f64, ci: [f64; 2], p| format!("{} [{}, {}]", num(v, p), num(ci[0], p), num(ci[1], p));
+            t = t.row(vec![
+                source.name().replace('_', " "),
+                m.fits.to_string(),
+                at(m.per_rmse[0], m.position_ci95, 3),
+                at(m.per_rmse[1], m.rotation_ci95, 1),
+            ]);
+        }
+        s.paragraph("The same measured on each kind of view alone (the filter takes the value over all of them):");
+        s.table(t);
     }
 }

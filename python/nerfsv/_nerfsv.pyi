@@ -12,25 +12,60 @@ _Intrinsics = Tuple[float, float, float, float]
 __version__: str
 
 class Model:
+    """A trained NeRF and the checkpoint it was read from.
+
+    Poses are 4×4 camera-to-world matrices (row-major, metres, OpenGL camera axes: x right,
+    y up, looking along −z), as in a Blender / nerfstudio ``transforms.json``; intrinsics are
+    pixels ``(fx, fy, cx, cy)``.
+    """
+
     @staticmethod
-    def load(path: _Path) -> Model: ...
+    def load(path: _Path) -> Model:
+        """Reads a checkpoint (``checkpoint.safetensors`` of ``nerfsv train``)."""
+        ...
     @property
-    def path(self) -> str: ...
+    def path(self) -> str:
+        """The checkpoint this model was read from."""
+        ...
     @property
-    def aabb(self) -> Tuple[List[float], List[float]]: ...
+    def aabb(self) -> Tuple[List[float], List[float]]:
+        """The scene box the model covers: ``(min, max)``, metres."""
+        ...
     def render(
         self, pose: npt.ArrayLike, width: int, height: int, intrinsics: _Intrinsics,
         background: Tuple[float, float, float] = ...,
-    ) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float32]]: ...
-    def density(self, points: npt.ArrayLike) -> npt.NDArray[np.float32]: ...
+    ) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """Renders the view of a camera: ``(rgb [h, w, 3], depth [h, w], opacity [h, w])``,
+        float32, colour composited on ``background``, z-depth in metres (0 where nothing is
+        seen); the same numbers as ``nerfsv render`` for the same camera."""
+        ...
+    def density(self, points: npt.ArrayLike) -> npt.NDArray[np.float32]:
+        """Density σ (1/m) at world points ``[n, 3]`` (metres): ``[n]`` float32, 0 outside the
+        box."""
+        ...
     def uncertainty(
         self, method: str, pose: npt.ArrayLike, width: int, height: int, intrinsics: _Intrinsics,
         image: npt.ArrayLike, config: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,
-    ) -> str: ...
-    def state_dict(self, optimizer: bool = ...) -> Dict[str, npt.NDArray[np.float32]]: ...
+    ) -> str:
+        """The paper's uncertainty of one image (``"ga"`` or ``"bla"``; ``image`` ``[h, w, 4]``
+        RGBA or ``[h, w, 3]`` RGB in ``[0, 1]``) as JSON text, ``null`` when every ray misses the
+        model; ``nerfsv.uncertainty`` returns it as a dict."""
+        ...
+    def state_dict(self, optimizer: bool = ...) -> Dict[str, npt.NDArray[np.float32]]:
+        """The checkpoint's tensors under their torch-ngp names, float32 in the file's shapes:
+        ``encoder.embeddings`` ``[n_entries, 2]``, ``sigma_net.{0,1}.weight`` and
+        ``color_net.{0,1,2}.weight`` ``[out, in]`` (no biases), ``density_grid``
+        ``[res, res, res]`` (``[z][y][x]``); with ``optimizer`` also the Adam moments
+        ``optimizer.exp_avg.NAME`` and ``optimizer.exp_avg_sq.NAME``."""
+        ...
     def collision_field(
         self, scene: str = ..., mesh: Optional[_Path] = ..., cells_per_metre: float = ...
-    ) -> Dict[str, Any]: ...
+    ) -> Dict[str, Any]:
+        """The model's signed collision field on the grid of a ground truth (a built-in
+        ``scene`` or a ``mesh`` file) at ``cells_per_metre``: ``values`` ``[nz, ny, nx]``
+        float32 (metres, negative inside), ``origin`` (metres), ``cell`` (metres), ``dims``
+        ``(nx, ny, nz)``."""
+        ...
 
 def load_dataset(path: _Path, split: str = ..., downscale: int = ..., depth: bool = ...) -> Dict[str, Any]: ...
 def write_png(path: _Path, rgb: npt.ArrayLike) -> None: ...

@@ -69,18 +69,18 @@ impl Observer for Reporter {
             let due = s.last_logged.is_none_or(|t| now - t >= LOG_EVERY) || done >= total;
             if due {
                 let elapsed = s.started.map_or(0.0, |t| (now - t).as_secs_f64());
-                let eta = if done > 0 && done < total {
-                    format!(", about {:.0} s left", elapsed * (total - done) as f64 / done as f64)
-                } else {
-                    String::new()
-                };
-                let pct = 100.0 * done as f64 / total.max(1) as f64;
                 if self.json {
                     let line = serde_json::json!({
                         "stage": stage, "done": done, "total": total, "seconds": elapsed, "status": status,
                     });
                     eprintln!("{line}");
                 } else {
+                    let eta = if done > 0 && done < total {
+                        format!(", about {:.0} s left", elapsed * (total - done) as f64 / done as f64)
+                    } else {
+                        String::new()
+                    };
+                    let pct = 100.0 * done as f64 / total.max(1) as f64;
                     eprintln!("{stage}: {done}/{total} ({pct:.0} %) after {elapsed:.0} s{eta}  {status}");
                 }
                 s.last_logged = Some(now);

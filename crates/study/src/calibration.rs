@@ -90,27 +90,19 @@ impl PerceptionConfig {
     }
 }
 
-/// Where a calibration view comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+/// Where a calibration view comes from; its name ([`ViewSource::name`]) is the `source` of the
+/// fits' CSV and of its JSON.
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ViewSource {
     /// The route capture rendered by the ground truth.
+    #[serde(rename = "route")]
     Route,
     /// The dataset's held-out split.
+    #[serde(rename = "held_out")]
     HeldOut,
     /// A recorded route capture (`[perception] route_dataset`).
+    #[serde(rename = "route_dataset")]
     RouteDataset,
-}
-
-impl ViewSource {
-    /// Its name in the fits' CSV.
-    pub fn name(self) -> &'static str {
-        match self {
-            ViewSource::Route => "route",
-            ViewSource::HeldOut => "held_out",
-            ViewSource::RouteDataset => "route_dataset",
-        }
-    }
 }
 
 /// What a calibration view's image is: a world rendered at the view (the ground truth) or a
@@ -171,12 +163,12 @@ pub fn route_fraction(flight: &Flight, position: &Vector3<f64>) -> f64 {
     const STEPS: usize = 1000;
     let duration = flight.reference.duration();
     (0..=STEPS)
-        .map(|i| i as f64 / STEPS as f64)
-        .min_by(|a, b| {
-            let d = |f: f64| (flight.reference.at_rest(f * duration).position - position).norm_squared();
-            d(*a).total_cmp(&d(*b))
+        .map(|i| {
+            let f = i as f64 / STEPS as f64;
+            (f, (flight.reference.at_rest(f * duration).position - position).norm_squared())
         })
-        .unwrap_or(0.0)
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map_or(0.0, |(f, _)| f)
 }
 
 /// One fit of one calibration view.
@@ -682,7 +674,7 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
     let member_samples: Vec<Vec<_>> = member_records.iter().map(|rs| differences(&records, rs)).collect();
     let lost = sim.vision.lost_variance_factor;
     let model_error = filter_model_error(&records, lost, req.seed);
-    let model_error_by_source = [ViewSource::Route, ViewSource::HeldOut, ViewSource::RouteDataset]
+    let model_error_by_source = ViewSource::ALL
         .into_iter()
         .filter_map(|source| {
             let own: Vec<CalibrationRecord> = records.iter().filter(|r| r.source == source).copied().collect();

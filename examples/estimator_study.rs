@@ -194,6 +194,17 @@ fn monte_carlo(study: &Study) {
             updates.iter().map(|u| u.rotation_error_deg).sum::<f64>() / images,
             start.elapsed().as_secs_f64()
         );
+        let mut position: Vec<f64> = updates.iter().map(|u| 1e3 * u.position_error_m).collect();
+        let mut rotation: Vec<f64> = updates.iter().map(|u| u.rotation_error_deg).collect();
+        if !position.is_empty() {
+            println!(
+                "    error after each image: position median {:.1} mm (p90 {:.1}), rotation median {:.2}° (p90 {:.2})",
+                percentile(&mut position, 0.5),
+                percentile(&mut position, 0.9),
+                percentile(&mut rotation, 0.5),
+                percentile(&mut rotation, 0.9)
+            );
+        }
     }
 }
 

@@ -51,7 +51,8 @@ enum Command {
     Train(commands::nerf::TrainArgs),
     /// Report PSNR, SSIM and depth error of a NeRF on a dataset split.
     Eval(commands::nerf::EvalArgs),
-    /// Render a split's cameras with a NeRF to PNGs (RGB and depth).
+    /// Render with a NeRF: a split's cameras, or frames and an animation along a flight's
+    /// trajectory CSV or a nerfstudio camera path (--path).
     Render(commands::nerf::RenderArgs),
     /// Build a signed collision field (SDF grid at 40 cells/m) and its surface mesh.
     Collision(commands::collision::CollisionArgs),

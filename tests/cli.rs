@@ -529,3 +529,126 @@ fn completion_scripts_name_every_subcommand_and_bash_reads_its_own() {
     let (ok, _, err) = nerfsv(&["completions", "tcsh"]);
     assert!(!ok && err.contains("tcsh"), "{err}");
 }
+
+/// The frames of an animated PNG, as 8-bit RGBA, read with the `png` crate's decoder.
+fn apng_frames(path: &std::path::Path) -> Vec<Vec<u8>> {
+    let file = std::fs::File::open(path).unwrap();
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
+    let n = reader.info().animation_control.expect("an animated PNG").num_frames;
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    (0..n)
+        .map(|_| {
+            let size = reader.next_frame(&mut buf).unwrap().buffer_size();
+            buf[..size].to_vec()
+        })
+        .collect()
+}
+
+fn png_rgba(path: &std::path::Path) -> Vec<u8> {
+    let mut reader =
+        png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap())).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    buf
+}
+
+/// `render --path` with a nerfstudio camera path made of the dataset's own test camera renders
+/// exactly what `render --split test` renders there (the path's row-major matrix and vertical
+/// field of view are the dataset's camera), and the animation holds every frame; a trajectory
+/// CSV renders one frame per row through the config's drone camera, the estimate's poses with
+/// `--estimate`; a bad path is refused by file and field.
+#[test]
+fn render_along_a_camera_path_or_a_trajectory_gives_frames_and_their_animation() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = tiny_dataset(dir.path(), "2");
+    let model_dir = dir.path().join("m");
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_owned();
+    let (ok, _, err) = nerfsv(&["train", "--data", &s(&ds), "--out", &s(&model_dir), "--steps", "60"]);
+    assert!(ok, "{err}");
+    let model = model_dir.join("checkpoint.safetensors");
+    let split = dir.path().join("split");
+    let (ok, _, err) = nerfsv(&["render", "--model", &s(&model), "--data", &s(&ds), "--out", &s(&split)]);
+    assert!(ok, "{err}");
+
+    // The test view's camera as a camera path, twice (8×8 pixels: equal fields of view).
+    let test: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ds.join("transforms_test.json")).unwrap()).unwrap();
+    let angle = test["camera_angle_x"].as_f64().unwrap();
+    let matrix: Vec<f64> = test["frames"][0]["transform_matrix"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|row| row.as_array().unwrap().clone())
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let camera = serde_json::json!({"camera_to_world": matrix, "fov": angle.to_degrees(), "aspect": 1.0});
+    let camera_path = dir.path().join("camera_path.json");
+    let json = serde_json::json!({"render_width": 8, "render_height": 8, "fps": 5, "camera_type": "perspective",
+                                  "camera_path": [camera.clone(), camera]});
+    std::fs::write(&camera_path, json.to_string()).unwrap();
+    let along = dir.path().join("along");
+    let (ok, _, err) = nerfsv(&["render", "--model", &s(&model), "--path", &s(&camera_path), "--out", &s(&along)]);
+    assert!(ok, "{err}");
+    let frame = png_rgba(&along.join("frame_0000.png"));
+    let spread = |f: &[u8]| f.iter().max().unwrap() - f.iter().min().unwrap();
+    assert!(spread(&frame) > 40, "a flat render tests no camera");
+    assert_eq!(frame, png_rgba(&split.join("r_0.png")), "the path's camera is the test view's");
+    assert_eq!(apng_frames(&along.join("animation.png")), vec![frame.clone(), frame]);
+    assert!(along.join("frame_0001_depth.png").is_file());
+
+    // A trajectory of two rows (level, facing +x: the drone camera looks along body x with
+    // image up along body z), rendered through a 6×4 drone camera, is the camera path of those
+    // cameras; the estimate's rows (another place) are another path.
+    let (angle_x, fov_y) = (0.9f64, 2.0 * (2.0 * (0.45f64).tan() / 3.0).atan());
+    let c2w = |x: f64, y: f64, z: f64| vec![0.0, 0.0, -1.0, x, -1.0, 0.0, 0.0, y, 0.0, 1.0, 0.0, z, 0.0, 0.0, 0.0, 1.0];
+    let as_path = |rows: &[[f64; 3]]| {
+        let cams: Vec<_> = rows
+            .iter()
+            .map(|p| serde_json::json!({"camera_to_world": c2w(p[0], p[1], p[2]), "fov": fov_y.to_degrees()}))
+            .collect();
+        serde_json::json!({"render_width": 6, "render_height": 4, "camera_path": cams}).to_string()
+    };
+    let (truth_at, estimate_at) = ([[-1.2, 0.0, 0.3], [-1.1, 0.0, 0.35]], [[-1.2, 0.3, 0.3], [-1.1, 0.3, 0.4]]);
+    let columns = ["x", "y", "z", "qw", "qx", "qy", "qz"];
+    let header: Vec<String> =
+        ["true", "est"].iter().flat_map(|p| columns.iter().map(move |c| format!("{p}_{c}"))).collect();
+    let mut csv = format!("step,time_s,{},collided\n", header.join(","));
+    for (i, (t, e)) in truth_at.iter().zip(&estimate_at).enumerate() {
+        csv +=
+            &format!("0,{},{},{},{},1,0,0,0,{},{},{},1,0,0,0,0\n", 0.5 * i as f64, t[0], t[1], t[2], e[0], e[1], e[2]);
+    }
+    let trajectory = dir.path().join("trajectory.csv");
+    std::fs::write(&trajectory, csv).unwrap();
+    let cfg = dir.path().join("camera.toml");
+    std::fs::write(&cfg, format!("[dataset]\nwidth = 6\nheight = 4\ncamera_angle_x = {angle_x}\n")).unwrap();
+    let frames_of = |extra: &[&str], out: &str| {
+        let out = dir.path().join(out);
+        let mut args = vec!["render", "--model", model.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        args.extend(extra);
+        let (ok, _, err) = nerfsv(&args);
+        assert!(ok, "{err}");
+        (err, apng_frames(&out.join("animation.png")))
+    };
+    let (t, e) = (s(&trajectory), s(&cfg));
+    let (said, truth) = frames_of(&["--path", &t, "--config", &e], "truth");
+    assert!(said.contains("2 frames") && said.contains("2.000 frames per second"), "{said}");
+    assert_eq!(truth.len(), 2);
+    assert!(spread(&truth[0]) > 40, "a flat render tests no camera");
+    let (said, estimate) = frames_of(&["--path", &t, "--config", &e, "--estimate"], "estimate");
+    assert!(said.contains("2 frames"), "{said}");
+    for (rows, frames, name) in [(&truth_at, &truth, "truth"), (&estimate_at, &estimate, "estimate")] {
+        let json = dir.path().join(format!("{name}.json"));
+        std::fs::write(&json, as_path(rows)).unwrap();
+        assert_eq!(&frames_of(&["--path", &s(&json)], &format!("{name}_path")).1, frames, "{name}");
+    }
+    assert_ne!(truth, estimate);
+
+    std::fs::write(&camera_path, r#"{"render_width": 8, "render_height": 8, "camera_path": [{"fov": 50}]}"#).unwrap();
+    let (ok, _, err) = nerfsv(&["render", "--model", &s(&model), "--path", &s(&camera_path), "--out", &s(&along)]);
+    assert!(!ok);
+    assert!(err.contains("camera_path.json: frame 0: camera_to_world"), "{err}");
+    let (ok, _, err) =
+        nerfsv(&["render", "--model", &s(&model), "--path", &s(&camera_path), "--data", &s(&ds), "--out", &s(&along)]);
+    assert!(!ok && err.contains("--data") && err.contains("--path"), "{err}");
+}

@@ -42,12 +42,15 @@ fn rollout(sampler: Label, population: usize, index: usize, failed: bool, positi
     .recounted()
 }
 
-/// A flight CSV with the columns the export reads (`nerfsv_sim::trajectory_csv`'s names).
+/// A flight CSV with the pose columns of `nerfsv_sim::trajectory_csv` (level attitudes).
 fn flight_csv(path: &Path, truth: &[[f64; 3]], estimate: &[[f64; 3]]) {
-    let mut text = String::from("step,substep,time_s,true_x,true_y,true_z,est_x,est_y,est_z,clearance_m,collided\n");
+    let mut text = String::from(
+        "step,substep,time_s,true_x,true_y,true_z,true_qw,true_qx,true_qy,true_qz,\
+         est_x,est_y,est_z,est_qw,est_qx,est_qy,est_qz,clearance_m,collided\n",
+    );
     for (k, (t, e)) in truth.iter().zip(estimate).enumerate() {
         text.push_str(&format!(
-            "0,{k},{},{},{},{},{},{},{},0.1,0\n",
+            "0,{k},{},{},{},{},1,0,0,0,{},{},{},1,0,0,0,0.1,0\n",
             k as f64 * 0.1,
             t[0],
             t[1],

@@ -93,9 +93,39 @@ pub struct EvalArgs {
 
 #[derive(Args)]
 pub struct RenderArgs {
-    #[command(flatten)]
-    pub input: ModelOnData,
-    /// Output folder for r_N.png (RGB on white) and r_N_depth.png (16-bit z-depth, mm).
+    /// Checkpoint written by `nerfsv train`.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Dataset folder whose split's cameras are rendered: Blender, nerfstudio / instant-ngp or
+    /// COLMAP (as `train --data`).
+    #[arg(long, required_unless_present = "path", conflicts_with = "path")]
+    pub data: Option<PathBuf>,
+    /// Split: train, val or test.
+    #[arg(long, default_value = "test", conflicts_with = "path")]
+    pub split: String,
+    /// Integer image downscaling factor of the split, or of a path's cameras.
+    #[arg(long, default_value_t = 1)]
+    pub downscale: u32,
+    /// Render along poses instead of a split: a flight's trajectory CSV (as `nerfsv fly` and the
+    /// run's stress stage write them: the drone's camera at each row's pose) or a nerfstudio
+    /// camera-path JSON (`ns-render camera-path`'s input, poses in the model's world frame).
+    /// Writes frame_NNNN.png, frame_NNNN_depth.png and animation.png (animated PNG).
+    #[arg(long)]
+    pub path: Option<PathBuf>,
+    /// Along a trajectory CSV, the estimated poses instead of the true ones: what the drone
+    /// believed it was seeing.
+    #[arg(long, requires = "path")]
+    pub estimate: bool,
+    /// Frames per second of the animation (default: the camera path's `fps`; a trajectory's
+    /// real time, its rows' mean time step).
+    #[arg(long, requires = "path")]
+    pub fps: Option<f64>,
+    /// A run config whose drone camera (`[dataset]` width, height and camera_angle_x) renders a
+    /// trajectory CSV. Default: the embedded one.
+    #[arg(long, requires = "path")]
+    pub config: Option<PathBuf>,
+    /// Output folder: r_N.png (RGB on white) and r_N_depth.png (16-bit z-depth, mm) for a
+    /// split; frame_NNNN.png, frame_NNNN_depth.png and animation.png along --path.
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -177,13 +207,20 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_render(args: RenderArgs) -> anyhow::Result<()> {
-    let guard = Guard::new().dataset("--data", &args.input.data).input("--model", &args.input.model).folder(
+    let Some(data) = args.data.as_ref() else { return render_along_path(&args) };
+    let input = ModelOnData {
+        model: args.model.clone(),
+        data: data.clone(),
+        split: args.split.clone(),
+        downscale: args.downscale,
+    };
+    let guard = Guard::new().dataset("--data", data).input("--model", &args.model).folder(
         "--out",
         &args.out,
         OutputKind::Renders,
     );
     guard.check()?;
-    let (nerf, split) = args.input.load()?;
+    let (nerf, split) = input.load()?;
     let claimed = guard.claim()?;
     nerfsv_scene::io::remove_stale_temporaries_in(&args.out);
     render_split(&nerf, &split, &args.out, [1.0, 1.0, 1.0])
@@ -191,4 +228,65 @@ pub fn run_render(args: RenderArgs) -> anyhow::Result<()> {
     claimed.keep();
     eprintln!("rendered {} views into {}", split.frames.len(), args.out.display());
     Ok(())
+}
+
+/// `render --path`: the cameras of a trajectory CSV or a nerfstudio camera path, rendered in
+/// turn, and their animation.
+fn render_along_path(args: &RenderArgs) -> anyhow::Result<()> {
+    let path = args.path.as_ref().context("render needs --data or --path")?;
+    let guard = Guard::new()
+        .input("--model", &args.model)
+        .input("--path", path)
+        .input_opt("--config", args.config.as_deref())
+        .folder("--out", &args.out, OutputKind::Renders);
+    guard.check()?;
+    in_range("--downscale", args.downscale, 1, 64)?;
+    let (cameras, default_fps) = path_cameras(args, path)?;
+    let cameras: Vec<_> = cameras
+        .into_iter()
+        .map(|c| nerfsv_scene::Camera { intrinsics: c.intrinsics.downscaled(args.downscale), ..c })
+        .collect();
+    let fps = args.fps.unwrap_or(default_fps);
+    if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
+        anyhow::bail!("--fps: {fps} must be in (0, 1000]");
+    }
+    let nerf = Nerf::load(&args.model)?;
+    let claimed = guard.claim()?;
+    nerfsv_scene::io::remove_stale_temporaries_in(&args.out);
+    let reporter = Reporter::new(false);
+    let n = cameras.len();
+    nerfsv_nerf::render_path(&nerf, &cameras, &args.out, [1.0, 1.0, 1.0], fps, |done| {
+        reporter.progress("render", done as u64, n as u64, "frames")
+    })
+    .with_context(|| format!("rendering into {}", args.out.display()))?;
+    claimed.keep();
+    eprintln!(
+        "rendered {n} frames along {} into {} ({} at {fps:.3} frames per second)",
+        path.display(),
+        args.out.display(),
+        nerfsv_nerf::PATH_ANIMATION
+    );
+    Ok(())
+}
+
+/// The cameras along `path` and the rate to play them at: a JSON file is a nerfstudio camera
+/// path, anything else a trajectory CSV seen through the config's drone camera.
+fn path_cameras(args: &RenderArgs, path: &std::path::Path) -> anyhow::Result<(Vec<nerfsv_scene::Camera>, f64)> {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        if args.estimate || args.config.is_some() {
+            anyhow::bail!("--estimate and --config apply to a trajectory CSV, and {} is a camera path", path.display());
+        }
+        let p = nerfsv_dataset::load_camera_path(path)?;
+        return Ok((p.cameras, p.fps));
+    }
+    let cfg = crate::config_file::run_config(args.config.as_deref(), &crate::config_file::Sets::default())?;
+    let rows = nerfsv_sim::read_trajectory(path)?;
+    let poses: Vec<_> = rows.iter().map(|r| if args.estimate { r.estimate } else { r.truth }).collect();
+    let (Some(first), Some(last)) = (poses.first(), poses.last()) else {
+        anyhow::bail!("{}: no rows to render", path.display());
+    };
+    let span = last.time - first.time;
+    let fps = if poses.len() > 1 && span > 0.0 { (poses.len() - 1) as f64 / span } else { 10.0 };
+    let k = cfg.camera_intrinsics();
+    Ok((poses.iter().map(|p| nerfsv_sim::camera::drone_camera(k, &p.position, &p.rotation)).collect(), fps))
 }

@@ -19,6 +19,7 @@
 //! # let _ = (ray, rgba);
 //! ```
 
+pub mod camera_path;
 pub mod colmap;
 pub mod distortion;
 pub mod error;
@@ -30,6 +31,7 @@ pub mod split;
 pub mod transforms;
 pub mod writer;
 
+pub use camera_path::{load_camera_path, CameraPath};
 pub use distortion::OpenCvDistortion;
 pub use error::DatasetError;
 pub use folder::{dataset_files, dataset_format, has_split, load_split, probe, DatasetFormat};

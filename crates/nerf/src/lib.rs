@@ -99,7 +99,7 @@ pub use memory::{check_training_memory, training_memory_bytes};
 pub use metrics::{evaluate, evaluate_with_progress, psnr, ssim, EvalFigures, EvalOptions, EvalReport, ImageMetrics};
 pub use model::{Nerf, RayOutputs};
 pub use param_jacobian::{RaySamples, SigmaNetJacobians};
-pub use render::{comparison_image, render_split, RenderedView};
+pub use render::{comparison_image, path_frame_names, render_path, render_split, RenderedView, PATH_ANIMATION};
 pub use train::{
     check_bounds, checkpoint_path, train, train_stats_path, Budget, Progress, StepStats, TrainStats, Trainer,
 };

@@ -98,6 +98,54 @@ pub fn render_split(
     Ok(())
 }
 
+/// The file names [`render_path`] writes: frame `i`'s colour and depth, and the animation.
+pub fn path_frame_names(i: usize) -> [String; 2] {
+    [format!("frame_{i:04}.png"), format!("frame_{i:04}_depth.png")]
+}
+
+/// The animation [`render_path`] writes beside its frames.
+pub const PATH_ANIMATION: &str = "animation.png";
+
+/// Renders each of `cameras` (a path: one size) over `background` into `out_dir`: its frames
+/// as `frame_NNNN.png` (RGB) and `frame_NNNN_depth.png` (16-bit z-depth, mm), and all of them as
+/// an animated PNG, [`PATH_ANIMATION`], at `fps` frames per second. `progress` is told each
+/// frame done. Every file is written to a temporary name and renamed into place.
+pub fn render_path(
+    nerf: &Nerf,
+    cameras: &[Camera],
+    out_dir: &Path,
+    background: [f32; 3],
+    fps: f64,
+    mut progress: impl FnMut(usize),
+) -> Result<(), NerfError> {
+    let first = cameras.first().ok_or_else(|| InvalidValue::new("path", "must hold at least one camera", "none"))?;
+    let (w, h) = (first.intrinsics.width, first.intrinsics.height);
+    if let Some(i) = cameras.iter().position(|c| (c.intrinsics.width, c.intrinsics.height) != (w, h)) {
+        return Err(InvalidValue::new(
+            format!("path camera {i}"),
+            format!("must be {w}×{h} pixels like camera 0"),
+            "another size",
+        )
+        .into());
+    }
+    MemoryBudget::current().check("path", bytes_for((w as u64 * h as u64).saturating_mul(cameras.len() as u64), 16))?;
+    std::fs::create_dir_all(out_dir).map_err(|e| NerfError::io(out_dir, e))?;
+    let mut frames = Vec::with_capacity(cameras.len());
+    for (i, camera) in cameras.iter().enumerate() {
+        let v = nerf.render_camera(camera, background);
+        let [colour, depth] = path_frame_names(i).map(|n| out_dir.join(n));
+        let image = v.to_image();
+        nerfsv_scene::io::atomic_write(&colour, |f| image.write_png(f)).map_err(|e| NerfError::io(&colour, e))?;
+        nerfsv_scene::io::atomic_write(&depth, |f| v.depth_image().write_png_mm(f))
+            .map_err(|e| NerfError::io(&depth, e))?;
+        frames.push(image);
+        progress(i + 1);
+    }
+    let p = out_dir.join(PATH_ANIMATION);
+    nerfsv_scene::io::atomic_write(&p, |f| nerfsv_scene::animation::write_apng(f, &frames, fps))
+        .map_err(|e| NerfError::io(&p, e))
+}
+
 /// One row per frame, `ground truth | NeRF render`, both composited on white and enlarged
 /// `scale`× (nearest neighbour; 0 counts as 1). The frames must share one size, which must be
 /// their cameras' size; the output (`2·w·scale` × `h·scale·frames`, RGBA f32) must fit the

@@ -27,6 +27,8 @@ pub enum PipelineError {
     #[error(transparent)]
     Sim(#[from] nerfsv_sim::SimError),
     #[error(transparent)]
+    Trajectory(#[from] nerfsv_sim::TrajectoryFileError),
+    #[error(transparent)]
     Validation(#[from] nerfsv_validation::ValidationError),
     #[error(transparent)]
     Uq(#[from] nerfsv_uq::UqError),

@@ -192,34 +192,11 @@ fn mesh_node(
 type Points = Vec<[f32; 3]>;
 
 /// The true and estimated positions of every substep of a flight CSV
-/// ([`nerfsv_sim::trajectory_csv`]: columns `true_x..z`, `est_x..z`).
+/// ([`nerfsv_sim::read_trajectory`]).
 fn read_flight_csv(path: &Path) -> Result<(Points, Points), PipelineError> {
-    let text = std::fs::read_to_string(path).map_err(|e| PipelineError::io(path, e))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
-    let column = |name: &str| {
-        header.iter().position(|c| *c == name).ok_or_else(|| bad_file(path, format!("no column {name} in its header")))
-    };
-    let true_at = [column("true_x")?, column("true_y")?, column("true_z")?];
-    let est_at = [column("est_x")?, column("est_y")?, column("est_z")?];
-    let (mut truth, mut estimate) = (Vec::new(), Vec::new());
-    for (n, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-        let cells: Vec<&str> = line.split(',').collect();
-        let read = |at: [usize; 3]| -> Result<[f32; 3], PipelineError> {
-            let mut p = [0.0; 3];
-            for (v, &k) in p.iter_mut().zip(&at) {
-                let cell = cells.get(k).copied().unwrap_or("");
-                *v = cell
-                    .parse::<f64>()
-                    .map_err(|_| bad_file(path, format!("line {}: `{cell}` is not a number", n + 2)))?
-                    as f32;
-            }
-            Ok(p)
-        };
-        truth.push(read(true_at)?);
-        estimate.push(read(est_at)?);
-    }
-    Ok((truth, estimate))
+    let rows = nerfsv_sim::read_trajectory(path)?;
+    let point = |p: &nerfsv_sim::TrajectoryPose| -> [f32; 3] { p.position.map(|v| v as f32).into() };
+    Ok(rows.iter().map(|r| (point(&r.truth), point(&r.estimate))).unzip())
 }
 
 /// A track's node, or `None` when fewer than two of its points are finite.

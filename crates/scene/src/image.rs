@@ -158,8 +158,12 @@ impl Image {
 
     /// Encodes as an 8-bit RGBA PNG.
     pub fn write_png<W: Write>(&self, w: W) -> std::io::Result<()> {
-        let bytes: Vec<u8> = self.rgba.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect();
-        write_png_bytes(w, self.width, self.height, png::ColorType::Rgba, png::BitDepth::Eight, &bytes)
+        write_png_bytes(w, self.width, self.height, png::ColorType::Rgba, png::BitDepth::Eight, &self.rgba8())
+    }
+
+    /// The pixels as 8-bit RGBA, each value clamped to `[0, 1]` and rounded.
+    pub fn rgba8(&self) -> Vec<u8> {
+        self.rgba.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect()
     }
 
     /// Box-filters by an integer `factor`, averaging colour weighted by alpha so that

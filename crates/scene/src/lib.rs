@@ -13,6 +13,7 @@
 //! assert_eq!(img.rgba.len(), 16 * 16 * 4);
 //! ```
 
+pub mod animation;
 pub mod camera;
 pub mod folder;
 pub mod geometry;

@@ -13,7 +13,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 
 use crate::dynamics::{Disturbance, State};
 use crate::rollout::Rollout;
@@ -188,6 +188,80 @@ pub fn trajectory_csv(r: &Rollout) -> String {
     s
 }
 
+/// A trajectory file that cannot be read; names the file and the line (1-based).
+#[derive(Debug, thiserror::Error)]
+pub enum TrajectoryFileError {
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
+    #[error("{path}: no column {column} in its header (a trajectory CSV as nerfsv writes one)")]
+    Column { path: PathBuf, column: String },
+    #[error("{path}: line {line}, column {column}: {found:?} is not a finite number")]
+    Value { path: PathBuf, line: usize, column: String, found: String },
+}
+
+/// A pose of a trajectory file: where the body was (`truth`) or was believed to be
+/// (`estimate`), position (m) and body-to-world rotation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrajectoryPose {
+    pub time: f64,
+    pub position: Vector3<f64>,
+    pub rotation: Matrix3<f64>,
+}
+
+/// One row of a trajectory file ([`trajectory_csv`]): its time and the true and estimated poses.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrajectoryRow {
+    pub truth: TrajectoryPose,
+    pub estimate: TrajectoryPose,
+}
+
+/// Reads a trajectory file's poses, row by row (the columns found by their header names, so
+/// columns added later do not break it).
+pub fn read_trajectory(path: &Path) -> Result<Vec<TrajectoryRow>, TrajectoryFileError> {
+    let text = std::fs::read_to_string(path).map_err(|error| TrajectoryFileError::Io { path: path.into(), error })?;
+    parse_trajectory(&text, path)
+}
+
+/// [`read_trajectory`] on a file's text; `path` names it in errors.
+pub fn parse_trajectory(text: &str, path: &Path) -> Result<Vec<TrajectoryRow>, TrajectoryFileError> {
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').map(str::trim).collect();
+    let column = |name: String| match header.iter().position(|c| *c == name) {
+        Some(i) => Ok((i, name)),
+        None => Err(TrajectoryFileError::Column { path: path.into(), column: name }),
+    };
+    let pose_columns = |prefix: &str| -> Result<Vec<(usize, String)>, TrajectoryFileError> {
+        ["x", "y", "z", "qw", "qx", "qy", "qz"].iter().map(|c| column(format!("{prefix}_{c}"))).collect()
+    };
+    let time = column("time_s".into())?;
+    let (truth, estimate) = (pose_columns("true")?, pose_columns("est")?);
+    let mut rows = Vec::new();
+    for (n, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+        let cells: Vec<&str> = line.split(',').collect();
+        let value = |(i, name): &(usize, String)| -> Result<f64, TrajectoryFileError> {
+            let cell = cells.get(*i).map_or("", |c| c.trim());
+            cell.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| TrajectoryFileError::Value {
+                path: path.into(),
+                line: n + 2,
+                column: name.clone(),
+                found: cell.to_owned(),
+            })
+        };
+        let t = value(&time)?;
+        let pose = |cols: &[(usize, String)]| -> Result<TrajectoryPose, TrajectoryFileError> {
+            let v: Vec<f64> = cols.iter().map(value).collect::<Result<_, _>>()?;
+            let q = UnitQuaternion::from_quaternion(Quaternion::new(v[3], v[4], v[5], v[6]));
+            Ok(TrajectoryPose {
+                time: t,
+                position: Vector3::new(v[0], v[1], v[2]),
+                rotation: q.to_rotation_matrix().into_inner(),
+            })
+        };
+        rows.push(TrajectoryRow { truth: pose(&truth)?, estimate: pose(&estimate)? });
+    }
+    Ok(rows)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -235,5 +309,52 @@ mod tests {
         assert!(
             parse_disturbances(&format!("{row}1,0,0,0,0,0,0,0,0,0,0,0\n"), 2, &Disturbance::PAPER_STD, path).is_ok()
         );
+    }
+
+    /// What [`trajectory_csv`] writes reads back as the same poses (the rotation through its
+    /// quaternion, to rounding), found by the header's names wherever the columns sit.
+    #[test]
+    fn trajectory_poses_round_trip_and_bad_cells_are_named() {
+        use crate::dynamics::so3_exp;
+        let state = |k: f64| State {
+            position: Vector3::new(k, -2.0 * k, 0.5 + k),
+            rotation: so3_exp(&Vector3::new(0.3 * k, -0.2, 1.1 * k)),
+            ..State::at_rest(Vector3::zeros(), 0.0)
+        };
+        let substeps = (0..4)
+            .map(|i| crate::rollout::Substep {
+                step: i / 2,
+                substep: i % 2,
+                time: 0.05 * i as f64,
+                truth: state(i as f64 * 0.37),
+                estimate: state(i as f64 * 0.37 + 0.01),
+                estimate_spread: [0.01, 0.02],
+                clearance: (i != 2).then_some(0.3),
+            })
+            .collect::<Vec<_>>();
+        let rollout = Rollout {
+            substeps: substeps.clone(),
+            updates: Vec::new(),
+            first_collision: None,
+            left_grid: None,
+            diverged: None,
+            min_clearance: Some(0.3),
+            goal_distance_m: 1.0,
+            reached_goal: false,
+        };
+        let rows = parse_trajectory(&trajectory_csv(&rollout), Path::new("t.csv")).unwrap();
+        assert_eq!(rows.len(), 4);
+        for (row, sub) in rows.iter().zip(&substeps) {
+            assert_eq!(row.truth.time, sub.time);
+            assert_eq!(row.truth.position, sub.truth.position);
+            assert!((row.truth.rotation - sub.truth.rotation).abs().max() < 1e-12);
+            assert_eq!(row.estimate.position, sub.estimate.position);
+            assert!((row.estimate.rotation - sub.estimate.rotation).abs().max() < 1e-12);
+        }
+        let text = trajectory_csv(&rollout).replacen(&format!("{}", substeps[1].truth.position.y), "x", 1);
+        let e = parse_trajectory(&text, Path::new("t.csv")).unwrap_err().to_string();
+        assert_eq!(e, "t.csv: line 3, column true_y: \"x\" is not a finite number");
+        let e = parse_trajectory("step,time_s\n", Path::new("t.csv")).unwrap_err().to_string();
+        assert!(e.contains("no column true_x"), "{e}");
     }
 }

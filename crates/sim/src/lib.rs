@@ -33,7 +33,10 @@ pub use dynamics::{Disturbance, DroneParams, State};
 pub use estimator::{EstimatorKind, PosePrior, VisionConfig};
 pub use filter::{Belief, PoseMeasurement};
 pub use flight::{plan_flight, Flight, SimError};
-pub use io::{check_component, read_disturbances, trajectory_csv, DisturbanceFileError, DISTURBANCE_COLUMNS};
+pub use io::{
+    check_component, read_disturbances, read_trajectory, trajectory_csv, DisturbanceFileError, TrajectoryFileError,
+    TrajectoryPose, TrajectoryRow, DISTURBANCE_COLUMNS,
+};
 pub use perception::{CalibratedWorld, ErrorModel, ErrorSample, ViewPose};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};
 pub use rollout::{Collision, Event, ImageAt, ImageUpdate, Rollout, Simulator, Substep};

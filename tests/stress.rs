@@ -105,6 +105,15 @@ fn cem_with_replay_prints_the_summary_and_writes_the_same_bytes_on_one_and_two_t
     for f in ["most_likely_failure_cem.csv", "most_likely_failure_cem_nerf.png", "most_likely_failure_cem_gt.png"] {
         assert!(one.join(f).is_file(), "{f}");
     }
+    // What the drone's camera saw along it: an animated PNG with a frame per substep of the
+    // longer flight, the two worlds side by side.
+    let rows = |f: &str| std::fs::read_to_string(one.join(f)).unwrap().lines().count() - 1;
+    let frames = rows("most_likely_failure_cem_nerf.csv").max(rows("most_likely_failure_cem_gt.csv"));
+    let file = std::fs::File::open(one.join("most_likely_failure_cem_view.png")).unwrap();
+    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
+    assert_eq!(reader.info().animation_control.expect("an animated PNG").num_frames as usize, frames);
+    let (w, h) = reader.info().size();
+    assert!(w > h, "two panels side by side, {w}×{h}");
 
     let two = dir.path().join("two");
     let (ok, _, err) = stress(&model, &field, &two, &args, "2");

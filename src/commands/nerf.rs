@@ -120,8 +120,8 @@ pub struct RenderArgs {
     /// real time, its rows' mean time step).
     #[arg(long, requires = "path")]
     pub fps: Option<f64>,
-    /// A run config whose drone camera (`[dataset]` width, height and camera_angle_x) renders a
-    /// trajectory CSV. Default: the embedded one.
+    /// A run config whose drone camera (`[sim] camera`, else `[dataset]` width, height and
+    /// camera_angle_x) renders a trajectory CSV. Default: the embedded one.
     #[arg(long, requires = "path")]
     pub config: Option<PathBuf>,
     /// Output folder: r_N.png (RGB on white) and r_N_depth.png (16-bit z-depth, mm) for a
@@ -287,6 +287,7 @@ fn path_cameras(args: &RenderArgs, path: &std::path::Path) -> anyhow::Result<(Ve
     };
     let span = last.time - first.time;
     let fps = if poses.len() > 1 && span > 0.0 { (poses.len() - 1) as f64 / span } else { 10.0 };
-    let k = cfg.camera_intrinsics();
+    // The simulator's camera: `[sim] camera` where the config sets one, else the dataset's.
+    let k = cfg.sim.camera.map_or(cfg.camera_intrinsics(), |c| c.intrinsics());
     Ok((poses.iter().map(|p| nerfsv_sim::camera::drone_camera(k, &p.position, &p.rotation)).collect(), fps))
 }

@@ -9,6 +9,8 @@
 //! Figures:
 //! - [`trajectory_png`] / [`trajectory_svg`]: one flight, top view over the signed-distance
 //!   slice and side view of altitude along the track ([`trajectory`] describes the layout).
+//! - [`camera_view::camera_panels_rgb`]: what a drone's camera saw in each world, one frame of a
+//!   failure's animation.
 //! - [`glb::glb_bytes`]: triangle meshes and polylines as a binary glTF 2.0 file (`nerfsv export`),
 //!   for Blender or any glTF viewer.
 //! - [`histograms_png`] / [`histograms_svg`]: histograms of one quantity per group (split) on
@@ -46,6 +48,7 @@
 //! ```
 
 mod axes;
+pub mod camera_view;
 pub mod distribution;
 mod error;
 mod font;

@@ -16,12 +16,36 @@ pub fn write_apng<W: Write>(w: W, frames: &[Image], fps: f64) -> std::io::Result
             f.width, f.height, first.width, first.height
         )));
     }
+    let bytes: Vec<Vec<u8>> = frames.iter().map(Image::rgba8).collect();
+    write_frames(w, (first.width, first.height), png::ColorType::Rgba, &bytes, fps)
+}
+
+/// [`write_apng`] for frames of 8-bit RGB bytes (rows from the top), each `width × height`.
+pub fn write_apng_rgb<W: Write>(w: W, width: u32, height: u32, frames: &[Vec<u8>], fps: f64) -> std::io::Result<()> {
+    write_frames(w, (width, height), png::ColorType::Rgb, frames, fps)
+}
+
+fn write_frames<W: Write>(
+    w: W,
+    (width, height): (u32, u32),
+    colour: png::ColorType,
+    frames: &[Vec<u8>],
+    fps: f64,
+) -> std::io::Result<()> {
+    let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
+    if frames.is_empty() {
+        return Err(invalid("an animation needs at least one frame".into()));
+    }
+    let size = colour.samples() * width as usize * height as usize;
+    if let Some(i) = frames.iter().position(|f| f.len() != size) {
+        return Err(invalid(format!("frame {i} has {} bytes, a {width}×{height} frame {size}", frames[i].len())));
+    }
     if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
         return Err(invalid(format!("{fps} frames per second: must be in (0, 1000]")));
     }
     let count = u32::try_from(frames.len()).map_err(|_| invalid(format!("{} frames: too many", frames.len())))?;
-    let mut enc = png::Encoder::new(w, first.width, first.height);
-    enc.set_color(png::ColorType::Rgba);
+    let mut enc = png::Encoder::new(w, width, height);
+    enc.set_color(colour);
     enc.set_depth(png::BitDepth::Eight);
     enc.set_compression(png::Compression::Fast);
     enc.set_animated(count, 0).map_err(std::io::Error::other)?;
@@ -29,7 +53,7 @@ pub fn write_apng<W: Write>(w: W, frames: &[Image], fps: f64) -> std::io::Result
     enc.set_frame_delay(ms, 1000).map_err(std::io::Error::other)?;
     let mut writer = enc.write_header().map_err(std::io::Error::other)?;
     for f in frames {
-        writer.write_image_data(&f.rgba8()).map_err(std::io::Error::other)?;
+        writer.write_image_data(f).map_err(std::io::Error::other)?;
     }
     writer.finish().map_err(std::io::Error::other)
 }
@@ -74,5 +98,7 @@ mod tests {
         let e = write_apng(&mut sink, &[frame(0.1)], 0.0).unwrap_err();
         assert!(e.to_string().contains("frames per second"), "{e}");
         assert!(write_apng(&mut sink, &[], 10.0).is_err());
+        let e = write_apng_rgb(&mut sink, 2, 2, &[vec![0; 12], vec![0; 11]], 10.0).unwrap_err();
+        assert!(e.to_string().contains("frame 1 has 11 bytes"), "{e}");
     }
 }

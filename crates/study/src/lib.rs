@@ -14,6 +14,8 @@
 //!   held-out split), the perception error model fitted to it and its coverage on views held out
 //!   of the fit.
 //! - [`flight`]: one flight planned, flown, written and plotted ([`flight::fly_and_write`]).
+//! - [`flight_view`]: what the drone's camera saw along flights, in each world side by side, as
+//!   an animated PNG ([`flight_view::flight_view_apng`]).
 //! - [`stress`]: the searches over the drone's disturbances in one world, replayed in the other,
 //!   with the paper's tables, the confusion matrices and the most likely failures
 //!   ([`stress::stress`]), and uncertainty measured at recorded poses
@@ -27,6 +29,7 @@
 pub mod calibration;
 mod drone;
 pub mod flight;
+pub mod flight_view;
 pub mod online;
 pub mod remote;
 pub mod stress;

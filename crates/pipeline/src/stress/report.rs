@@ -5,8 +5,8 @@
 //! change here redoes no stage.
 
 use nerfsv_study::stress::{
-    most_likely_failure_png, other_world, Sampler, SamplerFigures, StressFigures, TransferFigures, CLEARANCE_PNG,
-    ESTIMATE_ERRORS_PNG,
+    most_likely_failure_png, most_likely_failure_view, other_world, Sampler, SamplerFigures, StressFigures,
+    TransferFigures, CLEARANCE_PNG, ESTIMATE_ERRORS_PNG,
 };
 
 use crate::report::{esc, estimate, mm, num, pct, proportion, rate_ci, world_label, Section, Table};
@@ -371,9 +371,22 @@ fn estimator_errors_and_failures(s: &mut Section, f: &StressFigures) {
         let name = sf.sampler.name().to_uppercase();
         let png = |world| most_likely_failure_png(sf.sampler, world);
         s.picture(&png(sf.world), &format!("{name}'s most likely failure in {}-sim", world_label(sf.world)));
-        if failure.replay_collided.is_some() {
+        let replayed = failure.replay_collided.is_some();
+        if replayed {
             let other = other_world(sf.world);
             s.picture(&png(other), &format!("The same disturbances in {}-sim", world_label(other)));
         }
+        let worlds = if replayed {
+            format!("in {}-sim (left) and {}-sim (right)", world_label(sf.world), world_label(other_world(sf.world)))
+        } else {
+            format!("in {}-sim", world_label(sf.world))
+        };
+        s.picture(
+            &most_likely_failure_view(sf.sampler),
+            &format!(
+                "What the drone's camera saw along {name}'s most likely failure {worlds}, in real time: + where the \
+                 camera aims, × where the estimate believes it aims, a red frame once it has crashed"
+            ),
+        );
     }
 }

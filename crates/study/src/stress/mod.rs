@@ -26,7 +26,9 @@ pub use figures::*;
 pub use files::*;
 pub use measure::{measure_at_poses, measure_recorded};
 pub use nerfsv_validation::Sampler;
-pub use pictures::{most_likely_failure_png, most_likely_failure_stem, CLEARANCE_PNG, ESTIMATE_ERRORS_PNG};
+pub use pictures::{
+    most_likely_failure_png, most_likely_failure_stem, most_likely_failure_view, CLEARANCE_PNG, ESTIMATE_ERRORS_PNG,
+};
 pub use request::search_into;
 pub use run::stress;
 pub use search::searched;

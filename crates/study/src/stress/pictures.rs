@@ -1,5 +1,5 @@
 //! What a stress run draws: the estimator's error histograms and each sampler's most likely
-//! failure flown and plotted in each world.
+//! failure flown and plotted in each world, and what the drone's camera saw along it.
 
 use std::path::Path;
 
@@ -8,6 +8,7 @@ use nerfsv_validation::RolloutRecord;
 use nerfsv_validation::{Agreement, Sampler};
 
 use crate::flight::{fly_and_write, FlightFigures, Sortie};
+use crate::flight_view::{flight_view_apng, DroneCamera, ViewedFlight};
 use crate::{drone_disturbances, EstimateLog, StudyError};
 
 use super::figures::*;
@@ -86,15 +87,30 @@ pub(super) fn write_failure(
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(&ds).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;
     let mut replayed = None;
+    let mut flown = Vec::new();
     for w in std::iter::once(search).chain(other.filter(|_| setup.replay)) {
         let png = out.join(most_likely_failure_png(sampler, w.kind()));
         let sortie = Sortie { world: w, estimator: setup.estimator, disturbances: &ds, seed: f.seed };
-        let (figures, _) = fly_and_write(&setup.mission, &sortie, &png.with_extension("csv"), &png)?;
+        let (figures, rollout) = fly_and_write(&setup.mission, &sortie, &png.with_extension("csv"), &png)?;
         if w.kind() != setup.world {
             replayed = Some(figures);
         }
+        flown.push((w, rollout));
     }
+    let flights: Vec<ViewedFlight> =
+        flown.iter().map(|(world, rollout)| ViewedFlight { world: *world, rollout, seed: f.seed }).collect();
+    let m = &setup.mission;
+    let sim = m.flight.simulator(m.drone.sim, &m.inputs.nerf, m.drone.intrinsics);
+    let (apng, _) = flight_view_apng(&flights, DroneCamera { intrinsics: sim.intrinsics, background: sim.background })?;
+    let path = out.join(most_likely_failure_view(sampler));
+    nerfsv_scene::io::atomic_write_bytes(&path, &apng).map_err(|e| StudyError::io(&path, e))?;
     Ok(replayed)
+}
+
+/// The animation of what the drone's camera saw along a sampler's most likely failure, in each
+/// world it was flown in ([`crate::flight_view`]).
+pub fn most_likely_failure_view(sampler: Sampler) -> String {
+    format!("{}_view.png", most_likely_failure_stem(sampler))
 }
 
 /// The histograms of |clearance in NeRF-sim − in GT-sim| on the same disturbances.

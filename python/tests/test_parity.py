@@ -117,6 +117,18 @@ def test_the_readme_s_pytorch_recipe_loads_the_weights_into_a_module(world):
         assert value.dtype == torch.float32 and np.array_equal(value.numpy(), on_disk[name][1]), name
 
 
+def test_safetensors_torch_reads_the_checkpoint_as_the_state_dict(world):
+    """The README's way without nerfsv: `safetensors.torch.load_file` gives the same tensors,
+    the optimiser's included."""
+    pytest.importorskip("torch")
+    load_file = pytest.importorskip("safetensors.torch").load_file
+    tensors = load_file(str(world["model"]))
+    full = nerfsv.Model.load(world["model"]).state_dict(optimizer=True)
+    assert set(tensors) == set(full)
+    for name, t in tensors.items():
+        assert np.array_equal(t.numpy(), full[name]), name
+
+
 def read_csv(path):
     with open(path, newline="") as f:
         rows = list(csv.reader(f))

@@ -40,11 +40,15 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
         assert!(v.get(key).is_some(), "{key} missing from {stdout}");
     }
     assert_eq!(v["steps"], 6);
-    for f in ["trajectory.csv", "trajectory.png", "disturbances.csv", "flight.json"] {
+    for f in ["trajectory.csv", "trajectory.png", "view.png", "disturbances.csv", "flight.json"] {
         assert!(out.join(f).is_file(), "{f}");
     }
     let csv = std::fs::read_to_string(out.join("trajectory.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 6 * 9);
+    // What the camera saw: an animated PNG of one panel, a frame per trajectory row.
+    let file = std::fs::File::open(out.join("view.png")).unwrap();
+    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
+    assert_eq!(reader.info().animation_control.expect("an animated PNG").num_frames, 6 * 9);
     // The disturbances it wrote replay the same flight.
     let again = dir.path().join("again");
     let (ok, stdout2, err) = fly(

@@ -81,7 +81,8 @@ pub struct FlyArgs {
     pub config: Option<PathBuf>,
     #[command(flatten)]
     pub sets: Sets,
-    /// Output folder: trajectory.csv, trajectory.png, disturbances.csv, flight.json.
+    /// Output folder: trajectory.csv, trajectory.png, view.png (what the drone's camera saw, an
+    /// animated PNG), disturbances.csv, flight.json.
     #[arg(long, default_value = "fly")]
     pub out: PathBuf,
     /// Print one JSON object with the figures.

@@ -16,6 +16,7 @@ use nerfsv_sim::{
 };
 use serde::{Deserialize, Serialize};
 
+use crate::flight_view::{flight_view_apng, DroneCamera, ViewedFlight};
 use crate::StudyError;
 
 /// What one flight reports (the object `nerfsv fly --json` prints).
@@ -368,13 +369,21 @@ pub fn fly_and_write(
 
 /// One flight into the folder `out`, made once the flight is planned and its world built (a
 /// request that is refused writes nothing): `trajectory.csv`, `trajectory.png` (and the vision
-/// estimator's error plots), `disturbances.csv` (replayable) and `flight.json` (the figures,
+/// estimator's error plots), `view.png` (what the drone's camera saw, animated:
+/// [`crate::flight_view`]), `disturbances.csv` (replayable) and `flight.json` (the figures,
 /// which it returns). What `nerfsv fly` does after reading its arguments.
 pub fn fly_into(out: &Path, req: &FlightRequest) -> Result<FlightFigures, StudyError> {
     let (flight, w) = req.planned()?;
     std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
     let (mission, sortie) = req.mission(&flight, w.as_ref());
-    let (figures, _) = fly_and_write(&mission, &sortie, &out.join("trajectory.csv"), &out.join("trajectory.png"))?;
+    let (figures, rollout) =
+        fly_and_write(&mission, &sortie, &out.join("trajectory.csv"), &out.join("trajectory.png"))?;
+    let sim = flight.simulator(mission.drone.sim, &mission.inputs.nerf, mission.drone.intrinsics);
+    let viewed = ViewedFlight { world: sortie.world, rollout: &rollout, seed: sortie.seed };
+    let camera = DroneCamera { intrinsics: sim.intrinsics, background: sim.background };
+    let (apng, _) = flight_view_apng(&[viewed], camera)?;
+    let path = out.join(VIEW_PNG);
+    nerfsv_scene::io::atomic_write_bytes(&path, &apng).map_err(|e| StudyError::io(&path, e))?;
     let path = out.join("disturbances.csv");
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(req.disturbances).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;
@@ -383,6 +392,9 @@ pub fn fly_into(out: &Path, req: &FlightRequest) -> Result<FlightFigures, StudyE
         .map_err(|e| StudyError::io(&path, e))?;
     Ok(figures)
 }
+
+/// The animation of what the drone's camera saw along a flight [`fly_into`] writes.
+pub const VIEW_PNG: &str = "view.png";
 
 /// Everything a flight needs from a run folder (or from files a user names).
 pub struct FlightInputs {

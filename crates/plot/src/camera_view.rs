@@ -31,18 +31,18 @@ const PAD: u32 = 10;
 const TITLE: u32 = 30;
 const LINE: u32 = 22;
 
-/// The frame's size for `panels` enlarged `scale`× (nearest neighbour).
+/// The frame's size for `panels` enlarged `scale`× (nearest neighbour), with a footer line.
 fn layout(panels: &[CameraPanel], scale: u32) -> (u32, u32, u32) {
-    let lines = panels.iter().map(|p| p.lines.len() as u32).max().unwrap_or(0);
+    let lines = panels.iter().map(|p| p.lines.len() as u32).max().unwrap_or(0) + 1;
     let panel_w = panels.iter().map(|p| p.width * scale).max().unwrap_or(0);
     let image_h = panels.iter().map(|p| p.height * scale).max().unwrap_or(0);
     let width = PAD + panels.len() as u32 * (panel_w + PAD);
     (width, PAD + TITLE + image_h + PAD + lines * LINE + PAD, panel_w)
 }
 
-/// The panels side by side on white, each image enlarged `scale`× (1 to 16): an RGB8 buffer and
-/// its width and height.
-pub fn camera_panels_rgb(panels: &[CameraPanel], scale: u32) -> Result<(Vec<u8>, u32, u32), PlotError> {
+/// The panels side by side on white, each image enlarged `scale`× (1 to 16), and `footer` under
+/// them all: an RGB8 buffer and its width and height.
+pub fn camera_panels_rgb(panels: &[CameraPanel], scale: u32, footer: &str) -> Result<(Vec<u8>, u32, u32), PlotError> {
     if panels.is_empty() || !(1..=16).contains(&scale) {
         return Err(PlotError::InvalidData(format!("{} panels at {scale}×: need one or more at 1–16×", panels.len())));
     }
@@ -78,7 +78,7 @@ pub fn camera_panels_rgb(panels: &[CameraPanel], scale: u32) -> Result<(Vec<u8>,
             let (x0, y0) = origin(i);
             let (x0, y0, s) = (x0 as i32, y0 as i32, scale as f64);
             let (w, h) = ((p.width * scale) as i32, (p.height * scale) as i32);
-            Text::new(17.0, palette::INK).draw(&root, &p.title, (x0, y0 - TITLE as i32 / 2))?;
+            Text::new(15.0, palette::INK).draw(&root, &p.title, (x0, y0 - TITLE as i32 / 2))?;
             for (k, line) in p.lines.iter().enumerate() {
                 let y = y0 + h + PAD as i32 + (LINE as i32) * k as i32 + LINE as i32 / 2;
                 Text::new(14.0, palette::INK).draw(&root, line, (x0, y))?;
@@ -102,6 +102,8 @@ pub fn camera_panels_rgb(panels: &[CameraPanel], scale: u32) -> Result<(Vec<u8>,
                 }
             }
         }
+        let footer_y = height as i32 - PAD as i32 - LINE as i32 / 2;
+        Text::new(14.0, palette::INK_SOFT).draw(&root, footer, (PAD as i32, footer_y))?;
         root.present()?;
     }
     Ok((rgb, width, height))
@@ -144,7 +146,7 @@ mod tests {
     /// mark is drawn where it aims, and the title and lines are inked.
     #[test]
     fn panels_are_laid_out_side_by_side_with_their_marks() {
-        let (rgb, w, h) = camera_panels_rgb(&[panel(40, false), panel(200, true)], 4).unwrap();
+        let (rgb, w, h) = camera_panels_rgb(&[panel(40, false), panel(200, true)], 4, "+ aim").unwrap();
         let (_, expected_h, panel_w) = layout(&[panel(0, false)], 4);
         assert_eq!(panel_w, 80);
         assert_eq!((w, h), (PAD + 2 * (80 + PAD), expected_h));
@@ -173,8 +175,8 @@ mod tests {
     fn a_buffer_of_the_wrong_size_is_refused() {
         let mut p = panel(0, false);
         p.rgb.pop();
-        assert!(camera_panels_rgb(&[p], 2).is_err());
-        assert!(camera_panels_rgb(&[], 2).is_err());
-        assert!(camera_panels_rgb(&[panel(0, false)], 0).is_err());
+        assert!(camera_panels_rgb(&[p], 2, "").is_err());
+        assert!(camera_panels_rgb(&[], 2, "").is_err());
+        assert!(camera_panels_rgb(&[panel(0, false)], 0, "").is_err());
     }
 }

@@ -39,9 +39,11 @@ pub fn flight_view_apng(flights: &[ViewedFlight], camera: DroneCamera) -> Result
         return Err(StudyError::Internal("a flight view needs a flight with at least one substep".into()));
     }
     let k = camera.intrinsics;
-    let scale = (240 / k.width.max(1)).clamp(1, 16);
+    // Panels about 300 px wide, so that their lines of text fit.
+    let scale = 300u32.div_ceil(k.width.max(1)).clamp(1, 16);
     let pixels: Vec<[u32; 2]> = (0..k.height).flat_map(|j| (0..k.width).map(move |i| [i, j])).collect();
     let own: Vec<_> = flights.iter().map(|f| f.world.for_rollout(f.seed)).collect();
+    let footer = format!("+ where the camera aims, × where the estimate believes it aims ({AIM_DISTANCE_M} m ahead)");
     let mut buffers = Vec::with_capacity(frames);
     let mut size = (0, 0);
     for i in 0..frames {
@@ -56,7 +58,7 @@ pub fn flight_view_apng(flights: &[ViewedFlight], camera: DroneCamera) -> Result
             })
             .collect();
         let (rgb, w, h) =
-            camera_panels_rgb(&panels, scale).map_err(|e| StudyError::Internal(format!("drawing: {e}")))?;
+            camera_panels_rgb(&panels, scale, &footer).map_err(|e| StudyError::Internal(format!("drawing: {e}")))?;
         size = (w, h);
         buffers.push(rgb);
     }
@@ -99,15 +101,11 @@ fn panel(
         WorldKind::Gt => "GT-sim",
     };
     CameraPanel {
-        title: format!("{world_name}: step {}.{}, {:.1} s", sub.step, sub.substep, sub.time),
+        title: format!("{world_name}, step {}.{} ({:.1} s)", sub.step, sub.substep, sub.time),
         width: k.width,
         height: k.height,
         rgb,
-        lines: vec![
-            format!("estimate off by {error_mm:.0} mm, {error_deg:.2}°"),
-            state,
-            format!("+ camera's aim, × estimate's ({AIM_DISTANCE_M} m ahead)"),
-        ],
+        lines: vec![format!("estimate off by {error_mm:.0} mm, {error_deg:.2}°"), state],
         estimate_aim: aim(k, truth.position, &truth.rotation, estimate.position, &estimate.rotation),
         crashed,
     }

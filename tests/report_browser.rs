@@ -28,8 +28,9 @@ fn headless(browser: &str, args: &[&str]) -> String {
 }
 
 /// A checker page beside the report: the report's page with a script that, once everything
-/// has loaded, counts the images that did not load and the tables wider than their container,
-/// and writes the counts into the page for `--dump-dom`.
+/// has loaded, counts the images that did not load, the tables wider than their container and
+/// the failure views (animated PNGs) that loaded, and writes the counts into the page for
+/// `--dump-dom`.
 fn checker(report: &Path) -> std::path::PathBuf {
     let html = std::fs::read_to_string(report.join("index.html")).unwrap();
     let script = r#"<script>
@@ -39,7 +40,8 @@ window.addEventListener('load', () => {
   const wide = [...document.querySelectorAll('table')].filter(t => t.scrollWidth > t.parentElement.clientWidth + 1);
   const pre = document.createElement('pre');
   pre.id = 'check';
-  pre.textContent = `images=${imgs.length} broken=${broken.length} wide_tables=${wide.length} broken_list=${broken.join(';')}`;
+  const views = imgs.filter(i => i.src.endsWith('view.png') && i.complete && i.naturalWidth > 0);
+  pre.textContent = `images=${imgs.length} broken=${broken.length} wide_tables=${wide.length} views=${views.length} broken_list=${broken.join(';')}`;
   document.body.appendChild(pre);
 });
 </script></body>"#;
@@ -85,6 +87,33 @@ fn the_report_loads_every_image_and_no_table_overflows_in_a_real_browser() {
     assert!(field("images") >= 8, "{line}");
     assert_eq!(field("broken"), 0, "images that did not load: {line}");
     assert_eq!(field("wide_tables"), 0, "tables wider than the page: {line}");
+    // The tiny run's searches find no crash (its drone leaves the grid first), so the drone's
+    // view is checked on a flight of its model: `nerfsv fly`'s view.png (the same writer as the
+    // report's failure views) loads as an image in the browser.
+    let html = std::fs::read_to_string(report.join("index.html")).unwrap();
+    assert_eq!(field("views"), html.matches("view.png\"").count(), "{line}");
+    let fly = dir.path().join("fly");
+    let model = out.join("nerf/checkpoint.safetensors");
+    let field_path = out.join("nerf_collision/nerf_sdf.safetensors");
+    let (ok, _, err) = nerfsv(&[
+        "fly",
+        "--scene",
+        "monolith",
+        "--world",
+        "gt",
+        "--model",
+        s(&model),
+        "--nerf-field",
+        s(&field_path),
+        "--config",
+        s(&cfg),
+        "--out",
+        s(&fly),
+    ]);
+    assert!(ok, "{err}");
+    std::fs::write(fly.join("index.html"), "<html><body><img src=\"view.png\"></body></html>").unwrap();
+    let dom = headless(browser, &["--dump-dom", &format!("file://{}", checker(&fly).display())]);
+    assert!(dom.contains("images=1 broken=0 wide_tables=0 views=1"), "{}", &dom[dom.len().saturating_sub(300)..]);
 
     // A screenshot, as the README's was taken: a PNG of the requested size.
     let shot = dir.path().join("shot.png");

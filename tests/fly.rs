@@ -78,6 +78,23 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
         v
     };
     assert_eq!(strip(&stdout), strip(&stdout2));
+
+    // The same flight replayed in NeRF-sim beside it: its own files under replay/, the first
+    // world's files as before, and a view of both worlds side by side.
+    let both = dir.path().join("both");
+    let extra = ["--world", "gt", "--disturbance-seed", "3", "--config", s(&cfg), "--replay", "--json"];
+    let (ok, stdout3, err) = fly(&model, &field, &both, &extra);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(stdout3.trim()).unwrap();
+    assert_eq!((v["flight"]["world"].as_str(), v["replay"]["world"].as_str()), (Some("gt"), Some("nerf")), "{v}");
+    assert_eq!(std::fs::read(both.join("trajectory.csv")).unwrap(), std::fs::read(out.join("trajectory.csv")).unwrap());
+    for f in ["trajectory.csv", "trajectory.png", "flight.json"] {
+        assert!(both.join("replay").join(f).is_file(), "replay/{f}");
+    }
+    let file = std::fs::File::open(both.join("view.png")).unwrap();
+    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
+    let (w, h) = reader.info().size();
+    assert!(w > h, "two panels side by side, {w}×{h}");
 }
 
 #[test]

@@ -85,6 +85,11 @@ pub struct FlyArgs {
     /// animated PNG), disturbances.csv, flight.json.
     #[arg(long, default_value = "fly")]
     pub out: PathBuf,
+    /// Fly the same disturbances and pixel seed in the other world too (GT-sim after NeRF-sim,
+    /// NeRF-sim after GT-sim) into OUT/replay/; view.png then shows both worlds side by side.
+    /// With --json the object holds `flight` and `replay`.
+    #[arg(long)]
+    pub replay: bool,
     /// Print one JSON object with the figures.
     #[arg(long)]
     pub json: bool,
@@ -115,10 +120,16 @@ pub fn run(args: FlyArgs) -> anyhow::Result<()> {
         seed: args.seed.or(args.random_seed).unwrap_or(0),
     };
     let claimed = guard.claim()?;
-    let figures = fly_into(&args.out, &request).map_err(|e| match e {
+    let (figures, replayed) = fly_into(&args.out, &request, args.replay).map_err(|e| match e {
         nerfsv_study::StudyError::Sim(_) => anyhow::Error::from(e).context("planning the flight"),
         e => e.into(),
     })?;
     claimed.keep();
-    crate::commands::report(args.json, &figures, || figures.describe())
+    match replayed {
+        None => crate::commands::report(args.json, &figures, || figures.describe()),
+        Some(replay) => {
+            let both = serde_json::json!({ "flight": figures, "replay": replay });
+            crate::commands::report(args.json, &both, || format!("{}\n{}", figures.describe(), replay.describe()))
+        }
+    }
 }

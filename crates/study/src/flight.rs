@@ -367,31 +367,61 @@ pub fn fly_and_write(
     Ok((figures, rollout))
 }
 
-/// One flight into the folder `out`, made once the flight is planned and its world built (a
+/// One flight into the folder `out`, made once the flight is planned and its worlds built (a
 /// request that is refused writes nothing): `trajectory.csv`, `trajectory.png` (and the vision
-/// estimator's error plots), `view.png` (what the drone's camera saw, animated:
-/// [`crate::flight_view`]), `disturbances.csv` (replayable) and `flight.json` (the figures,
-/// which it returns). What `nerfsv fly` does after reading its arguments.
-pub fn fly_into(out: &Path, req: &FlightRequest) -> Result<FlightFigures, StudyError> {
+/// estimator's error plots), `disturbances.csv` (replayable), `flight.json` (the figures) and
+/// `view.png` (what the drone's camera saw, animated: [`crate::flight_view`]). With `replay`, the
+/// same disturbances and seed flown in the other world too, into `out/replay/` (its trajectory,
+/// plots and `flight.json`), and `view.png` shows both worlds side by side. Returns the figures
+/// of the flight and of its replay. What `nerfsv fly` does after reading its arguments.
+pub fn fly_into(
+    out: &Path,
+    req: &FlightRequest,
+    replay: bool,
+) -> Result<(FlightFigures, Option<FlightFigures>), StudyError> {
     let (flight, w) = req.planned()?;
+    let d = &req.drone;
+    let other = match replay {
+        true => Some(world(crate::stress::other_world(req.kind), req.inputs, d.scene, d.render)?),
+        false => None,
+    };
     std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
     let (mission, sortie) = req.mission(&flight, w.as_ref());
     let (figures, rollout) =
         fly_and_write(&mission, &sortie, &out.join("trajectory.csv"), &out.join("trajectory.png"))?;
+    write_figures(&out.join("flight.json"), &figures)?;
+    let mut flown = vec![(sortie.world, rollout)];
+    let mut replayed = None;
+    if let Some(other) = &other {
+        let dir = out.join(REPLAY_DIR);
+        std::fs::create_dir_all(&dir).map_err(|e| StudyError::io(&dir, e))?;
+        let sortie = Sortie { world: other.as_ref(), ..sortie };
+        let (f, r) = fly_and_write(&mission, &sortie, &dir.join("trajectory.csv"), &dir.join("trajectory.png"))?;
+        write_figures(&dir.join("flight.json"), &f)?;
+        flown.push((other.as_ref(), r));
+        replayed = Some(f);
+    }
     let sim = flight.simulator(mission.drone.sim, &mission.inputs.nerf, mission.drone.intrinsics);
-    let viewed = ViewedFlight { world: sortie.world, rollout: &rollout, seed: sortie.seed };
+    let viewed: Vec<ViewedFlight> =
+        flown.iter().map(|(world, rollout)| ViewedFlight { world: *world, rollout, seed: sortie.seed }).collect();
     let camera = DroneCamera { intrinsics: sim.intrinsics, background: sim.background };
-    let (apng, _) = flight_view_apng(&[viewed], camera)?;
+    let (apng, _) = flight_view_apng(&viewed, camera)?;
     let path = out.join(VIEW_PNG);
     nerfsv_scene::io::atomic_write_bytes(&path, &apng).map_err(|e| StudyError::io(&path, e))?;
     let path = out.join("disturbances.csv");
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(req.disturbances).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;
-    let path = out.join("flight.json");
-    nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer_pretty(w, &figures).map_err(std::io::Error::other))
-        .map_err(|e| StudyError::io(&path, e))?;
-    Ok(figures)
+    Ok((figures, replayed))
 }
+
+/// A flight's figures as pretty JSON at `path`.
+fn write_figures(path: &Path, figures: &FlightFigures) -> Result<(), StudyError> {
+    nerfsv_scene::io::atomic_write(path, |w| serde_json::to_writer_pretty(w, figures).map_err(std::io::Error::other))
+        .map_err(|e| StudyError::io(path, e))
+}
+
+/// The folder under a flight's where `fly_into` writes its replay in the other world.
+pub const REPLAY_DIR: &str = "replay";
 
 /// The animation of what the drone's camera saw along a flight [`fly_into`] writes.
 pub const VIEW_PNG: &str = "view.png";

@@ -85,9 +85,7 @@ def uncertainty(
     RGB in ``[0, 1]``; ``config`` a run config whose ``[uq]`` table sets the fit, with
     ``overrides`` (``"uq.KEY=VALUE"``). Returns the figures; ``None`` when every ray misses the
     model."""
-    return json.loads(
-        model.uncertainty(method, _f32(pose), width, height, intrinsics, _f32(image), config, list(overrides))
-    )
+    return model.uncertainty(method, _f32(pose), width, height, intrinsics, _f32(image), config, list(overrides))
 
 
 def fly(

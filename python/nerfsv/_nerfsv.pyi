@@ -46,10 +46,10 @@ class Model:
     def uncertainty(
         self, method: str, pose: npt.ArrayLike, width: int, height: int, intrinsics: _Intrinsics,
         image: npt.ArrayLike, config: Optional[_Path] = ..., overrides: Optional[List[str]] = ...,
-    ) -> str:
+    ) -> Optional[Dict[str, Any]]:
         """The paper's uncertainty of one image (``"ga"`` or ``"bla"``; ``image`` ``[h, w, 4]``
-        RGBA or ``[h, w, 3]`` RGB in ``[0, 1]``) as JSON text, ``null`` when every ray misses the
-        model; ``nerfsv.uncertainty`` returns it as a dict."""
+        RGBA or ``[h, w, 3]`` RGB in ``[0, 1]``): the figures as a dict, ``None`` when every ray
+        misses the model."""
         ...
     def state_dict(self, optimizer: bool = ...) -> Dict[str, npt.NDArray[np.float32]]:
         """The checkpoint's tensors under their torch-ngp names, float32 in the file's shapes:

@@ -159,8 +159,8 @@ impl Model {
     /// The paper's uncertainty of one image: `method` `"ga"` (σ_d of eq. 10, on every pixel) or
     /// `"bla"` (eq. 11's normalised trace and rmv). `image` `[h, w, 4]` RGBA (straight alpha)
     /// or `[h, w, 3]` RGB, in `[0, 1]`; `config` a run config whose `[uq]` table sets the fit
-    /// (default: the embedded one). Returns the figures as JSON text, `null` when every ray
-    /// misses the model (`nerfsv.uncertainty` gives them as a dict, or `None`).
+    /// (default: the embedded one). Returns the figures as a dict, `None` when every ray
+    /// misses the model.
     #[pyo3(signature = (method, pose, width, height, intrinsics, image, config = None, overrides = None))]
     #[allow(clippy::too_many_arguments)]
     fn uncertainty(
@@ -174,17 +174,19 @@ impl Model {
         image: &Bound<'_, PyAny>,
         config: Option<PathBuf>,
         overrides: Option<Vec<String>>,
-    ) -> PyResult<String> {
+    ) -> PyResult<Py<PyAny>> {
         let method: Method = crate::choice("method", method)?;
         let frame = frame(pose, width, height, intrinsics, image, None)?;
         // Only the `[uq]` table matters here: any run config is read, the ensemble's too.
         let cfg = crate::inputs::any_run_config(config.as_deref(), &overrides.unwrap_or_default())?.uq;
         let nerf = self.nerf.clone();
         let fit = py.detach(move || fit_frame(&nerf, method, "python", &frame, None, &cfg)).map_err(py_err)?;
-        match fit {
+        let text = match fit {
             Fit::Ga(row) => to_json(&row),
             Fit::Bla(row) => to_json(&row),
-        }
+        }?;
+        // JSON's `null` (every ray missed) is `None`; NaN, which the figures may hold, is kept.
+        Ok(py.import("json")?.call_method1("loads", (text,))?.unbind())
     }
 
     /// The checkpoint's tensors under their torch-ngp names, as numpy float32 arrays of the

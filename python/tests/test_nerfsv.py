@@ -58,6 +58,11 @@ def test_dataset_model_and_fields_have_their_shapes_and_dtypes(world, tmp_path):
     for method, key in [("ga", "sigma_d"), ("bla", "normalized_trace")]:
         f = nerfsv.uncertainty(model, method, data["poses"][0], 8, 8, tuple(data["intrinsics"][0]), data["images"][0])
         assert f is None or np.isfinite(f[key]), f
+        # The model's own method gives the same figures as a dict too (or None), not JSON text.
+        direct = model.uncertainty(method, np.asarray(data["poses"][0], np.float32), 8, 8,
+                                   tuple(data["intrinsics"][0]), np.asarray(data["images"][0], np.float32))
+        assert direct is None or isinstance(direct, dict), direct
+        assert json.dumps(direct, sort_keys=True) == json.dumps(f, sort_keys=True)
 
     flight = nerfsv.fly(world["model"], world="gt", estimator="truth", config=world["study"], scene="monolith",
                         nerf_field=world["field"], random_seed=3)

@@ -20,6 +20,16 @@ pub enum WorldKind {
     Gt,
 }
 
+impl WorldKind {
+    /// The other world: where a flight's disturbances are replayed.
+    pub fn other(self) -> Self {
+        match self {
+            Self::Nerf => Self::Gt,
+            Self::Gt => Self::Nerf,
+        }
+    }
+}
+
 /// What a simulator needs of a world: its signed field (metres, positive in free space) and
 /// the camera's view of it.
 pub trait World: Sync {

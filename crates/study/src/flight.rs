@@ -382,7 +382,7 @@ pub fn fly_into(
     let (flight, w) = req.planned()?;
     let d = &req.drone;
     let other = match replay {
-        true => Some(world(crate::stress::other_world(req.kind), req.inputs, d.scene, d.render)?),
+        true => Some(world(req.kind.other(), req.inputs, d.scene, d.render)?),
         false => None,
     };
     std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;

@@ -13,12 +13,9 @@ use crate::remote::RemoteRollouts;
 use super::figures::*;
 use super::files::*;
 
-/// The other world: where a search's disturbances are replayed.
+/// The other world: where a search's disturbances are replayed ([`WorldKind::other`]).
 pub fn other_world(kind: WorldKind) -> WorldKind {
-    match kind {
-        WorldKind::Nerf => WorldKind::Gt,
-        WorldKind::Gt => WorldKind::Nerf,
-    }
+    kind.other()
 }
 
 /// The one description of a search: what the stress and online stages, `nerfsv stress` and the

@@ -530,20 +530,6 @@ fn completion_scripts_name_every_subcommand_and_bash_reads_its_own() {
     assert!(!ok && err.contains("tcsh"), "{err}");
 }
 
-/// The frames of an animated PNG, as 8-bit RGBA, read with the `png` crate's decoder.
-fn apng_frames(path: &std::path::Path) -> Vec<Vec<u8>> {
-    let file = std::fs::File::open(path).unwrap();
-    let mut reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
-    let n = reader.info().animation_control.expect("an animated PNG").num_frames;
-    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-    (0..n)
-        .map(|_| {
-            let size = reader.next_frame(&mut buf).unwrap().buffer_size();
-            buf[..size].to_vec()
-        })
-        .collect()
-}
-
 fn png_rgba(path: &std::path::Path) -> Vec<u8> {
     let mut reader =
         png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap())).read_info().unwrap();
@@ -594,7 +580,7 @@ fn render_along_a_camera_path_or_a_trajectory_gives_frames_and_their_animation()
     let spread = |f: &[u8]| f.iter().max().unwrap() - f.iter().min().unwrap();
     assert!(spread(&frame) > 40, "a flat render tests no camera");
     assert_eq!(frame, png_rgba(&split.join("r_0.png")), "the path's camera is the test view's");
-    assert_eq!(apng_frames(&along.join("animation.png")), vec![frame.clone(), frame]);
+    assert_eq!(common::apng(&along.join("animation.png")).2, vec![frame.clone(), frame]);
     assert!(along.join("frame_0001_depth.png").is_file());
 
     // A trajectory of two rows (level, facing +x: the drone camera looks along body x with
@@ -628,7 +614,7 @@ fn render_along_a_camera_path_or_a_trajectory_gives_frames_and_their_animation()
         args.extend(extra);
         let (ok, _, err) = nerfsv(&args);
         assert!(ok, "{err}");
-        (err, apng_frames(&out.join("animation.png")))
+        (err, common::apng(&out.join("animation.png")).2)
     };
     let (t, e) = (s(&trajectory), s(&cfg));
     let (said, truth) = frames_of(&["--path", &t, "--config", &e], "truth");

@@ -46,9 +46,7 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
     let csv = std::fs::read_to_string(out.join("trajectory.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 6 * 9);
     // What the camera saw: an animated PNG of one panel, a frame per trajectory row.
-    let file = std::fs::File::open(out.join("view.png")).unwrap();
-    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
-    assert_eq!(reader.info().animation_control.expect("an animated PNG").num_frames, 6 * 9);
+    assert_eq!(common::apng(&out.join("view.png")).2.len(), 6 * 9);
     // The disturbances it wrote replay the same flight.
     let again = dir.path().join("again");
     let (ok, stdout2, err) = fly(
@@ -91,9 +89,7 @@ fn a_flight_writes_its_files_and_prints_the_figures() {
     for f in ["trajectory.csv", "trajectory.png", "flight.json"] {
         assert!(both.join("replay").join(f).is_file(), "replay/{f}");
     }
-    let file = std::fs::File::open(both.join("view.png")).unwrap();
-    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
-    let (w, h) = reader.info().size();
+    let (w, h, _) = common::apng(&both.join("view.png"));
     assert!(w > h, "two panels side by side, {w}×{h}");
 }
 

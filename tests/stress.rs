@@ -109,10 +109,8 @@ fn cem_with_replay_prints_the_summary_and_writes_the_same_bytes_on_one_and_two_t
     // longer flight, the two worlds side by side.
     let rows = |f: &str| std::fs::read_to_string(one.join(f)).unwrap().lines().count() - 1;
     let frames = rows("most_likely_failure_cem_nerf.csv").max(rows("most_likely_failure_cem_gt.csv"));
-    let file = std::fs::File::open(one.join("most_likely_failure_cem_view.png")).unwrap();
-    let reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
-    assert_eq!(reader.info().animation_control.expect("an animated PNG").num_frames as usize, frames);
-    let (w, h) = reader.info().size();
+    let (w, h, view) = common::apng(&one.join("most_likely_failure_cem_view.png"));
+    assert_eq!(view.len(), frames);
     assert!(w > h, "two panels side by side, {w}×{h}");
 
     let two = dir.path().join("two");

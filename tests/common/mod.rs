@@ -159,3 +159,20 @@ pub fn tiny_ensemble_run_config_with(dir: &Path, nerf: &str, sim: &str) -> PathB
     .unwrap();
     cfg
 }
+
+/// An animated PNG read with the `png` crate: its width and height, and each of the frames its
+/// animation control chunk declares, decoded to 8-bit samples.
+pub fn apng(path: &Path) -> (u32, u32, Vec<Vec<u8>>) {
+    let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
+    let n = reader.info().animation_control.expect("an animated PNG").num_frames;
+    let (w, h) = reader.info().size();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let frames = (0..n)
+        .map(|_| {
+            let size = reader.next_frame(&mut buf).unwrap().buffer_size();
+            buf[..size].to_vec()
+        })
+        .collect();
+    (w, h, frames)
+}

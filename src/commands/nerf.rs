@@ -285,9 +285,7 @@ fn path_cameras(args: &RenderArgs, path: &std::path::Path) -> anyhow::Result<(Ve
     let (Some(first), Some(last)) = (poses.first(), poses.last()) else {
         anyhow::bail!("{}: no rows to render", path.display());
     };
-    let span = last.time - first.time;
-    let fps = if poses.len() > 1 && span > 0.0 { (poses.len() - 1) as f64 / span } else { 10.0 };
-    // The simulator's camera: `[sim] camera` where the config sets one, else the dataset's.
-    let k = cfg.sim.camera.map_or(cfg.camera_intrinsics(), |c| c.intrinsics());
+    let fps = nerfsv_scene::animation::real_time_fps(poses.len(), last.time - first.time);
+    let k = cfg.sim.camera_intrinsics(cfg.camera_intrinsics());
     Ok((poses.iter().map(|p| nerfsv_sim::camera::drone_camera(k, &p.position, &p.rotation)).collect(), fps))
 }

@@ -5,6 +5,16 @@ use std::io::Write;
 
 use crate::image::Image;
 
+/// The rate that plays `frames` frames recorded over `seconds` (first to last) in real time, at
+/// most 1000 per second; 10 per second for a single frame or no time.
+pub fn real_time_fps(frames: usize, seconds: f64) -> f64 {
+    if frames > 1 && seconds > 0.0 {
+        ((frames - 1) as f64 / seconds).min(1000.0)
+    } else {
+        10.0
+    }
+}
+
 /// Writes `frames` (one size, RGBA composited as they are) as an 8-bit APNG that shows each
 /// for `1/fps` seconds, rounded to the millisecond, and loops for ever.
 pub fn write_apng<W: Write>(w: W, frames: &[Image], fps: f64) -> std::io::Result<()> {
@@ -88,6 +98,15 @@ mod tests {
             let fc = reader.info().frame_control.expect("a frame control chunk");
             assert_eq!((fc.delay_num, fc.delay_den), (125, 1000));
         }
+    }
+
+    #[test]
+    fn real_time_is_frames_over_their_span() {
+        assert_eq!(real_time_fps(55, 5.4), 10.0);
+        assert_eq!(real_time_fps(3, 0.5), 4.0);
+        assert_eq!(real_time_fps(1, 0.0), 10.0);
+        assert_eq!(real_time_fps(5, 0.0), 10.0);
+        assert_eq!(real_time_fps(5000, 1e-3), 1000.0);
     }
 
     #[test]

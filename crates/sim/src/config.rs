@@ -136,6 +136,11 @@ pub const MAX_STEPS: usize = 10_000;
 pub const MAX_SUBSTEPS: usize = 1000;
 
 impl SimConfig {
+    /// The drone camera's intrinsics: `camera` where it is set, else `dataset`'s (the default).
+    pub fn camera_intrinsics(&self, dataset: Intrinsics) -> Intrinsics {
+        self.camera.map_or(dataset, |c| c.intrinsics())
+    }
+
     pub fn validate(&self) -> Result<(), InvalidValue> {
         for i in 0..3 {
             finite(&format!("start[{i}]"), self.start[i])?;

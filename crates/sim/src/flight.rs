@@ -80,7 +80,7 @@ impl Flight {
             drone: cfg.drone.clone(),
             gains: cfg.controller.clone(),
             vision: cfg.vision.clone(),
-            intrinsics: cfg.camera.map_or(intrinsics, |c| c.intrinsics()),
+            intrinsics: cfg.camera_intrinsics(intrinsics),
             background: cfg.background,
             half_extents: nerfsv_collision::drone_half_extents(),
             collision: cfg.collision,

@@ -276,6 +276,28 @@ pub struct Mission<'a> {
     pub flight: &'a Flight,
 }
 
+impl Mission<'_> {
+    /// The camera the drone flies with, as its simulator sets it up.
+    pub fn camera(&self) -> DroneCamera {
+        let sim = self.drone.sim;
+        DroneCamera { intrinsics: sim.camera_intrinsics(self.drone.intrinsics), background: sim.background }
+    }
+}
+
+/// Writes to `path` what the drone's camera saw along `flown`, flights of one `seed` in their
+/// worlds, side by side ([`flight_view_apng`]).
+pub(crate) fn write_view(
+    path: &Path,
+    mission: &Mission,
+    flown: &[(&dyn World, Rollout)],
+    seed: u64,
+) -> Result<(), StudyError> {
+    let viewed: Vec<ViewedFlight> =
+        flown.iter().map(|(world, rollout)| ViewedFlight { world: *world, rollout, seed }).collect();
+    let (apng, _) = flight_view_apng(&viewed, mission.camera())?;
+    nerfsv_scene::io::atomic_write_bytes(path, &apng).map_err(|e| StudyError::io(path, e))
+}
+
 /// One rollout of a [`Mission`]: the world it flies in, its estimator, disturbances and seed.
 #[derive(Clone, Copy)]
 pub struct Sortie<'a> {
@@ -401,13 +423,7 @@ pub fn fly_into(
         flown.push((other.as_ref(), r));
         replayed = Some(f);
     }
-    let sim = flight.simulator(mission.drone.sim, &mission.inputs.nerf, mission.drone.intrinsics);
-    let viewed: Vec<ViewedFlight> =
-        flown.iter().map(|(world, rollout)| ViewedFlight { world: *world, rollout, seed: sortie.seed }).collect();
-    let camera = DroneCamera { intrinsics: sim.intrinsics, background: sim.background };
-    let (apng, _) = flight_view_apng(&viewed, camera)?;
-    let path = out.join(VIEW_PNG);
-    nerfsv_scene::io::atomic_write_bytes(&path, &apng).map_err(|e| StudyError::io(&path, e))?;
+    write_view(&out.join(VIEW_PNG), &mission, &flown, sortie.seed)?;
     let path = out.join("disturbances.csv");
     nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::io::disturbances_csv(req.disturbances).as_bytes())
         .map_err(|e| StudyError::io(&path, e))?;

@@ -64,7 +64,7 @@ pub fn flight_view_apng(flights: &[ViewedFlight], camera: DroneCamera) -> Result
     }
     let longest = flights.iter().map(|f| f.rollout).max_by_key(|r| r.substeps.len()).expect("a flight");
     let span = longest.substeps.last().map_or(0.0, |s| s.time) - longest.substeps[0].time;
-    let fps = if frames > 1 && span > 0.0 { ((frames - 1) as f64 / span).min(1000.0) } else { 10.0 };
+    let fps = nerfsv_scene::animation::real_time_fps(frames, span);
     let mut bytes = Vec::new();
     nerfsv_scene::animation::write_apng_rgb(&mut bytes, size.0, size.1, &buffers, fps)
         .map_err(|e| StudyError::Internal(format!("encoding the flight view: {e}")))?;

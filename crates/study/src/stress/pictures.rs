@@ -7,8 +7,7 @@ use nerfsv_sim::{World, WorldKind};
 use nerfsv_validation::RolloutRecord;
 use nerfsv_validation::{Agreement, Sampler};
 
-use crate::flight::{fly_and_write, FlightFigures, Sortie};
-use crate::flight_view::{flight_view_apng, DroneCamera, ViewedFlight};
+use crate::flight::{fly_and_write, write_view, FlightFigures, Sortie};
 use crate::{drone_disturbances, EstimateLog, StudyError};
 
 use super::figures::*;
@@ -97,13 +96,7 @@ pub(super) fn write_failure(
         }
         flown.push((w, rollout));
     }
-    let flights: Vec<ViewedFlight> =
-        flown.iter().map(|(world, rollout)| ViewedFlight { world: *world, rollout, seed: f.seed }).collect();
-    let m = &setup.mission;
-    let sim = m.flight.simulator(m.drone.sim, &m.inputs.nerf, m.drone.intrinsics);
-    let (apng, _) = flight_view_apng(&flights, DroneCamera { intrinsics: sim.intrinsics, background: sim.background })?;
-    let path = out.join(most_likely_failure_view(sampler));
-    nerfsv_scene::io::atomic_write_bytes(&path, &apng).map_err(|e| StudyError::io(&path, e))?;
+    write_view(&out.join(most_likely_failure_view(sampler)), &setup.mission, &flown, f.seed)?;
     Ok(replayed)
 }
 

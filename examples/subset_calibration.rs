@@ -5,7 +5,7 @@
 //! world) with the truth estimator (the estimate is the true state: no rendering, thousands of
 //! rollouts a second on a large machine), under the default config's disturbance prior
 //! (`RunConfig::disturbance_prior`) and the default subset settings
-//! (`RunConfig::default().validation.subset`). The example
+//! (`RunConfig::default().stress.subset`). The example
 //!
 //! 1. times a small Monte Carlo batch (rollouts per second);
 //! 2. flies the reference: `REFERENCE` Monte Carlo rollouts (default 10⁶) from the prior, counting
@@ -116,7 +116,7 @@ fn main() -> anyhow::Result<()> {
         remote: None,
     };
     let prior = cfg.disturbance_prior()?;
-    let subset = cfg.validation.subset;
+    let subset = cfg.stress.subset;
     println!(
         "run {}: GT-sim, truth estimator, {} steps × {} disturbance components; subset {:?}; {} threads",
         out.display(),

@@ -13,7 +13,7 @@ use nerfsv_uq::UqConfig;
 #[derive(Args, Clone, Default)]
 pub struct Sets {
     /// Override one key of the run config, after the config file's (where the command takes one):
-    /// `--set train.seed=3`, `--set nerf.grid_resolution=64`, `--set validation.cem.m=50`;
+    /// `--set train.seed=3`, `--set nerf.grid_resolution=64`, `--set stress.cem.m=50`;
     /// repeat for more. Each command reads the tables it needs. The value is TOML (a bare word is
     /// a string); `nerfsv config` prints every key.
     #[arg(long = "set", value_name = "TABLE.KEY=VALUE")]

@@ -207,8 +207,8 @@ fn run_redoes_only_the_stages_whose_inputs_changed_and_resumes_an_interrupted_tr
         let text = format!(
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
-             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
-             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
+             [stress.monte_carlo]\nrollouts = 4\n[stress.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [stress.subset]\nsamples = 10\nmax_levels = 2\n\
              [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n[uq_offline]\nbla_images_per_split = 1\nga_images_per_split = {ga_images}\n"
         );
         std::fs::write(&cfg, text).unwrap();
@@ -475,21 +475,21 @@ fn train_reads_the_printed_default_config_and_its_overrides() {
     let (ok, plain, err) = nerfsv(&["config"]);
     assert!(ok, "{err}");
     assert_eq!(plain, nerfsv(&["config", "--default"]).1);
-    assert!(plain.contains("[validation.subset]\n") && plain.contains("\nsamples = 200\n"), "{plain}");
+    assert!(plain.contains("[stress.subset]\n") && plain.contains("\nsamples = 200\n"), "{plain}");
     // The config a file and overrides give, every key, and it reads back as that config.
     let mine = dir.path().join("mine.toml");
-    std::fs::write(&mine, "train_steps = 7\n[validation.cem]\nm = 40\n").unwrap();
-    let (ok, effective, err) = nerfsv(&["config", mine.to_str().unwrap(), "--set", "validation.cem.k_max=3"]);
+    std::fs::write(&mine, "train_steps = 7\n[stress.cem]\nm = 40\n").unwrap();
+    let (ok, effective, err) = nerfsv(&["config", mine.to_str().unwrap(), "--set", "stress.cem.k_max=3"]);
     assert!(ok, "{err}");
     let table: toml::Table = toml::from_str(&effective).unwrap_or_else(|e| panic!("{e}\n{effective}"));
     assert_eq!(table["train_steps"].as_integer(), Some(7));
-    let cem = &table["validation"]["cem"];
+    let cem = &table["stress"]["cem"];
     assert_eq!((cem["m"].as_integer(), cem["k_max"].as_integer()), (Some(40), Some(3)), "{effective}");
-    assert_eq!(table["validation"]["subset"]["samples"].as_integer(), Some(200));
+    assert_eq!(table["stress"]["subset"]["samples"].as_integer(), Some(200));
     let keys = |t: &str| t.lines().filter(|l| !l.is_empty() && !l.starts_with(['#', '['])).count();
     assert_eq!(keys(&effective), keys(&plain), "every key, as the default has");
-    let (ok, _, err) = nerfsv(&["config", mine.to_str().unwrap(), "--set", "validation.cem.kmax=3"]);
-    assert!(!ok && err.contains("validation.cem.kmax=3"), "{err}");
+    let (ok, _, err) = nerfsv(&["config", mine.to_str().unwrap(), "--set", "stress.cem.kmax=3"]);
+    assert!(!ok && err.contains("stress.cem.kmax=3"), "{err}");
     let cfg = dir.path().join("nerfsv.toml");
     std::fs::write(&cfg, &plain).unwrap();
     let ds = common::tiny_dataset(dir.path(), "6", "1");

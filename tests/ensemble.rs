@@ -124,7 +124,7 @@ fn a_recorded_route_capture_joins_the_calibration_and_a_missing_one_is_refused_b
     let with_route = |folder: &str| {
         std::fs::write(
             &cfg,
-            format!("{calibrated}[perception]\nroute_views = 2\nfits_per_view = 1\nroute_dataset = \"{folder}\"\n"),
+            format!("{calibrated}[calibration]\nroute_views = 2\nfits_per_view = 1\nroute_dataset = \"{folder}\"\n"),
         )
         .unwrap()
     };
@@ -155,6 +155,6 @@ fn a_recorded_route_capture_joins_the_calibration_and_a_missing_one_is_refused_b
     let fresh = dir.path().join("fresh");
     let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&fresh)]);
     assert!(!ok);
-    assert!(err.contains("perception.route_dataset") && err.contains("nowhere"), "{err}");
+    assert!(err.contains("calibration.route_dataset") && err.contains("nowhere"), "{err}");
     assert!(!fresh.join("dataset").exists(), "refused before any stage");
 }

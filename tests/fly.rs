@@ -119,9 +119,9 @@ fn bad_flights_are_refused_by_name_and_write_nothing() {
         (write("d.toml", "[sim]\nsteps = 0\n"), "--config", vec!["d.toml", "sim.steps", "found 0"]),
         // A prior that is not a covariance.
         (
-            write("h.toml", "[validation.disturbance]\nstd = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, -0.01]\n"),
+            write("h.toml", "[stress.disturbance]\nstd = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, -0.01]\n"),
             "--config",
-            vec!["h.toml", "validation.disturbance.std[11]"],
+            vec!["h.toml", "stress.disturbance.std[11]"],
         ),
         // Disturbance files: a short row, a NaN, too few rows.
         (

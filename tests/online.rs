@@ -25,9 +25,10 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
     let dir = tempfile::tempdir().unwrap();
     let (model, field) = common::tiny_model_and_field(dir.path());
     let inputs = FlightInputs::load(&model, &field, Some(&field)).unwrap();
-    let text = "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[validation]\nseed = 3\n[validation.disturbance]\n\
+    let text =
+        "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[stress]\nseed = 3\n[stress.disturbance]\n\
                 std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]\n\
-                [validation.monte_carlo]\nrollouts = 6\n[uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n\
+                [stress.monte_carlo]\nrollouts = 6\n[uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\n\
                 online_rays = 64\nonline_bla_rays = 16\n";
     let cfg: RunConfig = toml::from_str(text).unwrap();
     let scene = Scene::builtin("monolith").unwrap();
@@ -38,7 +39,7 @@ fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
         let setup = StressSetup {
             replay: false,
             online: Some(OnlineSettings { method, mode: UqMode::Exact, reward: false }),
-            ..StressSetup::new(drone, &cfg.validation, &prior, &[Sampler::Mc], &cfg.uq)
+            ..StressSetup::new(drone, &cfg.stress, &prior, &[Sampler::Mc], &cfg.uq)
         };
         let out = dir.path().join(method.name());
         std::fs::create_dir_all(&out).unwrap();
@@ -85,8 +86,8 @@ fn a_rewarded_cem_takes_its_first_population_and_its_replays_from_rollouts_flown
     let dir = tempfile::tempdir().unwrap();
     let (model, field) = common::tiny_model_and_field(dir.path());
     let inputs = FlightInputs::load(&model, &field, Some(&field)).unwrap();
-    let text = "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[validation]\nseed = 5\n\
-                [validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 1\n[uq]\nonline_rays = 64\n";
+    let text = "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[stress]\nseed = 5\n\
+                [stress.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 1\n[uq]\nonline_rays = 64\n";
     let cfg: RunConfig = toml::from_str(text).unwrap();
     let scene = Scene::builtin("monolith").unwrap();
     let prior = cfg.disturbance_prior().unwrap();
@@ -94,7 +95,7 @@ fn a_rewarded_cem_takes_its_first_population_and_its_replays_from_rollouts_flown
     let drone = drone(&inputs, &flight, &scene, &cfg);
     let setup = |reward: bool| StressSetup {
         online: Some(OnlineSettings { method: Method::Ga, mode: UqMode::Exact, reward }),
-        ..StressSetup::new(drone, &cfg.validation, &prior, &[Sampler::Cem], &cfg.uq)
+        ..StressSetup::new(drone, &cfg.stress, &prior, &[Sampler::Cem], &cfg.uq)
     };
     let csv_files = |journal: &std::path::Path| {
         std::fs::read_dir(journal)

@@ -18,7 +18,7 @@ fn tiny_config(dir: &Path, steps: u32) -> PathBuf {
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = {steps}\n[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 2\nsupersample = 1\n[train]\nbatch_rays = 256\ncheckpoint_every_steps = 1\n\
              [sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
-             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n[validation.subset]\nsamples = 10\nmax_levels = 2\n\
+             [stress.monte_carlo]\nrollouts = 4\n[stress.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n[stress.subset]\nsamples = 10\nmax_levels = 2\n\
              [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n[uq_offline]\nbla_images_per_split = 1\n"
         ),
     )

@@ -65,7 +65,7 @@ fn the_report_loads_every_image_and_no_table_overflows_in_a_real_browser() {
         &cfg,
         "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = 3\n[dataset]\nwidth = 16\nheight = 16\n\
          train = 4\nval = 1\ntest = 1\nsupersample = 1\n[train]\nbatch_rays = 256\n[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
-         [validation.monte_carlo]\nrollouts = 3\n[validation.cem]\nm = 3\nm_elite = 1\nk_max = 1\nis_samples = 2\n[validation.subset]\nsamples = 10\nmax_levels = 2\n\
+         [stress.monte_carlo]\nrollouts = 3\n[stress.cem]\nm = 3\nm_elite = 1\nk_max = 1\nis_samples = 2\n[stress.subset]\nsamples = 10\nmax_levels = 2\n\
          [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
          [uq_offline]\nbla_images_per_split = 1\n[online]\nmethods = [\"ga\"]\n",
     )

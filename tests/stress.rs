@@ -17,9 +17,9 @@ fn config(dir: &Path, name: &str, mc: usize, extra: &str) -> PathBuf {
     std::fs::write(
         &p,
         format!(
-            "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[validation]\nseed = 5\n[validation.disturbance]\n\
+            "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[stress]\nseed = 5\n[stress.disturbance]\n\
              std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]\n\
-             [validation.monte_carlo]\nrollouts = {mc}\n[validation.cem]\nm = 6\nm_elite = 2\nk_max = 2\nis_samples = 6\n{extra}"
+             [stress.monte_carlo]\nrollouts = {mc}\n[stress.cem]\nm = 6\nm_elite = 2\nk_max = 2\nis_samples = 6\n{extra}"
         ),
     )
     .unwrap();
@@ -210,7 +210,7 @@ fn subset_simulation_estimates_within_bounds_replays_nothing_and_writes_the_same
     let dir = tempfile::tempdir().unwrap();
     let (model, field) = common::tiny_model_and_field(dir.path());
     // Levels of 8 (2 chains of 4): at most 8 + 2 × 6 rollouts.
-    let cfg = config(dir.path(), "study.toml", 4, "[validation.subset]\nsamples = 8\np0 = 0.25\nmax_levels = 3\n");
+    let cfg = config(dir.path(), "study.toml", 4, "[stress.subset]\nsamples = 8\np0 = 0.25\nmax_levels = 3\n");
     let args = ["--sampler", "subset", "--replay", "--config", s(&cfg), "--json"];
     let one = dir.path().join("one");
     let (ok, stdout, err) = stress(&model, &field, &one, &args, "1");
@@ -252,21 +252,21 @@ fn bad_studies_are_refused_by_name_and_write_nothing() {
         (
             edit("a.toml", "std = [", "covariance = [[1.0, 2.0], [2.0, 1.0]]\nmean = [0.0, 0.0]\nstd = ["),
             "cem",
-            vec!["a.toml", "validation.disturbance.covariance", "positive definite"],
+            vec!["a.toml", "stress.disturbance.covariance", "positive definite"],
         ),
         // A population smaller than its elite count.
-        (edit("b.toml", "m_elite = 2", "m_elite = 7"), "cem", vec!["b.toml", "validation.cem.m_elite", "found 7"]),
+        (edit("b.toml", "m_elite = 2", "m_elite = 7"), "cem", vec!["b.toml", "stress.cem.m_elite", "found 7"]),
         // Zero rollouts.
         (
             edit("c.toml", "rollouts = 4", "rollouts = 0"),
             "mc",
-            vec!["c.toml", "validation.monte_carlo.rollouts", "found 0"],
+            vec!["c.toml", "stress.monte_carlo.rollouts", "found 0"],
         ),
         // Levels that p0 does not split into whole chains.
         (
-            edit("d.toml", "[validation.cem]", "[validation.subset]\nsamples = 10\np0 = 0.3\n[validation.cem]"),
+            edit("d.toml", "[stress.cem]", "[stress.subset]\nsamples = 10\np0 = 0.3\n[stress.cem]"),
             "subset",
-            vec!["d.toml", "validation.subset.samples", "found 10"],
+            vec!["d.toml", "stress.subset.samples", "found 10"],
         ),
     ];
     for (cfg, sampler, expected) in cases {

@@ -23,8 +23,8 @@ fn config(dir: &Path, world: &str) -> PathBuf {
              train = 6\nval = 1\ntest = 2\nsupersample = 1\n[train]\nbatch_rays = 256\n\
              [sim]\nstart = [0.8, -0.7, 0.25]\ngoal = [-0.8, 0.8, 0.25]\n\
              [sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
-             [validation.monte_carlo]\nrollouts = 4\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
-             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
+             [stress.monte_carlo]\nrollouts = 4\n[stress.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [stress.subset]\nsamples = 10\nmax_levels = 2\n\
              [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
              [uq_offline]\nbla_images_per_split = 1\n[world]\n{world}"
         ),

@@ -58,7 +58,7 @@ flight = nerfsv.fly(model.path, world="gt", estimator="truth", scene="monolith",
 print("collided", flight["figures"]["collided"], "min clearance", np.nanmin(flight["clearance"]))
 
 # %% A Monte Carlo stress test of 20 rollouts, then the same on a local Ray.
-(work / "study.toml").write_text("[sim.vision]\npixels = 16\n[validation.monte_carlo]\nrollouts = 20\n")
+(work / "study.toml").write_text("[sim.vision]\npixels = 16\n[stress.monte_carlo]\nrollouts = 20\n")
 one = nerfsv.stress(model.path, work / "mc", sampler="mc", estimator="truth", config=work / "study.toml",
                     scene="monolith", nerf_field=work / "gt.safetensors")
 s = one["samplers"][0]

@@ -144,7 +144,7 @@ def stress(
     **The drone** runs ``nerfsv stress`` into ``out`` (the same files: ``rollouts.csv``,
     ``table.csv``, ``stress.json``, the replays, the journal) and returns ``stress.json``'s
     figures. ``model`` is a checkpoint's path or a ``Model`` (as ``fly``). ``sampler`` is
-    ``"mc"``, ``"cem"`` or ``"subset"``; ``seed`` replaces the config's ``validation.seed``.
+    ``"mc"``, ``"cem"`` or ``"subset"``; ``seed`` replaces the config's ``stress.seed``.
     ``reward`` or ``measure`` (``"ga"`` or ``"bla"``) measures that method's uncertainty at
     every step, ``reward`` also ranking CEM's samples by its reward (eq. 10/11), measured as
     ``uncertainty`` says (``"exact"``, or ``"field"`` from the uncertainty field file ``field``,
@@ -169,13 +169,13 @@ def stress(
     pair raises ``ValueError`` naming the call and the rollout's seed. An exception ``run``
     raises propagates as itself.
 
-    ``sampler``: ``"mc"`` (``[validation.monte_carlo]``), ``"cem"`` (``[validation.cem]``,
+    ``sampler``: ``"mc"`` (``[stress.monte_carlo]``), ``"cem"`` (``[stress.cem]``,
     ending with its importance-sampling estimate), ``"is"`` (importance sampling from
-    ``proposal=(mean, std)``, each broadcast to ``[steps, dim]``, ``validation.cem.is_samples``
-    rollouts) or ``"subset"`` (``[validation.subset]``), with the settings of ``config`` and
+    ``proposal=(mean, std)``, each broadcast to ``[steps, dim]``, ``stress.cem.is_samples``
+    rollouts) or ``"subset"`` (``[stress.subset]``), with the settings of ``config`` and
     ``overrides``. The prior is N(0, diag(``std``²)) per step (``std`` a number or one per
-    component), else the config's ``[validation.disturbance]``. ``seed`` (default
-    ``validation.seed``) fixes every rollout: the same seed gives the same results. With
+    component), else the config's ``[stress.disturbance]``. ``seed`` (default
+    ``stress.seed``) fixes every rollout: the same seed gives the same results. With
     ``out``, ``out/rollouts.csv`` holds every rollout (the command line's layout) and
     ``out/journal`` every finished one as it finishes, so that ``resume=True`` after an
     interrupted call finishes with the same results without running the recorded rollouts again.

@@ -119,7 +119,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--world", default="nerf", choices=["nerf", "gt"])
     p.add_argument("--estimator", default="vision", choices=["vision", "truth"])
     p.add_argument("--replay", action="store_true", help="replay the search's rollouts in the other world")
-    p.add_argument("--seed", type=int, help="run seed (default: the config's validation.seed)")
+    p.add_argument("--seed", type=int, help="run seed (default: the config's stress.seed)")
     p.add_argument("--config", help="run config (TOML); default: the embedded one")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE",
                    help="override one key of the run config (repeat for more)")

@@ -99,7 +99,7 @@ fn inputs_exist(model: &Path, nerf_field: Option<&Path>, mesh: Option<&Path>) ->
 fn config_with_seed(config: Option<&Path>, overrides: &[String], seed: Option<u64>) -> PyResult<RunConfig> {
     let mut cfg = run_config(config, overrides)?;
     if let Some(seed) = seed {
-        cfg.validation.seed = seed;
+        cfg.stress.seed = seed;
     }
     Ok(cfg)
 }
@@ -219,7 +219,7 @@ impl RemoteRollouts for PyExecutor {
 
 /// Runs `nerfsv stress` into `out` and returns its figures (`stress.json`'s, as JSON text):
 /// one `sampler` (`"mc"`, `"cem"` or `"subset"`) flying in `world` with `estimator`, replayed
-/// in the other world with `replay`, with the config's `[validation]` (its seed replaced by
+/// in the other world with `replay`, with the config's `[stress]` (its seed replaced by
 /// `seed`). With `executor` (see `nerfsv.distributed`), the Monte Carlo and CEM rollouts,
 /// subset simulation's levels (one batch per chain move) and the replays fly wherever it sends
 /// them; the files are the same bytes. `reward` or `measure` (`"ga"`, `"bla"`) measures that method's
@@ -385,7 +385,7 @@ impl Worker {
         let config = header.config.as_ref().map(|text| write("config.toml", text.as_bytes())).transpose()?;
         let mut cfg = RunConfig::one_model_with(config.as_deref(), &header.overrides).map_err(|e| e.to_string())?;
         if let Some(seed) = header.seed {
-            cfg.validation.seed = seed;
+            cfg.stress.seed = seed;
         }
         let scene = match &header.mesh_name {
             Some(name) => Scene::load_mesh(&write(name, &body[a + b..])?, MeshOptions::default())

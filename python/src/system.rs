@@ -302,13 +302,13 @@ impl Plan {
 }
 
 /// The per-step prior: N(0, diag(std²)) with `std` given, else the config's
-/// `[validation.disturbance]`; its dimension must be the system's.
+/// `[stress.disturbance]`; its dimension must be the system's.
 fn prior_of(std: Option<Vec<f64>>, cfg: &ValidationConfig, steps: usize, dim: usize) -> PyResult<Prior> {
     let (step, what) = match std {
         Some(s) => (Gaussian::diagonal(vec![0.0; s.len()], &s).map_err(|e| value_error(format!("std: {e}")))?, "std"),
         None => (
-            cfg.disturbance.to_gaussian().map_err(|e| value_error(format!("validation.disturbance.{e}")))?,
-            "validation.disturbance",
+            cfg.disturbance.to_gaussian().map_err(|e| value_error(format!("stress.disturbance.{e}")))?,
+            "stress.disturbance",
         ),
     };
     if step.dim() != dim {
@@ -372,9 +372,9 @@ fn search(system: &PySystem, plan: &Plan, prior: &Prior, recorder: &dyn Recorder
 pub struct Settings<'py> {
     /// Standard deviation of each component of a step's prior, `[dim]`.
     std: Option<Vec<f64>>,
-    /// Run seed (default `validation.seed`).
+    /// Run seed (default `stress.seed`).
     seed: Option<u64>,
-    /// A run config (TOML) whose `[validation]` sets the samplers.
+    /// A run config (TOML) whose `[stress]` sets the samplers.
     config: Option<PathBuf>,
     /// Its `TABLE.KEY=VALUE` overrides.
     overrides: Option<Vec<String>>,
@@ -389,9 +389,9 @@ pub struct Settings<'py> {
 
 /// Searches your own system under test (see `nerfsv.stress(system=...)`): `sampler` `"mc"`,
 /// `"cem"`, `"is"` (from the proposal `proposal_mean`, `proposal_std` `[steps, dim]`, the
-/// config's `validation.cem.is_samples` rollouts) or `"subset"`; the prior N(0, diag(`std`²))
-/// per step, or the config's `[validation.disturbance]`; the sampler's settings from the
-/// config's `[validation]` with `overrides`; `seed` (default `validation.seed`). With `out`,
+/// config's `stress.cem.is_samples` rollouts) or `"subset"`; the prior N(0, diag(`std`²))
+/// per step, or the config's `[stress.disturbance]`; the sampler's settings from the
+/// config's `[stress]` with `overrides`; `seed` (default `stress.seed`). With `out`,
 /// writes `rollouts.csv` there and keeps a journal in `out/journal`, which `resume` continues:
 /// its key is made of everything above, the system's class name and its `key` attribute.
 #[pyfunction]
@@ -407,7 +407,7 @@ pub fn stress_system<'py>(
     let kind = Search::parse(sampler)?;
     let sys = PySystem::new(system)?;
     let cfg = run_config(config.as_deref(), &overrides.unwrap_or_default())?;
-    let validation = cfg.validation.clone();
+    let validation = cfg.stress.clone();
     let prior = prior_of(std, &validation, sys.steps, sys.dim)?;
     let proposal = proposal_of(proposal_mean, proposal_std, sys.steps, sys.dim)?;
     match (kind, &proposal) {

@@ -16,18 +16,18 @@ STUDY = """[sim.vision]
 pixels = 16
 iterations = 2
 images_per_step = 2
-[validation]
+[stress]
 seed = 5
-[validation.disturbance]
+[stress.disturbance]
 std = [0.08, 0.08, 0.04, 0.04, 0.04, 0.04, 0.08, 0.08, 0.08, 0.04, 0.04, 0.04]
-[validation.monte_carlo]
+[stress.monte_carlo]
 rollouts = 8
-[validation.cem]
+[stress.cem]
 m = 6
 m_elite = 2
 k_max = 2
 is_samples = 6
-[validation.subset]
+[stress.subset]
 samples = 20
 p0 = 0.5
 max_levels = 2

@@ -165,7 +165,7 @@ def test_bad_arguments_raise_value_error_with_the_rust_message(world, tmp_path):
         nerfsv.fly(world["model"], disturbances=far, scene="monolith", nerf_field=world["field"])
     bad = tmp_path / "bad.toml"
     bad.write_text(STUDY.replace("m_elite = 2", "m_elite = 7"))
-    with pytest.raises(ValueError, match="validation.cem.m_elite"):
+    with pytest.raises(ValueError, match="stress.cem.m_elite"):
         nerfsv.stress(world["model"], tmp_path / "s", config=bad, scene="monolith", nerf_field=world["field"])
     with pytest.raises(ValueError, match="unknown scene|nope"):
         nerfsv.ground_truth_field("nope")
@@ -204,4 +204,4 @@ def test_the_command_line_entry_runs_the_study_of_nerfsv_stress(world, tmp_path)
     bad = tmp_path / "bad.toml"
     bad.write_text(STUDY.replace("rollouts = 8", "rollouts = 0"))
     r = subprocess.run([*entry, "--config", str(bad), "--out", str(tmp_path / "bad")], capture_output=True, text=True)
-    assert r.returncode == 1 and "validation.monte_carlo.rollouts" in r.stderr, r.stderr
+    assert r.returncode == 1 and "stress.monte_carlo.rollouts" in r.stderr, r.stderr

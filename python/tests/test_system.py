@@ -68,16 +68,16 @@ class BatchToy(Toy):
         return [(bool(t > self.threshold), float(self.threshold - t)) for t in top]
 
 
-MC = ["validation.monte_carlo.rollouts=2000"]
-CEM = ["validation.cem.m=200", "validation.cem.m_elite=40", "validation.cem.k_max=3", "validation.cem.is_samples=2000"]
+MC = ["stress.monte_carlo.rollouts=2000"]
+CEM = ["stress.cem.m=200", "stress.cem.m_elite=40", "stress.cem.k_max=3", "stress.cem.is_samples=2000"]
 
 
 def stress(system, sampler, small=False, **kw):
     """The toy's search with the tests' settings; `small`: fewer rollouts (a journal is a file each)."""
-    overrides = {"mc": MC, "cem": CEM, "subset": [], "is": ["validation.cem.is_samples=2000"]}[sampler]
+    overrides = {"mc": MC, "cem": CEM, "subset": [], "is": ["stress.cem.is_samples=2000"]}[sampler]
     if small and sampler == "cem":
-        overrides = ["validation.cem.m=50", "validation.cem.m_elite=10", "validation.cem.k_max=3",
-                     "validation.cem.is_samples=200"]
+        overrides = ["stress.cem.m=50", "stress.cem.m_elite=10", "stress.cem.k_max=3",
+                     "stress.cem.is_samples=200"]
     return nerfsv.stress(system=system, sampler=sampler, std=1.0, overrides=overrides, **kw)
 
 
@@ -205,7 +205,7 @@ def test_subset_simulation_flies_level_zero_and_each_move_of_every_chain_as_one_
 
 def test_the_rollouts_csv_is_the_command_lines_layout(tmp_path):
     r = nerfsv.stress(system=Toy(), sampler="mc", std=1.0, seed=1, out=tmp_path,
-                      overrides=["validation.monte_carlo.rollouts=50"])
+                      overrides=["stress.monte_carlo.rollouts=50"])
     lines = (tmp_path / "rollouts.csv").read_text().splitlines()
     header = lines[0].split(",")
     assert header[:5] == ["sampler", "population", "index", "seed", "step"], header
@@ -238,24 +238,24 @@ def test_bad_returns_and_arguments_raise_value_error_naming_the_rollout():
         ((True, "far"), "miss_distance must be a number"),
     ]:
         with pytest.raises(ValueError, match=message):
-            nerfsv.stress(system=Returns(value), sampler="mc", std=1.0, overrides=["validation.monte_carlo.rollouts=5"])
+            nerfsv.stress(system=Returns(value), sampler="mc", std=1.0, overrides=["stress.monte_carlo.rollouts=5"])
     with pytest.raises(ValueError, match=r"returned 1 results for 2 rollouts"):
-        nerfsv.stress(system=BadBatch(), sampler="mc", std=1.0, overrides=["validation.monte_carlo.rollouts=2"])
+        nerfsv.stress(system=BadBatch(), sampler="mc", std=1.0, overrides=["stress.monte_carlo.rollouts=2"])
     # A failure's positive miss distance counts as 0, a pass's 0 as just above: the flag decides.
-    r = nerfsv.stress(system=Returns((True, 3.0)), sampler="mc", std=1.0, overrides=["validation.monte_carlo.rollouts=3"])
+    r = nerfsv.stress(system=Returns((True, 3.0)), sampler="mc", std=1.0, overrides=["stress.monte_carlo.rollouts=3"])
     assert r["failures"] == 3 and np.all(r["scores"] == 0)
-    r = nerfsv.stress(system=Returns((False, 0)), sampler="mc", std=1.0, overrides=["validation.monte_carlo.rollouts=3"])
+    r = nerfsv.stress(system=Returns((False, 0)), sampler="mc", std=1.0, overrides=["stress.monte_carlo.rollouts=3"])
     assert r["failures"] == 0 and np.all(r["scores"] > 0)
     with pytest.raises(ValueError, match="std: the prior has 2 components per step, the system's dim is 1"):
         nerfsv.stress(system=Toy(), std=[1.0, 1.0])
-    with pytest.raises(ValueError, match="validation.disturbance: the prior has 12 components"):
+    with pytest.raises(ValueError, match="stress.disturbance: the prior has 12 components"):
         nerfsv.stress(system=Toy())
     with pytest.raises(ValueError, match="sampler: unknown sampler \"nope\""):
         nerfsv.stress(system=Toy(), sampler="nope", std=1.0)
     with pytest.raises(ValueError, match="system: has no attribute `steps`"):
         nerfsv.stress(system=object(), std=1.0)
-    with pytest.raises(ValueError, match="validation.cem.m_elite"):
-        nerfsv.stress(system=Toy(), sampler="cem", std=1.0, overrides=["validation.cem.m_elite=99"])
+    with pytest.raises(ValueError, match="stress.cem.m_elite"):
+        nerfsv.stress(system=Toy(), sampler="cem", std=1.0, overrides=["stress.cem.m_elite=99"])
     with pytest.raises(ValueError, match="proposal"):
         nerfsv.stress(system=Toy(), sampler="is", std=1.0)
     with pytest.raises(ValueError, match="resume"):

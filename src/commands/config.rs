@@ -81,11 +81,11 @@ pub fn default_toml() -> anyhow::Result<String> {
 /// `cfg` as commented TOML under the comment `header`: every key, subset simulation's too.
 pub fn config_toml(cfg: &RunConfig, header: &str) -> anyhow::Result<String> {
     let mut value = toml::Table::try_from(cfg).context("serialising the config")?;
-    // `[validation.subset]` is left out of the serialised config while it holds the defaults
+    // `[stress.subset]` is left out of the serialised config while it holds the defaults
     // (the cache keys of results from before it existed); printed all the same.
-    if let Some(toml::Value::Table(v)) = value.get_mut("validation") {
+    if let Some(toml::Value::Table(v)) = value.get_mut("stress") {
         if !v.contains_key("subset") {
-            let subset = toml::Table::try_from(&cfg.validation.subset).context("serialising validation.subset")?;
+            let subset = toml::Table::try_from(&cfg.stress.subset).context("serialising stress.subset")?;
             v.insert("subset".to_owned(), toml::Value::Table(subset));
         }
     }
@@ -163,7 +163,7 @@ mod tests {
         let mut tables = Vec::new();
         RunConfig::tables("", &mut tables);
         // Every table of the default config is among those found from `RunConfig` (which also
-        // finds the tables unset by default, `sim.camera` and `validation.subset`): none is
+        // finds the tables unset by default, `sim.camera` and `stress.subset`): none is
         // printed without its documentation.
         let paths: Vec<String> = tables.iter().map(|(p, ..)| p.clone()).collect();
         fn table_paths(prefix: &str, t: &toml::Table, out: &mut Vec<String>) {
@@ -203,9 +203,9 @@ mod tests {
                 assert!(i > 0 && lines[i - 1].starts_with('#'), "no comment above {l:?}");
             }
         }
-        assert!(text.contains("[validation.cem]\n") && text.contains("[online]\n"), "{text}");
+        assert!(text.contains("[stress.cem]\n") && text.contains("[online]\n"), "{text}");
         // Subset simulation's table too, though the serialised config leaves it out at its defaults.
-        assert!(text.contains("[validation.subset]\n") && text.contains("\nsamples = 200\n"), "{text}");
+        assert!(text.contains("[stress.subset]\n") && text.contains("\nsamples = 200\n"), "{text}");
     }
 
     /// Doc comments become data: each line trimmed, the lines joined by one space, intra-doc

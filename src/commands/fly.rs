@@ -68,14 +68,14 @@ pub struct FlyArgs {
     /// dw_x..dw_z), a header line optional.
     #[arg(long, conflicts_with = "random_seed")]
     pub disturbances: Option<PathBuf>,
-    /// Draw the disturbances from the prior (the config's `[validation.disturbance]`) with this
+    /// Draw the disturbances from the prior (the config's `[stress.disturbance]`) with this
     /// seed (with a Monte Carlo rollout's recorded seed, its disturbances).
     #[arg(long = "disturbance-seed", alias = "random-seed")]
     pub random_seed: Option<u64>,
     /// Seed of the vision estimator's pixel choices (default: --disturbance-seed, else 0).
     #[arg(long = "pixel-seed", alias = "seed")]
     pub seed: Option<u64>,
-    /// A run config (TOML): its `[sim]` table sets the flight, `[validation.disturbance]` the
+    /// A run config (TOML): its `[sim]` table sets the flight, `[stress.disturbance]` the
     /// prior of --disturbance-seed, `[dataset]` the camera. Default: the embedded run config.
     #[arg(long)]
     pub config: Option<PathBuf>,

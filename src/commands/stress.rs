@@ -43,14 +43,14 @@ pub struct StressArgs {
     /// `--uncertainty field`.
     #[arg(long)]
     pub field: Option<PathBuf>,
-    /// Run seed (default: the config's `validation.seed`).
+    /// Run seed (default: the config's `stress.seed`).
     #[arg(long)]
     pub seed: Option<u64>,
     /// Continue a killed run in --out: rollouts it finished are not flown again. Refused when
     /// --out holds another configuration's results.
     #[arg(long)]
     pub resume: bool,
-    /// A run config (TOML): `[sim]` (the drone), `[validation]` (prior, MC, CEM, seed),
+    /// A run config (TOML): `[sim]` (the drone), `[stress]` (prior, MC, CEM, seed),
     /// `[dataset]` (the camera). Default: the embedded run config.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -68,7 +68,7 @@ pub struct StressArgs {
 pub fn run(args: StressArgs) -> anyhow::Result<()> {
     let mut cfg = one_model(args.config.as_deref(), &args.sets)?;
     if let Some(seed) = args.seed {
-        cfg.validation.seed = seed;
+        cfg.stress.seed = seed;
     }
     let d = &args.drone;
     let guard = d.inputs(Guard::new().folder("--out", &args.out, OutputKind::Stress));

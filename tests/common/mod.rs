@@ -149,8 +149,8 @@ pub fn tiny_ensemble_run_config_with(dir: &Path, nerf: &str, sim: &str) -> PathB
             "scene = \"monolith\"\ncells_per_metre = 10.0\ntrain_steps = 4\n[nerf]\n{nerf}[dataset]\nwidth = 16\nheight = 16\n\
              train = 6\nval = 1\ntest = 2\nsupersample = 1\n{TINY_MODEL}\
              [sim]\nnerf_world = \"ensemble\"\n{sim}[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n\
-             [validation.monte_carlo]\nrollouts = 6\n[validation.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
-             [validation.subset]\nsamples = 10\nmax_levels = 2\n\
+             [stress.monte_carlo]\nrollouts = 6\n[stress.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 4\n\
+             [stress.subset]\nsamples = 10\nmax_levels = 2\n\
              [uq]\nmax_rays = 16\nperturbations = 1\nlm_iterations = 2\nonline_rays = 64\nonline_bla_rays = 16\n\
              [uq_offline]\nbla_images_per_split = 1\n[online]\nmethods = [\"ga\"]\nmc_rollouts = 4\n\
              [ensemble]\nmembers = 3\nsteps = 3\n"

@@ -8,7 +8,7 @@ mod report;
 
 use nerfsv_sim::{NerfWorldSource, SimConfig};
 use nerfsv_study::calibration::{
-    self, calibrate, CalibrationFigures, CalibrationRequest, CalibrationView, PerceptionConfig, ViewSource,
+    self, calibrate, CalibrationConfig, CalibrationFigures, CalibrationRequest, CalibrationView, ViewSource,
 };
 use nerfsv_study::flight::{Drone, Mission};
 use serde::Serialize;
@@ -27,8 +27,8 @@ use nerfsv_dataset::{load_all_frames, load_linked_split, Frame, Placement};
 /// The calibration stage.
 pub struct CalibrationStage<'a> {
     pub drone: Drone<'a>,
-    pub perception: &'a PerceptionConfig,
-    /// Where `perception.route_dataset`'s poses lie in the world: the `[world]` dataset's placement.
+    pub calibration: &'a CalibrationConfig,
+    /// Where `calibration.route_dataset`'s poses lie in the world: the `[world]` dataset's placement.
     pub placement: Placement,
     /// Seeds the route capture's poses and each fit's pixels and start.
     pub seed: u64,
@@ -62,7 +62,7 @@ impl Stage for CalibrationStage<'_> {
         // What the fits depend on: the drone's estimator and route, not which world NeRF-sim
         // flies nor how many draws it takes.
         let sim = SimConfig { nerf_world: NerfWorldSource::Deployed, ..self.drone.sim.clone() };
-        let p = self.perception;
+        let p = self.calibration;
         (
             self.drone.scene.map(nerfsv_scene::Scene::key),
             sim,
@@ -80,17 +80,17 @@ impl Stage for CalibrationStage<'_> {
         // Each member's own images of the calibration views.
         inputs.members = load_members(cx.root)?;
         let flight = inputs.plan(self.drone.sim)?;
-        let held_out = match self.perception.held_out_split {
+        let held_out = match self.calibration.held_out_split {
             true => load_linked_split(&cx.input_dir(DatasetStage::NAME), "test", 1)?.frames,
             false => Vec::new(),
         };
-        let route = match &self.perception.route_dataset {
+        let route = match &self.calibration.route_dataset {
             Some(folder) => load_all_frames(folder, self.placement)?,
             None => Vec::new(),
         };
         let request = CalibrationRequest {
             mission: Mission { drone: self.drone, inputs: &inputs, flight: &flight },
-            perception: self.perception,
+            config: self.calibration,
             held_out: views(&held_out, ViewSource::HeldOut),
             route_dataset: views(&route, ViewSource::RouteDataset),
             seed: self.seed,

@@ -24,8 +24,17 @@ pub use nerfsv_nerf::config::MAX_STEPS as MAX_TRAIN_STEPS;
 
 /// A configuration that can check its own values.
 pub trait Validate {
+    /// Tables that older configs name otherwise, `(old, current)`: a file or an override that
+    /// names the old table is read as the current one.
+    const RENAMED_TABLES: &'static [(&'static str, &'static str)] = &[];
+
     /// The first value out of range, naming its key (dotted for nested tables).
     fn validate(&self) -> Result<(), InvalidValue>;
+}
+
+/// The current name of a top-level table that `renamed` lists as `(old, current)`.
+fn current_name<'a>(key: &'a str, renamed: &[(&str, &'a str)]) -> &'a str {
+    renamed.iter().find(|(old, _)| *old == key).map_or(key, |(_, new)| new)
 }
 
 /// Reads a TOML file into `T`: unknown keys, malformed values and out-of-range values are
@@ -44,6 +53,8 @@ pub fn load_toml_onto<T: DeserializeOwned + Serialize + Validate>(path: &Path, b
     // Read once as written, so that an error points at its line and column.
     toml::from_str::<T>(&text).map_err(toml_error)?;
     let user: toml::Table = toml::from_str(&text).map_err(toml_error)?;
+    // An old table name merged as its current one, so that it overrides the base's keys.
+    let user = user.into_iter().map(|(k, v)| (current_name(&k, T::RENAMED_TABLES).to_owned(), v)).collect();
     let mut merged = match toml::Value::try_from(base) {
         Ok(toml::Value::Table(t)) => t,
         _ => toml::Table::new(),
@@ -136,11 +147,12 @@ pub struct RunConfig {
     /// Seed of the flight's random choices (the vision estimator's pixels).
     pub flight_seed: u64,
     /// The adversary: disturbance prior, Monte Carlo, Cross-Entropy Method, run seed (the
-    /// `[validation]` table).
+    /// `[stress]` table; `[validation]` in older configs, still read as it).
     #[docs(table)]
-    pub validation: nerfsv_validation::ValidationConfig,
+    #[serde(alias = "validation")]
+    pub stress: nerfsv_validation::ValidationConfig,
     /// Whether the stress stage also estimates the failure probability by subset simulation
-    /// (`[validation.subset]`), after Monte Carlo and the CEM: the estimator whose calibration
+    /// (`[stress.subset]`), after Monte Carlo and the CEM: the estimator whose calibration
     /// holds at the drone's 72 dimensions with its default settings. Its first level starts from
     /// the stage's Monte Carlo rollouts, so it costs about `samples·(1 − p0)` more NeRF-sim
     /// rollouts per level beyond them (180 by default; 2 levels at the default study's
@@ -168,10 +180,12 @@ pub struct RunConfig {
     #[docs(table)]
     #[docs(default = EnsembleConfig { members: DEFAULT_ENSEMBLE_MEMBERS, ..EnsembleConfig::default() })]
     pub ensemble: EnsembleConfig,
-    /// The calibration views and the calibrated world's draws (the `[perception]` table):
-    /// NeRF-sim's world with `sim.nerf_world = "calibrated"`.
+    /// The calibration views and the calibrated world's draws, NeRF-sim's world with
+    /// `sim.nerf_world = "calibrated"` (the `[calibration]` table; `[perception]` in older
+    /// configs, still read as it).
     #[docs(table)]
-    pub perception: nerfsv_study::calibration::PerceptionConfig,
+    #[serde(alias = "perception")]
+    pub calibration: nerfsv_study::calibration::CalibrationConfig,
     /// The unit tests' probe stage (the `[probe]` table).
     #[cfg(test)]
     #[docs(table)]
@@ -374,7 +388,8 @@ impl RunConfig {
         for setting in sets {
             let refuse = |message: String| PipelineError::Override { setting: setting.clone(), message };
             let (key, text) = setting.split_once('=').ok_or_else(|| refuse("expected TABLE.KEY=VALUE".into()))?;
-            let path: Vec<&str> = key.trim().split('.').collect();
+            let mut path: Vec<&str> = key.trim().split('.').collect();
+            path[0] = current_name(path[0], Self::RENAMED_TABLES);
             if path.iter().any(|k| k.is_empty()) {
                 return Err(refuse("expected TABLE.KEY=VALUE".into()));
             }
@@ -403,7 +418,7 @@ impl RunConfig {
     fn load_onto(path: &Path, base: Self) -> Result<Self, PipelineError> {
         let mut cfg: Self = load_toml_onto(path, base)?;
         let folder = path.parent().unwrap_or(Path::new(""));
-        for p in [&mut cfg.world.mesh, &mut cfg.world.dataset, &mut cfg.perception.route_dataset].into_iter().flatten()
+        for p in [&mut cfg.world.mesh, &mut cfg.world.dataset, &mut cfg.calibration.route_dataset].into_iter().flatten()
         {
             if p.is_relative() {
                 *p = folder.join(&*p);
@@ -490,15 +505,15 @@ impl RunConfig {
         NerfSettings { nerf: self.nerf.clone(), train: self.train.clone() }
     }
 
-    /// The per-step disturbance prior of the drone, `sim.steps` steps of the `[validation]`
+    /// The per-step disturbance prior of the drone, `sim.steps` steps of the `[stress]`
     /// table's Gaussian.
     pub fn disturbance_prior(&self) -> Result<nerfsv_validation::Prior, InvalidValue> {
-        let step = self.validation.disturbance.to_gaussian().map_err(|e| e.within("validation.disturbance"))?;
+        let step = self.stress.disturbance.to_gaussian().map_err(|e| e.within("stress.disturbance"))?;
         Ok(nerfsv_validation::Prior::new(step, self.sim.steps))
     }
 
     /// The stress stage's search of `samplers` flying `mission` under `prior` with this
-    /// config's `[validation]` and `[uq]` ([`StressSetup::new`](nerfsv_study::stress::StressSetup::new)):
+    /// config's `[stress]` and `[uq]` ([`StressSetup::new`](nerfsv_study::stress::StressSetup::new)):
     /// what `nerfsv stress` and Python change the world, estimator and the rest of.
     pub fn search<'a>(
         &'a self,
@@ -506,7 +521,7 @@ impl RunConfig {
         prior: &'a nerfsv_validation::Prior,
         samplers: &'a [nerfsv_validation::Sampler],
     ) -> nerfsv_study::stress::StressSetup<'a> {
-        nerfsv_study::stress::StressSetup::new(mission, &self.validation, prior, samplers, &self.uq)
+        nerfsv_study::stress::StressSetup::new(mission, &self.stress, prior, samplers, &self.uq)
     }
 }
 
@@ -641,10 +656,10 @@ impl RunConfig {
 
     /// The `[world]` dataset opened as the run will read it, one frame of it
     /// ([`nerfsv_dataset::probe`]), with or without a mesh.
-    /// The same of `[perception] route_dataset`.
+    /// The same of `[calibration] route_dataset`.
     fn check_dataset(&self) -> Result<(), PipelineError> {
         for (key, folder) in
-            [("world.dataset", &self.world.dataset), ("perception.route_dataset", &self.perception.route_dataset)]
+            [("world.dataset", &self.world.dataset), ("calibration.route_dataset", &self.calibration.route_dataset)]
         {
             let Some(folder) = folder else { continue };
             nerfsv_dataset::probe(folder)
@@ -700,6 +715,9 @@ impl Validate for WorldConfig {
 }
 
 impl Validate for RunConfig {
+    const RENAMED_TABLES: &'static [(&'static str, &'static str)] =
+        &[("validation", "stress"), ("perception", "calibration")];
+
     /// The values of the top level, then every table by its own `validate` (named `table.key`,
     /// [`RunConfig::validate_tables`]), then the checks that join tables.
     fn validate(&self) -> Result<(), InvalidValue> {
@@ -730,10 +748,10 @@ impl Validate for RunConfig {
                 format!("\"{}\"", world.name()),
             ));
         }
-        let d = self.validation.disturbance.mean.len();
+        let d = self.stress.disturbance.mean.len();
         if d != Disturbance::DIM {
             return Err(InvalidValue::new(
-                "validation.disturbance.mean",
+                "stress.disturbance.mean",
                 format!(
                     "must have {} entries, the drone's disturbance (position, velocity, rotation vector, angular \
                      velocity)",
@@ -799,6 +817,40 @@ mod tests {
         assert!(error.contains("sim.nerf_world") && error.contains("study.toml"), "{error}");
     }
 
+    /// A config written before the stress and calibration stages' tables took their stages'
+    /// names reads as the same config, from a file and from overrides, over and under the new
+    /// names; naming both in one file is refused.
+    #[test]
+    fn the_old_table_names_validation_and_perception_still_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let (old, new) = (dir.path().join("old.toml"), dir.path().join("new.toml"));
+        let body = |stress: &str, calibration: &str| {
+            format!("[{stress}]\nseed = 9\n[{stress}.cem]\nm = 40\n[{calibration}]\nroute_views = 12\n")
+        };
+        std::fs::write(&old, body("validation", "perception")).unwrap();
+        std::fs::write(&new, body("stress", "calibration")).unwrap();
+        let json = |cfg: &RunConfig| serde_json::to_value(cfg).unwrap();
+        let read = RunConfig::load(&new).unwrap();
+        assert_eq!((read.stress.seed, read.stress.cem.m, read.calibration.route_views), (9, 40, 12));
+        // The keys the file leaves out keep the default run's values under either name.
+        assert_eq!(read.stress.cem.m_elite, RunConfig::default().stress.cem.m_elite);
+        assert_eq!(json(&RunConfig::load(&old).unwrap()), json(&read));
+        let sets = |s: [&str; 3]| -> Vec<String> { s.map(String::from).into() };
+        let by_old = RunConfig::default()
+            .set(&sets(["validation.seed=9", "validation.cem.m=40", "perception.route_views=12"]))
+            .unwrap();
+        assert_eq!(json(&by_old), json(&read));
+        // An old name overrides a file's new one, and the other way round.
+        let mixed = RunConfig::load(&new)
+            .unwrap()
+            .set(&sets(["validation.seed=4", "stress.cem.m=41", "calibration.route_views=5"]))
+            .unwrap();
+        assert_eq!((mixed.stress.seed, mixed.stress.cem.m, mixed.calibration.route_views), (4, 41, 5));
+        std::fs::write(&old, "[validation]\nseed = 1\n[stress]\nseed = 2\n").unwrap();
+        let e = RunConfig::load(&old).unwrap_err().to_string();
+        assert!(e.contains("old.toml") && e.contains("stress"), "{e}");
+    }
+
     #[test]
     fn bad_values_name_the_key_and_the_value() {
         let dir = tempfile::tempdir().unwrap();
@@ -815,7 +867,7 @@ mod tests {
             ("[online]\nmc_rollouts = 0", "online.mc_rollouts", "0"),
             ("[online]\nmethods = [\"ga\", \"ga\"]", "online.methods", "Ga"),
             ("[ensemble]\nmembers = 1", "sim.nerf_world", "calibrated"),
-            ("[perception]\nfits_per_view = 0", "perception.fits_per_view", "0"),
+            ("[calibration]\nfits_per_view = 0", "calibration.fits_per_view", "0"),
             ("[sim]\nnerf_world = \"ensemble\"\n[ensemble]\nmembers = 1", "sim.nerf_world", "ensemble"),
             ("[ensemble]\nmembers = 17", "ensemble.members", "17"),
             ("[ensemble]\nsteps = 0", "ensemble.steps", "0"),

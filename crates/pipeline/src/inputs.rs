@@ -8,7 +8,7 @@ use std::path::Path;
 
 use nerfsv_collision::SdfGrid;
 use nerfsv_nerf::Nerf;
-use nerfsv_study::calibration::{ErrorModels, PerceptionConfig, MODEL_JSON, STAGE as CALIBRATION};
+use nerfsv_study::calibration::{CalibrationConfig, ErrorModels, MODEL_JSON, STAGE as CALIBRATION};
 use nerfsv_study::flight::{Calibration, FlightInputs, WorldMember};
 
 use crate::ensemble::{EnsembleStage, MemberEntry};
@@ -38,15 +38,15 @@ pub fn load_members(root: &Path) -> Result<Vec<WorldMember>, PipelineError> {
 }
 
 /// The calibrated world's draws from the error model the calibration stage wrote into `root`.
-pub fn load_calibration(root: &Path, perception: &PerceptionConfig, seed: u64) -> Result<Calibration, PipelineError> {
+pub fn load_calibration(root: &Path, calibration: &CalibrationConfig, seed: u64) -> Result<Calibration, PipelineError> {
     let path = root.join(CALIBRATION).join(MODEL_JSON);
     let text = std::fs::read_to_string(&path).map_err(|e| PipelineError::io(&path, e))?;
     let models: ErrorModels = serde_json::from_str(&text)
         .map_err(|e| PipelineError::Internal(format!("{}: not error models: {e}", path.display())))?;
-    let model_error = models.model_error_per_rmse.filter(|_| perception.filter_model_error);
+    let model_error = models.model_error_per_rmse.filter(|_| calibration.filter_model_error);
     Ok(Calibration {
         models: models.members,
-        draws_per_member: perception.draws_per_member,
+        draws_per_member: calibration.draws_per_member,
         seed,
         model_error_per_rmse: model_error.map(|m| m.per_rmse),
     })
@@ -58,14 +58,14 @@ pub fn drone_worlds(
     root: &Path,
     ground_truth: bool,
     ensemble: bool,
-    calibration: Option<(&PerceptionConfig, u64)>,
+    calibration: Option<(&CalibrationConfig, u64)>,
 ) -> Result<FlightInputs, PipelineError> {
     let mut inputs = flight_inputs(root, ground_truth)?;
     if ensemble {
         inputs.members = load_members(root)?;
     }
-    if let Some((perception, seed)) = calibration {
-        inputs.calibration = Some(load_calibration(root, perception, seed)?);
+    if let Some((config, seed)) = calibration {
+        inputs.calibration = Some(load_calibration(root, config, seed)?);
     }
     Ok(inputs)
 }

@@ -34,9 +34,9 @@ pub struct OnlineStage<'a> {
 impl OnlineStage<'_> {
     /// The validation settings of the study: the run's, with `[online]`'s sizes.
     fn validation(&self) -> ValidationConfig {
-        let mut v = self.search.validation.clone();
+        let mut v = self.search.stress.clone();
         // The first rollouts of the stress stage's MC: never more than it flew (and replayed).
-        v.monte_carlo.rollouts = self.online.mc_rollouts.min(self.search.validation.monte_carlo.rollouts);
+        v.monte_carlo.rollouts = self.online.mc_rollouts.min(self.search.stress.monte_carlo.rollouts);
         v.cem.is_samples = self.online.is_samples;
         v
     }
@@ -59,7 +59,7 @@ impl Stage for OnlineStage<'_> {
     fn run(&self, cx: &StageContext) -> Result<OnlineFigures, PipelineError> {
         let s = self.search;
         // Its rewarded searches fly in the stress stage's NeRF world.
-        let calibration = s.calibrated().then_some((s.perception, s.validation.seed));
+        let calibration = s.calibrated().then_some((s.calibration, s.stress.seed));
         let inputs = drone_worlds(cx.root, s.drone.scene.is_some(), s.ensemble, calibration)?;
         // The filter the stress stage flew.
         let sim = inputs.filter_sim(s.drone.sim);

@@ -59,8 +59,8 @@ pub fn world_inputs(cfg: &RunConfig, mut guard: Guard) -> Guard {
     if let Some(dataset) = &cfg.world.dataset {
         guard = guard.dataset("world.dataset", dataset);
     }
-    if let Some(dataset) = &cfg.perception.route_dataset {
-        guard = guard.dataset("perception.route_dataset", dataset);
+    if let Some(dataset) = &cfg.calibration.route_dataset {
+        guard = guard.dataset("calibration.route_dataset", dataset);
     }
     if let Some(mesh) = &cfg.world.mesh {
         guard = guard.mesh("world.mesh", mesh);
@@ -114,19 +114,19 @@ pub fn run_in(
     if cfg.sim.nerf_world == nerfsv_sim::NerfWorldSource::Calibrated {
         r.run(&calibration::CalibrationStage {
             drone: cfg.drone(scene),
-            perception: &cfg.perception,
+            calibration: &cfg.calibration,
             placement: cfg.world.placement(),
-            seed: cfg.validation.seed,
+            seed: cfg.stress.seed,
         })?;
     }
     let prior = cfg.disturbance_prior()?;
     let search = stress::StressStage {
         ensemble: cfg.ensemble.members > 1,
         drone: cfg.drone(scene),
-        validation: &cfg.validation,
+        stress: &cfg.stress,
         prior: &prior,
         subset: cfg.stress_subset,
-        perception: &cfg.perception,
+        calibration: &cfg.calibration,
     };
     r.run(&search)?;
     if scene.is_some() {

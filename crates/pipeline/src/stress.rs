@@ -7,7 +7,7 @@ use std::path::Path;
 
 use nerfsv_scene::seed::fnv1a;
 use nerfsv_sim::{CalibratedWorld, Flight, NerfWorldSource, SimConfig, WorldKind};
-use nerfsv_study::calibration::PerceptionConfig;
+use nerfsv_study::calibration::CalibrationConfig;
 use nerfsv_study::flight::{Drone, FlightInputs, Mission};
 use nerfsv_study::stress::{
     measure_at_poses, replay_csv, searched, stress, Sampler, StepAurocFigures, StressFigures, StressSetup,
@@ -40,11 +40,11 @@ pub struct StressStage<'a> {
     /// table compares both with GT-sim's replays.
     pub ensemble: bool,
     pub drone: Drone<'a>,
-    pub validation: &'a ValidationConfig,
+    pub stress: &'a ValidationConfig,
     pub prior: &'a Prior,
     pub subset: bool,
     /// The calibrated world's draws (with `sim.nerf_world = "calibrated"`).
-    pub perception: &'a PerceptionConfig,
+    pub calibration: &'a CalibrationConfig,
 }
 
 impl StressStage<'_> {
@@ -56,7 +56,7 @@ impl StressStage<'_> {
     /// The drone's worlds in the run folder `root`: the model and the fields, with the ensemble's
     /// other members and the calibrated world's error model where this stage flies them.
     pub fn load_inputs(&self, root: &Path) -> Result<FlightInputs, PipelineError> {
-        let calibration = self.calibrated().then_some((self.perception, self.validation.seed));
+        let calibration = self.calibrated().then_some((self.calibration, self.stress.seed));
         drone_worlds(root, self.drone.scene.is_some(), self.ensemble, calibration)
     }
 
@@ -106,7 +106,7 @@ impl Stage for StressStage<'_> {
     }
 
     fn config(&self) -> impl Serialize {
-        (self.drone.key(), self.validation, self.samplers(), self.calibration_key())
+        (self.drone.key(), self.stress, self.samplers(), self.calibration_key())
     }
 
     fn run(&self, cx: &StageContext) -> Result<StressFigures, PipelineError> {
@@ -120,7 +120,7 @@ impl StressStage<'_> {
     /// What the calibrated world adds to the key: its draws and whose model error the filter
     /// takes (the calibration's own figures enter through its folder's key).
     pub fn calibration_key(&self) -> Option<(usize, bool)> {
-        self.calibrated().then_some((self.perception.draws_per_member, self.perception.filter_model_error))
+        self.calibrated().then_some((self.calibration.draws_per_member, self.calibration.filter_model_error))
     }
 
     /// This stage with the drone's simulator settings `sim` (those it flies with its inputs:
@@ -134,7 +134,7 @@ impl StressStage<'_> {
         let uq = UqConfig::default();
         let setup = StressSetup {
             replay: self.drone.scene.is_some(),
-            ..StressSetup::new(self.mission(inputs, &flight), self.validation, self.prior, self.samplers(), &uq)
+            ..StressSetup::new(self.mission(inputs, &flight), self.stress, self.prior, self.samplers(), &uq)
         };
         // The runner keys the folder by this stage's config and inputs: a resumed folder is
         // always this run's, so the journal's own key only has to be constant.
@@ -186,7 +186,7 @@ impl StressStage<'_> {
             let setup = StressSetup {
                 replay: false,
                 reports_p_fail: false,
-                ..StressSetup::new(mission, self.validation, self.prior, &[Sampler::Mc], &uq)
+                ..StressSetup::new(mission, self.stress, self.prior, &[Sampler::Mc], &uq)
             };
             let dir = cx.dir.join(format!("nerf_{}", other.name()));
             std::fs::create_dir_all(&dir).map_err(|e| PipelineError::io(&dir, e))?;
@@ -213,7 +213,7 @@ impl StressStage<'_> {
                 .unwrap_or_default()
         };
         let gt_failed: Vec<bool> = gt.iter().map(|r| r.failed).collect();
-        let seed = self.validation.seed;
+        let seed = self.stress.seed;
         let mut figures = TransferFigures::new(
             &failed(NerfWorldSource::Deployed),
             &failed(NerfWorldSource::Ensemble),
@@ -221,7 +221,7 @@ impl StressStage<'_> {
             seed,
         );
         if self.calibrated() {
-            let worlds = inputs.members.len() * self.perception.draws_per_member;
+            let worlds = inputs.members.len() * self.calibration.draws_per_member;
             let world: Vec<usize> = ours.iter().map(|r| CalibratedWorld::world_of(r.seed, worlds)).collect();
             figures = figures.with_calibrated(&failed(NerfWorldSource::Calibrated), &world, worlds, &gt_failed, seed);
         }
@@ -256,7 +256,7 @@ impl StressStage<'_> {
             .into_iter()
             .filter(|s| self.samplers().contains(s))
             .map(|sampler| {
-                StepAurocFigures::of(sampler, self.drone.sim.nerf_world, &measured, replays, self.validation.seed)
+                StepAurocFigures::of(sampler, self.drone.sim.nerf_world, &measured, replays, self.stress.seed)
             })
             .collect())
     }

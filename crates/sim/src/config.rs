@@ -105,7 +105,7 @@ pub struct SimConfig {
     /// collision field, the paper's NeRF-sim), `"ensemble"` (each stress rollout flies in
     /// member `1 + seed mod (K − 1)` of the `[ensemble]`, K ≥ 2, while the estimator keeps the
     /// deployed NeRF) or `"calibrated"` (the ensemble's members, their camera images displaced
-    /// by draws of the perception error model the `[perception]` table measures). The nominal
+    /// by draws of the perception error model the `[calibration]` table measures). The nominal
     /// flights fly the deployed NeRF either way.
     pub nerf_world: NerfWorldSource,
 }

@@ -74,7 +74,7 @@ pub struct VisionConfig {
     /// Standard deviations of the per-step disturbance the filter expects (its process noise,
     /// added at each step's start), in the disturbance's order: position (m), velocity (m/s),
     /// attitude (rad, world axes), body rates (rad/s). Default: the paper's disturbance prior,
-    /// which the stress tests sample from (`[validation] prior`).
+    /// which the stress tests sample from (`[stress] prior`).
     pub disturbance_std: [f64; Disturbance::DIM],
     /// Standard deviations of the initial estimate's error (same order): the drone starts at rest
     /// at a known start.

@@ -31,10 +31,10 @@ use serde::{Deserialize, Serialize};
 use crate::flight::Mission;
 use crate::{Observer, StudyError};
 
-/// The `[perception]` table: the calibration views and the calibrated world's draws.
+/// The `[calibration]` table: the calibration views and the calibrated world's draws.
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct PerceptionConfig {
+pub struct CalibrationConfig {
     /// Views of the route capture: ground-truth images along the planned route (built-in scenes
     /// and meshes; none for a world known only by a dataset). 0: the held-out split only.
     pub route_views: usize,
@@ -65,7 +65,7 @@ pub struct PerceptionConfig {
     pub filter_model_error: bool,
 }
 
-impl Default for PerceptionConfig {
+impl Default for CalibrationConfig {
     fn default() -> Self {
         Self {
             route_views: 50,
@@ -79,7 +79,7 @@ impl Default for PerceptionConfig {
     }
 }
 
-impl PerceptionConfig {
+impl CalibrationConfig {
     pub fn validate(&self) -> Result<(), nerfsv_scene::InvalidValue> {
         use nerfsv_scene::validate::in_range;
         in_range("route_views", self.route_views, 0, 10_000)?;
@@ -100,7 +100,7 @@ pub enum ViewSource {
     /// The dataset's held-out split.
     #[serde(rename = "held_out")]
     HeldOut,
-    /// A recorded route capture (`[perception] route_dataset`).
+    /// A recorded route capture (`[calibration] route_dataset`).
     #[serde(rename = "route_dataset")]
     RouteDataset,
 }
@@ -468,7 +468,7 @@ pub fn cross_validate(samples: &[ErrorSample], folds: usize) -> CrossValidation 
 pub struct CalibrationFigures {
     pub route_views: usize,
     pub held_out_views: usize,
-    /// Views of the recorded route capture (`[perception] route_dataset`).
+    /// Views of the recorded route capture (`[calibration] route_dataset`).
     #[serde(default)]
     pub route_dataset_views: usize,
     pub fits: usize,
@@ -487,7 +487,7 @@ pub struct CalibrationFigures {
     #[serde(default)]
     pub member_mean_difference: Vec<[f64; 6]>,
     /// The filter's model error the fits measured, and the config's it replaces where
-    /// `[perception] filter_model_error` ([`filter_model_error`]).
+    /// `[calibration] filter_model_error` ([`filter_model_error`]).
     #[serde(default)]
     pub model_error: Option<ModelError>,
     /// The same measured on each source's fits alone (route, held-out, recorded route), for
@@ -575,10 +575,10 @@ pub struct CalibrationRequest<'a> {
     /// The drone's estimator and planned route, its deployed NeRF, the ensemble's other members
     /// (`inputs.members`) and the ground truth, where there is one (the route capture's images).
     pub mission: Mission<'a>,
-    pub perception: &'a PerceptionConfig,
-    /// The dataset's held-out views ([`CalibrationView::recorded`]), when `perception.held_out_split`.
+    pub config: &'a CalibrationConfig,
+    /// The dataset's held-out views ([`CalibrationView::recorded`]), when `calibration.held_out_split`.
     pub held_out: Vec<CalibrationView<'a>>,
-    /// The views of `perception.route_dataset` ([`ViewSource::RouteDataset`]), where along the
+    /// The views of `calibration.route_dataset` ([`ViewSource::RouteDataset`]), where along the
     /// route each is found here.
     pub route_dataset: Vec<CalibrationView<'a>>,
     /// Seeds the route capture's poses and each fit's pixels and start.
@@ -625,7 +625,7 @@ impl<'a> CalibrationView<'a> {
 pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<CalibrationFigures, StudyError> {
     let (drone, inputs, flight) = (req.mission.drone, req.mission.inputs, req.mission.flight);
     let sim = flight.simulator(drone.sim, &inputs.nerf, drone.intrinsics);
-    let p = req.perception;
+    let p = req.config;
     let ground_truth = match (drone.scene, &inputs.gt_field) {
         (Some(scene), Some(field)) => Some(GroundTruthWorld { scene, field, render: drone.render }),
         _ => None,

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::gaussian::{Gaussian, DRONE_STD};
 
-/// The `[validation]` table.
+/// The `[stress]` table.
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ValidationConfig {

@@ -15,7 +15,7 @@ const LN_2PI: f64 = 1.837_877_066_409_345_5;
 
 /// Per-step disturbance std of the original system, in the order Δposition (m), Δvelocity (m/s),
 /// Δrotation (rotation vector, rad), Δangular velocity (rad/s): the paper's prior, the default
-/// of `[validation.disturbance]`. (The drone's filter assumes the same noise by default; the
+/// of `[stress.disturbance]`. (The drone's filter assumes the same noise by default; the
 /// study crate's tests check that the two defaults agree.)
 pub const DRONE_STD: [f64; 12] = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
 

@@ -48,12 +48,12 @@ impl Label {
 #[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Sampler {
-    /// Monte Carlo: `validation.monte_carlo.rollouts` rollouts from the prior.
+    /// Monte Carlo: `stress.monte_carlo.rollouts` rollouts from the prior.
     Mc,
-    /// The Cross-Entropy Method (`validation.cem`), then importance sampling from its final
+    /// The Cross-Entropy Method (`stress.cem`), then importance sampling from its final
     /// proposal.
     Cem,
-    /// Subset simulation (`validation.subset`): a failure probability from nested levels of
+    /// Subset simulation (`stress.subset`): a failure probability from nested levels of
     /// Markov chains; it estimates, it does not search, so its rollouts are not replayed (like
     /// CEM's importance batch).
     Subset,

@@ -43,7 +43,7 @@ impl Report for CalibrationStage<'_> {
             f.route_views,
             match f.route_dataset_views {
                 0 => String::new(),
-                n => format!(", {n} views of your own route capture ([perception] route_dataset)"),
+                n => format!(", {n} views of your own route capture ([calibration] route_dataset)"),
             },
             f.held_out_views,
             f.fits,
@@ -125,7 +125,7 @@ fn model_error(f: &CalibrationFigures, s: &mut Section) {
              [{}, {}] per axis of position and {}° [{}, {}] per axis of attitude per unit of its colour RMSE (root \
              mean square of error ÷ RMSE over {} fits of {} views, lost fits left out; 95 % intervals from a \
              bootstrap over views), against the config's {} m and {}° (sim.vision.model_error_per_rmse). With \
-             [perception] filter_model_error = true the stress and online stages' filter takes the measured \
+             [calibration] filter_model_error = true the stress and online stages' filter takes the measured \
              value in every world, GT-sim's included (one estimator ships); by default it keeps the config's, as \
              images taken close together in flight share their error, which this measurement of single fits \
              does not see.",

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 /// The online uncertainty stage of `nerfsv run`, the `[online]` table: for each method, MC
 /// and CEM measuring every step's uncertainty, and CEM ranked by the method's reward (the rows
-/// with and without reward of Tables 1–2). The CEM populations are `[validation.cem]`'s.
+/// with and without reward of Tables 1–2). The CEM populations are `[stress.cem]`'s.
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OnlineConfig {

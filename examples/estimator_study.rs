@@ -194,6 +194,19 @@ fn monte_carlo(study: &Study) {
             updates.iter().map(|u| u.rotation_error_deg).sum::<f64>() / images,
             start.elapsed().as_secs_f64()
         );
+        if !updates.is_empty() {
+            // A consistent filter's NIS exceeds χ²₆'s 95th percentile on 5 % of images.
+            let above = updates.iter().filter(|u| u.nis.is_nan() || u.nis > nerfsv_study::stress::NIS_CHI2_95).count();
+            let mut nis: Vec<f64> =
+                updates.iter().map(|u| if u.nis.is_nan() { f64::INFINITY } else { u.nis }).collect();
+            println!(
+                "  NIS > χ²₆(0.95) on {above} of {} images ({:.1} %; 5 % if consistent); NIS median {:.2} p90 {:.2}",
+                updates.len(),
+                100.0 * above as f64 / images,
+                percentile(&mut nis, 0.5),
+                percentile(&mut nis, 0.9)
+            );
+        }
         let mut position: Vec<f64> = updates.iter().map(|u| 1e3 * u.position_error_m).collect();
         let mut rotation: Vec<f64> = updates.iter().map(|u| u.rotation_error_deg).collect();
         if !position.is_empty() {

@@ -97,11 +97,17 @@ fn a_rewarded_cem_takes_its_first_population_and_its_replays_from_rollouts_flown
         online: Some(OnlineSettings { method: Method::Ga, mode: UqMode::Exact, reward }),
         ..StressSetup::new(drone, &cfg.stress, &prior, &[Sampler::Cem], &cfg.uq)
     };
+    // The journal's rollout files (`SAMPLER-POPULATION-INDEX.csv`; each rollout's image log
+    // beside it, `….images.csv`, not counted).
     let csv_files = |journal: &std::path::Path| {
-        std::fs::read_dir(journal)
+        let names: Vec<String> = std::fs::read_dir(journal)
             .unwrap()
-            .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "csv"))
-            .count()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        let logs = names.iter().filter(|n| n.ends_with(".images.csv")).count();
+        let rollouts = names.iter().filter(|n| n.ends_with(".csv")).count() - logs;
+        assert_eq!(logs, rollouts, "an image log beside each rollout");
+        rollouts
     };
     struct Ran {
         records: Vec<nerfsv_validation::RolloutRecord>,

@@ -455,7 +455,7 @@ pub fn run_jobs<'py>(
                 .map(|job| {
                     let (x, seed) = decode_job(job).map_err(|e| e.to_string())?;
                     let outcome = w.pool.install(|| system.run(&x, seed));
-                    Ok(encode_result(&outcome, &log.errors(seed)))
+                    Ok(encode_result(&outcome, &log.images(seed)))
                 })
                 .collect()
         })

@@ -9,6 +9,10 @@
 //! velocity), the estimator's expected position and attitude errors (`√tr P`, metres and
 //! degrees; 0 for the truth estimator) and the crash criterion's clearance (empty where the body
 //! left the field's grid).
+//! An image log has one row per camera image, the filter's record of it ([`IMAGE_COLUMNS`]):
+//! the estimate's errors before and after, the normalised innovation and estimation errors
+//! squared, whether the gate took the image, whether the estimator relocalised or lost track
+//! there, the fit's variance factor, the filter's expected errors, and the renders the fit took.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -16,7 +20,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 
 use crate::dynamics::{Disturbance, State};
-use crate::rollout::Rollout;
+use crate::rollout::{ImageUpdate, Rollout};
 
 /// Header of a disturbance file.
 pub const DISTURBANCE_COLUMNS: [&str; Disturbance::DIM] =
@@ -262,6 +266,145 @@ pub fn parse_trajectory(text: &str, path: &Path) -> Result<Vec<TrajectoryRow>, T
     Ok(rows)
 }
 
+/// Header of an image log ([`images_csv`]), one column per field of [`ImageUpdate`] in its order
+/// (booleans as 0 or 1).
+pub const IMAGE_COLUMNS: [&str; 17] = [
+    "step",
+    "substep",
+    "time_s",
+    "predicted_position_error_m",
+    "predicted_attitude_error_deg",
+    "position_error_m",
+    "attitude_error_deg",
+    "nees",
+    "nis",
+    "accepted",
+    "relocalised",
+    "lost",
+    "variance_factor",
+    "position_sd_m",
+    "attitude_sd_deg",
+    "renders",
+    "photometric_rmse",
+];
+
+impl ImageUpdate {
+    /// The record as numbers in [`IMAGE_COLUMNS`]' order (booleans 0 or 1, counts exact).
+    pub fn to_row(&self) -> [f64; IMAGE_COLUMNS.len()] {
+        [
+            self.step as f64,
+            self.substep as f64,
+            self.time,
+            self.predicted_position_error_m,
+            self.predicted_rotation_error_deg,
+            self.position_error_m,
+            self.rotation_error_deg,
+            self.nees,
+            self.nis,
+            f64::from(u8::from(self.accepted)),
+            f64::from(u8::from(self.relocalised)),
+            f64::from(u8::from(self.lost)),
+            self.variance_factor,
+            self.position_spread_m,
+            self.rotation_spread_deg,
+            self.renders as f64,
+            self.photometric_rmse,
+        ]
+    }
+
+    /// [`ImageUpdate::to_row`]'s numbers back; the index of the first column that is not what its
+    /// field holds (a count that is not a whole number, a flag that is not 0 or 1).
+    pub fn from_row(v: &[f64; IMAGE_COLUMNS.len()]) -> Result<Self, usize> {
+        let count = |i: usize| match v[i] {
+            x if x >= 0.0 && x.fract() == 0.0 && x < 2f64.powi(53) => Ok(x as usize),
+            _ => Err(i),
+        };
+        let flag = |i: usize| match v[i] {
+            0.0 => Ok(false),
+            1.0 => Ok(true),
+            _ => Err(i),
+        };
+        Ok(Self {
+            step: count(0)?,
+            substep: count(1)?,
+            time: v[2],
+            predicted_position_error_m: v[3],
+            predicted_rotation_error_deg: v[4],
+            position_error_m: v[5],
+            rotation_error_deg: v[6],
+            nees: v[7],
+            nis: v[8],
+            accepted: flag(9)?,
+            relocalised: flag(10)?,
+            lost: flag(11)?,
+            variance_factor: v[12],
+            position_spread_m: v[13],
+            rotation_spread_deg: v[14],
+            renders: count(15)?,
+            photometric_rmse: v[16],
+        })
+    }
+}
+
+/// An image log as CSV with its header (see the module docs); reads back bit for bit through
+/// [`parse_images`] (NaN and infinities included).
+pub fn images_csv(updates: &[ImageUpdate]) -> String {
+    let mut s = IMAGE_COLUMNS.join(",");
+    s.push('\n');
+    for u in updates {
+        let row: Vec<String> = u.to_row().iter().map(f64::to_string).collect();
+        s.push_str(&row.join(","));
+        s.push('\n');
+    }
+    s
+}
+
+/// An image log that cannot be read; names the file and the line (1-based).
+#[derive(Debug, thiserror::Error)]
+pub enum ImageLogError {
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
+    #[error("{path}: line 1: expected the header {}", IMAGE_COLUMNS.join(","))]
+    Header { path: PathBuf },
+    #[error("{path}: line {line}: expected {} columns, found {found}", IMAGE_COLUMNS.len())]
+    Columns { path: PathBuf, line: usize, found: usize },
+    #[error("{path}: line {line}, column {column}: {found:?} is not a value of the column")]
+    Value { path: PathBuf, line: usize, column: &'static str, found: String },
+}
+
+/// Reads an image log ([`images_csv`]).
+pub fn read_images(path: &Path) -> Result<Vec<ImageUpdate>, ImageLogError> {
+    let text = std::fs::read_to_string(path).map_err(|error| ImageLogError::Io { path: path.into(), error })?;
+    parse_images(&text, path)
+}
+
+/// [`read_images`] on a file's text; `path` names it in errors.
+pub fn parse_images(text: &str, path: &Path) -> Result<Vec<ImageUpdate>, ImageLogError> {
+    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    if lines.next().map(|(_, l)| l.trim()) != Some(IMAGE_COLUMNS.join(",").as_str()) {
+        return Err(ImageLogError::Header { path: path.into() });
+    }
+    lines
+        .map(|(n, line)| {
+            let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+            if cells.len() != IMAGE_COLUMNS.len() {
+                return Err(ImageLogError::Columns { path: path.into(), line: n + 1, found: cells.len() });
+            }
+            let bad = |i: usize| ImageLogError::Value {
+                path: path.into(),
+                line: n + 1,
+                column: IMAGE_COLUMNS[i],
+                found: cells[i].to_owned(),
+            };
+            let mut v = [0.0; IMAGE_COLUMNS.len()];
+            for (i, cell) in cells.iter().enumerate() {
+                v[i] = cell.parse().map_err(|_| bad(i))?;
+            }
+            ImageUpdate::from_row(&v).map_err(bad)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -356,5 +499,52 @@ mod tests {
         assert_eq!(e, "t.csv: line 3, column true_y: \"x\" is not a finite number");
         let e = parse_trajectory("step,time_s\n", Path::new("t.csv")).unwrap_err().to_string();
         assert!(e.contains("no column true_x"), "{e}");
+    }
+
+    /// An image log reads back bit for bit, NaN and infinities included; a damaged one is named
+    /// by its line and column.
+    #[test]
+    fn image_logs_round_trip_bit_for_bit_and_bad_cells_are_named() {
+        let update = |k: usize| ImageUpdate {
+            step: k / 3,
+            substep: k % 3,
+            time: 0.1 * k as f64 + 1.0 / 3.0,
+            predicted_position_error_m: 0.1 + 0.2 * k as f64,
+            predicted_rotation_error_deg: f64::MIN_POSITIVE,
+            position_error_m: 1e-300,
+            rotation_error_deg: 123456.789e-7,
+            nees: f64::INFINITY,
+            nis: if k == 1 { f64::NAN } else { 7.25 },
+            accepted: k != 1,
+            relocalised: k == 2,
+            lost: k == 1,
+            variance_factor: 0.0,
+            position_spread_m: -0.0,
+            rotation_spread_deg: f64::MAX,
+            renders: 10 + k,
+            photometric_rmse: 0.012,
+        };
+        let log: Vec<ImageUpdate> = (0..4).map(update).collect();
+        let text = images_csv(&log);
+        let back = parse_images(&text, Path::new("i.csv")).unwrap();
+        let bits = |l: &[ImageUpdate]| -> Vec<u64> { l.iter().flat_map(|u| u.to_row()).map(f64::to_bits).collect() };
+        assert_eq!(bits(&back), bits(&log));
+        assert!(back[1].nis.is_nan() && back[2].relocalised && !back[1].accepted);
+        // The cell of the image log's `line` (1-based) and `column` replaced by `value`.
+        let damaged = |line: usize, column: &str, value: &str| -> String {
+            let at = IMAGE_COLUMNS.iter().position(|c| *c == column).unwrap();
+            let mut lines: Vec<Vec<String>> = text.lines().map(|l| l.split(',').map(String::from).collect()).collect();
+            lines[line - 1][at] = value.into();
+            lines.iter().map(|l| l.join(",") + "\n").collect()
+        };
+        for (line, column, value) in
+            [(3, "renders", "1.5"), (4, "relocalised", "2"), (5, "nis", "x"), (2, "step", "-1")]
+        {
+            let e = parse_images(&damaged(line, column, value), Path::new("i.csv")).unwrap_err().to_string();
+            assert_eq!(e, format!("i.csv: line {line}, column {column}: {value:?} is not a value of the column"));
+        }
+        let e = parse_images("step,time\n", Path::new("i.csv")).unwrap_err().to_string();
+        assert!(e.starts_with("i.csv: line 1: expected the header step,substep,"), "{e}");
+        assert!(parse_images(&images_csv(&[]), Path::new("i.csv")).unwrap().is_empty());
     }
 }

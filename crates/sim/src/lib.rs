@@ -34,8 +34,8 @@ pub use estimator::{EstimatorKind, PosePrior, VisionConfig};
 pub use filter::{Belief, PoseMeasurement};
 pub use flight::{plan_flight, Flight, SimError};
 pub use io::{
-    check_component, read_disturbances, read_trajectory, trajectory_csv, DisturbanceFileError, TrajectoryFileError,
-    TrajectoryPose, TrajectoryRow, DISTURBANCE_COLUMNS,
+    check_component, images_csv, read_disturbances, read_images, read_trajectory, trajectory_csv, DisturbanceFileError,
+    ImageLogError, TrajectoryFileError, TrajectoryPose, TrajectoryRow, DISTURBANCE_COLUMNS, IMAGE_COLUMNS,
 };
 pub use perception::{CalibratedWorld, ErrorModel, ErrorSample, ViewPose};
 pub use planner::{PlanError, PlannedPath, PlannerConfig};

@@ -6,7 +6,7 @@ use std::sync::Mutex;
 
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::dynamics::so3_log;
-use nerfsv_sim::{Disturbance, EstimatorKind, Simulator, World};
+use nerfsv_sim::{Disturbance, EstimatorKind, ImageUpdate, Simulator, World};
 
 use nerfsv_validation::{run_here, Finished, Job, Outcome, System, Trajectory, ValidationError};
 
@@ -29,62 +29,66 @@ pub struct DroneSystem<'a> {
     pub remote: Option<&'a dyn RemoteRollouts>,
 }
 
-/// The estimator's errors after its image updates, `[position (m), attitude (°)]` each, per
-/// rollout (by its seed), over the rollouts a system flew.
+/// The filter's log: its record of every camera image ([`ImageUpdate`]: the estimate's errors,
+/// the innovation, whether the gate took the image, relocalised or lost track), per rollout (by
+/// its seed), over the rollouts a system flew.
 ///
-/// A rollout's errors can be kept in a file ([`EstimateLog::save`]) and read back
+/// A rollout's log can be kept in a file ([`EstimateLog::save`], an image log CSV) and read back
 /// ([`EstimateLog::load`]) bit-identical, so a run that recalls rollouts from a journal instead
-/// of flying them still knows their errors.
+/// of flying them still knows their images.
 #[derive(Debug, Default)]
-pub struct EstimateLog(Mutex<BTreeMap<u64, Vec<[f64; 2]>>>);
+pub struct EstimateLog(Mutex<BTreeMap<u64, Vec<ImageUpdate>>>);
 
 impl EstimateLog {
-    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<u64, Vec<[f64; 2]>>> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<u64, Vec<ImageUpdate>>> {
         self.0.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Sets the errors of the rollout flown with `seed`.
-    pub fn insert(&self, seed: u64, errors: Vec<[f64; 2]>) {
-        self.lock().insert(seed, errors);
+    /// Sets the images of the rollout flown with `seed`.
+    pub fn insert(&self, seed: u64, images: Vec<ImageUpdate>) {
+        self.lock().insert(seed, images);
     }
 
-    /// The errors of the rollout flown with `seed` (none if it was not logged).
-    pub fn errors(&self, seed: u64) -> Vec<[f64; 2]> {
+    /// The images of the rollout flown with `seed` (none if it was not logged).
+    pub fn images(&self, seed: u64) -> Vec<ImageUpdate> {
         self.lock().get(&seed).cloned().unwrap_or_default()
     }
 
-    /// Every error recorded, sorted by position error (then attitude error), so the result does
+    /// Every image recorded, rollout by rollout in the order of their seeds, so the result does
     /// not depend on the order rollouts finished in.
-    pub fn sorted(&self) -> Vec<[f64; 2]> {
-        let mut v: Vec<[f64; 2]> = self.lock().values().flatten().copied().collect();
-        v.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
-        v
+    pub fn all(&self) -> Vec<ImageUpdate> {
+        self.lock().values().flatten().copied().collect()
     }
 
-    /// Writes the errors of the rollout `seed` to `path` (written atomically; one line
-    /// `position,attitude` each, nothing for a rollout not logged).
+    /// Writes the images of the rollout `seed` to `path` (an image log, written atomically;
+    /// only the header for a rollout not logged).
     pub fn save(&self, seed: u64, path: &Path) -> Result<(), ValidationError> {
-        let mut text = String::new();
-        for [p, a] in self.lock().get(&seed).into_iter().flatten() {
-            text.push_str(&format!("{p},{a}\n"));
-        }
+        let text = nerfsv_sim::images_csv(self.lock().get(&seed).map_or(&[], |v| v.as_slice()));
         nerfsv_scene::io::atomic_write_bytes(path, text.as_bytes()).map_err(|e| ValidationError::io(path, e))
     }
 
-    /// Reads a file [`EstimateLog::save`] wrote as the errors of the rollout `seed`.
+    /// Reads a file [`EstimateLog::save`] wrote as the images of the rollout `seed`.
     pub fn load(&self, seed: u64, path: &Path) -> Result<(), ValidationError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ValidationError::io(path, e))?;
-        let mut errors = Vec::new();
-        for (n, line) in text.lines().enumerate() {
-            let bad = || ValidationError::Csv {
-                path: path.into(),
-                line: n + 1,
-                message: format!("`{line}` is not `position,attitude`"),
-            };
-            let (p, a) = line.split_once(',').ok_or_else(bad)?;
-            errors.push([p.parse().map_err(|_| bad())?, a.parse().map_err(|_| bad())?]);
-        }
-        self.insert(seed, errors);
+        use nerfsv_sim::{ImageLogError as E, IMAGE_COLUMNS};
+        let images = nerfsv_sim::read_images(path).map_err(|e| match e {
+            E::Io { path, error } => ValidationError::io(&path, error),
+            E::Header { path } => ValidationError::Csv {
+                path,
+                line: 1,
+                message: format!("expected the header {}", IMAGE_COLUMNS.join(",")),
+            },
+            E::Columns { path, line, found } => ValidationError::Csv {
+                path,
+                line,
+                message: format!("expected {} columns, found {found}", IMAGE_COLUMNS.len()),
+            },
+            E::Value { path, line, column, found } => ValidationError::Csv {
+                path,
+                line,
+                message: format!("{column}: {found:?} is not a value of the column"),
+            },
+        })?;
+        self.insert(seed, images);
         Ok(())
     }
 }
@@ -124,9 +128,9 @@ impl System for DroneSystem<'_> {
             let &(_, seed) = jobs
                 .get(i)
                 .ok_or_else(|| ValidationError::Executor(format!("a result for job {i} of {}", jobs.len())))?;
-            let (outcome, errors) = decode_result(bytes)?;
+            let (outcome, images) = decode_result(bytes)?;
             if let Some(log) = self.estimate_log {
-                log.insert(seed, errors);
+                log.insert(seed, images);
             }
             finished(i, outcome)
         })
@@ -135,7 +139,7 @@ impl System for DroneSystem<'_> {
     fn run(&self, disturbances: &Trajectory, seed: u64) -> Outcome {
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
         if let Some(log) = self.estimate_log {
-            log.insert(seed, r.updates.iter().map(|u| [u.position_error_m, u.rotation_error_deg]).collect());
+            log.insert(seed, r.updates.clone());
         }
         let mut step_scores = vec![f64::NAN; self.sim.steps];
         // The substeps come in order: the last one of a step is its end, where the camera takes
@@ -181,25 +185,52 @@ impl System for DroneSystem<'_> {
 mod tests {
     use super::*;
 
+    fn image(step: usize, position_error_m: f64, nis: f64) -> ImageUpdate {
+        ImageUpdate {
+            step,
+            substep: 0,
+            time: 0.1 + 0.2 * step as f64,
+            predicted_position_error_m: 1.0 / 3.0,
+            predicted_rotation_error_deg: f64::MIN_POSITIVE,
+            position_error_m,
+            rotation_error_deg: 123456.789e-7,
+            nees: f64::MAX,
+            nis,
+            accepted: nis < 12.6,
+            relocalised: false,
+            lost: false,
+            variance_factor: 1.5,
+            position_spread_m: 0.02,
+            rotation_spread_deg: 0.5,
+            renders: 4,
+            photometric_rmse: 0.01,
+        }
+    }
+
     #[test]
-    fn estimate_errors_read_back_bit_identical_and_a_damaged_file_is_refused_by_line() {
+    fn image_logs_read_back_bit_identical_and_a_damaged_file_is_refused_by_line() {
         let dir = tempfile::tempdir().unwrap();
         let log = EstimateLog::default();
-        let errors = vec![[0.1 + 0.2, 1.0 / 3.0], [f64::MIN_POSITIVE, 123456.789e-7], [0.0, f64::MAX]];
-        log.insert(7, errors.clone());
+        let images = vec![image(0, 0.1 + 0.2, 3.0), image(1, 0.0, f64::INFINITY), image(2, 1e-9, f64::NAN)];
+        log.insert(7, images.clone());
         log.insert(8, Vec::new());
-        let (a, b) = (dir.path().join("7.estimates"), dir.path().join("8.estimates"));
+        let (a, b) = (dir.path().join("7.images.csv"), dir.path().join("8.images.csv"));
         log.save(7, &a).unwrap();
         log.save(8, &b).unwrap();
 
         let back = EstimateLog::default();
         back.load(7, &a).unwrap();
         back.load(8, &b).unwrap();
-        assert_eq!(back.sorted(), log.sorted());
-        assert_eq!(back.sorted().len(), errors.len());
+        let bits = |l: &[ImageUpdate]| -> Vec<u64> { l.iter().flat_map(|u| u.to_row()).map(f64::to_bits).collect() };
+        assert_eq!(bits(&back.all()), bits(&images));
+        assert!(back.images(8).is_empty() && back.images(9).is_empty());
 
-        std::fs::write(&a, "0.1,0.2\n0.3;0.4\n").unwrap();
+        let text = std::fs::read_to_string(&a).unwrap();
+        std::fs::write(&a, text.replacen(",4,", ",4.5,", 1)).unwrap();
         let e = back.load(7, &a).unwrap_err().to_string();
-        assert!(e.contains("7.estimates") && e.contains('2') && e.contains("0.3;0.4"), "{e}");
+        assert!(e.contains("7.images.csv: line 2: renders: \"4.5\""), "{e}");
+        std::fs::write(&a, "0.1,0.2\n").unwrap();
+        let e = back.load(7, &a).unwrap_err().to_string();
+        assert!(e.contains("7.images.csv: line 1: expected the header step,substep,"), "{e}");
     }
 }

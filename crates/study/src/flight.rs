@@ -358,9 +358,15 @@ pub fn estimate_error_png(png: &Path, what: &str) -> PathBuf {
     PathBuf::from(format!("{}_{what}_error.png", png.with_extension("").display()))
 }
 
+/// Where [`fly_and_write`] writes the vision estimator's image log (the filter's record of each
+/// image: [`nerfsv_sim::images_csv`]) for the trajectory file `csv`: beside it, `…_images.csv`.
+pub fn image_log_path(csv: &Path) -> PathBuf {
+    PathBuf::from(format!("{}_images.csv", csv.with_extension("").display()))
+}
+
 /// Flies one rollout and writes `trajectory.csv`-style and PNG outputs at the given paths; for
-/// the vision estimator also its error figures beside the PNG (`…_position_error.png`,
-/// `…_attitude_error.png`).
+/// the vision estimator also its image log beside the CSV ([`image_log_path`]) and its error
+/// figures beside the PNG (`…_position_error.png`, `…_attitude_error.png`).
 pub fn fly_and_write(
     mission: &Mission,
     sortie: &Sortie,
@@ -379,6 +385,9 @@ pub fn fly_and_write(
     .map_err(|e| StudyError::Internal(format!("plotting {}: {e}", png_path.display())))?;
     nerfsv_scene::io::atomic_write_bytes(png_path, &png).map_err(|e| StudyError::io(png_path, e))?;
     if estimator == EstimatorKind::Vision {
+        let path = image_log_path(csv_path);
+        nerfsv_scene::io::atomic_write_bytes(&path, nerfsv_sim::images_csv(&rollout.updates).as_bytes())
+            .map_err(|e| StudyError::io(&path, e))?;
         for (fig, what) in estimate_figures(world.kind(), &rollout).iter().zip(ESTIMATE_ERRORS) {
             let path = estimate_error_png(png_path, what);
             let png = nerfsv_plot::scatter_png(fig, 1000, 480)
@@ -391,7 +400,7 @@ pub fn fly_and_write(
 
 /// One flight into the folder `out`, made once the flight is planned and its worlds built (a
 /// request that is refused writes nothing): `trajectory.csv`, `trajectory.png` (and the vision
-/// estimator's error plots), `disturbances.csv` (replayable), `flight.json` (the figures) and
+/// estimator's image log `trajectory_images.csv` and error plots), `disturbances.csv` (replayable), `flight.json` (the figures) and
 /// `view.png` (what the drone's camera saw, animated: [`crate::flight_view`]). With `replay`, the
 /// same disturbances and seed flown in the other world too, into `out/replay/` (its trajectory,
 /// plots and `flight.json`), and `view.png` shows both worlds side by side. Returns the figures
@@ -462,7 +471,7 @@ pub struct Calibration {
     /// One per member of the ensemble, in order
     /// ([`crate::calibration::ErrorModels::members`]).
     pub models: Vec<nerfsv_sim::ErrorModel>,
-    /// Error functions per member ([`crate::calibration::PerceptionConfig::draws_per_member`]).
+    /// Error functions per member ([`crate::calibration::CalibrationConfig::draws_per_member`]).
     pub draws_per_member: usize,
     /// Seeds the draws (the validation seed: a rollout's world is a function of it and the
     /// rollout's own seed).

@@ -8,7 +8,7 @@
 //! here. Floats cross as their bits, so a distributed search writes the same bytes as a local
 //! one with the same seed.
 
-use nerfsv_sim::{EstimatorKind, WorldKind};
+use nerfsv_sim::{EstimatorKind, ImageUpdate, WorldKind, IMAGE_COLUMNS};
 use nerfsv_validation::{Job, Outcome, Trajectory, ValidationError};
 
 /// Which drone system a batch of jobs is for: the world it flies in and its estimator.
@@ -116,9 +116,9 @@ pub fn decode_job(bytes: &[u8]) -> Result<(Trajectory, u64), ValidationError> {
     Ok((x, seed))
 }
 
-/// What a rollout flown elsewhere returns: its outcome and the estimator's errors after each
-/// image update, `[position (m), attitude (°)]`.
-pub fn encode_result(outcome: &Outcome, errors: &[[f64; 2]]) -> Vec<u8> {
+/// What a rollout flown elsewhere returns: its outcome and the filter's record of each camera
+/// image ([`ImageUpdate::to_row`]'s numbers).
+pub fn encode_result(outcome: &Outcome, images: &[ImageUpdate]) -> Vec<u8> {
     let mut w = Writer::default();
     w.f64(outcome.score);
     w.option(outcome.collision_step);
@@ -127,12 +127,12 @@ pub fn encode_result(outcome: &Outcome, errors: &[[f64; 2]]) -> Vec<u8> {
     w.triples(&outcome.step_positions);
     w.triples(&outcome.step_attitudes);
     w.f64s(&outcome.step_uncertainty);
-    w.f64s(&errors.iter().flatten().copied().collect::<Vec<_>>());
+    w.f64s(&images.iter().flat_map(ImageUpdate::to_row).collect::<Vec<_>>());
     w.0
 }
 
 /// [`encode_result`]'s bytes back.
-pub fn decode_result(bytes: &[u8]) -> Result<(Outcome, Vec<[f64; 2]>), ValidationError> {
+pub fn decode_result(bytes: &[u8]) -> Result<(Outcome, Vec<ImageUpdate>), ValidationError> {
     let mut r = Reader(bytes);
     let score = r.f64()?;
     let collision_step = r.option()?;
@@ -148,10 +148,15 @@ pub fn decode_result(bytes: &[u8]) -> Result<(Outcome, Vec<[f64; 2]>), Validatio
     };
     let flat = r.f64s()?;
     r.end()?;
-    if flat.len() % 2 != 0 {
-        return Err(ValidationError::Executor("estimator errors come in pairs".into()));
+    let bad = || ValidationError::Executor(format!("image records come in rows of {}", IMAGE_COLUMNS.len()));
+    if flat.len() % IMAGE_COLUMNS.len() != 0 {
+        return Err(bad());
     }
-    Ok((outcome, flat.chunks_exact(2).map(|p| [p[0], p[1]]).collect()))
+    let images = flat
+        .chunks_exact(IMAGE_COLUMNS.len())
+        .map(|row| ImageUpdate::from_row(row.try_into().expect("a whole row")).map_err(|_| bad()))
+        .collect::<Result<_, _>>()?;
+    Ok((outcome, images))
 }
 
 #[cfg(test)]
@@ -179,10 +184,18 @@ mod tests {
             step_attitudes: vec![[0.1, -0.2, 1.0 / 3.0]],
             step_uncertainty: Vec::new(),
         };
-        let errors = vec![[0.001, 0.5], [1e-9, 7.25]];
-        let bytes = encode_result(&outcome, &errors);
-        let (o, e) = decode_result(&bytes).unwrap();
-        assert_eq!(e, errors);
+        // Two images: every column a value its field may hold (flags 0 or 1, counts whole).
+        let row = |k: f64| -> [f64; IMAGE_COLUMNS.len()] {
+            std::array::from_fn(|i| match i {
+                9..=11 => k,
+                0 | 1 | 15 => i as f64 + k,
+                _ => i as f64 / 3.0 + k,
+            })
+        };
+        let images: Vec<ImageUpdate> = [0.0, 1.0].map(|k| ImageUpdate::from_row(&row(k)).unwrap()).into();
+        let bytes = encode_result(&outcome, &images);
+        let (o, back) = decode_result(&bytes).unwrap();
+        assert_eq!(back, images);
         assert_eq!((o.score, o.collision_step, o.lost_step), (outcome.score, Some(3), None));
         assert_eq!(o.step_scores[2], f64::INFINITY);
         assert!(o.step_scores[1].is_nan() && o.step_positions[1][0].is_nan());

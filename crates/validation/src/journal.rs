@@ -132,8 +132,13 @@ impl Journal {
         nerfsv_scene::io::remove_stale_temporaries_in(dir);
         let mut done = HashMap::new();
         let entries = std::fs::read_dir(dir).map_err(|e| ValidationError::io(dir, e))?;
-        let mut files: Vec<PathBuf> =
-            entries.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "csv")).collect();
+        // The journal's own files, `SAMPLER-POPULATION-INDEX.csv`: not the files kept beside
+        // them (`….images.csv` among them).
+        let own = |p: &Path| {
+            p.extension().is_some_and(|x| x == "csv")
+                && p.file_stem().is_some_and(|s| !s.to_string_lossy().contains('.'))
+        };
+        let mut files: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| own(p)).collect();
         files.sort();
         for file in files {
             let mut records = read_csv_file(&file)?;
@@ -162,7 +167,8 @@ impl Journal {
     }
 
     /// Where a file kept beside the rollout (sampler, population, index) goes: its journal
-    /// file's name with `extension` (anything but `csv`, which is the journal's own).
+    /// file's name with `extension` (anything but `csv` alone, the journal's own: `images.csv` is
+    /// one).
     pub fn beside(&self, sampler: Label, population: usize, index: usize, extension: &str) -> PathBuf {
         Self::beside_in(&self.dir, sampler, population, index, extension)
     }

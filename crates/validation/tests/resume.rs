@@ -77,7 +77,13 @@ fn monte_carlo_and_replays_resume_too() {
     let journal = Journal::create(dir.path(), "k").unwrap();
     let dying = Dying { journal: &journal, written: AtomicUsize::new(0), limit: 20 };
     assert!(monte_carlo(&system, &prior, &cfg, 9, &dying).is_err());
-    let resumed = monte_carlo(&system, &prior, &cfg, 9, &Journal::resume(dir.path(), "k").unwrap()).unwrap();
+    // Files kept beside the rollouts, a CSV among them, are not journal entries.
+    for extension in ["images.csv", "estimates"] {
+        std::fs::write(journal.beside(Label::Mc, 0, 3, extension), "not,a,rollout\n").unwrap();
+    }
+    let journal = Journal::resume(dir.path(), "k").unwrap();
+    assert_eq!(journal.len(), 20);
+    let resumed = monte_carlo(&system, &prior, &cfg, 9, &journal).unwrap();
     assert_eq!(resumed, whole);
 
     let other = LinearToy::new(1.0);

@@ -414,7 +414,11 @@ impl TransferFigures {
     }
 }
 
-/// The distribution of the estimator's errors after its image updates in one world.
+/// χ²₆'s 95th percentile: a consistent filter's NIS exceeds it on 5 % of images.
+pub const NIS_CHI2_95: f64 = 12.591_587_243_743_977;
+
+/// The estimator's errors after its image updates in one world, and what its filter did with
+/// the images (the counts of the rollouts' image logs).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EstimateErrorFigures {
     pub world: WorldKind,
@@ -423,27 +427,55 @@ pub struct EstimateErrorFigures {
     pub p90_position_m: f64,
     pub median_attitude_deg: f64,
     pub p90_attitude_deg: f64,
+    /// Images whose normalised innovation squared exceeds χ²₆'s 95th percentile
+    /// ([`NIS_CHI2_95`]; 5 % of images for a consistent filter), relocalisations included.
+    #[serde(default)]
+    pub nis_above_chi2_95: usize,
+    /// The median NIS (NaN ones, an image whose fit failed, ranked above every other).
+    #[serde(default)]
+    pub median_nis: f64,
+    /// Images the innovation gate refused (a lost fit not counted).
+    #[serde(default)]
+    pub refused_by_gate: usize,
+    /// Images whose fit explained too little of the image, refused whatever the innovation.
+    #[serde(default)]
+    pub lost: usize,
+    /// Images at which the estimator relocalised (a wide search after refusals in a row).
+    #[serde(default)]
+    pub relocalised: usize,
+    /// The estimator's renders per image.
+    #[serde(default)]
+    pub mean_renders: f64,
 }
 
 impl EstimateErrorFigures {
-    /// From `[position (m), attitude (°)]` errors; none without errors.
-    pub fn new(world: WorldKind, errors: &[[f64; 2]]) -> Option<Self> {
-        if errors.is_empty() {
+    /// From the filter's record of each image; none without images.
+    pub fn new(world: WorldKind, images: &[nerfsv_sim::ImageUpdate]) -> Option<Self> {
+        if images.is_empty() {
             return None;
         }
         // Each column sorted once for both of its quantiles.
-        let [position, attitude] = [0, 1].map(|i| {
-            let mut v: Vec<f64> = errors.iter().map(|e| e[i]).collect();
+        let sorted = |f: fn(&nerfsv_sim::ImageUpdate) -> f64| {
+            let mut v: Vec<f64> = images.iter().map(f).collect();
             v.sort_by(f64::total_cmp);
             v
-        });
+        };
+        let (position, attitude) = (sorted(|u| u.position_error_m), sorted(|u| u.rotation_error_deg));
+        let nis = sorted(|u| if u.nis.is_nan() { f64::INFINITY } else { u.nis });
+        let count = |f: fn(&nerfsv_sim::ImageUpdate) -> bool| images.iter().filter(|u| f(u)).count();
         Some(Self {
             world,
-            images: errors.len(),
+            images: images.len(),
             median_position_m: quantile_sorted(&position, 0.5),
             p90_position_m: quantile_sorted(&position, 0.9),
             median_attitude_deg: quantile_sorted(&attitude, 0.5),
             p90_attitude_deg: quantile_sorted(&attitude, 0.9),
+            nis_above_chi2_95: nis.iter().filter(|&&v| v > NIS_CHI2_95).count(),
+            median_nis: quantile_sorted(&nis, 0.5),
+            refused_by_gate: count(|u| !u.accepted && !u.lost),
+            lost: count(|u| u.lost),
+            relocalised: count(|u| u.relocalised),
+            mean_renders: images.iter().map(|u| u.renders as f64).sum::<f64>() / images.len() as f64,
         })
     }
 }
@@ -470,17 +502,46 @@ impl StressFigures {
 mod tests {
     use super::*;
 
+    /// An image with these errors and NIS, taken by the gate unless `refused`.
+    fn image(position_error_m: f64, rotation_error_deg: f64, nis: f64, refused: bool) -> nerfsv_sim::ImageUpdate {
+        let mut row = [0.0; nerfsv_sim::IMAGE_COLUMNS.len()];
+        (row[5], row[6], row[8], row[9], row[15]) =
+            (position_error_m, rotation_error_deg, nis, f64::from(u8::from(!refused)), 3.0);
+        nerfsv_sim::ImageUpdate::from_row(&row).unwrap()
+    }
+
     #[test]
     fn estimate_error_figures_are_the_interpolated_quantiles_of_each_column() {
         // Position 1..=5 m in shuffled order, attitude ten times it: the median is the middle
         // value, the 90th percentile lies 0.6 of the way from the 4th to the 5th (h = 4 · 0.9).
         let errors = [[3.0, 30.0], [5.0, 50.0], [1.0, 10.0], [4.0, 40.0], [2.0, 20.0]];
-        let f = EstimateErrorFigures::new(WorldKind::Gt, &errors).unwrap();
+        let images: Vec<_> = errors.iter().map(|e| image(e[0], e[1], 1.0, false)).collect();
+        let f = EstimateErrorFigures::new(WorldKind::Gt, &images).unwrap();
         assert_eq!((f.images, f.median_position_m, f.median_attitude_deg), (5, 3.0, 30.0));
         assert!((f.p90_position_m - 4.6).abs() < 1e-12 && (f.p90_attitude_deg - 46.0).abs() < 1e-12, "{f:?}");
         // The columns are ranked apart: a large position error beside a small attitude one.
-        let f = EstimateErrorFigures::new(WorldKind::Nerf, &[[9.0, 1.0], [1.0, 9.0], [2.0, 2.0]]).unwrap();
+        let images: Vec<_> =
+            [[9.0, 1.0], [1.0, 9.0], [2.0, 2.0]].iter().map(|e| image(e[0], e[1], 1.0, false)).collect();
+        let f = EstimateErrorFigures::new(WorldKind::Nerf, &images).unwrap();
         assert_eq!((f.median_position_m, f.median_attitude_deg), (2.0, 2.0));
         assert!(EstimateErrorFigures::new(WorldKind::Gt, &[]).is_none());
+    }
+
+    #[test]
+    fn the_filters_counts_are_those_of_its_image_records() {
+        // NIS 1, 13 (above χ²₆'s 95 %, taken), 30 (refused by the gate), NaN (a failed fit: ranked
+        // above all), and one lost fit with NIS 2.
+        let mut images = vec![
+            image(0.0, 0.0, 1.0, false),
+            image(0.0, 0.0, 13.0, false),
+            image(0.0, 0.0, 30.0, true),
+            image(0.0, 0.0, f64::NAN, true),
+            image(0.0, 0.0, 2.0, true),
+        ];
+        images[4].lost = true;
+        images[2].relocalised = true;
+        let f = EstimateErrorFigures::new(WorldKind::Gt, &images).unwrap();
+        assert_eq!((f.nis_above_chi2_95, f.refused_by_gate, f.lost, f.relocalised), (3, 2, 1, 1));
+        assert_eq!((f.median_nis, f.mean_renders), (13.0, 3.0));
     }
 }

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use nerfsv_sim::{World, WorldKind};
+use nerfsv_sim::{ImageUpdate, World, WorldKind};
 use nerfsv_validation::RolloutRecord;
 use nerfsv_validation::{Agreement, Sampler};
 
@@ -19,8 +19,8 @@ pub const ESTIMATE_ERRORS_PNG: &str = "estimate_errors.png";
 /// Histograms of the estimator's position errors after its image updates, one panel per world,
 /// up to the 99th percentile of all of them (the rest, a crashed rollout's last images, would
 /// squeeze the bulk into one bar; the title says how many are left out).
-pub(super) fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<Vec<u8>, StudyError> {
-    let mut all: Vec<f64> = logs.iter().flat_map(|(_, e)| e.iter().map(|e| 1e3 * e[0])).collect();
+pub(super) fn estimate_error_png(logs: &[(WorldKind, Vec<ImageUpdate>)]) -> Result<Vec<u8>, StudyError> {
+    let mut all: Vec<f64> = logs.iter().flat_map(|(_, e)| e.iter().map(|e| 1e3 * e.position_error_m)).collect();
     all.sort_by(f64::total_cmp);
     let cut = if all.is_empty() { f64::INFINITY } else { nerfsv_scene::stats::quantile_sorted(&all, 0.99) };
     let left_out = all.iter().filter(|&&v| v > cut).count();
@@ -28,7 +28,7 @@ pub(super) fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<
         .iter()
         .map(|(w, e)| nerfsv_plot::Group {
             label: format!("{}-sim", w.name()),
-            values: e.iter().map(|e| 1e3 * e[0]).filter(|&v| v <= cut).collect(),
+            values: e.iter().map(|e| 1e3 * e.position_error_m).filter(|&v| v <= cut).collect(),
         })
         .collect();
     let fig = nerfsv_plot::HistogramFigure {
@@ -44,14 +44,14 @@ pub(super) fn estimate_error_png(logs: &[(WorldKind, Vec<[f64; 2]>)]) -> Result<
     nerfsv_plot::histograms_png(&fig, 1100, 560).map_err(|e| StudyError::Internal(format!("plotting: {e}")))
 }
 
-/// The estimator's errors of each world's log (worlds without any left out): their figures,
+/// The estimator's errors and the filter's counts of each world's log (worlds without any left out): their figures,
 /// and their histograms in [`ESTIMATE_ERRORS_PNG`] under `out` when there are any.
 pub(super) fn write_estimate_errors(
     out: &Path,
     logs: [(WorldKind, &EstimateLog); 2],
 ) -> Result<Vec<EstimateErrorFigures>, StudyError> {
-    let logs: Vec<(WorldKind, Vec<[f64; 2]>)> =
-        logs.into_iter().map(|(w, log)| (w, log.sorted())).filter(|(_, e)| !e.is_empty()).collect();
+    let logs: Vec<(WorldKind, Vec<ImageUpdate>)> =
+        logs.into_iter().map(|(w, log)| (w, log.all())).filter(|(_, e)| !e.is_empty()).collect();
     if !logs.is_empty() {
         let path = out.join(ESTIMATE_ERRORS_PNG);
         nerfsv_scene::io::atomic_write_bytes(&path, &estimate_error_png(&logs)?)

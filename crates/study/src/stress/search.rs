@@ -31,8 +31,8 @@ pub(super) struct Estimate {
     pub(super) effective_failures: f64,
 }
 
-/// Extension of the files that keep a journalled rollout's estimator errors.
-pub(super) const ESTIMATES_EXTENSION: &str = "estimates";
+/// Extension of the files that keep a journalled rollout's image log (the filter's record of each image).
+pub(super) const ESTIMATES_EXTENSION: &str = "images.csv";
 
 /// Counts finished rollouts for progress, passing everything to the journal.
 pub(super) struct Counting<'a> {

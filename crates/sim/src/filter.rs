@@ -27,7 +27,8 @@
 //! which the prior-shrunk fit `Δ` satisfies `(P_pp⁻¹ + Λ)·Δ = Λ·z` with) by its normalised
 //! innovation squared `zᵀ·(P_pp + R)⁻¹·z`, `R = Λ⁻¹/w + M` the measurement's covariance: χ²(6)
 //! when the filter is consistent (tested on a linear-Gaussian case), so the gate's quantile is
-//! its refusal rate. A refused image leaves the belief as it was; the estimator counts the
+//! its refusal rate. It is computed without `Λ⁻¹`, so an image blind along some pose direction
+//! (no texture there, or nothing in view at all) is judged on the others alone. A refused image leaves the belief as it was; the estimator counts the
 //! refusals in a row ([`Belief::refused_in_a_row`]) and relocalises after a few
 //! ([`Belief::widen_pose`], then a wide search).
 
@@ -180,12 +181,7 @@ impl Belief {
         let p_pp_inv = inverse_spd(&p_pp);
         let fitted = pose_difference(&fit.position, &fit.rotation, &self.mean);
         let w = fit.weight.max(f64::MIN_POSITIVE);
-        // The image's optimum z from the fit's (P_pp⁻¹ + Λ)·Δ = Λ·z, and its covariance about the
-        // truth, R = Λ⁻¹/w + M; z − 0 against the prediction has covariance P_pp + R.
-        let lambda_inv = inverse_spd(&fit.information);
-        let z = fitted + lambda_inv * (p_pp_inv * fitted);
-        let r = lambda_inv / w + fit.model_covariance;
-        let nis = z.dot(&(inverse_spd(&(p_pp + r)) * z));
+        let nis = normalised_innovation(&p_pp, &p_pp_inv, fit, w, &fitted);
         if nis.is_nan() || nis > gate {
             self.refused_in_a_row += 1;
             return PoseUpdate { nis, accepted: false };
@@ -241,6 +237,35 @@ fn symmetric<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
 
 /// The inverse of a symmetric positive-definite matrix (Cholesky); a matrix that is not gets
 /// a tiny diagonal jitter first, so the filter never divides by zero.
+/// The image's normalised innovation squared `zᵀ·(P_pp + R)⁻¹·z`: `z` the image's optimum relative
+/// to the prediction (the fit's `(P_pp⁻¹ + Λ)·Δ = Λ·z`), `R = Λ⁻¹/w + M` its covariance about the
+/// truth. Computed in the information form, which needs no `Λ⁻¹`: with `y = Λ·z = (P_pp⁻¹ + Λ)·Δ`,
+/// `Λ·(P_pp + R)·Λ = Λ·(P_pp + M)·Λ + Λ/w`, so the NIS is `yᵀ·(Λ·(P_pp + M)·Λ + Λ/w)⁺·y`. The
+/// pseudo-inverse leaves out the directions the image says nothing about (`Λ` singular: a view
+/// without texture along them, or of nothing at all), where `z` is undefined and the image is
+/// neither evidence for nor against the prediction; with `Λ` = 0 the NIS is 0.
+fn normalised_innovation(
+    p_pp: &Matrix6<f64>,
+    p_pp_inv: &Matrix6<f64>,
+    fit: &PoseMeasurement,
+    w: f64,
+    fitted: &Vector6<f64>,
+) -> f64 {
+    let lambda = symmetric(&fit.information);
+    let y = (p_pp_inv + lambda) * fitted;
+    let s = symmetric(&(lambda * (p_pp + fit.model_covariance) * lambda + lambda / w));
+    if !s.iter().all(|v| v.is_finite()) || !y.iter().all(|v| v.is_finite()) {
+        return f64::NAN;
+    }
+    let eigen = s.symmetric_eigen();
+    let largest = eigen.eigenvalues.iter().fold(0.0, |a: f64, &l| a.max(l));
+    let floor = largest * 1e-12;
+    (0..6)
+        .filter(|&i| eigen.eigenvalues[i] > floor)
+        .map(|i| eigen.eigenvectors.column(i).dot(&y).powi(2) / eigen.eigenvalues[i])
+        .sum()
+}
+
 fn inverse_spd<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     let mut a = symmetric(m);
     let scale = (0..N).map(|i| a[(i, i)].abs()).fold(0.0, f64::max).max(1e-300);
@@ -342,6 +367,30 @@ mod tests {
             ..PoseMeasurement::exact(mean.position + Vector3::new(0.2, 0.0, 0.0), mean.rotation, info)
         };
         assert!(c.update_pose(&loose, 22.46).accepted);
+    }
+
+    /// An image blind along some pose directions (`Λ` singular) is judged on the others: its NIS
+    /// is the innovation of the directions it sees; an image that sees nothing has NIS 0 and
+    /// leaves the belief as it was.
+    #[test]
+    fn an_image_blind_along_some_directions_is_judged_on_the_others() {
+        let mean = State::at_rest(Vector3::new(0.3, 0.1, 0.2), 0.4);
+        let std = [0.02, 0.02, 0.02, 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.01, 0.01, 0.01];
+        // Position only, 1e4 per m² (1 cm standard deviation), the fit 1 cm off along x: z = y/λ
+        // with y = (1/σ² + λ)·Δ, so z = 1.25 cm against σ² + 1/λ = (2.24 cm)², NIS 0.3125.
+        let info = Matrix6::from_diagonal(&Vector6::new(1e4, 1e4, 1e4, 0.0, 0.0, 0.0));
+        let mut b = Belief::new(mean, &std);
+        let u = b.update_pose(
+            &PoseMeasurement::exact(mean.position + Vector3::new(0.01, 0.0, 0.0), mean.rotation, info),
+            22.46,
+        );
+        assert!(u.accepted && (u.nis - 0.3125).abs() < 1e-9, "{u:?}");
+        // Nothing in view: no information, NIS 0, the belief unchanged.
+        let mut b = Belief::new(mean, &std);
+        let before = b;
+        let u = b.update_pose(&PoseMeasurement::exact(mean.position, mean.rotation, Matrix6::zeros()), 22.46);
+        assert!(u.accepted && u.nis == 0.0, "{u:?}");
+        assert_eq!((b.mean, b.covariance), (before.mean, before.covariance));
     }
 
     /// Standard normal draws by Box–Muller.

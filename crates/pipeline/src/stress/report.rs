@@ -354,8 +354,8 @@ fn estimator_errors_and_failures(s: &mut Section, f: &StressFigures) {
              share whose normalised innovation squared (NIS) exceeds χ²₆'s 95th percentile (5 % for a filter whose \
              covariance is right; more means it is overconfident, fewer that it is too cautious), the images the \
              innovation gate refused, the fits lost (too little of the image explained), the relocalisations, and \
-             the renders each image's fit took. Each rollout's image log is beside its journal entry \
-             (`*.images.csv`).",
+             the renders each image's fit took. Each rollout's image log lies beside its journal entry \
+             (stress/journal/, the files ending in .images.csv).",
         );
         s.table(
             Table::new(&[

@@ -196,7 +196,7 @@ fn monte_carlo(study: &Study) {
         );
         if !updates.is_empty() {
             // A consistent filter's NIS exceeds χ²₆'s 95th percentile on 5 % of images.
-            let above = updates.iter().filter(|u| u.nis.is_nan() || u.nis > nerfsv_study::stress::NIS_CHI2_95).count();
+            let above = updates.iter().filter(|u| u.nis.is_nan() || u.nis > nerfsv_sim::filter::NIS_CHI2_95).count();
             let mut nis: Vec<f64> =
                 updates.iter().map(|u| if u.nis.is_nan() { f64::INFINITY } else { u.nis }).collect();
             println!(

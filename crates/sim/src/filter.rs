@@ -28,13 +28,18 @@
 //! innovation squared `zᵀ·(P_pp + R)⁻¹·z`, `R = Λ⁻¹/w + M` the measurement's covariance: χ²(6)
 //! when the filter is consistent (tested on a linear-Gaussian case), so the gate's quantile is
 //! its refusal rate. It is computed without `Λ⁻¹`, so an image blind along some pose direction
-//! (no texture there, or nothing in view at all) is judged on the others alone. A refused image leaves the belief as it was; the estimator counts the
-//! refusals in a row ([`Belief::refused_in_a_row`]) and relocalises after a few
-//! ([`Belief::widen_pose`], then a wide search).
+//! (no texture there, or nothing in view at all) is judged on the others alone. A refused image
+//! leaves the belief as it was; the estimator counts the refusals in a row
+//! ([`Belief::refused_in_a_row`]) and relocalises after a few ([`Belief::widen_pose`], then a
+//! wide search).
 
 use nalgebra::{Matrix3, Matrix6, SMatrix, SVector, Vector3, Vector6};
 
 use crate::dynamics::{reorthonormalise, so3_exp, so3_log, step, Action, DroneParams, State};
+
+/// χ²₆'s 95th percentile: a consistent filter's NIS ([`PoseUpdate::nis`]) exceeds it on 5 % of
+/// images.
+pub const NIS_CHI2_95: f64 = 12.591_587_243_743_977;
 
 /// The error state's dimension.
 pub const DIM: usize = 12;
@@ -235,8 +240,6 @@ fn symmetric<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     (m + m.transpose()) * 0.5
 }
 
-/// The inverse of a symmetric positive-definite matrix (Cholesky); a matrix that is not gets
-/// a tiny diagonal jitter first, so the filter never divides by zero.
 /// The image's normalised innovation squared `zᵀ·(P_pp + R)⁻¹·z`: `z` the image's optimum relative
 /// to the prediction (the fit's `(P_pp⁻¹ + Λ)·Δ = Λ·z`), `R = Λ⁻¹/w + M` its covariance about the
 /// truth. Computed in the information form, which needs no `Λ⁻¹`: with `y = Λ·z = (P_pp⁻¹ + Λ)·Δ`,
@@ -266,6 +269,8 @@ fn normalised_innovation(
         .sum()
 }
 
+/// The inverse of a symmetric positive-definite matrix (Cholesky); a matrix that is not gets
+/// a tiny diagonal jitter first, so the filter never divides by zero.
 fn inverse_spd<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     let mut a = symmetric(m);
     let scale = (0..N).map(|i| a[(i, i)].abs()).fold(0.0, f64::max).max(1e-300);
@@ -418,7 +423,6 @@ mod tests {
         let mean = State::at_rest(Vector3::new(0.1, -0.2, 0.3), 0.0);
         let p_pp = Matrix6::from_fn(|i, j| p[(POSE[i], POSE[j])]);
         let p_pp_inv = p_pp.try_inverse().unwrap();
-        const Q95: f64 = 12.591_587_243_743_977;
         let (n, mut refused, mut old_refused) = (10_000, 0, 0);
         for _ in 0..n {
             let e = p_chol * normals::<DIM>(&mut rng);
@@ -435,8 +439,8 @@ mod tests {
                 )
             };
             let mut b = Belief { mean, covariance: p, refused_in_a_row: 0 };
-            refused += usize::from(!b.update_pose(&fit, Q95).accepted);
-            old_refused += usize::from(y.dot(&(p_pp_inv * y)) > Q95);
+            refused += usize::from(!b.update_pose(&fit, NIS_CHI2_95).accepted);
+            old_refused += usize::from(y.dot(&(p_pp_inv * y)) > NIS_CHI2_95);
         }
         // Wilson's 99.9 % interval around 5 % of 10⁴: ±3.29·√(0.05·0.95/10⁴) ≈ ±0.72 %.
         let half = 3.29 * (0.05f64 * 0.95 / n as f64).sqrt();

@@ -2,6 +2,7 @@
 //! the transfer between worlds and the estimator's errors.
 
 use nerfsv_scene::stats::quantile_sorted;
+use nerfsv_sim::filter::NIS_CHI2_95;
 use nerfsv_sim::{EstimatorKind, NerfWorldSource, WorldKind};
 use nerfsv_uq::Method;
 use nerfsv_validation::Sampler;
@@ -413,9 +414,6 @@ impl TransferFigures {
         self
     }
 }
-
-/// χ²₆'s 95th percentile: a consistent filter's NIS exceeds it on 5 % of images.
-pub const NIS_CHI2_95: f64 = 12.591_587_243_743_977;
 
 /// The estimator's errors after its image updates in one world, and what its filter did with
 /// the images (the counts of the rollouts' image logs).

@@ -32,7 +32,7 @@ pub(super) struct Estimate {
 }
 
 /// Extension of the files that keep a journalled rollout's image log (the filter's record of each image).
-pub(super) const ESTIMATES_EXTENSION: &str = "images.csv";
+pub(super) const IMAGE_LOG_EXTENSION: &str = "images.csv";
 
 /// Counts finished rollouts for progress, passing everything to the journal.
 pub(super) struct Counting<'a> {
@@ -53,7 +53,7 @@ impl Counting<'_> {
     fn flown_before(&self, s: Label, p: usize, i: usize) -> Option<RolloutRecord> {
         let flown = self.flown?;
         let r = flown.records.iter().find(|r| r.sampler == s && r.population == p && r.index == i)?;
-        let beside = Journal::beside_in(flown.journal, s, p, i, ESTIMATES_EXTENSION);
+        let beside = Journal::beside_in(flown.journal, s, p, i, IMAGE_LOG_EXTENSION);
         self.estimates.load(r.seed, &beside).is_ok().then(|| r.clone())
     }
 }
@@ -66,7 +66,7 @@ impl Recorder for Counting<'_> {
         let r = self
             .journal
             .recall(s, p, i)
-            .filter(|r| self.estimates.load(r.seed, &self.journal.beside(s, p, i, ESTIMATES_EXTENSION)).is_ok())
+            .filter(|r| self.estimates.load(r.seed, &self.journal.beside(s, p, i, IMAGE_LOG_EXTENSION)).is_ok())
             .or_else(|| self.flown_before(s, p, i));
         if r.is_some() {
             self.done.fetch_add(1, Ordering::Relaxed);
@@ -75,7 +75,7 @@ impl Recorder for Counting<'_> {
     }
 
     fn record(&self, r: &RolloutRecord) -> Result<(), ValidationError> {
-        let beside = self.journal.beside(r.sampler, r.population, r.index, ESTIMATES_EXTENSION);
+        let beside = self.journal.beside(r.sampler, r.population, r.index, IMAGE_LOG_EXTENSION);
         self.estimates.save(r.seed, &beside)?;
         self.journal.record(r)?;
         self.fresh.fetch_add(1, Ordering::Relaxed);

@@ -14,15 +14,15 @@
 
 use std::path::PathBuf;
 
-use nerfsv_pipeline::stages::{CollisionStage, NerfCollisionStage, NerfStage};
-use nerfsv_pipeline::{RunConfig, Stage};
+use nerfsv_pipeline::flight::flight_inputs;
+use nerfsv_pipeline::RunConfig;
 use nerfsv_scene::stats::quantile_sorted;
 use nerfsv_scene::Scene;
 use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::dynamics::so3_exp;
 use nerfsv_sim::world::pixel_rays;
 use nerfsv_sim::WorldKind;
-use nerfsv_study::flight::{world, FlightInputs};
+use nerfsv_study::flight::world;
 use nerfsv_study::online_pixels;
 use nerfsv_uq::ga_image;
 use nerfsv_validation::{read_csv_file, Label};
@@ -46,11 +46,7 @@ fn main() -> anyhow::Result<()> {
     let config = run.join("report/config.toml");
     let cfg = if config.is_file() { RunConfig::load(&config)? } else { RunConfig::default() };
     let scene = Scene::builtin(&cfg.scene)?;
-    let inputs = FlightInputs::load(
-        &NerfStage::checkpoint(&run),
-        &run.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
-        Some(&CollisionStage::sdf_path(&run)),
-    )?;
+    let inputs = flight_inputs(&run, true)?;
     let flight = inputs.plan(&cfg.sim)?;
     let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
     let gt = world(WorldKind::Gt, &inputs, Some(&scene), cfg.dataset.render_settings())?;

@@ -35,11 +35,11 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use nerfsv_pipeline::stages::{CollisionStage, NerfCollisionStage, NerfStage};
-use nerfsv_pipeline::{RunConfig, Stage};
+use nerfsv_pipeline::flight::flight_inputs;
+use nerfsv_pipeline::RunConfig;
 use nerfsv_scene::Scene;
 use nerfsv_sim::{EstimatorKind, WorldKind};
-use nerfsv_study::flight::{world, FlightInputs};
+use nerfsv_study::flight::world;
 use nerfsv_study::DroneSystem;
 use nerfsv_validation::{
     rollout_seed, subset_simulation, wilson_interval, Prior, SubsetConfig, SubsetEstimate, System,
@@ -99,11 +99,7 @@ fn main() -> anyhow::Result<()> {
     let verbose = std::env::var("VERBOSE").is_ok_and(|v| v == "1");
     let cfg = RunConfig { out: Some(out.clone()), ..RunConfig::default() };
     let scene = Scene::builtin(&cfg.scene)?;
-    let inputs = FlightInputs::load(
-        &NerfStage::checkpoint(&out),
-        &out.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
-        Some(&CollisionStage::sdf_path(&out)),
-    )?;
+    let inputs = flight_inputs(&out, true)?;
     let flight = inputs.plan(&cfg.sim)?;
     let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
     let gt = world(WorldKind::Gt, &inputs, Some(&scene), cfg.dataset.render_settings())?;

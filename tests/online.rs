@@ -97,15 +97,12 @@ fn a_rewarded_cem_takes_its_first_population_and_its_replays_from_rollouts_flown
         online: Some(OnlineSettings { method: Method::Ga, mode: UqMode::Exact, reward }),
         ..StressSetup::new(drone, &cfg.stress, &prior, &[Sampler::Cem], &cfg.uq)
     };
-    // The journal's rollout files (`SAMPLER-POPULATION-INDEX.csv`; each rollout's image log
-    // beside it, `….images.csv`, not counted).
+    // The journal's rollout files (each rollout's image log beside it, `….images.csv`, not
+    // counted).
     let csv_files = |journal: &std::path::Path| {
-        let names: Vec<String> = std::fs::read_dir(journal)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        let logs = names.iter().filter(|n| n.ends_with(".images.csv")).count();
-        let rollouts = names.iter().filter(|n| n.ends_with(".csv")).count() - logs;
+        let paths: Vec<_> = std::fs::read_dir(journal).unwrap().map(|e| e.unwrap().path()).collect();
+        let logs = paths.iter().filter(|p| p.to_string_lossy().ends_with(".images.csv")).count();
+        let rollouts = paths.iter().filter(|p| nerfsv_validation::Journal::is_entry(p)).count();
         assert_eq!(logs, rollouts, "an image log beside each rollout");
         rollouts
     };

@@ -176,14 +176,10 @@ fn a_killed_stress_run_resumes_without_reflying_and_ends_with_the_uninterrupted_
         .unwrap();
     let journal = killed.join("journal/nerf");
     let start = Instant::now();
-    // The journal's rollout files, not the image logs beside them (`….images.csv`).
+    // The journal's rollout files, not the image logs beside them.
     let flown = || {
-        std::fs::read_dir(&journal).map_or(0, |d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .filter(|n| n.ends_with(".csv") && !n.ends_with(".images.csv"))
-                .count()
-        })
+        std::fs::read_dir(&journal)
+            .map_or(0, |d| d.flatten().filter(|e| nerfsv_validation::Journal::is_entry(&e.path())).count())
     };
     while flown() < 5 {
         assert!(child.try_wait().unwrap().is_none(), "the run finished before it could be killed");

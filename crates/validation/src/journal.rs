@@ -132,13 +132,7 @@ impl Journal {
         nerfsv_scene::io::remove_stale_temporaries_in(dir);
         let mut done = HashMap::new();
         let entries = std::fs::read_dir(dir).map_err(|e| ValidationError::io(dir, e))?;
-        // The journal's own files, `SAMPLER-POPULATION-INDEX.csv`: not the files kept beside
-        // them (`….images.csv` among them).
-        let own = |p: &Path| {
-            p.extension().is_some_and(|x| x == "csv")
-                && p.file_stem().is_some_and(|s| !s.to_string_lossy().contains('.'))
-        };
-        let mut files: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| own(p)).collect();
+        let mut files: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| Self::is_entry(p)).collect();
         files.sort();
         for file in files {
             let mut records = read_csv_file(&file)?;
@@ -164,6 +158,13 @@ impl Journal {
         } else {
             Self::create(dir, key)
         }
+    }
+
+    /// Whether `path` is one of a journal's own rollout files, `SAMPLER-POPULATION-INDEX.csv`,
+    /// not a file kept beside one ([`Journal::beside`]: `….images.csv` among them).
+    pub fn is_entry(path: &Path) -> bool {
+        path.extension().is_some_and(|x| x == "csv")
+            && path.file_stem().is_some_and(|s| !s.to_string_lossy().contains('.'))
     }
 
     /// Where a file kept beside the rollout (sampler, population, index) goes: its journal

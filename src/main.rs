@@ -37,7 +37,8 @@ enum Command {
     /// Run the whole pipeline into a run folder (default config: the embedded Stonehenge scene).
     Run(commands::run::RunArgs),
     /// Run the study with several training seeds (dataset, ground truth and disturbances shared)
-    /// and write each headline's mean ± standard deviation beside every seed's value.
+    /// or disturbance seeds (models shared) and write each headline's mean ± standard deviation
+    /// beside every seed's value, and NeRF-sim's comparison with GT-sim over all runs' rollouts.
     Replicate(commands::replicate::ReplicateArgs),
     /// Print the default run config as TOML, every key with its documentation
     /// (`nerfsv config --default > my.toml`, then `nerfsv run my.toml`).

@@ -52,3 +52,56 @@ fn replicate_with_two_seeds_writes_both_rows_and_the_spread() {
     let page = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(page.contains("test PSNR (dB)") && page.contains("seed 16"), "{page}");
 }
+
+/// Replicated over disturbance seeds, every run takes the first's models (so every figure of
+/// training is the same) and flies other disturbances; the worlds' comparisons are pooled over
+/// the runs' rollouts.
+#[test]
+fn replicate_over_disturbance_seeds_shares_the_models_and_pools_the_transfer() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path());
+    let out = dir.path().join("replicate");
+    let (ok, _, err) = nerfsv(&[
+        "replicate",
+        s(&cfg),
+        "--seeds",
+        "2",
+        "--vary",
+        "disturbances",
+        "--out",
+        s(&out),
+        "--set",
+        "stress.seed=5",
+    ]);
+    assert!(ok, "{err}");
+    for seed in [5, 6] {
+        assert!(out.join(format!("stress_seed_{seed}/summary.json")).exists(), "{seed}: {err}");
+    }
+    for stage in ["nerf", "ensemble"] {
+        assert!(err.contains(&format!("{stage}: up to date")), "the second run must take the first's {stage}: {err}");
+    }
+    let csv = std::fs::read_to_string(out.join("replicate.csv")).unwrap();
+    assert!(csv.starts_with("row,stress_seed,") && csv.contains("\nseed,5,") && csv.contains("\nseed,6,"), "{csv}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("replicate.json")).unwrap()).unwrap();
+    assert_eq!(json["varied"], "disturbances");
+    assert_eq!(json["headlines"][0]["sd"].as_f64(), Some(0.0), "the same model in both runs: {json:#}");
+    // Each run's comparison, summed: the pooled counts are the runs' counts together.
+    let run = |seed: u64| -> serde_json::Value {
+        let text = std::fs::read_to_string(out.join(format!("stress_seed_{seed}/summary.json"))).unwrap();
+        serde_json::from_str(&text).unwrap()
+    };
+    let pooled = json["pooled"].as_array().unwrap();
+    assert!(!pooled.is_empty(), "{json:#}");
+    for p in pooled {
+        let world = p["world"].as_str().unwrap();
+        assert_eq!(p["runs"], 2, "{world}");
+        for cell in ["true_positive", "false_positive", "false_negative", "true_negative"] {
+            let each: u64 =
+                [5, 6].iter().map(|&s| run(s)["stress"]["transfer"][world]["confusion"][cell].as_u64().unwrap()).sum();
+            assert_eq!(p["transfer"]["confusion"][cell].as_u64(), Some(each), "{world} {cell}");
+        }
+    }
+    let page = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(page.contains("disturbance seeds") && page.contains("all runs' rollouts together"), "{page}");
+}

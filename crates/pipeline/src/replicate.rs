@@ -1,16 +1,20 @@
-//! The study replicated over training seeds: the same config run `N` times, each time with
-//! another seed for the NeRF's training (and so for its ensemble), into `OUT/seed_S/`, and the
-//! headline figures of every run side by side with their mean and standard deviation
-//! (`OUT/replicate.csv`, `OUT/replicate.json`, `OUT/index.html`).
+//! The study replicated over seeds: the same config run `N` times, each time with another seed
+//! for one source of randomness ([`Varied`]), and the headline figures of every run side by side
+//! with their mean and standard deviation (`OUT/replicate.csv`, `OUT/replicate.json`,
+//! `OUT/index.html`).
 //!
-//! What stays fixed: the dataset, the ground truth and everything seeded apart from training
-//! (the disturbances of the stress tests, the flight's pixels), so the spread is the training
-//! seed's alone, and the runs' rollouts are paired. Runs after the first share its dataset and
-//! ground-truth field: their folders are copied in before the run, and the runner takes them
-//! only if their keys match (else it computes them again).
+//! - **Training seeds** (`OUT/seed_S/`): the NeRF's training seed, and so its ensemble, changes;
+//!   the dataset, the ground truth and everything seeded apart from training (the disturbances of
+//!   the stress tests, the flight's pixels) stay, so the spread is the training seed's alone and
+//!   the runs' rollouts are paired. Seed `i` trains with `train.seed + i·MAX_MEMBERS`, so that no
+//!   two runs share an ensemble member (member `k` of a run trains with its seed + `k`).
+//! - **Disturbance seeds** (`OUT/stress_seed_S/`): the stress stage's run seed `stress.seed + i`
+//!   changes, so every sampler draws other disturbances; the models, fields and calibration stay,
+//!   so the spread is the search's alone.
 //!
-//! Seed `i` trains with `train.seed + i·MAX_MEMBERS`, so that no two runs share an ensemble
-//! member (member `k` of a run trains with its seed + `k`).
+//! Runs after the first share the first's stages that do not depend on what varies: their
+//! folders are copied in before the run, and the runner takes them only if their keys match
+//! (else it computes them again).
 
 use std::path::{Path, PathBuf};
 
@@ -18,6 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use nerfsv_sim::WorldKind;
 use nerfsv_study::stress::{Sampler, StressFigures, TransferFigures};
+use nerfsv_validation::{Confusion, Transfer};
 
 use crate::config::MAX_MEMBERS;
 use crate::eval::{EvalFigures, EvalStage};
@@ -25,13 +30,83 @@ use crate::stress::StressStage;
 use crate::uq::{UqFigures, UqStage};
 use crate::{Observer, PipelineError, RunConfig, Stage, Summary, Validate};
 
-/// The run folder of training seed `seed` below `out`.
-pub fn seed_folder(out: &Path, seed: u64) -> PathBuf {
-    out.join(format!("seed_{seed}"))
+/// Which seed a replication varies from run to run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Varied {
+    /// The NeRF's training seed (`train.seed`, then every `MAX_MEMBERS`-th after it).
+    #[default]
+    Training,
+    /// The stress stage's run seed (`stress.seed`, then the next ones): the disturbances.
+    Disturbances,
 }
 
-/// The stages every replicate shares with the first (they do not depend on training).
-const SHARED_STAGES: [&str; 2] = [crate::dataset::DatasetStage::NAME, crate::collision::CollisionStage::NAME];
+impl Varied {
+    /// The config key it varies.
+    pub fn key(self) -> &'static str {
+        match self {
+            Varied::Training => "train.seed",
+            Varied::Disturbances => "stress.seed",
+        }
+    }
+
+    /// The seed of replicate `i` of `cfg`.
+    pub fn seed(self, cfg: &RunConfig, i: usize) -> u64 {
+        match self {
+            Varied::Training => replicate_seed(cfg.train.seed, i),
+            Varied::Disturbances => cfg.stress.seed.wrapping_add(i as u64),
+        }
+    }
+
+    /// `cfg` with its varied seed set to `seed`.
+    fn with_seed(self, cfg: &RunConfig, seed: u64) -> RunConfig {
+        let mut run = cfg.clone();
+        match self {
+            Varied::Training => run.train.seed = seed,
+            Varied::Disturbances => run.stress.seed = seed,
+        }
+        run
+    }
+
+    /// The run folder of seed `seed` below `out`.
+    pub fn folder(self, out: &Path, seed: u64) -> PathBuf {
+        match self {
+            Varied::Training => out.join(format!("seed_{seed}")),
+            Varied::Disturbances => out.join(format!("stress_seed_{seed}")),
+        }
+    }
+
+    /// The stages a replicate takes from the first run (they do not depend on this seed).
+    fn shared_stages(self) -> &'static [&'static str] {
+        match self {
+            Varied::Training => &[crate::dataset::DatasetStage::NAME, crate::collision::CollisionStage::NAME],
+            Varied::Disturbances => &[
+                crate::dataset::DatasetStage::NAME,
+                crate::collision::CollisionStage::NAME,
+                crate::nerf::NerfStage::NAME,
+                crate::eval::EvalStage::NAME,
+                crate::ensemble::EnsembleStage::NAME,
+                UqStage::NAME,
+                crate::nerf_collision::NerfCollisionStage::NAME,
+                crate::flight::FlightStage::NAME,
+                crate::calibration::CalibrationStage::NAME,
+            ],
+        }
+    }
+
+    /// What the page's title calls the runs' seeds.
+    fn what(self) -> &'static str {
+        match self {
+            Varied::Training => "training seeds",
+            Varied::Disturbances => "disturbance seeds",
+        }
+    }
+}
+
+/// The run folder of training seed `seed` below `out`.
+pub fn seed_folder(out: &Path, seed: u64) -> PathBuf {
+    Varied::Training.folder(out, seed)
+}
 
 /// The headline figures, as (label, how to read it from a run's figures). A figure a run does
 /// not have (a stage skipped, a world without a ground truth) is left empty in its row.
@@ -64,6 +139,9 @@ const HEADLINES: [(&str, Headline); 15] = [
     ("depth AUSE, ensemble (GA's images)", |f| f.uq?.ensemble_ause.as_ref()?.on_ga_images),
 ];
 
+/// The NeRF worlds whose comparison with GT-sim is pooled over the runs.
+const POOLED_WORLDS: [&str; 3] = ["deployed", "ensemble", "calibrated"];
+
 type Headline = for<'a> fn(&RunFigures<'a>) -> Option<f64>;
 
 /// The figures of one run the headlines read, typed.
@@ -87,6 +165,14 @@ impl<'a> RunFigures<'a> {
         self.stress?.transfer.as_ref()
     }
 
+    /// The worlds' comparisons with GT-sim this run made, as (world, comparison), in
+    /// [`POOLED_WORLDS`]' order.
+    fn transfers(&self) -> Vec<(&'static str, &'a Transfer)> {
+        let Some(t) = self.transfer() else { return Vec::new() };
+        let worlds = [Some(&t.deployed), Some(&t.ensemble), t.calibrated.as_ref()];
+        POOLED_WORLDS.iter().zip(worlds).filter_map(|(&w, t)| Some((w, t?))).collect()
+    }
+
     /// Every headline, in order; a figure that is not a number (NaN) is left empty, as
     /// `summary.json` writes it (null).
     fn headlines(&self) -> Vec<Option<f64>> {
@@ -97,7 +183,8 @@ impl<'a> RunFigures<'a> {
 /// One run's headline figures.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SeedRow {
-    pub train_seed: u64,
+    /// The value of the varied seed ([`Replication::varied`]) in this run.
+    pub seed: u64,
     pub folder: PathBuf,
     /// In [`Replication::headlines`]' order; `None` where the run has no such figure.
     pub values: Vec<Option<f64>>,
@@ -114,11 +201,52 @@ pub struct Spread {
     pub sd: Option<f64>,
 }
 
+/// One NeRF world's comparison with GT-sim over every run's rollouts together.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PooledTransfer {
+    /// `deployed`, `ensemble` or `calibrated`.
+    pub world: String,
+    /// Runs that flew it.
+    pub runs: usize,
+    /// The comparison of the runs' rollouts together (their confusion matrices summed): the
+    /// rates, recall, precision and McNemar's test with intervals from all of them. Treat its
+    /// intervals as the rollouts' alone: with training seeds the runs' rollouts are the same
+    /// disturbances flown by other models, so they are not independent draws.
+    pub transfer: Transfer,
+}
+
 /// The replicated study's figures.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Replication {
+    /// Which seed the runs differ in.
+    pub varied: Varied,
     pub headlines: Vec<Spread>,
     pub seeds: Vec<SeedRow>,
+    /// Each NeRF world's comparison with GT-sim pooled over the runs.
+    pub pooled: Vec<PooledTransfer>,
+}
+
+/// Each world's confusion matrices summed over the runs that have it, and its comparison.
+fn pooled(runs: &[Vec<(&'static str, &Transfer)>]) -> Vec<PooledTransfer> {
+    POOLED_WORLDS
+        .iter()
+        .filter_map(|&world| {
+            let mut sum = Confusion::default();
+            let mut count = 0;
+            for (_, t) in runs.iter().flatten().filter(|(w, _)| *w == world) {
+                let c = &t.confusion;
+                sum.true_positive += c.true_positive;
+                sum.false_positive += c.false_positive;
+                sum.false_negative += c.false_negative;
+                sum.true_negative += c.true_negative;
+                count += 1;
+            }
+            (count > 0).then(|| {
+                let (nerf, gt) = sum.outcomes();
+                PooledTransfer { world: world.to_string(), runs: count, transfer: Transfer::of(&nerf, &gt, 0) }
+            })
+        })
+        .collect()
 }
 
 /// The training seed of replicate `i` of a config whose training seed is `base`.
@@ -132,9 +260,14 @@ pub fn replicate_guard(cfg: &RunConfig, out: &str) -> crate::Guard {
     crate::run::world_inputs(cfg, crate::Guard::new().folder(out, &cfg.run_folder(), crate::OutputKind::Replication))
 }
 
-/// Runs `cfg` with `seeds` training seeds into `seed_S/` folders below its run folder (sharing the
-/// first's dataset and ground truth), then writes the figures side by side.
-pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Result<Replication, PipelineError> {
+/// Runs `cfg` with `seeds` seeds of `varied` into their folders below its run folder (sharing the
+/// first's stages that do not depend on that seed), then writes the figures side by side.
+pub fn replicate(
+    cfg: &RunConfig,
+    seeds: usize,
+    varied: Varied,
+    observer: &dyn Observer,
+) -> Result<Replication, PipelineError> {
     nerfsv_scene::validate::in_range("--seeds", seeds, 1, 1000)?;
     cfg.validate()?;
     let (scene, warnings) = cfg.ground_truth()?;
@@ -146,25 +279,28 @@ pub fn replicate(cfg: &RunConfig, seeds: usize, observer: &dyn Observer) -> Resu
     replicate_guard(cfg, "out").claim()?.keep();
     let root = cfg.run_folder();
     let mut rows = Vec::with_capacity(seeds);
+    let mut summaries = Vec::with_capacity(seeds);
     let mut first: Option<PathBuf> = None;
     for i in 0..seeds {
-        let seed = replicate_seed(cfg.train.seed, i);
-        let mut run = cfg.clone();
-        run.train.seed = seed;
-        let folder = seed_folder(&root, seed);
+        let seed = varied.seed(cfg, i);
+        let mut run = varied.with_seed(cfg, seed);
+        let folder = varied.folder(&root, seed);
         run.out = Some(folder.clone());
-        observer.note("replicate", &format!("training seed {seed} ({} of {seeds}) into {}", i + 1, folder.display()));
+        observer
+            .note("replicate", &format!("{} = {seed} ({} of {seeds}) into {}", varied.key(), i + 1, folder.display()));
         nerfsv_scene::folder::claim_folder("out", &folder, nerfsv_scene::folder::OutputKind::Run)?;
         if let Some(first) = &first {
-            for stage in SHARED_STAGES {
+            for stage in varied.shared_stages() {
                 share_stage(&first.join(stage), &folder.join(stage))?;
             }
         }
         let summary = crate::run_in(&run, scene.as_ref(), observer)?;
-        rows.push(SeedRow { train_seed: seed, folder: folder.clone(), values: RunFigures::of(&summary).headlines() });
+        rows.push(SeedRow { seed, folder: folder.clone(), values: RunFigures::of(&summary).headlines() });
+        summaries.push(summary);
         first.get_or_insert(folder);
     }
-    let replication = Replication { headlines: spreads(&rows), seeds: rows };
+    let transfers: Vec<_> = summaries.iter().map(|s| RunFigures::of(s).transfers()).collect();
+    let replication = Replication { varied, headlines: spreads(&rows), seeds: rows, pooled: pooled(&transfers) };
     write(&root, &replication)?;
     Ok(replication)
 }
@@ -195,14 +331,15 @@ pub const PAGE: &str = "index.html";
 fn write(out: &Path, r: &Replication) -> Result<(), PipelineError> {
     let cell = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
     let quote = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
-    let mut csv = String::from("row,train_seed");
+    let seed_column = r.varied.key().replace('.', "_");
+    let mut csv = format!("row,{seed_column}");
     for s in &r.headlines {
         csv.push(',');
         csv.push_str(&quote(&s.headline));
     }
     csv.push('\n');
     for row in &r.seeds {
-        csv.push_str(&format!("seed,{}", row.train_seed));
+        csv.push_str(&format!("seed,{}", row.seed));
         for v in &row.values {
             csv.push(',');
             csv.push_str(&cell(*v));
@@ -220,7 +357,7 @@ fn write(out: &Path, r: &Replication) -> Result<(), PipelineError> {
     }
     let json = serde_json::to_string_pretty(r).map_err(|e| PipelineError::Internal(e.to_string()))?;
     let mut header = vec!["figure", "mean ± sd", "runs"];
-    let seed_labels: Vec<String> = r.seeds.iter().map(|s| format!("seed {}", s.train_seed)).collect();
+    let seed_labels: Vec<String> = r.seeds.iter().map(|s| format!("seed {}", s.seed)).collect();
     header.extend(seed_labels.iter().map(String::as_str));
     let short = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.3}"));
     let table = crate::report::Table::new(&header).rows(r.headlines.iter().enumerate().map(|(h, s)| {
@@ -229,21 +366,75 @@ fn write(out: &Path, r: &Replication) -> Result<(), PipelineError> {
         cells
     }));
     let page = format!(
-        "<!doctype html><html><head><meta charset=\"utf-8\"><title>nerfsv: the study over {n} training seeds</title>\
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>nerfsv: the study over {n} {what}</title>\
          <style>body{{font-family:sans-serif;max-width:70em;margin:2em auto}}table{{border-collapse:collapse}}\
          td,th{{border:1px solid #ccc;padding:.3em .6em;text-align:right}}td:first-child{{text-align:left}}</style>\
-         </head><body><h1>The study over {n} training seeds</h1><p>The same config and disturbances, the NeRF (and \
-         its ensemble) trained with another seed each time: each headline's mean ± standard deviation over the runs, \
-         then each run's value. Each run's own report is in its folder (<code>seed_S/report/index.html</code>); the \
-         figures are in <code>{CSV}</code> and <code>{JSON}</code>.</p>{}</body></html>\n",
+         </head><body><h1>The study over {n} {what}</h1><p>{how} Each headline's mean ± standard deviation over \
+         the runs, then each run's value. Each run's own report is in its folder \
+         (<code>{folder}/report/index.html</code>); the figures are in <code>{CSV}</code> and <code>{JSON}</code>.\
+         </p>{}<h2>NeRF-sim against GT-sim, all runs' rollouts together</h2><p>Each NeRF world's confusion matrices \
+         summed over the runs, with Wilson intervals for the rates, recall and precision and McNemar's exact test \
+         on the summed discordant pairs. {pooled_caveat}</p>{}</body></html>\n",
         table.html(),
-        n = r.seeds.len()
+        pooled_table(&r.pooled).html(),
+        n = r.seeds.len(),
+        what = r.varied.what(),
+        how = match r.varied {
+            Varied::Training =>
+                "The same config and disturbances, the NeRF (and its ensemble) trained with another \
+                                 seed each time.",
+            Varied::Disturbances =>
+                "The same config, models and calibration, the stress stage's disturbances drawn \
+                                     with another seed each time (<code>stress.seed</code>).",
+        },
+        folder = r.varied.folder(Path::new(""), 0).to_string_lossy().replace('0', "S"),
+        pooled_caveat = match r.varied {
+            Varied::Training =>
+                "The runs fly the same disturbances, so their rollouts are not independent: the \
+                                 intervals are narrower than the runs' spread warrants.",
+            Varied::Disturbances =>
+                "The runs' disturbances are independent draws, so the pooled rollouts are one \
+                                     larger sample of each world.",
+        },
     );
     for (name, bytes) in [(CSV, csv.into_bytes()), (JSON, json.into_bytes()), (PAGE, page.into_bytes())] {
         let path = out.join(name);
         nerfsv_scene::io::atomic_write_bytes(&path, &bytes).map_err(|e| PipelineError::io(&path, e))?;
     }
     Ok(())
+}
+
+/// The pooled comparisons as a table: a row per NeRF world.
+fn pooled_table(pooled: &[PooledTransfer]) -> crate::report::Table {
+    let rate = |r: &nerfsv_validation::Rate| format!("{:.3} [{:.3}, {:.3}]", r.rate, r.ci95[0], r.ci95[1]);
+    let estimate = |e: &Option<nerfsv_validation::Estimate>| {
+        e.as_ref().map_or("–".to_string(), |e| format!("{:.2} [{:.2}, {:.2}]", e.value, e.ci95[0], e.ci95[1]))
+    };
+    crate::report::Table::new(&[
+        "NeRF world",
+        "runs",
+        "rollouts",
+        "NeRF-sim rate",
+        "GT-sim rate",
+        "recall",
+        "precision",
+        "MCC",
+        "McNemar p",
+    ])
+    .rows(pooled.iter().map(|p| {
+        let t = &p.transfer;
+        vec![
+            p.world.clone(),
+            p.runs.to_string(),
+            t.n.to_string(),
+            rate(&t.nerf),
+            rate(&t.gt),
+            estimate(&t.recall),
+            estimate(&t.precision),
+            estimate(&t.mcc),
+            format!("{:.3}", t.mcnemar_p),
+        ]
+    }))
 }
 
 /// Copies the stage folder `from` to `to` unless `to` exists (through a temporary sibling
@@ -285,7 +476,7 @@ mod tests {
     #[test]
     fn spreads_are_the_mean_and_sample_sd_of_the_runs_that_have_the_figure() {
         let row = |seed: u64, v: Option<f64>| SeedRow {
-            train_seed: seed,
+            seed,
             folder: PathBuf::new(),
             values: (0..HEADLINES.len()).map(|h| if h == 0 { v } else { None }).collect(),
         };

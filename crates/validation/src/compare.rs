@@ -20,6 +20,18 @@ pub struct Confusion {
 }
 
 impl Confusion {
+    /// Paired outcomes (NeRF-sim's, GT-sim's) with these counts, in the order true positives,
+    /// false positives, false negatives, true negatives.
+    pub fn outcomes(&self) -> (Vec<bool>, Vec<bool>) {
+        let cells = [
+            (self.true_positive, true, true),
+            (self.false_positive, true, false),
+            (self.false_negative, false, true),
+            (self.true_negative, false, false),
+        ];
+        cells.iter().flat_map(|&(n, nerf, gt)| std::iter::repeat_n((nerf, gt), n)).unzip()
+    }
+
     /// Counts one (prediction, truth) pair.
     pub fn add(&mut self, predicted: bool, actual: bool) {
         match (predicted, actual) {
@@ -178,6 +190,16 @@ mod tests {
             reward: None,
             failed: score <= 0.0,
         }
+    }
+
+    #[test]
+    fn a_confusions_outcomes_count_back_to_it() {
+        let c = Confusion { true_positive: 3, false_positive: 1, false_negative: 4, true_negative: 2 };
+        let (nerf, gt) = c.outcomes();
+        assert_eq!(nerf.len(), 10);
+        let mut back = Confusion::default();
+        nerf.iter().zip(&gt).for_each(|(&p, &a)| back.add(p, a));
+        assert_eq!(back, c);
     }
 
     #[test]

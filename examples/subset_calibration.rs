@@ -20,6 +20,11 @@
 //!
 //! The acceptance benchmark is ≥ 90 % coverage of a ≥ 10⁶-rollout reference over ≥ 100 runs.
 //!
+//! 4. runs `CEM_RUNS` (default `RUNS`) Cross-Entropy Methods with the default config
+//!    (`RunConfig::default().stress.cem`, the line update) and with the paper's update and split
+//!    (`update = "elites"`, 5 populations, 100 importance samples), run seeds 1..=CEM_RUNS, and
+//!    prints the same coverage of p_ref beside the median effective number of failures.
+//!
 //! ```sh
 //! cargo run --release -- run          # a run folder with a trained model and both fields
 //! REFERENCE=100000 RUNS=20 cargo run --release --example subset_calibration   # a quick check
@@ -42,7 +47,8 @@ use nerfsv_sim::{EstimatorKind, WorldKind};
 use nerfsv_study::flight::world;
 use nerfsv_study::DroneSystem;
 use nerfsv_validation::{
-    rollout_seed, subset_simulation, wilson_interval, Prior, SubsetConfig, SubsetEstimate, System,
+    cross_entropy, rollout_seed, subset_simulation, wilson_interval, CemConfig, CemUpdate, ImportanceEstimate, Prior,
+    SubsetConfig, SubsetEstimate, System,
 };
 use rayon::prelude::*;
 
@@ -133,6 +139,43 @@ fn main() -> anyhow::Result<()> {
     // 3. Independent subset simulations.
     let (estimates, subset_time) = subset_runs(&calibration)?;
     report(&estimates, p_ref, runs, subset_time, ref_time);
+
+    // 4. The Cross-Entropy Method, with the default (line) update and the paper's.
+    let cem = cfg.stress.cem.clone();
+    let paper = CemConfig { update: CemUpdate::Elites, k_max: 5, is_samples: 100, ..cem.clone() };
+    for (name, c) in [("CEM (default: line update)", &cem), ("CEM (the paper's update: elites, 5 × 10 + 100)", &paper)]
+    {
+        cem_runs(&calibration, name, c, env("CEM_RUNS", runs), p_ref)?;
+    }
+    Ok(())
+}
+
+/// Runs the CEM `cem` with run seeds 1..=`runs` and prints how often p̂ ± 2 SE and its own 95 %
+/// interval cover `p_ref`, its relative sd, and the effective failures an estimate rests on.
+fn cem_runs(calibration: &Calibration, name: &str, cem: &CemConfig, runs: u64, p_ref: f64) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let estimates: Vec<ImportanceEstimate> = (1..=runs)
+        .map(|seed| Ok(cross_entropy(calibration.system, calibration.prior, cem, seed, None, &())?.estimate))
+        .collect::<Result<_, nerfsv_validation::ValidationError>>()?;
+    let n = estimates.len();
+    let two_se = estimates.iter().filter(|e| (e.probability - p_ref).abs() <= 2.0 * e.standard_error).count();
+    let own = estimates.iter().filter(|e| e.interval.0 <= p_ref && p_ref <= e.interval.1).count();
+    let p: Vec<f64> = estimates.iter().map(|e| e.probability).collect();
+    let (p_mean, p_sd) = mean_sd(&p);
+    let mut effective: Vec<f64> = estimates.iter().map(|e| e.effective_failures).collect();
+    effective.sort_by(f64::total_cmp);
+    let rollouts = (cem.m * cem.k_max + cem.is_samples) as f64;
+    println!("{name}, {n} runs, {:.0} s:", start.elapsed().as_secs_f64());
+    println!("  p̂ ± 2 SE covers p_ref: {}; own 95 % interval: {}", share(two_se, n), share(own, n));
+    println!(
+        "  mean p̂ / p_ref {:.2}, relative sd {:.3} (Monte Carlo's at {rollouts:.0} rollouts {:.3}); effective \
+         failures median {:.1}, 10 % {:.1}",
+        p_mean / p_ref,
+        p_sd / p_ref,
+        ((1.0 - p_ref) / (p_ref * rollouts)).sqrt(),
+        effective[n / 2],
+        effective[n / 10]
+    );
     Ok(())
 }
 

@@ -303,8 +303,10 @@ fn a_reward_measures_every_flown_step_changes_only_what_cem_ranks_and_a_field_dr
     let (model, field) = common::tiny_model_and_field(dir.path());
     let cfg = config(dir.path(), "study.toml", 4, "[uq]\nonline_rays = 16\nonline_bla_rays = 8\n");
     // Four elites of six: besides the failures, the score picks the closest calls and the
-    // reward the likeliest and most certain, so the next proposals differ.
-    std::fs::write(&cfg, std::fs::read_to_string(&cfg).unwrap().replace("m_elite = 2", "m_elite = 4")).unwrap();
+    // reward the likeliest and most certain, so the next proposals differ. A rewarded search
+    // always refits to its elites: the plain one here does too (the default moves along a line).
+    let elites = "m_elite = 4\nupdate = \"elites\"";
+    std::fs::write(&cfg, std::fs::read_to_string(&cfg).unwrap().replace("m_elite = 2", elites)).unwrap();
     let run = |name: &str, extra: &[&str]| {
         let out = dir.path().join(name);
         let (ok, stdout, err) = stress(&model, &field, &out, &[&["--config", s(&cfg), "--json"], extra].concat(), "2");

@@ -123,12 +123,21 @@ pub struct CemConfig {
     pub m: usize,
     /// Number of elite samples (paper: 5); 1 ≤ m_elite ≤ m.
     pub m_elite: usize,
-    /// Number of iterations (populations) (paper: 5).
+    /// Number of iterations (populations) (paper: 5; default 8, so that the line update's
+    /// regression has more rollouts than the drone's 72 dimensions before the importance
+    /// batch; the budget m·k_max + is_samples stays the paper's 150).
     pub k_max: usize,
-    /// Refit a full covariance per step instead of a diagonal one.
+    /// How a population moves the proposal: `line` (default) moves the prior's mean along the
+    /// direction in which a ridge regression of the score on the rollouts so far falls fastest,
+    /// by the cross-entropy optimum along that line, and keeps the prior's covariance; `elites`
+    /// is the paper's update, each step's mean and variances refitted to the elites weighted by
+    /// their likelihood ratio. A search with a reward (the uncertainty-rewarded CEM) always uses
+    /// `elites`: the reward orders elites, which the line update does not use.
+    pub update: CemUpdate,
+    /// Refit a full covariance per step instead of a diagonal one (`elites` update).
     pub full_covariance: bool,
     /// Variance floor of a refitted proposal, as a fraction of the prior's variance; keeps a
-    /// proposal from collapsing onto a few elites.
+    /// proposal from collapsing onto a few elites (`elites` update).
     pub variance_floor: f64,
     /// Variance floor of the final proposal, the one the importance batch is drawn from, as a
     /// fraction of the prior's variance. At 1 (default) the final proposal is at least as wide as
@@ -137,7 +146,8 @@ pub struct CemConfig {
     /// half-space has a variance ratio near 1/z² along the failure direction) gives
     /// heavy-tailed weights and an estimate that is low more often than its SE admits.
     pub is_variance_floor: f64,
-    /// Samples from the final proposal for the importance-sampling failure probability.
+    /// Samples from the final proposal for the importance-sampling failure probability
+    /// (paper: 100; default 70, see `k_max`).
     pub is_samples: usize,
     /// Share α of the importance batch drawn from the prior instead of the final proposal (a
     /// defensive mixture, Hesterberg 1995; 0 turns it off): every weight p/q is then at most
@@ -146,16 +156,29 @@ pub struct CemConfig {
     pub is_defensive: f64,
 }
 
+/// How the Cross-Entropy Method moves its proposal from one population to the next
+/// (`stress.cem.update`).
+#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CemUpdate {
+    /// The prior's mean moved along one fitted direction, the prior's covariance kept.
+    #[default]
+    Line,
+    /// The paper's: each step's mean and variances refitted to the likelihood-weighted elites.
+    Elites,
+}
+
 impl Default for CemConfig {
     fn default() -> Self {
         Self {
             m: 10,
             m_elite: 5,
-            k_max: 5,
+            k_max: 8,
+            update: CemUpdate::Line,
             full_covariance: false,
             variance_floor: 1e-3,
             is_variance_floor: 1.0,
-            is_samples: 100,
+            is_samples: 70,
             is_defensive: 0.2,
         }
     }

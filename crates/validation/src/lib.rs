@@ -44,6 +44,7 @@ mod error;
 mod gaussian;
 mod journal;
 mod label;
+mod line;
 mod online;
 mod record;
 mod sampler;
@@ -56,7 +57,7 @@ mod trajectory;
 mod transfer;
 
 pub use compare::{compare, Agreement, Confusion, Spread};
-pub use config::{CemConfig, DisturbanceConfig, MonteCarloConfig, SubsetConfig, ValidationConfig};
+pub use config::{CemConfig, CemUpdate, DisturbanceConfig, MonteCarloConfig, SubsetConfig, ValidationConfig};
 pub use error::ValidationError;
 pub use gaussian::{Gaussian, Prior, Proposal, DRONE_STD};
 pub use journal::{Journal, Recorder};

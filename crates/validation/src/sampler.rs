@@ -7,7 +7,7 @@
 use nalgebra::{DMatrix, DVector};
 use nerfsv_scene::validate::InvalidValue;
 
-use crate::config::{CemConfig, MonteCarloConfig, ValidationConfig};
+use crate::config::{CemConfig, CemUpdate, MonteCarloConfig, ValidationConfig};
 use crate::error::ValidationError;
 use crate::gaussian::{Gaussian, Prior, Proposal};
 use crate::journal::{recall_or_run_all, Planned, Recorder};
@@ -588,9 +588,11 @@ impl CemResult {
 }
 
 /// The Cross-Entropy Method (Kochenderfer et al., *Algorithms for Validation*): `k_max`
-/// populations of `m`, each ranked (by score, or by failure then `reward`, see [`Reward`]),
-/// its elites weighted by the trajectory likelihood ratio and refitted into the next proposal;
-/// then `is_samples` rollouts of the final proposal estimate the failure probability.
+/// populations of `m`, each moving the proposal for the next (see [`CemUpdate`]: along a fitted
+/// line by default; with a `reward`, or `update = "elites"`, each population ranked by score, or
+/// by failure then reward, see [`Reward`], its elites weighted by the trajectory likelihood ratio
+/// and refitted); then `is_samples` rollouts of the final proposal, in a defensive mixture with
+/// the prior, estimate the failure probability.
 pub fn cross_entropy<S: System + ?Sized>(
     system: &S,
     prior: &Prior,
@@ -601,6 +603,7 @@ pub fn cross_entropy<S: System + ?Sized>(
 ) -> Result<CemResult, ValidationError> {
     config.validate()?;
     check_shapes(system, prior)?;
+    let line = reward.is_none() && config.update == CemUpdate::Line;
     let mut proposals = vec![prior.to_proposal()];
     let mut records = Vec::with_capacity(config.m * config.k_max + config.is_samples);
     for k in 0..config.k_max {
@@ -613,21 +616,29 @@ pub fn cross_entropy<S: System + ?Sized>(
             reward,
             recorder,
         )?;
-        let rewards: Option<Vec<f64>> =
-            reward.map(|_| pop.iter().map(|r| r.reward.unwrap_or(f64::NEG_INFINITY)).collect());
-        let elite = select_elites(&pop, config.m_elite, rewards.as_deref());
-        let weights = elite_weights(&pop, &elite);
-        // The last fit only draws the importance batch: floor it for bounded weights.
         let last = k + 1 == config.k_max;
-        let floor = if last { config.variance_floor.max(config.is_variance_floor) } else { config.variance_floor };
-        let fitted = refit(prior, &pop, &weights, config.full_covariance, floor);
+        let fitted = if line {
+            let searched = records.len();
+            records.extend(pop);
+            let (all, latest) = (&records[..], &records[searched..]);
+            crate::line::line_proposal(prior, all, &proposals, latest, config.m_elite)
+        } else {
+            let rewards: Option<Vec<f64>> =
+                reward.map(|_| pop.iter().map(|r| r.reward.unwrap_or(f64::NEG_INFINITY)).collect());
+            let elite = select_elites(&pop, config.m_elite, rewards.as_deref());
+            let weights = elite_weights(&pop, &elite);
+            // The last fit only draws the importance batch: floor it for bounded weights.
+            let floor = if last { config.variance_floor.max(config.is_variance_floor) } else { config.variance_floor };
+            let fitted = refit(prior, &pop, &weights, config.full_covariance, floor);
+            records.extend(pop);
+            fitted
+        };
         // The importance batch is drawn from a defensive mixture with the prior.
         proposals.push(if last && config.is_defensive > 0.0 {
             fitted.defensive(prior, config.is_defensive)
         } else {
             fitted
         });
-        records.extend(pop);
     }
     let last = proposals.last().expect("k_max ≥ 1");
     let (batch, estimate) = importance_sampling(system, prior, last, config.is_samples, run_seed, recorder)?;

@@ -3,7 +3,7 @@
 mod common;
 
 use nerfsv_validation::{
-    cross_entropy, monte_carlo, CemConfig, DisturbanceConfig, Gaussian, MonteCarloConfig, ValidationConfig,
+    cross_entropy, monte_carlo, CemConfig, CemUpdate, DisturbanceConfig, Gaussian, MonteCarloConfig, ValidationConfig,
 };
 
 #[test]
@@ -11,7 +11,10 @@ fn defaults_are_the_papers_and_valid() {
     let c = ValidationConfig::default();
     c.validate().unwrap();
     assert_eq!(c.monte_carlo.rollouts, 100);
-    assert_eq!((c.cem.m, c.cem.m_elite, c.cem.k_max, c.cem.is_samples), (10, 5, 5, 100));
+    // The paper's population and elites; its 150 rollouts split 8 × 10 + 70 (not 5 × 10 + 100) so
+    // that the line update's regression has more rollouts than the drone's 72 dimensions.
+    assert_eq!((c.cem.m, c.cem.m_elite, c.cem.k_max, c.cem.is_samples), (10, 5, 8, 70));
+    assert_eq!(c.cem.update, CemUpdate::Line);
     let g = c.disturbance.to_gaussian().unwrap();
     assert_eq!(g.dim(), 12);
     approx::assert_relative_eq!(g.covariance()[(0, 0)], 0.02 * 0.02);

@@ -392,6 +392,12 @@ fn assert_online_stage(run: &std::path::Path, online: &serde_json::Value) {
     let table = std::fs::read_to_string(run.join("online/table.csv")).unwrap();
     assert!(table.starts_with("method,mode,reward,sampler,rollouts,collision_rate"), "{table}");
     assert_eq!(table.lines().count(), 1 + 8, "{table}");
+    // Each measure against the baselines, GA's un-floored σ_d beside the configured floored one.
+    let measures: std::collections::BTreeSet<&str> =
+        online["step_auroc"].as_array().unwrap().iter().map(|r| r["measure"].as_str().unwrap()).collect();
+    for m in ["ga", "ga-paper", "bla", "step_index", "clearance"] {
+        assert!(measures.contains(m), "{m} missing from {measures:?}");
+    }
 }
 
 /// The offline uncertainty stage of the tiny run above (6 train, 1 val, 1 test views; BLA on one

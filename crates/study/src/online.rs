@@ -30,7 +30,7 @@
 use std::path::Path;
 
 use nerfsv_sim::WorldKind;
-use nerfsv_uq::{Method, UqConfig};
+use nerfsv_uq::{GaMeasure, Method, UqConfig};
 use nerfsv_validation::{
     compare, disagreement_auroc, read_csv_file, step_auroc_table, table_row, Confusion, DisagreementAuroc, Label,
     Measured, Prior, RolloutRecord, StepAurocRow, TableRow, ValidationConfig, BOOTSTRAP_RESAMPLES,
@@ -209,6 +209,12 @@ pub fn online_study(req: &OnlineRequest, observer: &dyn Observer) -> Result<Onli
         studies.push(study);
         measured.push((method.name(), plain_records));
     }
+    if req.methods.contains(&Method::Ga) {
+        // GA's other σ_d beside the configured one: on the drone's views the noise floor zeroes
+        // the floored σ_d wherever the NeRF's colour error is below the floor.
+        let other = req.uq.ga_measure.other();
+        measured.push((other.step_measure(), measure_ga(req, other, &flown, &studied, observer)?));
+    }
     let step_auroc = against_baselines(req.ensemble_spread, measured, &studied, &flown.replays, req.validation.seed)?;
     let figures = OnlineFigures {
         mode: UqMode::Exact,
@@ -219,6 +225,25 @@ pub fn online_study(req: &OnlineRequest, observer: &dyn Observer) -> Result<Onli
     };
     write_table(&req.out.join(ONLINE_TABLE_CSV), &figures)?;
     Ok(figures)
+}
+
+/// The `studied` stress rollouts' steps measured by GA with the σ_d `measure`.
+fn measure_ga(
+    req: &OnlineRequest,
+    measure: GaMeasure,
+    flown: &StressRollouts,
+    studied: &dyn Fn(&RolloutRecord) -> bool,
+    observer: &dyn Observer,
+) -> Result<Vec<RolloutRecord>, StudyError> {
+    let uq = UqConfig { ga_measure: measure, ..req.uq.clone() };
+    let setup = StressSetup {
+        online: Some(OnlineSettings { method: Method::Ga, mode: UqMode::Exact, reward: false }),
+        stage: req.stage,
+        reports_p_fail: false,
+        ..StressSetup::new(req.mission, req.validation, req.prior, &[], &uq)
+    };
+    let records: Vec<RolloutRecord> = flown.records.iter().filter(|r| studied(r)).cloned().collect();
+    Ok(measure_recorded(&setup, records, observer)?.0)
 }
 
 /// One method's study: the `studied` stress rollouts measured (`plain/`), CEM ranked by its

@@ -49,6 +49,23 @@ impl GaMeasure {
             GaMeasure::Paper => "the paper's σ_d",
         }
     }
+
+    /// The other of the two measures.
+    pub fn other(self) -> Self {
+        match self {
+            GaMeasure::NoiseFloored => GaMeasure::Paper,
+            GaMeasure::Paper => GaMeasure::NoiseFloored,
+        }
+    }
+
+    /// The online study's name for the per-step measure GA gives with this σ_d when it is not
+    /// the configured one (the configured one is `ga`).
+    pub fn step_measure(self) -> &'static str {
+        match self {
+            GaMeasure::NoiseFloored => "ga-floored",
+            GaMeasure::Paper => "ga-paper",
+        }
+    }
 }
 
 impl BlaMeasure {

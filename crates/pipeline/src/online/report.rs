@@ -128,6 +128,8 @@ fn measure_label(measure: &str) -> String {
         nerfsv_validation::STEP_INDEX => "step index (baseline)".to_owned(),
         nerfsv_validation::CLEARANCE => "NeRF-sim's clearance (baseline)".to_owned(),
         "ga" | "bla" => format!("{} (exact: needs the ground truth's render)", measure.to_uppercase()),
+        "ga-paper" => "GA, the paper's σ_d without the noise floor (exact)".to_owned(),
+        "ga-floored" => "GA, the noise-floored σ_d (exact)".to_owned(),
         "ensemble" => "ensemble spread".to_owned(),
         other => other.to_owned(),
     }
@@ -203,7 +205,9 @@ fn baselines_table(s: &mut Section, f: &OnlineFigures) {
                  scoring higher). Intervals: 95 % from 2000 bootstraps over rollouts. DeLong: the paired test of the \
                  matched AUROC against the clearance's on the same steps; Holm: adjusted over every test of the \
                  table. GA and BLA run in exact mode: they need the ground truth's render of the view, so they \
-                 cannot run on a real drone; the ensemble's spread needs only the NeRFs.",
+                 cannot run on a real drone; the ensemble's spread needs only the NeRFs. GA's other σ_d stands \
+                 beside the configured one: the noise floor (uq.noise_std) zeroes the floored σ_d on every view whose \
+                 colour error is below it, which on the drone's views is about half of them.",
     );
     s.table(
         Table::new(&[

@@ -10,9 +10,11 @@
 //! - presentation ([`PRESENTATION_MODULE`]: a stage's section of the report and its one-line
 //!   description) is neither covered nor followed;
 //! - the runner's own modules ([`RUNNER_MODULES`]: errors, settings, the runner, the folder
-//!   layout) are covered by their own code, but the crates they name are not followed: they name
-//!   every crate's error and settings types, which would key every stage by every crate. Code
-//!   that calls a crate does not belong in them.
+//!   layout), and the modules reached only through them (a stage's settings module the config
+//!   imports), are covered by their own code, but the crates they name are not followed: they
+//!   name every crate's error and settings types, which would key every stage by every crate (a
+//!   line in the uncertainty crate would retrain the NeRF). Code that calls a crate does not
+//!   belong in them.
 //!
 //! A crate's digest covers its `Cargo.toml` and every file under its `src/`, in sorted path
 //! order, and folds in the digests of the workspace crates it depends on, so that a change to
@@ -293,23 +295,33 @@ pub fn module_reach(pipeline_src: &Path) -> io::Result<BTreeMap<String, BTreeSet
     Ok(reach(&crate::modules::modules(pipeline_src)?))
 }
 
-/// [`module_reach`] of modules already read.
+/// [`module_reach`] of modules already read. A module reached only through a runner module (a
+/// stage's settings type that the runner's config imports) is covered by its code, but the crates
+/// it names are not followed, as the runner's own are not.
 fn reach(modules: &BTreeMap<String, crate::modules::Module>) -> BTreeMap<String, BTreeSet<String>> {
     let mut out = BTreeMap::new();
     for start in modules.keys() {
         let mut reached = BTreeSet::new();
-        let mut stack = vec![start.as_str()];
-        while let Some(m) = stack.pop() {
-            if (m != start && is_presentation_module(m)) || reached.contains(m) {
+        // Modules whose crates were taken: reached other than through a runner module.
+        let mut followed = BTreeSet::new();
+        let mut stack = vec![(start.as_str(), false)];
+        while let Some((m, through_runner)) = stack.pop() {
+            if m != start && is_presentation_module(m) {
                 continue;
             }
             let Some(module) = modules.get(m) else { continue };
-            reached.insert(m.to_owned());
-            let runner = RUNNER_MODULES.iter().any(|r| m == *r || m.starts_with(&format!("{r}::")));
-            if !runner {
+            let runner = through_runner || RUNNER_MODULES.iter().any(|r| m == *r || m.starts_with(&format!("{r}::")));
+            let new = if runner {
+                !reached.contains(m)
+            } else {
+                let new = followed.insert(m);
                 reached.extend(module.crates.iter().cloned());
+                new
+            };
+            if new {
+                reached.insert(m.to_owned());
+                stack.extend(module.imports.iter().map(|i| (i.as_str(), runner)));
             }
-            stack.extend(module.imports.iter().map(String::as_str));
         }
         out.insert(start.clone(), reached);
     }

@@ -226,6 +226,18 @@ fn a_line_changed_in_the_simulator_redoes_the_stages_that_fly_or_load_worlds_and
     assert_eq!(redone, ["uq", "flight", "calibration", "stress", "online"]);
 }
 
+/// The config imports each stage's settings module (`online::config` names the uncertainty
+/// crate's methods): a settings type reached through the runner's config keys no stage by its
+/// crate, so a line in the uncertainty or validation crate retrains nothing.
+#[test]
+fn a_line_changed_in_the_uncertainty_or_validation_crate_redoes_no_training() {
+    let line = |t: &str| format!("{t}\n#[doc(hidden)]\npub const ONE_MORE_LINE: u8 = 1;\n");
+    let redone = redone_by(|root| rewrite(root, "uq/src/lib.rs", line));
+    assert_eq!(redone, ["uq", "flight", "calibration", "stress", "online"]);
+    let redone = redone_by(|root| rewrite(root, "validation/src/lib.rs", line));
+    assert_eq!(redone, ["uq", "flight", "calibration", "stress", "online"]);
+}
+
 #[test]
 fn a_doc_comment_in_the_config_a_colour_in_the_plot_crate_or_a_report_section_redoes_no_stage() {
     let redone = redone_by(|root| {

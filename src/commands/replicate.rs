@@ -16,7 +16,7 @@ pub struct ReplicateArgs {
     pub seeds: usize,
     /// Which seed the runs differ in: `training` (`train.seed`: other models, the same
     /// disturbances; folders `seed_S/`) or `disturbances` (`stress.seed`: the same models, other
-    /// disturbances; folders `stress_seed_S/`).
+    /// disturbances and calibration draws; folders `stress_seed_S/`).
     #[arg(long, value_enum, default_value_t = Vary::Training)]
     pub vary: Vary,
     /// The folder of the runs (`seed_S/` each) and of the figures side by side; default: the

@@ -8,9 +8,10 @@
 //!   the stress tests, the flight's pixels) stay, so the spread is the training seed's alone and
 //!   the runs' rollouts are paired. Seed `i` trains with `train.seed + i·MAX_MEMBERS`, so that no
 //!   two runs share an ensemble member (member `k` of a run trains with its seed + `k`).
-//! - **Disturbance seeds** (`OUT/stress_seed_S/`): the stress stage's run seed `stress.seed + i`
-//!   changes, so every sampler draws other disturbances; the models, fields and calibration stay,
-//!   so the spread is the search's alone.
+//! - **Disturbance seeds** (`OUT/stress_seed_S/`): the run seed `stress.seed + i` changes, so
+//!   every sampler draws other disturbances and the calibration other route poses, pixels and
+//!   starts (it takes the same seed); the models and fields stay, so the spread is that of the
+//!   search and of the calibration's draws, not of training.
 //!
 //! Runs after the first share the first's stages that do not depend on what varies: their
 //! folders are copied in before the run, and the runner takes them only if their keys match
@@ -89,7 +90,6 @@ impl Varied {
                 UqStage::NAME,
                 crate::nerf_collision::NerfCollisionStage::NAME,
                 crate::flight::FlightStage::NAME,
-                crate::calibration::CalibrationStage::NAME,
             ],
         }
     }

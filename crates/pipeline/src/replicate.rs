@@ -432,7 +432,7 @@ fn pooled_table(pooled: &[PooledTransfer]) -> crate::report::Table {
             estimate(&t.recall),
             estimate(&t.precision),
             estimate(&t.mcc),
-            format!("{:.3}", t.mcnemar_p),
+            if t.mcnemar_p < 0.001 { "< 0.001".to_owned() } else { format!("{:.3}", t.mcnemar_p) },
         ]
     }))
 }

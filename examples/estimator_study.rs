@@ -13,8 +13,9 @@
 //! cargo run --release --example estimator_study -- nominal         # the undisturbed flights
 //! ```
 //!
-//! The run folder is `runs/stonehenge` (`RUN=DIR` for another); settings override the default
-//! `[sim.vision]` through the environment: `IMAGES` (images per step), `ITERATIONS`, `SIGMA`
+//! The run folder is `runs/stonehenge` (`RUN=DIR` for another, `CONFIG=FILE` the config it was
+//! run with, default the embedded one); settings override its `[sim.vision]` through the
+//! environment: `IMAGES` (images per step), `ITERATIONS`, `SIGMA`
 //! (photometric σ), `STOP_MM` (stop step in mm, with 0.06° per mm), `CANDIDATES`, `PIXELS`,
 //! `COLLISION` (`body_box` or `centre_cell`), `WORLD` (`nerf`, `gt` or both), `RELOCALISE_AFTER`
 //! (`relocalise_after`), `MODEL_M` and `MODEL_DEG` (`model_error_per_rmse`), `REFUSED`
@@ -24,7 +25,9 @@
 //! estimator's Monte Carlo, what the gate refused, the relocalisations and the largest accepted errors;
 //! for `relocalise`, `DIAG=N` prints its first N cases image by image, `IMAGES_MAX` sets the
 //! images per case (default 24) and `OFFSET_M` / `OFFSET_DEG` the start's offset (0.3 m, 10°);
-//! `LOST_VF` sets `lost_variance_factor` (`inf`: never refuse a fit for its variance factor).
+//! `LOST_VF` sets `lost_variance_factor` (`inf`: never refuse a fit for its variance factor);
+//! `BIAS=1` flies the filter with the shared bias the run's calibration measured (`[calibration]
+//! filter_bias`).
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
 
@@ -91,7 +94,11 @@ fn main() -> anyhow::Result<()> {
     let mode = args.first().map_or("mc", String::as_str).to_string();
     let n: usize = args.get(1).and_then(|v| v.parse().ok()).unwrap_or(40);
     let out = PathBuf::from(env("RUN", "runs/stonehenge".to_string()));
-    let mut cfg = RunConfig { out: Some(out.clone()), ..RunConfig::default() };
+    let base = match std::env::var("CONFIG") {
+        Ok(path) => RunConfig::load_with(Some(std::path::Path::new(&path)), &[])?,
+        Err(_) => RunConfig::default(),
+    };
+    let mut cfg = RunConfig { out: Some(out.clone()), ..base };
     let v = &mut cfg.sim.vision;
     v.images_per_step = env("IMAGES", v.images_per_step);
     v.iterations = env("ITERATIONS", v.iterations);
@@ -108,6 +115,13 @@ fn main() -> anyhow::Result<()> {
     v.levels[1] = env("FINEST", v.levels[1]).min(v.levels[0]);
     let stop_mm: f64 = env("STOP_MM", v.stop_step[0] * 1e3);
     v.stop_step = [stop_mm * 1e-3, stop_mm * 0.06];
+    if env("BIAS", 0u8) == 1 {
+        // The shared bias the run's calibration measured, as `[calibration] filter_bias` flies it.
+        let path = out.join("calibration").join(nerfsv_study::calibration::MODEL_JSON);
+        let models: nerfsv_study::calibration::ErrorModels = serde_json::from_str(&std::fs::read_to_string(&path)?)?;
+        v.model_bias = Some(models.real.shared_bias());
+        println!("filter bias: {:?}", v.model_bias);
+    }
     if env("COLLISION", String::new()) == "centre_cell" {
         cfg.sim.collision = Collision::CentreCell;
     }

@@ -45,6 +45,7 @@ pub fn load_calibration(root: &Path, calibration: &CalibrationConfig, seed: u64)
         .map_err(|e| PipelineError::Internal(format!("{}: not error models: {e}", path.display())))?;
     let model_error = models.model_error_per_rmse.filter(|_| calibration.filter_model_error);
     Ok(Calibration {
+        model_bias: calibration.filter_bias.then(|| models.real.shared_bias()),
         models: models.members,
         draws_per_member: calibration.draws_per_member,
         seed,

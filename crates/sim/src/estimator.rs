@@ -31,6 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::drone_camera;
 use crate::dynamics::{so3_exp, so3_log, Disturbance};
+use crate::filter::ModelBias;
 use crate::world::pixel_rays;
 
 /// Which estimator feeds the controller.
@@ -138,6 +139,16 @@ pub struct VisionConfig {
     /// both settings, 12 only with 0.01, 2 only with 0): against ground-truth images the
     /// truncated Jacobians cost accuracy.
     pub jacobian_min_weight: f64,
+    /// The error the fits of nearby views share, where it is known (a calibration's perception
+    /// error model measures it: `[calibration] filter_bias`): the filter then carries it as a
+    /// considered state and takes each image's own error from it instead of
+    /// [`VisionConfig::model_error_per_rmse`]. A table of four arrays of six, one entry per pose
+    /// axis (position x, y, z in metres, rotation about x, y, z in radians): `variance` (the
+    /// shared error's), `noise_variance` (one image's own), `length_position_m` and
+    /// `length_direction` (how far the camera moves and turns before the shared error
+    /// decorrelates by e). Unset by default.
+    #[docs(table)]
+    pub model_bias: Option<ModelBias>,
 }
 
 impl Default for VisionConfig {
@@ -161,6 +172,7 @@ impl Default for VisionConfig {
             jacobian_min_weight: 0.0,
             max_refused: 2,
             stop_cost_decrease: 0.01,
+            model_bias: None,
         }
     }
 }
@@ -188,12 +200,20 @@ impl VisionConfig {
         non_negative("model_error_per_rmse[1]", self.model_error_per_rmse[1])?;
         non_negative("stop_step[0]", self.stop_step[0])?;
         non_negative("stop_step[1]", self.stop_step[1])?;
-        in_range("jacobian_min_weight", self.jacobian_min_weight, 0.0, 1.0)
+        in_range("jacobian_min_weight", self.jacobian_min_weight, 0.0, 1.0)?;
+        match &self.model_bias {
+            Some(b) => b.validate().map_err(|e| e.within("model_bias")),
+            None => Ok(()),
+        }
     }
 
     /// The model error's covariance `(δp, δθ)` for a fit of colour RMSE `rmse`
-    /// ([`VisionConfig::model_error_per_rmse`]).
+    /// ([`VisionConfig::model_error_per_rmse`]); with a shared bias, one image's own error
+    /// ([`ModelBias::noise_covariance`]), whatever the RMSE.
     pub fn model_covariance(&self, rmse: f64) -> Matrix6<f64> {
+        if let Some(b) = &self.model_bias {
+            return b.noise_covariance();
+        }
         let [p, r] = [self.model_error_per_rmse[0] * rmse, self.model_error_per_rmse[1].to_radians() * rmse];
         Matrix6::from_diagonal(&Vector6::new(p * p, p * p, p * p, r * r, r * r, r * r))
     }

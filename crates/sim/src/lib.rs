@@ -31,7 +31,7 @@ pub mod world;
 pub use config::{CameraConfig, NerfWorldSource, SimConfig};
 pub use dynamics::{Disturbance, DroneParams, State};
 pub use estimator::{EstimatorKind, PosePrior, VisionConfig};
-pub use filter::{Belief, PoseMeasurement};
+pub use filter::{Belief, ModelBias, PoseMeasurement};
 pub use flight::{plan_flight, Flight, SimError};
 pub use io::{
     check_component, images_csv, read_disturbances, read_images, read_trajectory, trajectory_csv, DisturbanceFileError,

@@ -24,6 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dynamics::{reorthonormalise, so3_exp};
 use crate::estimator::standard_normal as normal;
+use crate::filter::ModelBias;
 use crate::world::{EnsembleWorld, NerfWorld, World, WorldKind};
 
 /// The error axes, in order: position error along world x, y, z (metres), then rotation error
@@ -308,6 +309,24 @@ impl ErrorModel {
         std::array::from_fn(|a| self.axes[a].kernel)
     }
 
+    /// The model as the filter's shared bias ([`ModelBias`]), per axis: the variance of the
+    /// error function about zero (the squared-exponential term's `s²` plus the samples' mean
+    /// squared; the constant term's prior variance is the data's to settle, not the route's),
+    /// one fit's noise variance about it, and the length scales. The filter's bias is a
+    /// Gauss–Markov process (correlation `exp(−d/ℓ')`) where this model's is squared-exponential
+    /// (`exp(−d²/2ℓ²)`): `ℓ' = ℓ·√(π/2)` gives both the same integral of the correlation, so a
+    /// long route averages as many independent biases under either.
+    pub fn shared_bias(&self) -> ModelBias {
+        let k = self.kernels();
+        let stretch = std::f64::consts::FRAC_PI_2.sqrt();
+        ModelBias {
+            variance: k.map(|k| k.signal_var + k.mean * k.mean),
+            noise_variance: k.map(|k| k.noise_var),
+            length_position_m: k.map(|k| k.length_position_m * stretch),
+            length_direction: k.map(|k| k.length_direction * stretch),
+        }
+    }
+
     /// Each axis' prediction at `at`.
     pub fn predict(&self, at: &ViewPose) -> [AxisPrediction; 6] {
         std::array::from_fn(|a| self.axes[a].predict(&self.samples, at))
@@ -587,6 +606,28 @@ mod tests {
             );
             assert!((var.sqrt() / sd - 1.0).abs() < 0.15, "{position:?}: sd {} vs {sd}", var.sqrt());
         }
+    }
+
+    /// The filter's shared bias from a model's kernels: the squared-exponential variance plus
+    /// the mean squared, the noise, and length scales stretched by √(π/2) (the Gauss–Markov
+    /// correlation's integral equals the squared exponential's); the zero model's is zero.
+    #[test]
+    fn the_shared_bias_is_the_kernels_variances_and_stretched_length_scales() {
+        let model = ErrorModel::fit(&samples(30, 2, 0.004, 2));
+        let (k, b) = (model.kernels(), model.shared_bias());
+        for a in 0..6 {
+            assert_eq!(b.variance[a], k[a].signal_var + k[a].mean * k[a].mean);
+            assert_eq!(b.noise_variance[a], k[a].noise_var);
+            let ell = k[a].length_position_m;
+            // ∫₀^∞ exp(−d/ℓ') dd = ∫₀^∞ exp(−d²/2ℓ²) dd.
+            let integral =
+                (0..200_000).map(|i| (-0.5 * ((i as f64 + 0.5) * 1e-4).powi(2)).exp()).sum::<f64>() * 1e-4 * ell;
+            assert!((b.length_position_m[a] - integral).abs() < 1e-6 * ell, "axis {a}");
+            assert!((b.length_direction[a] / k[a].length_direction - b.length_position_m[a] / ell).abs() < 1e-12);
+        }
+        assert!(b.variance[0] > 0.0);
+        let zero = ErrorModel::zero().shared_bias();
+        assert_eq!((zero.variance, zero.noise_variance), ([0.0; 6], [0.0; 6]));
     }
 
     #[test]

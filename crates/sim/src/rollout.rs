@@ -289,7 +289,7 @@ impl Simulator<'_> {
         let world = own.as_deref().unwrap_or(world);
         let field = world.field();
         let mut truth = self.initial_state();
-        let mut belief = Belief::new(truth, &self.vision.initial_std);
+        let mut belief = Belief::new(truth, &self.vision.initial_std).with_bias(self.vision.model_bias);
         let vision = estimator == EstimatorKind::Vision;
         let mut out = Rollout {
             substeps: Vec::with_capacity(self.steps * (self.substeps + 1)),

@@ -480,6 +480,10 @@ pub struct Calibration {
     /// ([`crate::calibration::filter_model_error`]), which replaces the config's in every world
     /// ([`FlightInputs::filter_sim`]); none: the config's.
     pub model_error_per_rmse: Option<[f64; 2]>,
+    /// The bias the fits of nearby views share, as the calibration's model of the real error
+    /// has it ([`nerfsv_sim::ErrorModel::shared_bias`]), which the filter then considers in
+    /// every world ([`FlightInputs::filter_sim`]); none: images independent.
+    pub model_bias: Option<nerfsv_sim::ModelBias>,
 }
 
 /// One member of an ensemble as a world: its NeRF and its signed field.
@@ -521,11 +525,15 @@ impl FlightInputs {
     }
 
     /// `cfg` as the drone flies it with these inputs: the filter's model error the calibration
-    /// measured, where it replaces the config's ([`Calibration::model_error_per_rmse`]).
+    /// measured, where it replaces the config's ([`Calibration::model_error_per_rmse`]), and the
+    /// shared bias it measured, where the filter considers it ([`Calibration::model_bias`]).
     pub fn filter_sim(&self, cfg: &SimConfig) -> SimConfig {
         let mut sim = cfg.clone();
         if let Some(k) = self.calibration.as_ref().and_then(|c| c.model_error_per_rmse) {
             sim.vision.model_error_per_rmse = k;
+        }
+        if let Some(b) = self.calibration.as_ref().and_then(|c| c.model_bias) {
+            sim.vision.model_bias = Some(b);
         }
         sim
     }

@@ -182,16 +182,33 @@ fn a_rollouts_world_is_a_function_of_the_seeds_and_its_error_reaches_the_estimat
 #[test]
 fn the_filter_takes_the_model_error_the_calibration_measured_and_the_configs_without_one() {
     use nerfsv_study::flight::{Calibration, FlightInputs};
-    let inputs = |model_error_per_rmse| FlightInputs {
+    let inputs = |model_error_per_rmse, model_bias| FlightInputs {
         nerf: nerfs()[0].clone(),
         nerf_field: free_field(),
         gt_field: None,
         members: Vec::new(),
-        calibration: Some(Calibration { models: Vec::new(), draws_per_member: 1, seed: 0, model_error_per_rmse }),
+        calibration: Some(Calibration {
+            models: Vec::new(),
+            draws_per_member: 1,
+            seed: 0,
+            model_error_per_rmse,
+            model_bias,
+        }),
     };
     let cfg = SimConfig::default();
-    let measured = inputs(Some([0.3, 9.0])).filter_sim(&cfg);
+    let measured = inputs(Some([0.3, 9.0]), None).filter_sim(&cfg);
     assert_eq!(measured.vision.model_error_per_rmse, [0.3, 9.0]);
     assert_eq!(SimConfig { vision: cfg.vision.clone(), ..measured }, cfg, "nothing else changes");
-    assert_eq!(inputs(None).filter_sim(&cfg), cfg);
+    assert_eq!(inputs(None, None).filter_sim(&cfg), cfg);
+    // A shared bias: the filter considers it, nothing else moves.
+    let bias = nerfsv_sim::ModelBias {
+        variance: [1e-4; 6],
+        noise_variance: [4e-4; 6],
+        length_position_m: [0.3; 6],
+        length_direction: [1.0; 6],
+    };
+    let considered = inputs(None, Some(bias)).filter_sim(&cfg);
+    assert_eq!(considered.vision.model_bias, Some(bias));
+    let vision = nerfsv_sim::VisionConfig { model_bias: None, ..considered.vision.clone() };
+    assert_eq!(SimConfig { vision, ..considered }, cfg, "nothing else changes");
 }

@@ -615,15 +615,15 @@ mod tests {
     fn the_shared_bias_is_the_kernels_variances_and_stretched_length_scales() {
         let model = ErrorModel::fit(&samples(30, 2, 0.004, 2));
         let (k, b) = (model.kernels(), model.shared_bias());
-        for a in 0..6 {
-            assert_eq!(b.variance[a], k[a].signal_var + k[a].mean * k[a].mean);
-            assert_eq!(b.noise_variance[a], k[a].noise_var);
-            let ell = k[a].length_position_m;
+        for (a, k) in k.iter().enumerate() {
+            assert_eq!(b.variance[a], k.signal_var + k.mean * k.mean);
+            assert_eq!(b.noise_variance[a], k.noise_var);
+            let ell = k.length_position_m;
             // ∫₀^∞ exp(−d/ℓ') dd = ∫₀^∞ exp(−d²/2ℓ²) dd.
             let integral =
                 (0..200_000).map(|i| (-0.5 * ((i as f64 + 0.5) * 1e-4).powi(2)).exp()).sum::<f64>() * 1e-4 * ell;
             assert!((b.length_position_m[a] - integral).abs() < 1e-6 * ell, "axis {a}");
-            assert!((b.length_direction[a] / k[a].length_direction - b.length_position_m[a] / ell).abs() < 1e-12);
+            assert!((b.length_direction[a] / k.length_direction - b.length_position_m[a] / ell).abs() < 1e-12);
         }
         assert!(b.variance[0] > 0.0);
         let zero = ErrorModel::zero().shared_bias();

@@ -126,9 +126,12 @@ fn model_error(f: &CalibrationFigures, s: &mut Section) {
              mean square of error ÷ RMSE over {} fits of {} views, lost fits left out; 95 % intervals from a \
              bootstrap over views), against the config's {} m and {}° (sim.vision.model_error_per_rmse). With \
              [calibration] filter_model_error = true the stress and online stages' filter takes the measured \
-             value in every world, GT-sim's included (one estimator ships); by default it keeps the config's, as \
-             images taken close together in flight share their error, which this measurement of single fits \
-             does not see.",
+             value in every world, GT-sim's included (one estimator ships); but images taken close together in \
+             flight share their error, which this measurement of single fits does not see. By default \
+             ([calibration] filter_bias) the filter instead carries the kernels' shared error (the \
+             squared-exponential variance plus the mean squared, length scales stretched by √(π/2) for its \
+             Gauss–Markov form) as a bias it considers but never estimates, and takes each image's own error \
+             from the kernels' noise; the model error per RMSE is then unused.",
             num(m.per_rmse[0], 3),
             num(m.position_ci95[0], 3),
             num(m.position_ci95[1], 3),

@@ -215,6 +215,28 @@ pub struct Belief {
     pub refused_in_a_row: usize,
     /// The bias the images share, where the estimator models one ([`ModelBias`]).
     pub bias: Option<SharedBias>,
+    /// After a relocalisation, until the next image confirms it: the belief as it was before
+    /// it, predicted alongside ([`Belief::relocalise`], [`Belief::judge_relocalisation`]).
+    pub unconfirmed: Option<Fallback>,
+}
+
+/// The belief a relocalisation replaced, kept (and predicted) until the next image confirms
+/// the relocalised one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fallback {
+    pub mean: State,
+    pub covariance: Covariance,
+    pub bias: Option<SharedBias>,
+}
+
+impl Fallback {
+    fn belief(&self) -> Belief {
+        Belief { mean: self.mean, covariance: self.covariance, refused_in_a_row: 0, bias: self.bias, unconfirmed: None }
+    }
+
+    fn of(b: &Belief) -> Self {
+        Self { mean: b.mean, covariance: b.covariance, bias: b.bias }
+    }
 }
 
 impl Belief {
@@ -225,6 +247,28 @@ impl Belief {
             covariance: Covariance::from_diagonal(&ErrorVector::from_fn(|i, _| std[i] * std[i])),
             refused_in_a_row: 0,
             bias: None,
+            unconfirmed: None,
+        }
+    }
+
+    /// Lost track: remembers the belief as it is ([`Belief::unconfirmed`]) and widens the pose
+    /// ([`Belief::widen_pose`]) for a wide search, whose fit the next image must confirm.
+    pub fn relocalise(&mut self, std: [f64; 2]) {
+        self.unconfirmed = Some(Fallback::of(self));
+        self.widen_pose(std);
+    }
+
+    /// The first image after a relocalisation judges it: taken (`accepted`), the relocalised
+    /// belief stands; refused, the belief returns to the one it replaced (predicted to now) with
+    /// `refusals` refused images in a row, so the next image relocalises again. Returns whether
+    /// the relocalisation was undone; without one pending, does nothing.
+    pub fn judge_relocalisation(&mut self, accepted: bool, refusals: usize) -> bool {
+        match self.unconfirmed.take() {
+            Some(f) if !accepted => {
+                *self = Belief { refused_in_a_row: refusals, ..f.belief() };
+                true
+            }
+            _ => false,
         }
     }
 
@@ -247,6 +291,11 @@ impl Belief {
         for (i, s) in std.iter().enumerate() {
             self.covariance[(i, i)] += s * s;
         }
+        if let Some(f) = &mut self.unconfirmed {
+            let mut b = f.belief();
+            b.disturb(std);
+            *f = Fallback::of(&b);
+        }
     }
 
     /// One dynamics substep with the action `a`.
@@ -254,6 +303,11 @@ impl Belief {
     /// and the turn the substep's predicted motion covers: `b ← Φ·b + w`, `C ← F·C·Φ`,
     /// `B ← Φ·B·Φ + (I − Φ²)·diag(variance)`.
     pub fn predict(&mut self, a: &Action, params: &DroneParams) {
+        if let Some(f) = &mut self.unconfirmed {
+            let mut b = f.belief();
+            b.predict(a, params);
+            *f = Fallback::of(&b);
+        }
         let f = transition_jacobian(&self.mean, a, params);
         if let Some(bias) = &mut self.bias {
             let (distance, turn) = (self.mean.velocity.norm() * params.dt, self.mean.omega.norm() * params.dt);
@@ -481,7 +535,7 @@ mod tests {
             let k = p * h.transpose() * (h * p * h.transpose() + r / w + m).try_inverse().unwrap();
             let x_kf = x0 + k * (z - h * x0);
             let p_kf = (Covariance::identity() - k * h) * p;
-            let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None };
+            let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None, unconfirmed: None };
             let fit = PoseMeasurement {
                 weight: w,
                 model_covariance: m,
@@ -589,7 +643,7 @@ mod tests {
                     lambda,
                 )
             };
-            let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None };
+            let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None, unconfirmed: None };
             refused += usize::from(!b.update_pose(&fit, NIS_CHI2_95).accepted);
             old_refused += usize::from(y.dot(&(p_pp_inv * y)) > NIS_CHI2_95);
         }
@@ -635,7 +689,7 @@ mod tests {
         let q_inv = (s - r).try_inverse().unwrap();
         let y = (q_inv + lambda).try_inverse().unwrap() * (lambda * z);
         let bias = SharedBias { model: bias_model(1e-4, 1e-4, 1.0), cross, covariance: bias_cov };
-        let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: Some(bias) };
+        let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: Some(bias), unconfirmed: None };
         assert!((b.pose_information() - q_inv).abs().max() < 1e-9 * q_inv.abs().max());
         let fit = PoseMeasurement {
             weight: w,
@@ -674,8 +728,9 @@ mod tests {
         for _ in 0..draws {
             let truth = retract(&mean, &(p_chol * normals::<DIM>(&mut rng)));
             let bias = normals::<6>(&mut rng) * model.variance[0].sqrt();
-            let mut considered = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None }.with_bias(Some(model));
-            let mut independent = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None };
+            let mut considered = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None, unconfirmed: None }
+                .with_bias(Some(model));
+            let mut independent = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None, unconfirmed: None };
             for _ in 0..images {
                 // The image's optimum: the true pose moved by the shared and its own error.
                 let e = bias + normals::<6>(&mut rng) * model.noise_variance[0].sqrt();
@@ -743,6 +798,43 @@ mod tests {
         let gone = moving.bias.unwrap();
         assert!(gone.cross.abs().max() < 1e-12, "{}", gone.cross.abs().max());
         assert!((gone.covariance - Matrix6::from_diagonal(&Vector6::from(model.variance))).abs().max() < 1e-12);
+    }
+
+    /// A relocalisation keeps the belief it replaced and predicts it alongside; the next image
+    /// taken confirms the relocalised belief, one refused returns to the replaced belief (as
+    /// predicted to now) with the refusals that make the next image relocalise again.
+    #[test]
+    fn the_image_after_a_relocalisation_confirms_it_or_undoes_it() {
+        let params = DroneParams::default();
+        let hover = Action { thrust: params.mass * params.gravity, torque: Vector3::new(0.01, 0.0, 0.0) };
+        let lost = Belief::new(State::at_rest(Vector3::new(0.3, 0.1, 0.5), 0.0), &[0.01; DIM]);
+        let mut replaced = lost;
+        replaced.predict(&hover, &params);
+        for accepted in [true, false] {
+            let mut b = lost;
+            b.relocalise([0.3, 0.2]);
+            assert!(b.pose_covariance()[(0, 0)] > 0.09 && b.unconfirmed == Some(Fallback::of(&lost)));
+            // The wide search's fit moves the belief 10 cm, taken whatever its innovation.
+            let moved = b.mean.position + Vector3::new(0.1, 0.0, 0.0);
+            assert!(
+                b.update_pose(
+                    &PoseMeasurement::exact(moved, b.mean.rotation, Matrix6::identity() * 1e6),
+                    f64::INFINITY
+                )
+                .accepted
+            );
+            b.predict(&hover, &params);
+            let undone = b.judge_relocalisation(accepted, 3);
+            assert_eq!(undone, !accepted);
+            assert_eq!(b.unconfirmed, None);
+            if accepted {
+                assert!((b.mean.position.x - replaced.mean.position.x - 0.1).abs() < 1e-3);
+            } else {
+                assert_eq!(b, Belief { refused_in_a_row: 3, ..replaced });
+            }
+            // Nothing pending: nothing to judge.
+            assert!(!b.judge_relocalisation(false, 3));
+        }
     }
 
     /// The central-difference `F` carries a small error through one substep to first order,

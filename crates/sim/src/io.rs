@@ -12,7 +12,8 @@
 //! An image log has one row per camera image, the filter's record of it ([`IMAGE_COLUMNS`]):
 //! the estimate's errors before and after, the normalised innovation and estimation errors
 //! squared, whether the gate took the image, whether the estimator relocalised or lost track
-//! there, the fit's variance factor, the filter's expected errors, and the renders the fit took.
+//! there, the fit's variance factor, the filter's expected errors, the renders the fit took, its
+//! colour RMSE, and whether it undid the relocalisation before it.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -268,7 +269,7 @@ pub fn parse_trajectory(text: &str, path: &Path) -> Result<Vec<TrajectoryRow>, T
 
 /// Header of an image log ([`images_csv`]), one column per field of [`ImageUpdate`] in its order
 /// (booleans as 0 or 1).
-pub const IMAGE_COLUMNS: [&str; 17] = [
+pub const IMAGE_COLUMNS: [&str; 18] = [
     "step",
     "substep",
     "time_s",
@@ -286,6 +287,7 @@ pub const IMAGE_COLUMNS: [&str; 17] = [
     "attitude_sd_deg",
     "renders",
     "photometric_rmse",
+    "relocalisation_undone",
 ];
 
 impl ImageUpdate {
@@ -309,6 +311,7 @@ impl ImageUpdate {
             self.rotation_spread_deg,
             self.renders as f64,
             self.photometric_rmse,
+            f64::from(u8::from(self.relocalisation_undone)),
         ]
     }
 
@@ -342,6 +345,7 @@ impl ImageUpdate {
             rotation_spread_deg: v[14],
             renders: count(15)?,
             photometric_rmse: v[16],
+            relocalisation_undone: flag(17)?,
         })
     }
 }
@@ -523,6 +527,7 @@ mod tests {
             rotation_spread_deg: f64::MAX,
             renders: 10 + k,
             photometric_rmse: 0.012,
+            relocalisation_undone: k == 0,
         };
         let log: Vec<ImageUpdate> = (0..4).map(update).collect();
         let text = images_csv(&log);

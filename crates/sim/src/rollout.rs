@@ -137,6 +137,10 @@ pub struct ImageUpdate {
     /// Renders the fit spent, and its final colour RMSE.
     pub renders: usize,
     pub photometric_rmse: f64,
+    /// The image was the first after a relocalisation and refused: the relocalisation was
+    /// undone (the belief returned to the one it replaced) and the next image relocalises again
+    /// ([`crate::filter::Belief::judge_relocalisation`]).
+    pub relocalisation_undone: bool,
 }
 
 /// Where and when something happened.
@@ -395,7 +399,7 @@ impl Simulator<'_> {
         let (predicted, before) = (belief.mean, *belief);
         let relocalised = self.vision.relocalise_after > 0 && belief.refused_in_a_row >= self.vision.relocalise_after;
         if relocalised {
-            belief.widen_pose([self.vision.relocalise_std[0], self.vision.relocalise_std[1].to_radians()]);
+            belief.relocalise([self.vision.relocalise_std[0], self.vision.relocalise_std[1].to_radians()]);
         }
         let prior = PosePrior {
             position: predicted.position,
@@ -428,6 +432,10 @@ impl Simulator<'_> {
             *belief = Belief { refused_in_a_row: before.refused_in_a_row + 1, ..before };
             u.accepted = false;
         }
+        // A relocalised fit is taken whatever its innovation, so the image after it confirms it
+        // or undoes it.
+        let relocalisation_undone =
+            !relocalised && belief.judge_relocalisation(u.accepted, self.vision.relocalise_after);
         let [sp, sr] = belief.pose_spread();
         ImageUpdate {
             step,
@@ -447,6 +455,7 @@ impl Simulator<'_> {
             rotation_spread_deg: sr.to_degrees(),
             renders: fit.renders,
             photometric_rmse: fit.rmse,
+            relocalisation_undone,
         }
     }
 

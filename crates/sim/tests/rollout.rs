@@ -356,17 +356,29 @@ fn a_fit_that_explains_too_little_of_its_image_is_refused() {
     vf.sort_by(f64::total_cmp);
     sim.vision.lost_variance_factor = vf[vf.len() / 2];
     let r = sim.fly(&world, EstimatorKind::Vision, &ds, 3);
-    let mut in_a_row = 0;
+    let (mut in_a_row, mut pending) = (0, false);
     for u in &r.updates {
         assert_eq!(u.lost, u.variance_factor > sim.vision.lost_variance_factor, "{u:?}");
         assert_eq!(u.relocalised, in_a_row >= sim.vision.relocalise_after, "{u:?}");
+        // The image after a relocalisation (not itself lost) confirms it or undoes it.
+        assert_eq!(u.relocalisation_undone, pending && !u.accepted, "{u:?}");
         if u.lost {
             assert!(!u.accepted);
-            assert_eq!(u.position_error_m.to_bits(), u.predicted_position_error_m.to_bits());
+            // The prediction stays, unless the image undid a relocalisation (the belief it
+            // replaced returns).
+            if !u.relocalisation_undone {
+                assert_eq!(u.position_error_m.to_bits(), u.predicted_position_error_m.to_bits());
+            }
         }
-        in_a_row = if u.accepted { 0 } else { in_a_row + 1 };
+        pending = u.relocalised && !u.lost;
+        in_a_row = match (u.relocalisation_undone, u.accepted) {
+            (true, _) => sim.vision.relocalise_after,
+            (false, true) => 0,
+            (false, false) => in_a_row + 1,
+        };
     }
     assert!(r.updates.iter().any(|u| u.lost), "the case must refuse a lost fit");
+    assert!(r.updates.iter().any(|u| u.relocalisation_undone), "the case must undo a relocalisation");
 }
 
 #[test]

@@ -203,6 +203,7 @@ mod tests {
             position_spread_m: 0.02,
             rotation_spread_deg: 0.5,
             renders: 4,
+            relocalisation_undone: false,
             photometric_rmse: 0.01,
         }
     }

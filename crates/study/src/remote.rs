@@ -187,7 +187,7 @@ mod tests {
         // Two images: every column a value its field may hold (flags 0 or 1, counts whole).
         let row = |k: f64| -> [f64; IMAGE_COLUMNS.len()] {
             std::array::from_fn(|i| match i {
-                9..=11 => k,
+                9..=11 | 17 => k,
                 0 | 1 | 15 => i as f64 + k,
                 _ => i as f64 / 3.0 + k,
             })

@@ -359,8 +359,10 @@ fn estimator_errors_and_failures(s: &mut Section, f: &StressFigures) {
              searches in NeRF-sim and their replays in GT-sim), and what its filter did with the images: the \
              share whose normalised innovation squared (NIS) exceeds χ²₆'s 95th percentile (5 % for a filter whose \
              covariance is right; more means it is overconfident, fewer that it is too cautious), the images the \
-             innovation gate refused, the fits lost (too little of the image explained), the relocalisations, and \
-             the renders each image's fit took. Each rollout's image log lies beside its journal entry \
+             innovation gate refused, the fits lost (too little of the image explained), the relocalisations and \
+             those the next image undid (a relocalised fit is taken whatever its innovation, so the image after it \
+             must pass the gate, or the belief returns to the one it replaced), and the renders each image's fit \
+             took. Each rollout's image log lies beside its journal entry \
              (stress/journal/, the files ending in .images.csv).",
         );
         s.table(
@@ -371,7 +373,7 @@ fn estimator_errors_and_failures(s: &mut Section, f: &StressFigures) {
                 "attitude error median / p90 (°)",
                 "NIS > χ²₆(0.95)",
                 "median NIS",
-                "refused by the gate / lost / relocalised",
+                "refused by the gate / lost / relocalised (undone)",
                 "renders per image",
             ])
             .rows(f.estimate_errors.iter().map(|e| {
@@ -382,7 +384,7 @@ fn estimator_errors_and_failures(s: &mut Section, f: &StressFigures) {
                     format!("{} / {}", num(e.median_attitude_deg, 2), num(e.p90_attitude_deg, 2)),
                     format!("{:.1} %", 100.0 * e.nis_above_chi2_95 as f64 / e.images as f64),
                     num(e.median_nis, 2),
-                    format!("{} / {} / {}", e.refused_by_gate, e.lost, e.relocalised),
+                    format!("{} / {} / {} ({})", e.refused_by_gate, e.lost, e.relocalised, e.relocalisations_undone),
                     num(e.mean_renders, 2),
                 ]
             })),

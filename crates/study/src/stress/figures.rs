@@ -441,6 +441,10 @@ pub struct EstimateErrorFigures {
     /// Images at which the estimator relocalised (a wide search after refusals in a row).
     #[serde(default)]
     pub relocalised: usize,
+    /// Relocalisations the next image undid (it was refused, so the belief returned to the one
+    /// the relocalisation replaced).
+    #[serde(default)]
+    pub relocalisations_undone: usize,
     /// The estimator's renders per image.
     #[serde(default)]
     pub mean_renders: f64,
@@ -473,6 +477,7 @@ impl EstimateErrorFigures {
             refused_by_gate: count(|u| !u.accepted && !u.lost),
             lost: count(|u| u.lost),
             relocalised: count(|u| u.relocalised),
+            relocalisations_undone: count(|u| u.relocalisation_undone),
             mean_renders: images.iter().map(|u| u.renders as f64).sum::<f64>() / images.len() as f64,
         })
     }

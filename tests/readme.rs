@@ -48,7 +48,7 @@ fn the_readme_quotes_the_run_its_picture_shows() {
         (cem_confusion["true_positive"].as_u64().unwrap(), cem_confusion["false_positive"].as_u64().unwrap());
     let auroc = |measure: &str| {
         let rows = summary["online"]["step_auroc"].as_array().unwrap();
-        let row = rows.iter().find(|r| r["measure"] == measure && r["sampler"] == "mc").unwrap();
+        let row = rows.iter().find(|r| r["measure"] == measure && r["sampler"] == "cem").unwrap();
         format!("{:.2}", f(&row["pooled"]["auroc"]))
     };
     let interval = &subset["p_fail_interval"];
@@ -57,14 +57,14 @@ fn the_readme_quotes_the_run_its_picture_shows() {
         format!("and {} in NeRF-sim's calibrated world", rate(&transfer["nerf_calibrated"])),
         format!("crashes in [{:.1}, {:.1}] %", 100.0 * f(&predictive[0]), 100.0 * f(&predictive[1])),
         format!(
-            "finds only {} of GT-sim's {} failures",
+            "finds {} of GT-sim's {} failures",
             calibrated["confusion"]["true_positive"], transfer["gt"]["failures"]
         ),
         format!("recall {}", proportion(&calibrated["recall"])),
         format!("precision {}", proportion(&calibrated["precision"])),
         format!("{tp} of {} crash in GT-sim too", tp + fp),
         format!("{:.2} [{:.3}, {:.3}] (subset simulation", f(&subset["p_fail"]), f(&interval[0]), f(&interval[1])),
-        format!("(AUROC GA {}, BLA {} on Monte Carlo's steps", auroc("ga"), auroc("bla")),
+        format!("(AUROC GA {}, BLA {} on the CEM's steps", auroc("ga"), auroc("bla")),
     ];
     let missing: Vec<&String> = quoted.iter().filter(|q| !readme.contains(q.as_str())).collect();
     assert!(missing.is_empty(), "the README does not quote the pictured run's {missing:?}");

@@ -164,7 +164,11 @@ fn step_auroc_answer(f: &OnlineFigures) -> String {
         .step_auroc
         .iter()
         .filter(|r| r.measure == CLEARANCE)
-        .map(|r| format!("{} {}", r.sampler.name().to_uppercase(), with_interval(&r.stratified)))
+        .map(|r| match r.stratified.auroc {
+            Some(_) => format!("{} {}", r.sampler.name().to_uppercase(), with_interval(&r.stratified)),
+            // No step of its studied rollouts disagrees, so no AUROC is defined.
+            None => format!("{} – (no disagreeing step among its {} steps)", r.sampler.name().to_uppercase(), r.steps),
+        })
         .collect();
     let best = measures
         .filter_map(|r| r.stratified.auroc.map(|a| (a, r)))

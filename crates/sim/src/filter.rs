@@ -350,19 +350,33 @@ impl Belief {
     /// [`Belief::refused_in_a_row`] are then updated), else refused (the belief stays and the
     /// count of refusals grows). A NaN innovation is refused.
     pub fn update_pose(&mut self, fit: &PoseMeasurement, gate: f64) -> PoseUpdate {
-        if let Some(bias) = self.bias {
-            return self.update_pose_with_bias(bias, fit, gate);
-        }
-        let p_pp = self.pose_covariance();
-        let p_pp_inv = inverse_spd(&p_pp);
+        // The fit's prior: P_pp, and with a shared bias Q = P_pp + C_p + C_pᵀ + B.
+        let q = self.predicted_fit_covariance();
+        let q_inv = inverse_spd(&q);
         let fitted = pose_difference(&fit.position, &fit.rotation, &self.mean);
         let w = fit.weight.max(f64::MIN_POSITIVE);
-        let nis = normalised_innovation(&p_pp, &p_pp_inv, fit, w, &fitted);
+        let nis = normalised_innovation(&q, &q_inv, fit, w, &fitted);
         if nis.is_nan() || nis > gate {
             self.refused_in_a_row += 1;
             return PoseUpdate { nis, accepted: false };
         }
         self.refused_in_a_row = 0;
+        match self.bias {
+            Some(bias) => self.take_with_bias(bias, fit, &q, &q_inv, w, &fitted),
+            None => self.take(fit, &q, &q_inv, w, &fitted),
+        }
+        PoseUpdate { nis, accepted: true }
+    }
+
+    /// The update of a fit the gate took, without a shared bias (`p_pp` the pose's covariance).
+    fn take(
+        &mut self,
+        fit: &PoseMeasurement,
+        p_pp: &Matrix6<f64>,
+        p_pp_inv: &Matrix6<f64>,
+        w: f64,
+        fitted: &Vector6<f64>,
+    ) {
         // With Λ the fit's information, w its weight and M the model error: the measurement's
         // information is Λ' = (Λ⁻¹/w + M)⁻¹ = (I/w + Λ·M)⁻¹·Λ, and since the fit satisfies
         // (P_pp⁻¹ + Λ)·Δ = Λ·z (z the image's optimum, relative to the prediction), the update a
@@ -381,27 +395,24 @@ impl Belief {
         }
         self.mean = retract(&self.mean, &shift);
         self.covariance = symmetric(&(self.covariance + g * (s - p_pp) * g.transpose()));
-        PoseUpdate { nis, accepted: true }
     }
 
-    /// [`Belief::update_pose`] with a shared bias: the Schmidt–Kalman update for the measurement
-    /// `z = pose + b + v` of the image's optimum `z` (relative to the prediction), `v ~ N(0, R)`,
-    /// `R = Λ⁻¹/w + M` (`M` the image's own model error). With `Q = P_pp + C_p + C_pᵀ + B` (the
-    /// fit's prior, so `(Q⁻¹ + Λ)·Δ = Λ·z`) the innovation's covariance is `Q + R`, whose inverse
-    /// `w·(I + w·Λ·(Q + M))⁻¹·Λ` needs no `Λ⁻¹`; the state moves by `cov(δx, z)·(Q + R)⁻¹·z`, its
-    /// covariance and its cross-covariance with the bias shrink by that gain, and the bias keeps
-    /// its mean (zero) and its covariance.
-    fn update_pose_with_bias(&mut self, bias: SharedBias, fit: &PoseMeasurement, gate: f64) -> PoseUpdate {
-        let q = self.predicted_fit_covariance();
-        let q_inv = inverse_spd(&q);
-        let fitted = pose_difference(&fit.position, &fit.rotation, &self.mean);
-        let w = fit.weight.max(f64::MIN_POSITIVE);
-        let nis = normalised_innovation(&q, &q_inv, fit, w, &fitted);
-        if nis.is_nan() || nis > gate {
-            self.refused_in_a_row += 1;
-            return PoseUpdate { nis, accepted: false };
-        }
-        self.refused_in_a_row = 0;
+    /// The update of a fit the gate took, with a shared bias: the Schmidt–Kalman update for the
+    /// measurement `z = pose + b + v` of the image's optimum `z` (relative to the prediction),
+    /// `v ~ N(0, R)`, `R = Λ⁻¹/w + M` (`M` the image's own model error). With
+    /// `Q = P_pp + C_p + C_pᵀ + B` (the fit's prior, so `(Q⁻¹ + Λ)·Δ = Λ·z`) the innovation's
+    /// covariance is `Q + R`, whose inverse `w·(I + w·Λ·(Q + M))⁻¹·Λ` needs no `Λ⁻¹`; the state
+    /// moves by `cov(δx, z)·(Q + R)⁻¹·z`, its covariance and its cross-covariance with the bias
+    /// shrink by that gain, and the bias keeps its mean (zero) and its covariance.
+    fn take_with_bias(
+        &mut self,
+        bias: SharedBias,
+        fit: &PoseMeasurement,
+        q: &Matrix6<f64>,
+        q_inv: &Matrix6<f64>,
+        w: f64,
+        fitted: &Vector6<f64>,
+    ) {
         let lambda = symmetric(&fit.information);
         let y = (q_inv + lambda) * fitted;
         let a = Matrix6::identity() + lambda * (q + fit.model_covariance) * w;
@@ -415,7 +426,6 @@ impl Belief {
         self.covariance = symmetric(&(self.covariance - cov_xz * s_inv * cov_xz.transpose()));
         let cross = bias.cross - cov_xz * s_inv * (c_p + bias.covariance);
         self.bias = Some(SharedBias { cross, ..bias });
-        PoseUpdate { nis, accepted: true }
     }
 
     /// The error of the belief about `truth`, `truth ⊟ mean`.

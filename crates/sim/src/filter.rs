@@ -644,15 +644,7 @@ mod tests {
             let x = Vector6::new(e[0], e[1], e[2], e[6], e[7], e[8]);
             let z = x + r_chol * normals::<6>(&mut rng);
             let y = (p_pp_inv + lambda).try_inverse().unwrap() * (lambda * z);
-            let fit = PoseMeasurement {
-                weight: w,
-                model_covariance: m,
-                ..PoseMeasurement::exact(
-                    mean.position + Vector3::new(y[0], y[1], y[2]),
-                    so3_exp(&Vector3::new(y[3], y[4], y[5])) * mean.rotation,
-                    lambda,
-                )
-            };
+            let fit = measurement_at(&mean, &y, lambda, w, m);
             let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: None, unconfirmed: None };
             refused += usize::from(!b.update_pose(&fit, NIS_CHI2_95).accepted);
             old_refused += usize::from(y.dot(&(p_pp_inv * y)) > NIS_CHI2_95);
@@ -662,6 +654,20 @@ mod tests {
         let rate = refused as f64 / n as f64;
         assert!((rate - 0.05).abs() < half, "NIS gate refused {rate} of draws, nominal 0.05 ± {half}");
         assert!((old_refused as f64 / n as f64) < 0.05 - half, "the old test refused {old_refused}");
+    }
+
+    /// A fit at `at` moved by `y` (position, then a world rotation vector) with information
+    /// `lambda`, weight `w` and model error `m`.
+    fn measurement_at(at: &State, y: &Vector6<f64>, lambda: Matrix6<f64>, w: f64, m: Matrix6<f64>) -> PoseMeasurement {
+        PoseMeasurement {
+            weight: w,
+            model_covariance: m,
+            ..PoseMeasurement::exact(
+                at.position + Vector3::new(y[0], y[1], y[2]),
+                so3_exp(&Vector3::new(y[3], y[4], y[5])) * at.rotation,
+                lambda,
+            )
+        }
     }
 
     fn bias_model(variance: f64, noise: f64, length: f64) -> ModelBias {
@@ -701,15 +707,7 @@ mod tests {
         let bias = SharedBias { model: bias_model(1e-4, 1e-4, 1.0), cross, covariance: bias_cov };
         let mut b = Belief { mean, covariance: p, refused_in_a_row: 0, bias: Some(bias), unconfirmed: None };
         assert!((b.pose_information() - q_inv).abs().max() < 1e-9 * q_inv.abs().max());
-        let fit = PoseMeasurement {
-            weight: w,
-            model_covariance: m,
-            ..PoseMeasurement::exact(
-                mean.position + Vector3::new(y[0], y[1], y[2]),
-                so3_exp(&Vector3::new(y[3], y[4], y[5])) * mean.rotation,
-                lambda,
-            )
-        };
+        let fit = measurement_at(&mean, &y, lambda, w, m);
         assert!(b.update_pose(&fit, f64::INFINITY).accepted);
         let got = local(&mean, &b.mean);
         assert!((got - x_kf).abs().max() < 1e-10, "mean {got} vs {x_kf}");
@@ -755,15 +753,7 @@ mod tests {
                     // Fitted (Λ sharp) under the belief's own prior.
                     let at = pose_difference(&optimum.0, &optimum.1, &belief.mean);
                     let y = (belief.pose_information() + lambda).try_inverse().unwrap() * (lambda * at);
-                    let fit = PoseMeasurement {
-                        weight: 1.0,
-                        model_covariance: m,
-                        ..PoseMeasurement::exact(
-                            belief.mean.position + Vector3::new(y[0], y[1], y[2]),
-                            so3_exp(&Vector3::new(y[3], y[4], y[5])) * belief.mean.rotation,
-                            lambda,
-                        )
-                    };
+                    let fit = measurement_at(&belief.mean, &y, lambda, 1.0, m);
                     assert!(belief.update_pose(&fit, f64::INFINITY).accepted);
                 }
             }

@@ -117,9 +117,8 @@ fn main() -> anyhow::Result<()> {
     v.stop_step = [stop_mm * 1e-3, stop_mm * 0.06];
     if env("BIAS", 0u8) == 1 {
         // The shared bias the run's calibration measured, as `[calibration] filter_bias` flies it.
-        let path = out.join("calibration").join(nerfsv_study::calibration::MODEL_JSON);
-        let models: nerfsv_study::calibration::ErrorModels = serde_json::from_str(&std::fs::read_to_string(&path)?)?;
-        v.model_bias = Some(models.real.shared_bias());
+        let calibration = nerfsv_study::calibration::CalibrationConfig { filter_bias: true, ..Default::default() };
+        v.model_bias = nerfsv_pipeline::inputs::load_calibration(&out, &calibration, 0)?.model_bias;
         println!("filter bias: {:?}", v.model_bias);
     }
     if env("COLLISION", String::new()) == "centre_cell" {

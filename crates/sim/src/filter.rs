@@ -237,6 +237,13 @@ impl Fallback {
     fn of(b: &Belief) -> Self {
         Self { mean: b.mean, covariance: b.covariance, bias: b.bias }
     }
+
+    /// Applies `op` (a prediction, a disturbance) to the belief this fallback holds.
+    fn apply(&mut self, op: impl FnOnce(&mut Belief)) {
+        let mut b = self.belief();
+        op(&mut b);
+        *self = Self::of(&b);
+    }
 }
 
 impl Belief {
@@ -292,21 +299,16 @@ impl Belief {
             self.covariance[(i, i)] += s * s;
         }
         if let Some(f) = &mut self.unconfirmed {
-            let mut b = f.belief();
-            b.disturb(std);
-            *f = Fallback::of(&b);
+            f.apply(|b| b.disturb(std));
         }
     }
 
-    /// One dynamics substep with the action `a`.
     /// One dynamics substep with the action `a`. A shared bias decorrelates over the distance
     /// and the turn the substep's predicted motion covers: `b ← Φ·b + w`, `C ← F·C·Φ`,
     /// `B ← Φ·B·Φ + (I − Φ²)·diag(variance)`.
     pub fn predict(&mut self, a: &Action, params: &DroneParams) {
         if let Some(f) = &mut self.unconfirmed {
-            let mut b = f.belief();
-            b.predict(a, params);
-            *f = Fallback::of(&b);
+            f.apply(|b| b.predict(a, params));
         }
         let f = transition_jacobian(&self.mean, a, params);
         if let Some(bias) = &mut self.bias {

@@ -368,7 +368,7 @@ fn write(out: &Path, r: &Replication) -> Result<(), PipelineError> {
     let page = format!(
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>nerfsv: the study over {n} {what}</title>\
          <style>body{{font-family:sans-serif;max-width:70em;margin:2em auto}}table{{border-collapse:collapse}}\
-         td,th{{border:1px solid #ccc;padding:.3em .6em;text-align:right}}td:first-child{{text-align:left}}</style>\
+         td,th{{border:1px solid #ccc;padding:.3em .6em;text-align:right}}td:first-child,th:first-child{{text-align:left}}</style>\
          </head><body><h1>The study over {n} {what}</h1><p>{how} Each headline's mean ± standard deviation over \
          the runs, then each run's value. Each run's own report is in its folder \
          (<code>{folder}/report/index.html</code>); the figures are in <code>{CSV}</code> and <code>{JSON}</code>.\

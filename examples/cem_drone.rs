@@ -36,7 +36,7 @@ struct Print;
 
 impl Observer for Print {
     fn progress(&self, stage: &str, done: u64, total: u64, _: &str) {
-        if done % 100 == 0 || done == total {
+        if done.is_multiple_of(100) || done == total {
             eprintln!("{stage}: {done}/{total}");
         }
     }

@@ -27,7 +27,9 @@
 //! images per case (default 24) and `OFFSET_M` / `OFFSET_DEG` the start's offset (0.3 m, 10°);
 //! `LOST_VF` sets `lost_variance_factor` (`inf`: never refuse a fit for its variance factor);
 //! `BIAS=1` flies the filter with the shared bias the run's calibration measured (`[calibration]
-//! filter_bias`).
+//! filter_bias`). `NERF_WORLD` picks NeRF-sim's world: `deployed` (default: the estimator's own
+//! NeRF), `ensemble` or `calibrated` (the study's, from the run folder's members and calibration;
+//! `CHECKPOINT` then does not apply).
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
 
@@ -35,15 +37,16 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use nerfsv_pipeline::stages::{CollisionStage, NerfCollisionStage, NerfStage};
+use nerfsv_pipeline::stress::StressStage;
 use nerfsv_pipeline::{RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{so3_exp, so3_log};
 use nerfsv_sim::estimator::Starts;
 use nerfsv_sim::{
-    Belief, Collision, Disturbance, EstimatorKind, Flight, ImageAt, ImageUpdate, PosePrior, Rollout, Simulator, World,
-    WorldKind,
+    Belief, Collision, Disturbance, EstimatorKind, Flight, ImageAt, ImageUpdate, NerfWorldSource, PosePrior, Rollout,
+    Simulator, World, WorldKind,
 };
-use nerfsv_study::flight::{world, FlightInputs};
+use nerfsv_study::flight::{drone_world, FlightInputs};
 use rayon::prelude::*;
 
 fn env<T: std::str::FromStr>(key: &str, default: T) -> T {
@@ -125,11 +128,30 @@ fn main() -> anyhow::Result<()> {
         cfg.sim.collision = Collision::CentreCell;
     }
     let scene = Scene::builtin(&cfg.scene)?;
-    let inputs = FlightInputs::load(
-        &std::env::var("CHECKPOINT").map_or_else(|_| NerfStage::checkpoint(&out), PathBuf::from),
-        &out.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
-        Some(&CollisionStage::sdf_path(&out)),
-    )?;
+    cfg.sim.nerf_world = match env("NERF_WORLD", String::new()).as_str() {
+        "ensemble" => NerfWorldSource::Ensemble,
+        "calibrated" => NerfWorldSource::Calibrated,
+        _ => NerfWorldSource::Deployed,
+    };
+    let inputs = if cfg.sim.nerf_world == NerfWorldSource::Deployed {
+        FlightInputs::load(
+            &std::env::var("CHECKPOINT").map_or_else(|_| NerfStage::checkpoint(&out), PathBuf::from),
+            &out.join(NerfCollisionStage::NAME).join(NerfCollisionStage::SDF),
+            Some(&CollisionStage::sdf_path(&out)),
+        )?
+    } else {
+        // The members (and the calibration), read from the run folder as the stress stage reads them.
+        let prior = cfg.disturbance_prior()?;
+        let stage = StressStage {
+            ensemble: true,
+            drone: cfg.drone(Some(&scene)),
+            stress: &cfg.stress,
+            prior: &prior,
+            subset: false,
+            calibration: &cfg.calibration,
+        };
+        stage.load_inputs(&out)?
+    };
     let flight = inputs.plan(&cfg.sim)?;
     let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());
     let worlds = match env("WORLD", String::new()).as_str() {
@@ -138,7 +160,7 @@ fn main() -> anyhow::Result<()> {
         _ => vec![WorldKind::Nerf, WorldKind::Gt],
     };
     for kind in worlds {
-        let w = world(kind, &inputs, Some(&scene), cfg.dataset.render_settings()).expect("ground truth");
+        let w = drone_world(kind, cfg.sim.nerf_world, &inputs, Some(&scene), cfg.dataset.render_settings())?;
         let study = Study { cfg: &cfg, sim: &sim, flight: &flight, world: w.as_ref(), kind, n, mode: &mode };
         match mode.as_str() {
             "mc" => monte_carlo(&study),

@@ -18,8 +18,7 @@
 
 use std::path::PathBuf;
 
-use nerfsv_pipeline::stress::StressStage;
-use nerfsv_pipeline::RunConfig;
+use nerfsv_pipeline::{stress_stage, RunConfig};
 use nerfsv_scene::Scene;
 use nerfsv_study::flight::{Drone, Mission};
 use nerfsv_study::stress::{stress, Sampler, SamplerFigures, StressSetup};
@@ -59,15 +58,7 @@ fn main() -> anyhow::Result<()> {
     let scene = Scene::builtin(&cfg.scene)?;
     let prior = cfg.disturbance_prior()?;
     // The stress stage's drone and worlds, read from the run folder as the stage reads them.
-    let stage = StressStage {
-        ensemble: cfg.ensemble.members > 1,
-        drone: cfg.drone(Some(&scene)),
-        stress: &cfg.stress,
-        prior: &prior,
-        subset: false,
-        calibration: &cfg.calibration,
-    };
-    let inputs = stage.load_inputs(&run)?;
+    let inputs = stress_stage(&cfg, Some(&scene), &prior).load_inputs(&run)?;
     let sim = inputs.filter_sim(&cfg.sim);
     let flight = inputs.plan(&sim)?;
     let mission = Mission { drone: Drone { sim: &sim, ..cfg.drone(Some(&scene)) }, inputs: &inputs, flight: &flight };

@@ -37,8 +37,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use nerfsv_pipeline::stages::{CollisionStage, NerfCollisionStage, NerfStage};
-use nerfsv_pipeline::stress::StressStage;
-use nerfsv_pipeline::{RunConfig, Stage};
+use nerfsv_pipeline::{stress_stage, RunConfig, Stage};
 use nerfsv_scene::Scene;
 use nerfsv_sim::dynamics::{so3_exp, so3_log};
 use nerfsv_sim::estimator::Starts;
@@ -142,15 +141,7 @@ fn main() -> anyhow::Result<()> {
     } else {
         // The members (and the calibration), read from the run folder as the stress stage reads them.
         let prior = cfg.disturbance_prior()?;
-        let stage = StressStage {
-            ensemble: true,
-            drone: cfg.drone(Some(&scene)),
-            stress: &cfg.stress,
-            prior: &prior,
-            subset: false,
-            calibration: &cfg.calibration,
-        };
-        stage.load_inputs(&out)?
+        stress_stage(&cfg, Some(&scene), &prior).load_inputs(&out)?
     };
     let flight = inputs.plan(&cfg.sim)?;
     let sim = flight.simulator(&cfg.sim, &inputs.nerf, cfg.camera_intrinsics());

@@ -97,7 +97,7 @@ pub use error::PipelineError;
 pub use guard::{Claimed, Guard};
 pub use layout::{summary_path, SUMMARY};
 pub use nerfsv_scene::folder::OutputKind;
-pub use run::{config_toml, run, run_guard, run_in, StageFigures, Summary, NO_GROUND_TRUTH};
+pub use run::{config_toml, run, run_guard, run_in, stress_stage, StageFigures, Summary, NO_GROUND_TRUTH};
 pub use stage::{Observer, Outcome, Report, ReportContext, Runner, Silent, Stage, StageContext, StageFigure};
 
 // A stage with a table of its own, for the unit tests (last: a test module ends what

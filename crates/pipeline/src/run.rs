@@ -68,6 +68,24 @@ pub fn world_inputs(cfg: &RunConfig, mut guard: Guard) -> Guard {
     guard
 }
 
+/// The stress stage `cfg` describes in the ground truth `scene` under the disturbance `prior`
+/// ([`RunConfig::disturbance_prior`]): what [`run_in`] runs, and what a study outside the run
+/// builds to fly its drone in the same worlds (`StressStage::load_inputs`).
+pub fn stress_stage<'a>(
+    cfg: &'a RunConfig,
+    scene: Option<&'a nerfsv_scene::Scene>,
+    prior: &'a nerfsv_validation::Prior,
+) -> stress::StressStage<'a> {
+    stress::StressStage {
+        ensemble: cfg.ensemble.members > 1,
+        drone: cfg.drone(scene),
+        stress: &cfg.stress,
+        prior,
+        subset: cfg.stress_subset,
+        calibration: &cfg.calibration,
+    }
+}
+
 /// Why a world without a ground truth skips a stage.
 pub const NO_GROUND_TRUTH: &str =
     "the world has no ground truth (a [world] dataset without a mesh): there is nothing to compare the NeRF with";
@@ -120,14 +138,7 @@ pub fn run_in(
         })?;
     }
     let prior = cfg.disturbance_prior()?;
-    let search = stress::StressStage {
-        ensemble: cfg.ensemble.members > 1,
-        drone: cfg.drone(scene),
-        stress: &cfg.stress,
-        prior: &prior,
-        subset: cfg.stress_subset,
-        calibration: &cfg.calibration,
-    };
+    let search = stress_stage(cfg, scene, &prior);
     r.run(&search)?;
     if scene.is_some() {
         r.run(&online::OnlineStage { search: &search, uq: &cfg.uq, online: &cfg.online })?;

@@ -46,11 +46,15 @@ fn the_readme_quotes_the_run_its_picture_shows() {
     let cem_confusion = &cem["confusion"]["trajectories"];
     let (tp, fp) =
         (cem_confusion["true_positive"].as_u64().unwrap(), cem_confusion["false_positive"].as_u64().unwrap());
-    let auroc = |measure: &str| {
+    let cem_row = |measure: &str| {
         let rows = summary["online"]["step_auroc"].as_array().unwrap();
-        let row = rows.iter().find(|r| r["measure"] == measure && r["sampler"] == "cem").unwrap();
-        format!("{:.2}", f(&row["pooled"]["auroc"]))
+        rows.iter().find(|r| r["measure"] == measure && r["sampler"] == "cem").unwrap().clone()
     };
+    let auroc = |measure: &str| {
+        let pooled = &cem_row(measure)["pooled"];
+        format!("{:.2} [{:.2}, {:.2}]", f(&pooled["auroc"]), f(&pooled["ci95"][0]), f(&pooled["ci95"][1]))
+    };
+    let ga = cem_row("ga");
     let interval = &subset["p_fail_interval"];
     let quoted = [
         format!("crash the drone {} in the ground truth", rate(&transfer["gt"])),
@@ -64,7 +68,13 @@ fn the_readme_quotes_the_run_its_picture_shows() {
         format!("precision {}", proportion(&calibrated["precision"])),
         format!("{tp} of {} crash in GT-sim too", tp + fp),
         format!("{:.2} [{:.3}, {:.3}] (subset simulation", f(&subset["p_fail"]), f(&interval[0]), f(&interval[1])),
-        format!("(AUROC GA {}, BLA {} on the CEM's steps", auroc("ga"), auroc("bla")),
+        format!(
+            "(AUROC GA {}, BLA {} over the CEM's {} steps, {} of them disagreeing",
+            auroc("ga"),
+            auroc("bla"),
+            ga["steps"],
+            ga["disagreeing_steps"]
+        ),
     ];
     let missing: Vec<&String> = quoted.iter().filter(|q| !readme.contains(q.as_str())).collect();
     assert!(missing.is_empty(), "the README does not quote the pictured run's {missing:?}");

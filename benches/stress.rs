@@ -28,6 +28,7 @@ fn mc_truth_replay(c: &mut Criterion) {
         uncertainty: None,
         estimate_log: None,
         remote: None,
+        known: None,
     };
     let replay = DroneSystem {
         sim: &sim,
@@ -36,6 +37,7 @@ fn mc_truth_replay(c: &mut Criterion) {
         uncertainty: None,
         estimate_log: None,
         remote: None,
+        known: None,
     };
     let prior = Prior::drone(cfg.steps);
     let mut g = c.benchmark_group("stress");

@@ -116,6 +116,7 @@ fn main() -> anyhow::Result<()> {
         uncertainty: None,
         estimate_log: None,
         remote: None,
+        known: None,
     };
     let prior = cfg.disturbance_prior()?;
     let subset = cfg.stress.subset;

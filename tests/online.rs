@@ -10,8 +10,9 @@ use nerfsv_sim::{Flight, WorldKind};
 use nerfsv_study::flight::{FlightInputs, Mission};
 use nerfsv_study::stress::{
     journal_dir, measure_recorded, replay_csv, replay_journal_dir, stress, Flown, OnlineSettings, Sampler, StressSetup,
+    IMAGE_LOG_EXTENSION,
 };
-use nerfsv_study::UqMode;
+use nerfsv_study::{KnownRollouts, UqMode};
 use nerfsv_uq::Method;
 use nerfsv_validation::{parse_csv, write_csv, Label};
 
@@ -147,4 +148,53 @@ fn a_rewarded_cem_takes_its_first_population_and_its_replays_from_rollouts_flown
     assert_eq!(alone.replays, reused.replays, "the same replays bit for bit");
     assert_eq!(alone.flown, reused.flown + 4, "the first population is not flown again");
     assert_eq!(alone.replayed, reused.replayed + 4, "nor replayed again");
+}
+
+/// A second method's rewarded CEM takes the rollouts and replays an earlier method's search flew
+/// with the same seeds and disturbances (both draw the first population from the prior, and rank
+/// alike while no population holds more failures than elites): it writes what flying them gives,
+/// bit for bit, each step measured by its own method, and flies fewer.
+#[test]
+fn a_second_methods_rewarded_cem_takes_the_first_methods_rollouts_and_writes_the_same() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, field) = common::tiny_model_and_field(dir.path());
+    let inputs = FlightInputs::load(&model, &field, Some(&field)).unwrap();
+    let text = "[sim.vision]\npixels = 16\niterations = 2\nimages_per_step = 2\n[stress]\nseed = 5\n\
+                [stress.cem]\nm = 4\nm_elite = 2\nk_max = 2\nis_samples = 1\n[uq]\nonline_rays = 64\n\
+                online_bla_rays = 16\nperturbations = 1\nlm_iterations = 2\nmax_rays = 16\n";
+    let cfg: RunConfig = toml::from_str(text).unwrap();
+    let scene = Scene::builtin("monolith").unwrap();
+    let prior = cfg.disturbance_prior().unwrap();
+    let flight = inputs.plan(&cfg.sim).unwrap();
+    let drone = drone(&inputs, &flight, &scene, &cfg);
+    let setup = |method: Method| StressSetup {
+        online: Some(OnlineSettings { method, mode: UqMode::Exact, reward: true }),
+        ..StressSetup::new(drone, &cfg.stress, &prior, &[Sampler::Cem], &cfg.uq)
+    };
+    let run = |name: &str, setup: &StressSetup| {
+        let out = dir.path().join(name);
+        std::fs::create_dir_all(&out).unwrap();
+        let (figures, records) = stress(setup, &out, "k", false, &Silent).unwrap();
+        let mut bytes = Vec::new();
+        write_csv(&mut bytes, &records).unwrap();
+        let replays = std::fs::read(out.join(replay_csv(WorldKind::Gt))).unwrap();
+        (figures, records, bytes, replays, out)
+    };
+    let (_, ga, _, ga_replays, ga_out) = run("ga", &setup(Method::Ga));
+    let (_, _, alone, alone_replays, _) = run("bla_alone", &setup(Method::Bla));
+    let mut known = KnownRollouts::default();
+    known.from_journal(&ga, &journal_dir(&ga_out, WorldKind::Nerf), IMAGE_LOG_EXTENSION);
+    let ga_replays = parse_csv(std::str::from_utf8(&ga_replays).unwrap()).unwrap();
+    let mut known_replays = KnownRollouts::default();
+    known_replays.from_journal(&ga_replays, &replay_journal_dir(&ga_out, WorldKind::Gt), IMAGE_LOG_EXTENSION);
+    assert_eq!((known.len(), known_replays.len()), (9, 8), "every rollout and replay GA flew");
+    let given = StressSetup { known: Some(&known), known_replays: Some(&known_replays), ..setup(Method::Bla) };
+    let (figures, records, taking, taking_replays, _) = run("bla_taking", &given);
+    assert_eq!(alone, taking, "the same records bit for bit");
+    assert_eq!(alone_replays, taking_replays, "the same replays bit for bit");
+    assert!(known.taken() >= 4 && known_replays.taken() >= 4, "{} {}", known.taken(), known_replays.taken());
+    assert!(records.iter().any(|r| r.step_uncertainty.iter().any(|u| u.is_finite())));
+    // Its steps are BLA's, not GA's.
+    assert_ne!(records[0].step_uncertainty, ga[0].step_uncertainty);
+    assert_eq!(figures.rollouts, 9 + 8);
 }

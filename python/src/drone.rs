@@ -450,6 +450,7 @@ pub fn run_jobs<'py>(
                 uncertainty: None,
                 estimate_log: Some(&log),
                 remote: None,
+                known: None,
             };
             jobs.iter()
                 .map(|job| {

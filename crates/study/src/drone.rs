@@ -1,14 +1,18 @@
 //! The drone as a [`System`]: one rollout of a [`Simulator`] in a [`World`] with an estimator.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
+use nerfsv_scene::{Camera, Intrinsics};
 use nerfsv_sim::camera::drone_camera;
-use nerfsv_sim::dynamics::so3_log;
+use nerfsv_sim::dynamics::{so3_exp, so3_log};
 use nerfsv_sim::{Disturbance, EstimatorKind, ImageUpdate, Simulator, World};
 
-use nerfsv_validation::{run_here, Finished, Job, Outcome, System, Trajectory, ValidationError};
+use nerfsv_validation::{
+    run_here, Finished, Job, Journal, Outcome, RolloutRecord, System, Trajectory, ValidationError,
+};
 
 use crate::remote::{decode_result, encode_job, RemoteRollouts, RemoteSpec};
 
@@ -27,6 +31,97 @@ pub struct DroneSystem<'a> {
     /// Where batches of rollouts fly ([`System::run_all`]), if not in this process. Refused
     /// with `uncertainty` (a remote rollout measures nothing).
     pub remote: Option<&'a dyn RemoteRollouts>,
+    /// Rollouts this simulator flew before in this world: one asked for again (the same seed
+    /// and disturbances) is taken from here, not flown, its steps measured by `uncertainty`.
+    pub known: Option<&'a KnownRollouts>,
+}
+
+/// Rollouts flown before by the same simulator in the same world (another search that drew
+/// some of the same rollouts: the online stage's rewarded CEMs of GA and BLA rank their
+/// populations alike until a population has more failures than elites), with the filter's log
+/// of each. A rollout's outcome is a function of its disturbances and seed alone, so one asked
+/// for again with both equal is what flying it gives, bit for bit; its uncertainty, which
+/// another search measured with its own method, is measured again ([`DroneSystem::known`]).
+#[derive(Debug, Default)]
+pub struct KnownRollouts {
+    by_seed: HashMap<u64, Vec<KnownRollout>>,
+    taken: AtomicU64,
+}
+
+#[derive(Debug)]
+struct KnownRollout {
+    disturbances: Trajectory,
+    outcome: Outcome,
+    images: Vec<ImageUpdate>,
+}
+
+impl KnownRollouts {
+    /// The rollouts of `records` whose filter's log the journal folder `journal` keeps (a
+    /// rollout without one, or whose log cannot be read, is left out: it is flown when asked
+    /// for). `extension` names the log files beside the journal's records.
+    pub fn from_journal(&mut self, records: &[RolloutRecord], journal: &Path, extension: &str) {
+        for r in records {
+            let log = EstimateLog::default();
+            let path = Journal::beside_in(journal, r.sampler, r.population, r.index, extension);
+            if log.load(r.seed, &path).is_ok() {
+                self.insert(r, log.images(r.seed));
+            }
+        }
+    }
+
+    /// Adds the rollout `record` describes, with the filter's log of its images.
+    pub fn insert(&mut self, record: &RolloutRecord, images: Vec<ImageUpdate>) {
+        let known = KnownRollout { disturbances: record.disturbances.clone(), outcome: record.outcome(), images };
+        let same = self.by_seed.entry(record.seed).or_default();
+        if !same.iter().any(|k| k.disturbances == known.disturbances) {
+            same.push(known);
+        }
+    }
+
+    /// How many rollouts are known.
+    pub fn len(&self) -> usize {
+        self.by_seed.values().map(Vec::len).sum()
+    }
+
+    /// Whether none is.
+    pub fn is_empty(&self) -> bool {
+        self.by_seed.is_empty()
+    }
+
+    /// How many times a rollout was taken from here instead of flown.
+    pub fn taken(&self) -> u64 {
+        self.taken.load(Ordering::Relaxed)
+    }
+
+    fn get(&self, disturbances: &Trajectory, seed: u64) -> Option<&KnownRollout> {
+        self.by_seed.get(&seed)?.iter().find(|k| &k.disturbances == disturbances)
+    }
+}
+
+/// The drone's camera at the end of a step as a rollout's record keeps it: the true position and
+/// the attitude as a rotation vector. Where a flown step's uncertainty is measured, so that a
+/// step measured during the flight and one measured later at its recorded pose see the same view.
+pub fn step_camera(intrinsics: Intrinsics, position: &[f64; 3], attitude: &[f64; 3]) -> Camera {
+    let rotation = so3_exp(&nalgebra::Vector3::from(*attitude));
+    drone_camera(intrinsics, &nalgebra::Vector3::from(*position), &rotation)
+}
+
+/// Each step's uncertainty under `meter` at the pose an outcome keeps for the step's end (NaN
+/// for a step without a finite pose: not flown).
+fn measure_steps(
+    meter: &dyn ViewUncertainty,
+    intrinsics: Intrinsics,
+    positions: &[[f64; 3]],
+    attitudes: &[[f64; 3]],
+) -> Vec<f64> {
+    positions
+        .iter()
+        .zip(attitudes)
+        .map(|(p, a)| match p.iter().chain(a).all(|v| v.is_finite()) {
+            true => meter.view_uncertainty(&step_camera(intrinsics, p, a)),
+            false => f64::NAN,
+        })
+        .collect()
 }
 
 /// The filter's log: its record of every camera image ([`ImageUpdate`]: the estimate's errors,
@@ -122,21 +217,39 @@ impl System for DroneSystem<'_> {
         if self.uncertainty.is_some() {
             return Err(ValidationError::Executor("rollouts flown elsewhere cannot measure uncertainty".into()));
         }
+        // Known rollouts are taken here; only the others fly elsewhere.
+        let (here, away): (Vec<usize>, Vec<usize>) =
+            (0..jobs.len()).partition(|&i| self.known.is_some_and(|k| k.get(jobs[i].0, jobs[i].1).is_some()));
+        for &i in &here {
+            finished(i, self.run(jobs[i].0, jobs[i].1))?;
+        }
         let spec = RemoteSpec { world: self.world.kind(), estimator: self.estimator };
-        let encoded: Vec<Vec<u8>> = jobs.iter().map(encode_job).collect();
-        remote.run(spec, &encoded, &mut |i, bytes| {
-            let &(_, seed) = jobs
-                .get(i)
-                .ok_or_else(|| ValidationError::Executor(format!("a result for job {i} of {}", jobs.len())))?;
+        let encoded: Vec<Vec<u8>> = away.iter().map(|&i| encode_job(&jobs[i])).collect();
+        remote.run(spec, &encoded, &mut |k, bytes| {
+            let &i = away
+                .get(k)
+                .ok_or_else(|| ValidationError::Executor(format!("a result for job {k} of {}", away.len())))?;
             let (outcome, images) = decode_result(bytes)?;
             if let Some(log) = self.estimate_log {
-                log.insert(seed, images);
+                log.insert(jobs[i].1, images);
             }
             finished(i, outcome)
         })
     }
 
     fn run(&self, disturbances: &Trajectory, seed: u64) -> Outcome {
+        if let Some(known) = self.known.and_then(|k| k.get(disturbances, seed)) {
+            self.known.map(|k| k.taken.fetch_add(1, Ordering::Relaxed));
+            if let Some(log) = self.estimate_log {
+                log.insert(seed, known.images.clone());
+            }
+            let o = &known.outcome;
+            let step_uncertainty = match self.uncertainty {
+                None => Vec::new(),
+                Some(u) => measure_steps(u, self.sim.intrinsics, &o.step_positions, &o.step_attitudes),
+            };
+            return Outcome { step_uncertainty, ..o.clone() };
+        }
         let r = self.sim.fly(self.world, self.estimator, &drone_disturbances(disturbances), seed);
         if let Some(log) = self.estimate_log {
             log.insert(seed, r.updates.clone());
@@ -154,19 +267,14 @@ impl System for DroneSystem<'_> {
             }
             step_ends[s.step] = Some(&s.truth);
         }
-        let step_positions = step_ends.iter().map(|t| t.map_or([f64::NAN; 3], |t| t.position.into())).collect();
-        let step_attitudes =
+        let step_positions: Vec<[f64; 3]> =
+            step_ends.iter().map(|t| t.map_or([f64::NAN; 3], |t| t.position.into())).collect();
+        let step_attitudes: Vec<[f64; 3]> =
             step_ends.iter().map(|t| t.map_or([f64::NAN; 3], |t| so3_log(&t.rotation).into())).collect();
+        // Measured at the pose the record keeps, as a known rollout's and a recorded one's are.
         let step_uncertainty = match self.uncertainty {
             None => Vec::new(),
-            Some(u) => step_ends
-                .iter()
-                .map(|t| {
-                    t.map_or(f64::NAN, |t| {
-                        u.view_uncertainty(&drone_camera(self.sim.intrinsics, &t.position, &t.rotation))
-                    })
-                })
-                .collect(),
+            Some(u) => measure_steps(u, self.sim.intrinsics, &step_positions, &step_attitudes),
         };
         let lost_step = [r.diverged, r.left_grid].into_iter().flatten().map(|e| e.step).min();
         Outcome {

@@ -37,7 +37,7 @@ mod uncertainty;
 
 use std::path::PathBuf;
 
-pub use drone::{drone_disturbances, DroneSystem, EstimateLog};
+pub use drone::{drone_disturbances, step_camera, DroneSystem, EstimateLog, KnownRollouts};
 pub use uncertainty::{
     online_pixels, EnsembleUncertainty, ExactUncertainty, FieldUncertainty, UncertaintyReward, UqMode, ViewUncertainty,
 };

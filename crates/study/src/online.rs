@@ -8,7 +8,12 @@
 //!   uncertainty measured at the pose its record keeps for the step's end: the view the camera
 //!   had there, so the same values as flying them again with the measurement on, without the
 //!   flights. These are the rows without reward.
-//! - `reward/`: CEM again, ranking its samples by the method's reward (eq. 10 or 11).
+//! - `reward/`: CEM again, ranking its samples by the method's reward (eq. 10 or 11). The reward
+//!   orders failures only among themselves (non-failures go by clearance), so two methods'
+//!   searches draw the same populations until one holds more failures than elites: a rollout
+//!   an earlier method's search flew with the same seed and disturbances, and its GT-sim replay,
+//!   are taken from that search's journal instead of flown again, its steps measured by this
+//!   method ([`KnownRollouts`]); the results are those of flying it.
 //! - Monte Carlo draws from the prior and never ranks, so a reward changes none of its rollouts:
 //!   its row with reward is the plain MC rollouts with the reward averaged (`avg_reward`), not a
 //!   second flight of the same rollouts.
@@ -40,9 +45,10 @@ use serde::{Deserialize, Serialize};
 use crate::flight::Mission;
 use crate::stress::{
     journal_dir, measure_recorded, replay_csv, replay_journal_dir, searched, stress, write_table as write_stress_table,
-    Flown, OnlineSettings, Sampler, StepAurocFigures, StressFigures, StressSetup, ROLLOUTS_CSV, TABLE_CSV,
+    Flown, OnlineSettings, Sampler, StepAurocFigures, StressFigures, StressSetup, IMAGE_LOG_EXTENSION, ROLLOUTS_CSV,
+    TABLE_CSV,
 };
-use crate::{Observer, StudyError, UncertaintyReward, UqMode};
+use crate::{KnownRollouts, Observer, StudyError, UncertaintyReward, UqMode};
 
 /// The study's combined table.
 pub const ONLINE_TABLE_CSV: &str = "table.csv";
@@ -204,8 +210,29 @@ pub fn online_study(req: &OnlineRequest, observer: &dyn Observer) -> Result<Onli
     let mut measured: Vec<(&'static str, Vec<RolloutRecord>)> = Vec::new();
     let mc = req.validation.monte_carlo.rollouts;
     let studied = |r: &RolloutRecord| (r.sampler == Label::Mc && r.index < mc) || r.sampler == Label::Cem;
+    // A method's rewarded CEM ranks its populations as the earlier methods' did until one has
+    // more failures than elites: the rollouts and replays they share are flown once.
+    let (mut known, mut known_replays) = (KnownRollouts::default(), KnownRollouts::default());
     for &method in req.methods {
-        let (study, plain_records) = method_study(req, method, &flown, &studied, observer)?;
+        let shared = (known.taken(), known_replays.taken());
+        let (study, plain_records) = method_study(req, method, &flown, &studied, (&known, &known_replays), observer)?;
+        if !known.is_empty() {
+            observer.note(
+                req.stage,
+                &format!(
+                    "{}: {} rewarded rollouts and {} of their replays were the earlier methods' (same seeds and \
+                     disturbances), not flown again",
+                    method.name().to_uppercase(),
+                    known.taken() - shared.0,
+                    known_replays.taken() - shared.1
+                ),
+            );
+        }
+        let out = req.out.join(method.name()).join("reward");
+        let records: Vec<RolloutRecord> = read_csv_file(&out.join(ROLLOUTS_CSV))?;
+        known.from_journal(&records, &journal_dir(&out, WorldKind::Nerf), IMAGE_LOG_EXTENSION);
+        let replays: Vec<RolloutRecord> = read_csv_file(&out.join(replay_csv(WorldKind::Gt)))?;
+        known_replays.from_journal(&replays, &replay_journal_dir(&out, WorldKind::Gt), IMAGE_LOG_EXTENSION);
         studies.push(study);
         measured.push((method.name(), plain_records));
     }
@@ -253,6 +280,7 @@ fn method_study(
     method: Method,
     flown: &StressRollouts,
     studied: &dyn Fn(&RolloutRecord) -> bool,
+    (known, known_replays): (&KnownRollouts, &KnownRollouts),
     observer: &dyn Observer,
 ) -> Result<(MethodStudy, Vec<RolloutRecord>), StudyError> {
     let dir = req.out.join(method.name());
@@ -295,7 +323,13 @@ fn method_study(
             flown.cem_replays.iter().filter(|r| r.population == 0).cloned().collect();
         let replay_journal = replay_journal_dir(req.stress_dir, WorldKind::Gt);
         let replayed = Flown { records: &first_replays, journal: &replay_journal };
-        let setup = StressSetup { flown: Some(flown_before), replayed: Some(replayed), ..setup(&[Sampler::Cem], true) };
+        let setup = StressSetup {
+            flown: Some(flown_before),
+            replayed: Some(replayed),
+            known: Some(known),
+            known_replays: Some(known_replays),
+            ..setup(&[Sampler::Cem], true)
+        };
         stress(&setup, &out, &key, req.resume, observer)?
     };
     let rows = method_rows(req, method, &plain_records, &reward_records);

@@ -3,9 +3,10 @@
 
 use nerfsv_nerf::{Nerf, NerfConfig};
 use nerfsv_scene::{Intrinsics, RenderSettings, Scene};
-use nerfsv_sim::{plan_flight, EstimatorKind, GroundTruthWorld, SimConfig};
-use nerfsv_study::{DroneSystem, ViewUncertainty};
-use nerfsv_validation::{monte_carlo, replay, MonteCarloConfig, Prior, System, Trajectory, DRONE_STD};
+use nerfsv_sim::{plan_flight, EstimatorKind, GroundTruthWorld, ImageUpdate, SimConfig};
+use nerfsv_study::stress::measure_at_poses;
+use nerfsv_study::{DroneSystem, EstimateLog, KnownRollouts, ViewUncertainty};
+use nerfsv_validation::{monte_carlo, replay, MonteCarloConfig, Prior, RolloutRecord, System, Trajectory, DRONE_STD};
 
 #[test]
 fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
@@ -25,6 +26,7 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
         uncertainty: None,
         estimate_log: None,
         remote: None,
+        known: None,
     };
     assert_eq!((system.steps(), system.dim()), (6, 12));
     let undisturbed = system.run(&Trajectory::from_flat(12, vec![0.0; 72]).unwrap(), 0);
@@ -66,4 +68,83 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
             assert!(u.is_nan(), "step {t} was not flown: {u}");
         }
     }
+}
+
+/// A rollout flown before is taken, not flown, when asked for with the same seed and
+/// disturbances: the same outcome bit for bit, its steps measured by this system's uncertainty
+/// (at the poses it keeps, as the flight measures them and as a record is measured later), its
+/// images in this system's log; with other disturbances it flies.
+#[test]
+fn a_known_rollout_is_what_flying_it_gives_and_other_disturbances_fly() {
+    let scene = Scene::builtin("monolith").unwrap();
+    let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 20.0).unwrap();
+    let cfg = SimConfig { start: [-0.6, 0.3, 0.3], goal: [0.6, 0.3, 0.3], ..SimConfig::default() };
+    let nerf = Nerf::new(NerfConfig::default(), 0).unwrap();
+    let flight = plan_flight(&cfg, &gt.sdf, (nerf.config.aabb_min, nerf.config.aabb_max)).unwrap();
+    let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(16, 16, 0.8));
+    let world = GroundTruthWorld { scene: &scene, field: &gt.sdf, render: RenderSettings::default() };
+    /// The camera's height and heading, so that a pose off by a bit shows.
+    struct Pose;
+    impl ViewUncertainty for Pose {
+        fn view_uncertainty(&self, camera: &nerfsv_scene::Camera) -> f64 {
+            camera.c2w[(2, 3)] as f64 + 10.0 * camera.c2w[(0, 0)] as f64
+        }
+    }
+    let plain = DroneSystem {
+        sim: &sim,
+        world: &world,
+        estimator: EstimatorKind::Truth,
+        uncertainty: None,
+        estimate_log: None,
+        remote: None,
+        known: None,
+    };
+    let std: Vec<f64> = DRONE_STD.iter().map(|s| 3.0 * s).collect();
+    let prior = Prior::new(nerfsv_validation::Gaussian::diagonal(vec![0.0; 12], &std).unwrap(), 6);
+    let q = prior.to_proposal();
+    let (x, other) = (q.draw(11), q.draw(12));
+    let flown = plain.run(&x, 11);
+    let record = RolloutRecord { seed: 11, disturbances: x.clone(), ..RolloutRecord::default() }.with_outcome(flown);
+    assert_eq!(format!("{:?}", record.outcome()), format!("{:?}", plain.run(&x, 11)));
+
+    let image = ImageUpdate {
+        step: 2,
+        substep: 1,
+        time: 0.5,
+        predicted_position_error_m: 0.01,
+        predicted_rotation_error_deg: 0.1,
+        position_error_m: 0.02,
+        rotation_error_deg: 0.3,
+        nees: 4.0,
+        nis: 5.0,
+        accepted: true,
+        relocalised: false,
+        lost: false,
+        variance_factor: 1.1,
+        position_spread_m: 0.01,
+        rotation_spread_deg: 0.2,
+        renders: 7,
+        relocalisation_undone: false,
+        photometric_rmse: 0.03,
+    };
+    let mut known = KnownRollouts::default();
+    known.insert(&record, vec![image]);
+    assert_eq!(known.len(), 1);
+    let (log, measured_log) = (EstimateLog::default(), EstimateLog::default());
+    let measuring = DroneSystem { uncertainty: Some(&Pose), estimate_log: Some(&measured_log), ..plain };
+    let taking = DroneSystem { known: Some(&known), estimate_log: Some(&log), ..measuring };
+
+    let taken = taking.run(&x, 11);
+    assert_eq!(known.taken(), 1);
+    assert_eq!(format!("{taken:?}"), format!("{:?}", measuring.run(&x, 11)), "taken against flown, measured");
+    assert!(taken.step_uncertainty.iter().any(|u| u.is_finite()));
+    assert_eq!(log.images(11), vec![image]);
+    // The flight measures at the pose its record keeps: a record measured later agrees bit for bit.
+    let (later, _, _) = measure_at_poses(vec![record.clone()], sim.intrinsics, &Pose, &|_, _, _| {}).unwrap();
+    assert_eq!(format!("{:?}", later[0].step_uncertainty), format!("{:?}", taken.step_uncertainty));
+
+    // The same seed with other disturbances, or other disturbances' seed: flown.
+    assert_eq!(format!("{:?}", taking.run(&other, 11)), format!("{:?}", measuring.run(&other, 11)));
+    assert_eq!(format!("{:?}", taking.run(&x, 12)), format!("{:?}", measuring.run(&x, 12)));
+    assert_eq!(known.taken(), 1);
 }

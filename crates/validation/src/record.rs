@@ -99,6 +99,20 @@ impl RolloutRecord {
         .recounted()
     }
 
+    /// What the system's run did, as [`RolloutRecord::with_outcome`] took it: `record.clone()
+    /// .with_outcome(record.outcome())` is `record`.
+    pub fn outcome(&self) -> crate::Outcome {
+        crate::Outcome {
+            score: self.score,
+            collision_step: self.collision_step,
+            step_scores: self.step_scores.clone(),
+            step_positions: self.step_positions.clone(),
+            step_attitudes: self.step_attitudes.clone(),
+            step_uncertainty: self.step_uncertainty.clone(),
+            lost_step: self.lost_step,
+        }
+    }
+
     /// How many leading steps count toward `log_p`, `log_q`, the importance weight and every
     /// ranking: a failure's up to and including its first collision (the failure is settled
     /// there: the disturbances after it change nothing the estimate depends on), every step of

@@ -6,12 +6,13 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use nerfsv_scene::Camera;
-use nerfsv_sim::camera::drone_camera;
 use nerfsv_sim::{World, WorldKind};
 use nerfsv_validation::RolloutRecord;
 
 use crate::flight::world;
-use crate::{online_pixels, ExactUncertainty, FieldUncertainty, Observer, StudyError, UqMode, ViewUncertainty};
+use crate::{
+    online_pixels, step_camera, ExactUncertainty, FieldUncertainty, Observer, StudyError, UqMode, ViewUncertainty,
+};
 
 use super::setup::*;
 
@@ -121,13 +122,9 @@ pub fn measure_at_poses(
                 .step_positions
                 .iter()
                 .zip(&r.step_attitudes)
-                .map(|(p, a)| {
-                    if p.iter().chain(a).all(|v| v.is_finite()) {
-                        let rotation = nerfsv_sim::dynamics::so3_exp(&nalgebra::Vector3::from(*a));
-                        timed.view_uncertainty(&drone_camera(intrinsics, &nalgebra::Vector3::from(*p), &rotation))
-                    } else {
-                        f64::NAN
-                    }
+                .map(|(p, a)| match p.iter().chain(a).all(|v| v.is_finite()) {
+                    true => timed.view_uncertainty(&step_camera(intrinsics, p, a)),
+                    false => f64::NAN,
                 })
                 .collect();
             let d = done.fetch_add(1, Ordering::Relaxed) + 1;

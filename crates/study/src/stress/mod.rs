@@ -31,5 +31,5 @@ pub use pictures::{
 };
 pub use request::search_into;
 pub use run::stress;
-pub use search::searched;
+pub use search::{searched, IMAGE_LOG_EXTENSION};
 pub use setup::{other_world, Flown, StressSetup};

@@ -55,6 +55,7 @@ impl Replay<'_> {
             uncertainty: None,
             estimate_log: Some(self.log),
             remote: setup.remote,
+            known: setup.known_replays,
         };
         let originals: Vec<RolloutRecord> = searched(records).cloned().collect();
         let replays = replay_all(&system, &originals, &replaying)?;

@@ -57,6 +57,7 @@ pub fn stress(
         None
     };
     let (planned, total) = planned_rollouts(setup);
+    let taken_before = [setup.known, setup.known_replays].iter().flatten().map(|k| k.taken()).sum::<u64>();
     let journal = Journal::open(&self::journal_dir(out, setup.world), key, resume)?;
     let (search_log, replay_log) = (EstimateLog::default(), EstimateLog::default());
     let mut counting = Counting {
@@ -83,6 +84,7 @@ pub fn stress(
         uncertainty: timed.as_ref().map(|t| t as &dyn ViewUncertainty),
         estimate_log: Some(&search_log),
         remote: setup.remote,
+        known: setup.known,
     };
     if resume {
         observer.note(setup.stage, &format!("{} of {planned} rollouts were already flown", journal.len()));
@@ -129,7 +131,9 @@ pub fn stress(
     write_table(&out.join(TABLE_CSV), setup.world, setup.online, &table)?;
     let estimate_errors = write_estimate_errors(out, [(setup.world, &search_log), (replay_kind, &replay_log)])?;
     let seconds = start.elapsed().as_secs_f64();
-    let flown = counting.fresh.load(Ordering::Relaxed);
+    // Rollouts taken from another search's journal were not flown.
+    let taken = [setup.known, setup.known_replays].iter().flatten().map(|k| k.taken()).sum::<u64>() - taken_before;
+    let flown = counting.fresh.load(Ordering::Relaxed).saturating_sub(taken);
     let figures = StressFigures {
         world: setup.world,
         estimator: setup.estimator,

@@ -32,7 +32,7 @@ pub(super) struct Estimate {
 }
 
 /// Extension of the files that keep a journalled rollout's image log (the filter's record of each image).
-pub(super) const IMAGE_LOG_EXTENSION: &str = "images.csv";
+pub const IMAGE_LOG_EXTENSION: &str = "images.csv";
 
 /// Counts finished rollouts for progress, passing everything to the journal.
 pub(super) struct Counting<'a> {

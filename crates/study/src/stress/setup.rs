@@ -9,6 +9,7 @@ use nerfsv_validation::{Prior, RolloutRecord, ValidationConfig};
 
 use crate::flight::Mission;
 use crate::remote::RemoteRollouts;
+use crate::KnownRollouts;
 
 use super::figures::*;
 use super::files::*;
@@ -60,6 +61,12 @@ pub struct StressSetup<'a> {
     /// replays of the CEM's first population it shares). With the replay journal folder that
     /// keeps their estimator errors ([`replay_journal_dir`]).
     pub replayed: Option<Flown<'a>>,
+    /// Rollouts flown before in this search's world by the same simulator, wherever they came
+    /// from: one this search asks for with the same seed and disturbances is taken, not flown
+    /// ([`DroneSystem::known`](crate::DroneSystem::known)).
+    pub known: Option<&'a KnownRollouts>,
+    /// The same for the replays in the other world.
+    pub known_replays: Option<&'a KnownRollouts>,
 }
 
 /// Rollouts flown before ([`StressSetup::flown`]) and the journal folder of their estimator
@@ -97,6 +104,8 @@ impl<'a> StressSetup<'a> {
             reports_p_fail: true,
             flown: None,
             replayed: None,
+            known: None,
+            known_replays: None,
         }
     }
 }

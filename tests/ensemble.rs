@@ -134,6 +134,15 @@ fn a_recorded_route_capture_joins_the_calibration_and_a_missing_one_is_refused_b
     assert!(ok, "{err}");
     let c = &summary(&out)["calibration"];
     assert_eq!((c["route_views"].as_u64(), c["route_dataset_views"].as_u64()), (Some(2), Some(4)), "{c:#}");
+    // The deployed field's and each member's along the route against the ground truth's, in
+    // the summary and on the page.
+    let g = &c["route_geometry"];
+    let fields: Vec<&str> = g["fields"].as_array().unwrap().iter().map(|f| f["field"].as_str().unwrap()).collect();
+    assert_eq!(fields, ["deployed", "member 1", "member 2"], "{g:#}");
+    assert!(g["points"].as_u64().unwrap() > 10 && g["gt_min_distance_m"].as_f64().is_some_and(f64::is_finite), "{g:#}");
+    assert!(g["fields"].as_array().unwrap().iter().all(|f| f["error_at_tight_pass_m"].as_f64().is_some()), "{g:#}");
+    let page = std::fs::read_to_string(out.join("report/index.html")).unwrap();
+    assert!(page.contains("What the error model cannot see"));
     let fits = std::fs::read_to_string(out.join("calibration/calibration_fits.csv")).unwrap();
     let recorded: Vec<&str> = fits.lines().filter(|l| l.starts_with("route_dataset,")).collect();
     assert_eq!(recorded.len(), 4, "{fits}");

@@ -8,6 +8,9 @@
 //! stopping rules, from the prior the first image after a step's disturbance has (the start's
 //! covariance plus the disturbance's), once centred at the true pose and `fits − 1` times
 //! centred at a start drawn from that prior, with the start candidates of such an image.
+//!
+//! Beside the camera's errors, the NeRFs' geometry along the route against the ground truth's
+//! ([`geometry`]), which no perception error model can correct.
 
 use std::io::Write;
 use std::path::Path;
@@ -30,6 +33,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::flight::Mission;
 use crate::{Observer, StudyError};
+
+pub mod geometry;
 
 /// The `[calibration]` table: the calibration views and the calibrated world's draws.
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -514,6 +519,10 @@ pub struct CalibrationFigures {
     /// Seconds spent fitting views, and fitting and validating the model.
     pub measure_seconds: f64,
     pub model_seconds: f64,
+    /// The deployed NeRF's and each member's signed field along the planned path against the
+    /// ground truth's ([`geometry`]); none for a world without a ground-truth field.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub route_geometry: Option<geometry::RouteGeometry>,
 }
 
 impl CalibrationFigures {
@@ -548,6 +557,7 @@ impl CalibrationFigures {
             config_model_error: [f64::NAN; 2],
             measure_seconds: 0.0,
             model_seconds: 0.0,
+            route_geometry: None,
         }
     }
 }
@@ -708,9 +718,17 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
     nerfsv_scene::io::atomic_write(&path, |w| serde_json::to_writer(w, &models).map_err(std::io::Error::other))
         .map_err(|e| StudyError::io(&path, e))?;
     write_route_png(&req.out.join(ROUTE_PNG), flight, sim.intrinsics, &records, &model)?;
+    let route_geometry = inputs.gt_field.as_ref().and_then(|gt| {
+        let fields: Vec<(String, &nerfsv_collision::SdfGrid)> =
+            std::iter::once(("deployed".to_string(), &inputs.nerf_field))
+                .chain(inputs.members.iter().enumerate().map(|(k, m)| (format!("member {}", k + 1), &m.field)))
+                .collect();
+        geometry::route_geometry(&geometry::route_points(&flight.path), gt, &fields)
+    });
     Ok(CalibrationFigures {
         measure_seconds,
         model_seconds,
+        route_geometry,
         member_mean_difference,
         model_error,
         model_error_by_source,

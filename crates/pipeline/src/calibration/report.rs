@@ -112,6 +112,7 @@ impl Report for CalibrationStage<'_> {
             ));
         }
         model_error(f, &mut s);
+        route_geometry(f, &mut s);
         s.csv(CalibrationStage::VIEWS_CSV, "calibration_fits.csv");
         Some(s)
     }
@@ -158,4 +159,41 @@ fn model_error(f: &CalibrationFigures, s: &mut Section) {
         s.paragraph("The same measured on each kind of view alone (the filter takes the value over all of them):");
         s.table(t);
     }
+}
+
+/// The NeRFs' signed fields along the planned path against the ground truth's.
+fn route_geometry(f: &CalibrationFigures, s: &mut Section) {
+    let Some(g) = &f.route_geometry else { return };
+    s.paragraph(format!(
+        "What the error model cannot see: NeRF-sim detects a crash in its NeRF's signed field, not the real one. \
+         Along the planned path ({} points a centimetre apart, {} of them within {} m of the real geometry) the \
+         ground truth's surface comes closest at {} % of the way, {} mm from the body's centre. Each field's \
+         distance there less the ground truth's, and over the near points (negative: the NeRF's surface lies \
+         nearer the route, so NeRF-sim crashes where the world would not):",
+        g.points,
+        g.near_points,
+        num(nerfsv_study::calibration::geometry::NEAR_M, 2),
+        num(100.0 * g.tight_pass_fraction, 0),
+        num(g.gt_min_distance_m * 1e3, 1),
+    ));
+    let mm = |v: f64| num(v * 1e3, 1);
+    s.table(
+        Table::new(&[
+            "field",
+            "least distance from the path (mm)",
+            "error at the tight pass (mm)",
+            "mean error, near points (mm)",
+            "least / greatest (mm)",
+        ])
+        .row(vec!["ground truth".into(), mm(g.gt_min_distance_m), "0".into(), "0".into(), String::new()])
+        .rows(g.fields.iter().map(|r| {
+            vec![
+                r.field.clone(),
+                mm(r.min_distance_m),
+                mm(r.error_at_tight_pass_m),
+                mm(r.near_mean_error_m),
+                format!("{} / {}", mm(r.near_min_error_m), mm(r.near_max_error_m)),
+            ]
+        })),
+    );
 }

@@ -21,6 +21,26 @@ fn drone<'a>(inputs: &'a FlightInputs, flight: &'a Flight, scene: &'a Scene, cfg
     Mission { drone: cfg.drone(Some(scene)), inputs, flight }
 }
 
+/// What a search into `dir/name` wrote: its figures, records (and their CSV bytes), its GT-sim
+/// replays' CSV bytes and its folder.
+struct Searched {
+    figures: nerfsv_study::stress::StressFigures,
+    records: Vec<nerfsv_validation::RolloutRecord>,
+    bytes: Vec<u8>,
+    replays: Vec<u8>,
+    out: std::path::PathBuf,
+}
+
+fn search(dir: &std::path::Path, name: &str, setup: &StressSetup) -> Searched {
+    let out = dir.join(name);
+    std::fs::create_dir_all(&out).unwrap();
+    let (figures, records) = stress(setup, &out, "k", false, &Silent).unwrap();
+    let mut bytes = Vec::new();
+    write_csv(&mut bytes, &records).unwrap();
+    let replays = std::fs::read(out.join(replay_csv(WorldKind::Gt))).unwrap();
+    Searched { figures, records, bytes, replays, out }
+}
+
 #[test]
 fn measuring_recorded_poses_equals_flying_again_with_the_measurement_on() {
     let dir = tempfile::tempdir().unwrap();
@@ -116,12 +136,7 @@ fn a_rewarded_cem_takes_its_first_population_and_its_replays_from_rollouts_flown
         out: std::path::PathBuf,
     }
     let run = |name: &str, setup: &StressSetup| {
-        let out = dir.path().join(name);
-        std::fs::create_dir_all(&out).unwrap();
-        let (_, records) = stress(setup, &out, "k", false, &Silent).unwrap();
-        let mut bytes = Vec::new();
-        write_csv(&mut bytes, &records).unwrap();
-        let replays = std::fs::read(out.join(replay_csv(WorldKind::Gt))).unwrap();
+        let Searched { records, bytes, replays, out, .. } = search(dir.path(), name, setup);
         let flown = csv_files(&journal_dir(&out, WorldKind::Nerf));
         let replayed = csv_files(&replay_journal_dir(&out, WorldKind::Gt));
         Ran { records, bytes, replays, flown, replayed, out }
@@ -172,12 +187,7 @@ fn a_second_methods_rewarded_cem_takes_the_first_methods_rollouts_and_writes_the
         ..StressSetup::new(drone, &cfg.stress, &prior, &[Sampler::Cem], &cfg.uq)
     };
     let run = |name: &str, setup: &StressSetup| {
-        let out = dir.path().join(name);
-        std::fs::create_dir_all(&out).unwrap();
-        let (figures, records) = stress(setup, &out, "k", false, &Silent).unwrap();
-        let mut bytes = Vec::new();
-        write_csv(&mut bytes, &records).unwrap();
-        let replays = std::fs::read(out.join(replay_csv(WorldKind::Gt))).unwrap();
+        let Searched { figures, records, bytes, replays, out } = search(dir.path(), name, setup);
         (figures, records, bytes, replays, out)
     };
     let (_, ga, _, ga_replays, ga_out) = run("ga", &setup(Method::Ga));

@@ -8,26 +8,54 @@ use nerfsv_study::stress::measure_at_poses;
 use nerfsv_study::{DroneSystem, EstimateLog, KnownRollouts, ViewUncertainty};
 use nerfsv_validation::{monte_carlo, replay, MonteCarloConfig, Prior, RolloutRecord, System, Trajectory, DRONE_STD};
 
-#[test]
-fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
-    let scene = Scene::builtin("monolith").unwrap();
-    let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 20.0).unwrap();
-    // A pass beside the monolith (the body clears it by 0.106 m undisturbed): the paper's
-    // disturbances, scaled up 3×, push the body into it now and then.
-    let cfg = SimConfig { start: [-0.6, 0.3, 0.3], goal: [0.6, 0.3, 0.3], ..SimConfig::default() };
-    let nerf = Nerf::new(NerfConfig::default(), 0).unwrap(); // unused by the truth estimator
-    let flight = plan_flight(&cfg, &gt.sdf, (nerf.config.aabb_min, nerf.config.aabb_max)).unwrap();
-    let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(16, 16, 0.8));
-    let world = GroundTruthWorld { scene: &scene, field: &gt.sdf, render: RenderSettings::default() };
-    let system = DroneSystem {
-        sim: &sim,
-        world: &world,
+/// A pass beside the monolith (the body clears it by 0.106 m undisturbed): the paper's
+/// disturbances, scaled up 3×, push the body into it now and then.
+struct Pass {
+    scene: Scene,
+    gt: nerfsv_collision::SdfGrid,
+    cfg: SimConfig,
+    nerf: Nerf,
+    flight: nerfsv_sim::Flight,
+}
+
+impl Pass {
+    fn new() -> Self {
+        let scene = Scene::builtin("monolith").unwrap();
+        let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 20.0).unwrap();
+        let cfg = SimConfig { start: [-0.6, 0.3, 0.3], goal: [0.6, 0.3, 0.3], ..SimConfig::default() };
+        let nerf = Nerf::new(NerfConfig::default(), 0).unwrap(); // unused by the truth estimator
+        let flight = plan_flight(&cfg, &gt.sdf, (nerf.config.aabb_min, nerf.config.aabb_max)).unwrap();
+        Pass { scene, gt: gt.sdf, cfg, nerf, flight }
+    }
+
+    fn simulator(&self) -> nerfsv_sim::Simulator<'_> {
+        self.flight.simulator(&self.cfg, &self.nerf, Intrinsics::from_fov_x(16, 16, 0.8))
+    }
+
+    fn world(&self) -> GroundTruthWorld<'_> {
+        GroundTruthWorld { scene: &self.scene, field: &self.gt, render: RenderSettings::default() }
+    }
+}
+
+/// The drone with the truth estimator flying `sim` in `world`, nothing measured or kept.
+fn truth_system<'a>(sim: &'a nerfsv_sim::Simulator<'a>, world: &'a GroundTruthWorld<'a>) -> DroneSystem<'a> {
+    DroneSystem {
+        sim,
+        world,
         estimator: EstimatorKind::Truth,
         uncertainty: None,
         estimate_log: None,
         remote: None,
         known: None,
-    };
+    }
+}
+
+#[test]
+fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
+    let pass = Pass::new();
+    let sim = pass.simulator();
+    let world = pass.world();
+    let system = truth_system(&sim, &world);
     assert_eq!((system.steps(), system.dim()), (6, 12));
     let undisturbed = system.run(&Trajectory::from_flat(12, vec![0.0; 72]).unwrap(), 0);
     assert!(!undisturbed.failed() && undisturbed.score.is_finite(), "{undisturbed:?}");
@@ -76,13 +104,9 @@ fn monte_carlo_over_the_drone_finds_failures_that_replay_exactly() {
 /// images in this system's log; with other disturbances it flies.
 #[test]
 fn a_known_rollout_is_what_flying_it_gives_and_other_disturbances_fly() {
-    let scene = Scene::builtin("monolith").unwrap();
-    let (gt, _) = nerfsv_collision::ground_truth_field(&scene, 20.0).unwrap();
-    let cfg = SimConfig { start: [-0.6, 0.3, 0.3], goal: [0.6, 0.3, 0.3], ..SimConfig::default() };
-    let nerf = Nerf::new(NerfConfig::default(), 0).unwrap();
-    let flight = plan_flight(&cfg, &gt.sdf, (nerf.config.aabb_min, nerf.config.aabb_max)).unwrap();
-    let sim = flight.simulator(&cfg, &nerf, Intrinsics::from_fov_x(16, 16, 0.8));
-    let world = GroundTruthWorld { scene: &scene, field: &gt.sdf, render: RenderSettings::default() };
+    let pass = Pass::new();
+    let sim = pass.simulator();
+    let world = pass.world();
     /// The camera's height and heading, so that a pose off by a bit shows.
     struct Pose;
     impl ViewUncertainty for Pose {
@@ -90,15 +114,7 @@ fn a_known_rollout_is_what_flying_it_gives_and_other_disturbances_fly() {
             camera.c2w[(2, 3)] as f64 + 10.0 * camera.c2w[(0, 0)] as f64
         }
     }
-    let plain = DroneSystem {
-        sim: &sim,
-        world: &world,
-        estimator: EstimatorKind::Truth,
-        uncertainty: None,
-        estimate_log: None,
-        remote: None,
-        known: None,
-    };
+    let plain = truth_system(&sim, &world);
     let std: Vec<f64> = DRONE_STD.iter().map(|s| 3.0 * s).collect();
     let prior = Prior::new(nerfsv_validation::Gaussian::diagonal(vec![0.0; 12], &std).unwrap(), 6);
     let q = prior.to_proposal();

@@ -61,10 +61,9 @@ impl KnownRollouts {
     /// for). `extension` names the log files beside the journal's records.
     pub fn from_journal(&mut self, records: &[RolloutRecord], journal: &Path, extension: &str) {
         for r in records {
-            let log = EstimateLog::default();
             let path = Journal::beside_in(journal, r.sampler, r.population, r.index, extension);
-            if log.load(r.seed, &path).is_ok() {
-                self.insert(r, log.images(r.seed));
+            if let Ok(images) = nerfsv_sim::read_images(&path) {
+                self.insert(r, images);
             }
         }
     }
@@ -96,6 +95,13 @@ impl KnownRollouts {
     fn get(&self, disturbances: &Trajectory, seed: u64) -> Option<&KnownRollout> {
         self.by_seed.get(&seed)?.iter().find(|k| &k.disturbances == disturbances)
     }
+
+    /// [`KnownRollouts::get`], counted as taken.
+    fn take(&self, disturbances: &Trajectory, seed: u64) -> Option<&KnownRollout> {
+        let known = self.get(disturbances, seed)?;
+        self.taken.fetch_add(1, Ordering::Relaxed);
+        Some(known)
+    }
 }
 
 /// The drone's camera at the end of a step as a rollout's record keeps it: the true position and
@@ -108,7 +114,7 @@ pub fn step_camera(intrinsics: Intrinsics, position: &[f64; 3], attitude: &[f64;
 
 /// Each step's uncertainty under `meter` at the pose an outcome keeps for the step's end (NaN
 /// for a step without a finite pose: not flown).
-fn measure_steps(
+pub(crate) fn measure_steps(
     meter: &dyn ViewUncertainty,
     intrinsics: Intrinsics,
     positions: &[[f64; 3]],
@@ -238,8 +244,7 @@ impl System for DroneSystem<'_> {
     }
 
     fn run(&self, disturbances: &Trajectory, seed: u64) -> Outcome {
-        if let Some(known) = self.known.and_then(|k| k.get(disturbances, seed)) {
-            self.known.map(|k| k.taken.fetch_add(1, Ordering::Relaxed));
+        if let Some(known) = self.known.and_then(|k| k.take(disturbances, seed)) {
             if let Some(log) = self.estimate_log {
                 log.insert(seed, known.images.clone());
             }

@@ -213,7 +213,7 @@ pub fn online_study(req: &OnlineRequest, observer: &dyn Observer) -> Result<Onli
     // A method's rewarded CEM ranks its populations as the earlier methods' did until one has
     // more failures than elites: the rollouts and replays they share are flown once.
     let (mut known, mut known_replays) = (KnownRollouts::default(), KnownRollouts::default());
-    for &method in req.methods {
+    for (i, &method) in req.methods.iter().enumerate() {
         let shared = (known.taken(), known_replays.taken());
         let (study, plain_records) = method_study(req, method, &flown, &studied, (&known, &known_replays), observer)?;
         if !known.is_empty() {
@@ -228,11 +228,14 @@ pub fn online_study(req: &OnlineRequest, observer: &dyn Observer) -> Result<Onli
                 ),
             );
         }
-        let out = req.out.join(method.name()).join("reward");
-        let records: Vec<RolloutRecord> = read_csv_file(&out.join(ROLLOUTS_CSV))?;
-        known.from_journal(&records, &journal_dir(&out, WorldKind::Nerf), IMAGE_LOG_EXTENSION);
-        let replays: Vec<RolloutRecord> = read_csv_file(&out.join(replay_csv(WorldKind::Gt)))?;
-        known_replays.from_journal(&replays, &replay_journal_dir(&out, WorldKind::Gt), IMAGE_LOG_EXTENSION);
+        // For the methods after it.
+        if i + 1 < req.methods.len() {
+            let out = req.out.join(method.name()).join("reward");
+            let records: Vec<RolloutRecord> = read_csv_file(&out.join(ROLLOUTS_CSV))?;
+            known.from_journal(&records, &journal_dir(&out, WorldKind::Nerf), IMAGE_LOG_EXTENSION);
+            let replays: Vec<RolloutRecord> = read_csv_file(&out.join(replay_csv(WorldKind::Gt)))?;
+            known_replays.from_journal(&replays, &replay_journal_dir(&out, WorldKind::Gt), IMAGE_LOG_EXTENSION);
+        }
         studies.push(study);
         measured.push((method.name(), plain_records));
     }

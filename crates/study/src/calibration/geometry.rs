@@ -79,18 +79,22 @@ pub fn route_geometry(points: &[Vector3<f64>], gt: &SdfGrid, fields: &[(String, 
         .enumerate()
         .map(|(j, (name, _))| {
             let errors: Vec<f64> = near.iter().map(|k| k.2[j] - k.1).collect();
-            let n = errors.len();
+            // NaN for each with no near point.
+            let (mean, least, greatest) = match errors.len() {
+                0 => (f64::NAN, f64::NAN, f64::NAN),
+                n => (
+                    errors.iter().sum::<f64>() / n as f64,
+                    errors.iter().copied().fold(f64::INFINITY, f64::min),
+                    errors.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                ),
+            };
             FieldAlongRoute {
                 field: name.clone(),
                 min_distance_m: kept.iter().map(|k| k.2[j]).fold(f64::INFINITY, f64::min),
                 error_at_tight_pass_m: tight.2[j] - tight.1,
-                near_mean_error_m: if n > 0 { errors.iter().sum::<f64>() / n as f64 } else { f64::NAN },
-                near_min_error_m: if n > 0 { errors.iter().copied().fold(f64::INFINITY, f64::min) } else { f64::NAN },
-                near_max_error_m: if n > 0 {
-                    errors.iter().copied().fold(f64::NEG_INFINITY, f64::max)
-                } else {
-                    f64::NAN
-                },
+                near_mean_error_m: mean,
+                near_min_error_m: least,
+                near_max_error_m: greatest,
             }
         })
         .collect();

@@ -9,10 +9,9 @@ use nerfsv_scene::Camera;
 use nerfsv_sim::{World, WorldKind};
 use nerfsv_validation::RolloutRecord;
 
+use crate::drone::measure_steps;
 use crate::flight::world;
-use crate::{
-    online_pixels, step_camera, ExactUncertainty, FieldUncertainty, Observer, StudyError, UqMode, ViewUncertainty,
-};
+use crate::{online_pixels, ExactUncertainty, FieldUncertainty, Observer, StudyError, UqMode, ViewUncertainty};
 
 use super::setup::*;
 
@@ -118,15 +117,7 @@ pub fn measure_at_poses(
     let measured: Vec<RolloutRecord> = records
         .into_par_iter()
         .map(|mut r| {
-            r.step_uncertainty = r
-                .step_positions
-                .iter()
-                .zip(&r.step_attitudes)
-                .map(|(p, a)| match p.iter().chain(a).all(|v| v.is_finite()) {
-                    true => timed.view_uncertainty(&step_camera(intrinsics, p, a)),
-                    false => f64::NAN,
-                })
-                .collect();
+            r.step_uncertainty = measure_steps(&timed, intrinsics, &r.step_positions, &r.step_attitudes);
             let d = done.fetch_add(1, Ordering::Relaxed) + 1;
             progress(d, total, &status);
             r

@@ -140,6 +140,8 @@ fn a_recorded_route_capture_joins_the_calibration_and_a_missing_one_is_refused_b
     let fields: Vec<&str> = g["fields"].as_array().unwrap().iter().map(|f| f["field"].as_str().unwrap()).collect();
     assert_eq!(fields, ["deployed", "member 1", "member 2"], "{g:#}");
     assert!(g["points"].as_u64().unwrap() > 10 && g["gt_min_distance_m"].as_f64().is_some_and(f64::is_finite), "{g:#}");
+    let split = g["near_points"].as_u64().unwrap() + g["ground_points"].as_u64().unwrap();
+    assert!(split <= g["points"].as_u64().unwrap(), "{g:#}");
     assert!(g["fields"].as_array().unwrap().iter().all(|f| f["error_at_tight_pass_m"].as_f64().is_some()), "{g:#}");
     let page = std::fs::read_to_string(out.join("report/index.html")).unwrap();
     assert!(page.contains("What the error model cannot see"));

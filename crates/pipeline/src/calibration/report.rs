@@ -166,13 +166,15 @@ fn route_geometry(f: &CalibrationFigures, s: &mut Section) {
     let Some(g) = &f.route_geometry else { return };
     s.paragraph(format!(
         "What the error model cannot see: NeRF-sim detects a crash in its NeRF's signed field, not the real one. \
-         Along the planned path ({} points a centimetre apart, {} of them within {} m of the real geometry) the \
-         ground truth's surface comes closest at {} % of the way, {} mm from the body's centre. Each field's \
-         distance there less the ground truth's, and over the near points (negative: the NeRF's surface lies \
-         nearer the route, so NeRF-sim crashes where the world would not):",
+         Along the planned path ({} points a centimetre apart; within {} m of the real geometry, {} beside an \
+         obstacle and {} above the ground) the ground truth's surface comes closest at {} % of the way, {} mm from \
+         the body's centre. Each field's distance there less the ground truth's, over the points beside \
+         obstacles, and over those above the ground (negative: the NeRF's surface lies nearer the route, so \
+         NeRF-sim crashes where the world would not):",
         g.points,
-        g.near_points,
         num(nerfsv_study::calibration::geometry::NEAR_M, 2),
+        g.near_points,
+        g.ground_points,
         num(100.0 * g.tight_pass_fraction, 0),
         num(g.gt_min_distance_m * 1e3, 1),
     ));
@@ -182,10 +184,11 @@ fn route_geometry(f: &CalibrationFigures, s: &mut Section) {
             "field",
             "least distance from the path (mm)",
             "error at the tight pass (mm)",
-            "mean error, near points (mm)",
+            "mean error beside obstacles (mm)",
             "least / greatest (mm)",
+            "mean error above the ground (mm)",
         ])
-        .row(vec!["ground truth".into(), mm(g.gt_min_distance_m), "0".into(), "0".into(), String::new()])
+        .row(vec!["ground truth".into(), mm(g.gt_min_distance_m), "0".into(), "0".into(), String::new(), "0".into()])
         .rows(g.fields.iter().map(|r| {
             vec![
                 r.field.clone(),
@@ -193,6 +196,7 @@ fn route_geometry(f: &CalibrationFigures, s: &mut Section) {
                 mm(r.error_at_tight_pass_m),
                 mm(r.near_mean_error_m),
                 format!("{} / {}", mm(r.near_min_error_m), mm(r.near_max_error_m)),
+                mm(r.ground_mean_error_m),
             ]
         })),
     );

@@ -13,6 +13,12 @@ use serde::{Deserialize, Serialize};
 /// a field's error can turn a pass into a crash.
 pub const NEAR_M: f64 = 0.25;
 
+/// A near point whose ground truth's distance grows upward more steeply than this (the cosine of
+/// the nearest surface's normal from the vertical) has the ground below it, not an obstacle
+/// beside it. A route flown at a fixed altitude is "near" the ground everywhere, and a NeRF's
+/// ground, seen at grazing angles, errs otherwise than its obstacles: the two are reported apart.
+pub const GROUND_NORMAL_Z: f32 = std::f32::consts::FRAC_1_SQRT_2;
+
 /// Spacing of the compared points along the path (m).
 pub const SPACING_M: f64 = 0.01;
 
@@ -21,8 +27,11 @@ pub const SPACING_M: f64 = 0.01;
 pub struct RouteGeometry {
     /// Points compared: the planned path every [`SPACING_M`], the body's centre.
     pub points: usize,
-    /// Of them, the ones within [`NEAR_M`] of the ground truth's geometry.
+    /// Of them, the ones within [`NEAR_M`] of the ground truth's geometry beside the route (an
+    /// obstacle's surface: the nearest surface's normal within 45° of horizontal).
     pub near_points: usize,
+    /// The ones within [`NEAR_M`] of the ground below them (the normal within 45° of vertical).
+    pub ground_points: usize,
     /// The ground truth's least distance from the path (m): the route's tight pass.
     pub gt_min_distance_m: f64,
     /// Where along the path it lies, as a fraction of the path's length.
@@ -42,10 +51,12 @@ pub struct FieldAlongRoute {
     pub min_distance_m: f64,
     /// Its error at the ground truth's tight pass (m).
     pub error_at_tight_pass_m: f64,
-    /// Mean, least and greatest error over the near points (m).
+    /// Mean, least and greatest error over the near points beside the route (m).
     pub near_mean_error_m: f64,
     pub near_min_error_m: f64,
     pub near_max_error_m: f64,
+    /// Mean error over the points near the ground below (m).
+    pub ground_mean_error_m: f64,
 }
 
 /// The planned path's points every [`SPACING_M`], both ends included.
@@ -61,50 +72,66 @@ pub fn route_geometry(points: &[Vector3<f64>], gt: &SdfGrid, fields: &[(String, 
     let at = |field: &SdfGrid, p: &Vector3<f64>| {
         field.distance(Point3::new(p.x as f32, p.y as f32, p.z as f32)).in_grid().map(f64::from)
     };
-    // Each kept point's fraction along the route, the ground truth's distance and each field's.
+    // Each kept point's fraction along the route, the ground truth's distance, whether the
+    // nearest real surface is the ground below, and each field's distance.
     let last = points.len().saturating_sub(1).max(1) as f64;
-    let kept: Vec<(f64, f64, Vec<f64>)> = points
+    let kept: Vec<Kept> = points
         .iter()
         .enumerate()
         .filter_map(|(i, p)| {
             let g = at(gt, p)?;
+            let q = Point3::new(p.x as f32, p.y as f32, p.z as f32);
+            let ground =
+                gt.gradient(q).in_grid().and_then(|n| n.try_normalize(1e-6)).is_some_and(|n| n.z > GROUND_NORMAL_Z);
             let f: Option<Vec<f64>> = fields.iter().map(|(_, field)| at(field, p)).collect();
-            Some((i as f64 / last, g, f?))
+            Some(Kept { fraction: i as f64 / last, gt: g, ground, fields: f? })
         })
         .collect();
-    let tight = kept.iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
-    let near: Vec<&(f64, f64, Vec<f64>)> = kept.iter().filter(|k| k.1 < NEAR_M).collect();
+    let tight = kept.iter().min_by(|a, b| a.gt.total_cmp(&b.gt))?;
+    let near: Vec<&Kept> = kept.iter().filter(|k| k.gt < NEAR_M && !k.ground).collect();
+    let ground: Vec<&Kept> = kept.iter().filter(|k| k.gt < NEAR_M && k.ground).collect();
     let rows = fields
         .iter()
         .enumerate()
         .map(|(j, (name, _))| {
-            let errors: Vec<f64> = near.iter().map(|k| k.2[j] - k.1).collect();
-            // NaN for each with no near point.
-            let (mean, least, greatest) = match errors.len() {
-                0 => (f64::NAN, f64::NAN, f64::NAN),
-                n => (
-                    errors.iter().sum::<f64>() / n as f64,
+            let errors: Vec<f64> = near.iter().map(|k| k.fields[j] - k.gt).collect();
+            // NaN for each with no point.
+            let mean = |e: &[f64]| if e.is_empty() { f64::NAN } else { e.iter().sum::<f64>() / e.len() as f64 };
+            let (least, greatest) = match errors.is_empty() {
+                true => (f64::NAN, f64::NAN),
+                false => (
                     errors.iter().copied().fold(f64::INFINITY, f64::min),
                     errors.iter().copied().fold(f64::NEG_INFINITY, f64::max),
                 ),
             };
+            let ground_errors: Vec<f64> = ground.iter().map(|k| k.fields[j] - k.gt).collect();
             FieldAlongRoute {
                 field: name.clone(),
-                min_distance_m: kept.iter().map(|k| k.2[j]).fold(f64::INFINITY, f64::min),
-                error_at_tight_pass_m: tight.2[j] - tight.1,
-                near_mean_error_m: mean,
+                min_distance_m: kept.iter().map(|k| k.fields[j]).fold(f64::INFINITY, f64::min),
+                error_at_tight_pass_m: tight.fields[j] - tight.gt,
+                near_mean_error_m: mean(&errors),
                 near_min_error_m: least,
                 near_max_error_m: greatest,
+                ground_mean_error_m: mean(&ground_errors),
             }
         })
         .collect();
     Some(RouteGeometry {
         points: kept.len(),
         near_points: near.len(),
-        gt_min_distance_m: tight.1,
-        tight_pass_fraction: tight.0,
+        ground_points: ground.len(),
+        gt_min_distance_m: tight.gt,
+        tight_pass_fraction: tight.fraction,
         fields: rows,
     })
+}
+
+/// A compared point of the route.
+struct Kept {
+    fraction: f64,
+    gt: f64,
+    ground: bool,
+    fields: Vec<f64>,
 }
 
 #[cfg(test)]
@@ -126,32 +153,50 @@ mod tests {
         SdfGrid { geometry, data }
     }
 
-    /// A sphere of radius 0.3 at the origin, a route passing it at 0.1 m: a field whose sphere is
-    /// 1 cm larger errs by −1 cm everywhere (−0.01 at the tight pass, mean, least and greatest),
-    /// one shifted 2 cm away from the route errs by +2 cm at the tight pass and less elsewhere.
+    /// A sphere of radius 0.3 at the origin over the ground at z = −0.2, a route at z = 0 passing
+    /// the sphere at 0.1 m: a field whose sphere is 1 cm larger and ground 1 cm higher errs by
+    /// −1 cm everywhere (at the tight pass, beside the route and below it); one whose sphere is
+    /// shifted 2 cm away from the route errs by +2 cm at the tight pass, less elsewhere, and not
+    /// at all on the ground; one whose ground alone is 1 cm higher errs only below the route.
     #[test]
     fn a_field_with_a_known_error_is_measured_to_it_along_the_route() {
-        let sphere = |c: [f32; 3], r: f32| {
-            move |p: Point3<f32>| ((p.x - c[0]).powi(2) + (p.y - c[1]).powi(2) + (p.z - c[2]).powi(2)).sqrt() - r
+        let world = |c: [f32; 3], r: f32, ground: f32| {
+            move |p: Point3<f32>| {
+                (((p.x - c[0]).powi(2) + (p.y - c[1]).powi(2) + (p.z - c[2]).powi(2)).sqrt() - r).min(p.z - ground)
+            }
         };
-        let gt = grid(sphere([0.0; 3], 0.3));
-        let fatter = grid(sphere([0.0; 3], 0.31));
-        let away = grid(sphere([0.0, -0.02, 0.0], 0.3));
+        let gt = grid(world([0.0; 3], 0.3, -0.2));
+        let fatter = grid(world([0.0; 3], 0.31, -0.19));
+        let away = grid(world([0.0, -0.02, 0.0], 0.3, -0.2));
+        let ground_up = grid(world([0.0; 3], 0.3, -0.19));
         let route: Vec<Vector3<f64>> = (0..=160).map(|i| Vector3::new(-0.8 + 0.01 * i as f64, 0.4, 0.0)).collect();
-        let fields = [("member 1".to_string(), &fatter), ("member 2".to_string(), &away)];
+        let fields =
+            [("member 1".to_string(), &fatter), ("member 2".to_string(), &away), ("member 3".to_string(), &ground_up)];
         let g = route_geometry(&route, &gt, &fields).unwrap();
         assert_eq!(g.points, 161);
         assert!((g.gt_min_distance_m - 0.1).abs() < 2e-3, "{}", g.gt_min_distance_m);
         assert!((g.tight_pass_fraction - 0.5).abs() < 1e-9);
-        assert!(g.near_points > 0 && g.near_points < 161, "{}", g.near_points);
+        // Beside the sphere near the middle, the ground below everywhere else.
+        assert!(g.near_points > 10 && g.ground_points > 10, "{g:?}");
+        assert_eq!(g.near_points + g.ground_points, 161);
         let f = &g.fields[0];
-        for e in [f.error_at_tight_pass_m, f.near_mean_error_m, f.near_min_error_m, f.near_max_error_m] {
+        for e in [
+            f.error_at_tight_pass_m,
+            f.near_mean_error_m,
+            f.near_min_error_m,
+            f.near_max_error_m,
+            f.ground_mean_error_m,
+        ] {
             assert!((e + 0.01).abs() < 1.5e-3, "{f:?}");
         }
         assert!((f.min_distance_m - 0.09).abs() < 2e-3, "{f:?}");
         let a = &g.fields[1];
         assert!((a.error_at_tight_pass_m - 0.02).abs() < 1.5e-3, "{a:?}");
         assert!(a.near_min_error_m > 0.0 && a.near_mean_error_m < a.error_at_tight_pass_m, "{a:?}");
+        assert!(a.ground_mean_error_m.abs() < 1e-3, "{a:?}");
+        let u = &g.fields[2];
+        assert!(u.error_at_tight_pass_m.abs() < 1e-3 && u.near_mean_error_m.abs() < 2e-3, "{u:?}");
+        assert!((u.ground_mean_error_m + 0.01).abs() < 1.5e-3, "{u:?}");
         // Off every grid: nothing to compare.
         assert!(route_geometry(&[Vector3::new(5.0, 0.0, 0.0)], &gt, &fields).is_none());
     }

@@ -179,6 +179,7 @@ fn route_geometry(f: &CalibrationFigures, s: &mut Section) {
         num(g.gt_min_distance_m * 1e3, 1),
     ));
     let mm = |v: f64| num(v * 1e3, 1);
+    let or_dash = |v: Option<f64>| v.map_or_else(|| "–".to_string(), mm);
     s.table(
         Table::new(&[
             "field",
@@ -194,9 +195,9 @@ fn route_geometry(f: &CalibrationFigures, s: &mut Section) {
                 r.field.clone(),
                 mm(r.min_distance_m),
                 mm(r.error_at_tight_pass_m),
-                mm(r.near_mean_error_m),
-                format!("{} / {}", mm(r.near_min_error_m), mm(r.near_max_error_m)),
-                mm(r.ground_mean_error_m),
+                or_dash(r.near_mean_error_m),
+                format!("{} / {}", or_dash(r.near_min_error_m), or_dash(r.near_max_error_m)),
+                or_dash(r.ground_mean_error_m),
             ]
         })),
     );

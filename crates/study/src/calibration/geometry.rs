@@ -51,12 +51,13 @@ pub struct FieldAlongRoute {
     pub min_distance_m: f64,
     /// Its error at the ground truth's tight pass (m).
     pub error_at_tight_pass_m: f64,
-    /// Mean, least and greatest error over the near points beside the route (m).
-    pub near_mean_error_m: f64,
-    pub near_min_error_m: f64,
-    pub near_max_error_m: f64,
-    /// Mean error over the points near the ground below (m).
-    pub ground_mean_error_m: f64,
+    /// Mean, least and greatest error over the near points beside the route (m); `None`
+    /// without such points.
+    pub near_mean_error_m: Option<f64>,
+    pub near_min_error_m: Option<f64>,
+    pub near_max_error_m: Option<f64>,
+    /// Mean error over the points near the ground below (m); `None` without such points.
+    pub ground_mean_error_m: Option<f64>,
 }
 
 /// The planned path's points every [`SPACING_M`], both ends included.
@@ -95,23 +96,15 @@ pub fn route_geometry(points: &[Vector3<f64>], gt: &SdfGrid, fields: &[(String, 
         .enumerate()
         .map(|(j, (name, _))| {
             let errors: Vec<f64> = near.iter().map(|k| k.fields[j] - k.gt).collect();
-            // NaN for each with no point.
-            let mean = |e: &[f64]| if e.is_empty() { f64::NAN } else { e.iter().sum::<f64>() / e.len() as f64 };
-            let (least, greatest) = match errors.is_empty() {
-                true => (f64::NAN, f64::NAN),
-                false => (
-                    errors.iter().copied().fold(f64::INFINITY, f64::min),
-                    errors.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-                ),
-            };
             let ground_errors: Vec<f64> = ground.iter().map(|k| k.fields[j] - k.gt).collect();
+            let mean = |e: &[f64]| (!e.is_empty()).then(|| e.iter().sum::<f64>() / e.len() as f64);
             FieldAlongRoute {
                 field: name.clone(),
                 min_distance_m: kept.iter().map(|k| k.fields[j]).fold(f64::INFINITY, f64::min),
                 error_at_tight_pass_m: tight.fields[j] - tight.gt,
                 near_mean_error_m: mean(&errors),
-                near_min_error_m: least,
-                near_max_error_m: greatest,
+                near_min_error_m: errors.iter().copied().reduce(f64::min),
+                near_max_error_m: errors.iter().copied().reduce(f64::max),
                 ground_mean_error_m: mean(&ground_errors),
             }
         })
@@ -179,24 +172,25 @@ mod tests {
         // Beside the sphere near the middle, the ground below everywhere else.
         assert!(g.near_points > 10 && g.ground_points > 10, "{g:?}");
         assert_eq!(g.near_points + g.ground_points, 161);
+        let some = |e: Option<f64>| e.expect("points beside the route and above the ground");
         let f = &g.fields[0];
         for e in [
             f.error_at_tight_pass_m,
-            f.near_mean_error_m,
-            f.near_min_error_m,
-            f.near_max_error_m,
-            f.ground_mean_error_m,
+            some(f.near_mean_error_m),
+            some(f.near_min_error_m),
+            some(f.near_max_error_m),
+            some(f.ground_mean_error_m),
         ] {
             assert!((e + 0.01).abs() < 1.5e-3, "{f:?}");
         }
         assert!((f.min_distance_m - 0.09).abs() < 2e-3, "{f:?}");
         let a = &g.fields[1];
         assert!((a.error_at_tight_pass_m - 0.02).abs() < 1.5e-3, "{a:?}");
-        assert!(a.near_min_error_m > 0.0 && a.near_mean_error_m < a.error_at_tight_pass_m, "{a:?}");
-        assert!(a.ground_mean_error_m.abs() < 1e-3, "{a:?}");
+        assert!(some(a.near_min_error_m) > 0.0 && some(a.near_mean_error_m) < a.error_at_tight_pass_m, "{a:?}");
+        assert!(some(a.ground_mean_error_m).abs() < 1e-3, "{a:?}");
         let u = &g.fields[2];
-        assert!(u.error_at_tight_pass_m.abs() < 1e-3 && u.near_mean_error_m.abs() < 2e-3, "{u:?}");
-        assert!((u.ground_mean_error_m + 0.01).abs() < 1.5e-3, "{u:?}");
+        assert!(u.error_at_tight_pass_m.abs() < 1e-3 && some(u.near_mean_error_m).abs() < 2e-3, "{u:?}");
+        assert!((some(u.ground_mean_error_m) + 0.01).abs() < 1.5e-3, "{u:?}");
         // Off every grid: nothing to compare.
         assert!(route_geometry(&[Vector3::new(5.0, 0.0, 0.0)], &gt, &fields).is_none());
     }

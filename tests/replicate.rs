@@ -1,6 +1,7 @@
 //! `nerfsv replicate`, tried as a user would: the tiny study with two training seeds writes both
 //! runs, their headline rows and each headline's mean and standard deviation; the second run
-//! takes the first's dataset and ground truth instead of computing them again.
+//! takes the first's dataset and ground truth instead of computing them again; the online methods
+//! run only when asked.
 
 mod common;
 
@@ -23,6 +24,10 @@ fn replicate_with_two_seeds_writes_both_rows_and_the_spread() {
     let second: serde_json::Value = serde_json::from_str(&second).unwrap();
     assert_eq!(second["ensemble"]["trained"][0]["seed"], 17, "{second:#}");
     assert!(err.contains("dataset: up to date"), "the second run must take the first's dataset: {err}");
+    // Without --online no run studies the config's online method (GA); the stage still scores
+    // the baselines.
+    assert!(!out.join("seed_0/online/ga").exists() && second["online"]["studies"].as_array().unwrap().is_empty());
+    assert!(second["online"]["step_auroc"].as_array().is_some_and(|a| !a.is_empty()), "{second:#}");
 
     let csv = std::fs::read_to_string(out.join("replicate.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().collect();
@@ -72,10 +77,13 @@ fn replicate_over_disturbance_seeds_shares_the_models_and_pools_the_transfer() {
         s(&out),
         "--set",
         "stress.seed=5",
+        "--online",
     ]);
     assert!(ok, "{err}");
     for seed in [5, 6] {
         assert!(out.join(format!("stress_seed_{seed}/summary.json")).exists(), "{seed}: {err}");
+        // --online: each run studies the config's online method too.
+        assert!(out.join(format!("stress_seed_{seed}/online/ga/reward")).is_dir(), "{seed}");
     }
     for stage in ["nerf", "ensemble"] {
         assert!(err.contains(&format!("{stage}: up to date")), "the second run must take the first's {stage}: {err}");

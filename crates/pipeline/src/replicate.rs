@@ -261,11 +261,14 @@ pub fn replicate_guard(cfg: &RunConfig, out: &str) -> crate::Guard {
 }
 
 /// Runs `cfg` with `seeds` seeds of `varied` into their folders below its run folder (sharing the
-/// first's stages that do not depend on that seed), then writes the figures side by side.
+/// first's stages that do not depend on that seed), then writes the figures side by side. Each
+/// run studies the online uncertainty methods (`[online] methods`) only with `online_methods`:
+/// no replicated figure reads them.
 pub fn replicate(
     cfg: &RunConfig,
     seeds: usize,
     varied: Varied,
+    online_methods: bool,
     observer: &dyn Observer,
 ) -> Result<Replication, PipelineError> {
     nerfsv_scene::validate::in_range("--seeds", seeds, 1, 1000)?;
@@ -284,6 +287,9 @@ pub fn replicate(
     for i in 0..seeds {
         let seed = varied.seed(cfg, i);
         let mut run = varied.with_seed(cfg, seed);
+        if !online_methods {
+            run.online.methods.clear();
+        }
         let folder = varied.folder(&root, seed);
         run.out = Some(folder.clone());
         observer

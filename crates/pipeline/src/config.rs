@@ -256,7 +256,7 @@ impl WorldConfig {
 }
 
 /// The ensemble, the `[ensemble]` table.
-#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EnsembleConfig {
     /// NeRFs in the ensemble, the deployed model (member 0) included: 1 to 16. Member k ≥ 1 is
@@ -270,11 +270,17 @@ pub struct EnsembleConfig {
     /// views as the split has, drawn with replacement, seeded by the member's seed) instead of on
     /// all of them.
     pub bootstrap: bool,
+    /// Density σ (1/m) above which a member after the deployed one is solid in its signed field:
+    /// the geometry NeRF-sim detects crashes in when it flies the members (`sim.nerf_world`
+    /// `calibrated` or `ensemble`). None (the default): `nerf_density_threshold`, the threshold
+    /// of the map the drone plans on, which this leaves as it is.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub density_threshold: Option<f32>,
 }
 
 impl Default for EnsembleConfig {
     fn default() -> Self {
-        Self { members: 1, steps: None, bootstrap: false }
+        Self { members: 1, steps: None, bootstrap: false, density_threshold: None }
     }
 }
 
@@ -286,6 +292,9 @@ impl Validate for EnsembleConfig {
         in_range("members", self.members, 1, MAX_MEMBERS)?;
         if let Some(steps) = self.steps {
             in_range("steps", steps, 1, MAX_TRAIN_STEPS)?;
+        }
+        if let Some(t) = self.density_threshold {
+            positive("density_threshold", t as f64)?;
         }
         Ok(())
     }
@@ -861,6 +870,7 @@ mod tests {
             ("cells_per_metre = 0.5", "cells_per_metre", "0.5"),
             ("scene = \"atlantis\"", "scene", "atlantis"),
             ("nerf_density_threshold = -1.0", "nerf_density_threshold", "-1"),
+            ("[ensemble]\ndensity_threshold = 0.0", "ensemble.density_threshold", "0"),
             ("[nerf]\ncolor_hidden = 0", "nerf.color_hidden", "0"),
             ("[train]\nlr = -0.5", "train.lr", "-0.5"),
             ("[uq_offline]\nga_images_per_split = 0", "uq_offline.ga_images_per_split", "0"),

@@ -120,7 +120,7 @@ pub fn run_in(
         settings: &settings,
         ensemble: &cfg.ensemble,
         train_steps: cfg.train_steps,
-        density_threshold: cfg.nerf_density_threshold,
+        density_threshold: cfg.ensemble.density_threshold.or(cfg.nerf_density_threshold),
         own_grid: scene.is_none().then_some(cfg.cells_per_metre),
     })?;
     r.run(&uq::UqStage { uq: &cfg.uq, offline: &cfg.uq_offline, ensemble: cfg.ensemble.members > 1 })?;

@@ -111,6 +111,18 @@ fn a_tiny_run_with_an_ensemble_writes_the_transfer_table_and_resumes_to_the_same
     assert_eq!((member.seed, member.step), (1, 3));
     assert!(member.params == trained.params, "member 1's weights are `nerfsv train --seed 1`'s bit for bit");
     assert!(member.grid.density == trained.grid.density);
+
+    // Another threshold for the members' fields (NeRF-sim's geometry) changes theirs, not the map
+    // the drone plans on: the deployed field and the flight stage's plan stay as they were.
+    let (ok, _, err) = nerfsv(&["run", s(&cfg), "--out", s(&out), "--set", "ensemble.density_threshold=0.001"]);
+    assert!(ok, "{err}");
+    assert!(err.contains("nerf_collision: up to date") && err.contains("flight: up to date"), "{err}");
+    assert!(!err.contains("ensemble: up to date"), "{err}");
+    let bytes = |run: &std::path::Path, file: &str| std::fs::read(run.join(file)).unwrap();
+    let sdf = "ensemble/member_1/nerf_sdf.safetensors";
+    assert!(bytes(&out, sdf) != bytes(&reference, sdf), "member 1's field at the members' own threshold");
+    let map = "nerf_collision/nerf_sdf.safetensors";
+    assert!(bytes(&out, map) == bytes(&reference, map));
 }
 
 #[test]

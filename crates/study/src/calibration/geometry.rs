@@ -70,9 +70,7 @@ pub fn route_points(path: &PlannedPath) -> Vec<Vector3<f64>> {
 /// `fields` (named) against `gt` at `points`; points off any grid are left out. `None` when no
 /// point lies on every grid.
 pub fn route_geometry(points: &[Vector3<f64>], gt: &SdfGrid, fields: &[(String, &SdfGrid)]) -> Option<RouteGeometry> {
-    let at = |field: &SdfGrid, p: &Vector3<f64>| {
-        field.distance(Point3::new(p.x as f32, p.y as f32, p.z as f32)).in_grid().map(f64::from)
-    };
+    let at = |field: &SdfGrid, q: Point3<f32>| field.distance(q).in_grid().map(f64::from);
     // Each kept point's fraction along the route, the ground truth's distance, whether the
     // nearest real surface is the ground below, and each field's distance.
     let last = points.len().saturating_sub(1).max(1) as f64;
@@ -80,11 +78,11 @@ pub fn route_geometry(points: &[Vector3<f64>], gt: &SdfGrid, fields: &[(String, 
         .iter()
         .enumerate()
         .filter_map(|(i, p)| {
-            let g = at(gt, p)?;
             let q = Point3::new(p.x as f32, p.y as f32, p.z as f32);
+            let g = at(gt, q)?;
             let ground =
                 gt.gradient(q).in_grid().and_then(|n| n.try_normalize(1e-6)).is_some_and(|n| n.z > GROUND_NORMAL_Z);
-            let f: Option<Vec<f64>> = fields.iter().map(|(_, field)| at(field, p)).collect();
+            let f: Option<Vec<f64>> = fields.iter().map(|(_, field)| at(field, q)).collect();
             Some(Kept { fraction: i as f64 / last, gt: g, ground, fields: f? })
         })
         .collect();

@@ -29,7 +29,7 @@
 //! `BIAS=1` flies the filter with the shared bias the run's calibration measured (`[calibration]
 //! filter_bias`). `NERF_WORLD` picks NeRF-sim's world: `deployed` (default: the estimator's own
 //! NeRF), `ensemble` or `calibrated` (the study's, from the run folder's members and calibration;
-//! `CHECKPOINT` then does not apply).
+//! `CHECKPOINT` then does not apply; `IMAGE_NOISE=0|1` sets `[calibration] image_noise`).
 //! Disturbances come from a seeded generator of its own, so every setting is compared on the
 //! same draws.
 
@@ -132,6 +132,7 @@ fn main() -> anyhow::Result<()> {
         "calibrated" => NerfWorldSource::Calibrated,
         _ => NerfWorldSource::Deployed,
     };
+    cfg.calibration.image_noise = env("IMAGE_NOISE", u8::from(cfg.calibration.image_noise)) == 1;
     let inputs = if cfg.sim.nerf_world == NerfWorldSource::Deployed {
         FlightInputs::load(
             &std::env::var("CHECKPOINT").map_or_else(|_| NerfStage::checkpoint(&out), PathBuf::from),

@@ -50,6 +50,7 @@ pub fn load_calibration(root: &Path, calibration: &CalibrationConfig, seed: u64)
         draws_per_member: calibration.draws_per_member,
         seed,
         model_error_per_rmse: model_error.map(|m| m.per_rmse),
+        image_noise: if calibration.image_noise { models.image_noise } else { Vec::new() },
     })
 }
 

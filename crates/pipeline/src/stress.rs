@@ -119,9 +119,9 @@ impl Stage for StressStage<'_> {
 impl StressStage<'_> {
     /// What the calibrated world adds to the key: its draws and whose model error the filter
     /// takes (the calibration's own figures enter through its folder's key).
-    pub fn calibration_key(&self) -> Option<(usize, bool, bool)> {
+    pub fn calibration_key(&self) -> Option<(usize, bool, bool, bool)> {
         let c = self.calibration;
-        self.calibrated().then_some((c.draws_per_member, c.filter_model_error, c.filter_bias))
+        self.calibrated().then_some((c.draws_per_member, c.filter_model_error, c.filter_bias, c.image_noise))
     }
 
     /// This stage with the drone's simulator settings `sim` (those it flies with its inputs:

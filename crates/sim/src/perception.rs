@@ -458,6 +458,10 @@ pub struct CalibratedWorld<'a> {
     /// The members, each rollout in the member the ensemble world gives its seed.
     pub ensemble: EnsembleWorld<'a>,
     draws: Vec<ErrorDraw>,
+    /// Per world, the standard deviation per axis ([`AXES`]) of the error each image adds to
+    /// its draw on its own ([`CalibratedWorld::with_image_noise`]), and the seed it is drawn
+    /// from; all zero unless set.
+    image_noise: Vec<([f64; 6], u64)>,
 }
 
 impl<'a> CalibratedWorld<'a> {
@@ -474,7 +478,23 @@ impl<'a> CalibratedWorld<'a> {
                 model.draw(nerfsv_scene::seed::mix(seed, 0xca11b, w as u64))
             })
             .collect();
-        Self { ensemble: EnsembleWorld { members }, draws }
+        let image_noise = (0..worlds).map(|w| ([0.0; 6], nerfsv_scene::seed::mix(seed, 0x1a6e, w as u64))).collect();
+        Self { ensemble: EnsembleWorld { members }, draws, image_noise }
+    }
+
+    /// Each image of member `m`'s worlds also displaced by an error of its own, independent
+    /// between images: per axis a normal of standard deviation `sd[m]` ([`AXES`]' order; the last
+    /// entry for members beyond them; none: no such error). It stands for the scatter of one
+    /// fit that a real image has and a member's own image lacks (as the calibration measures it
+    /// on views fitted several times): the draw is a smooth function of the view and adds none. An
+    /// image's error is a function of its world's seed and the camera's pose, so a rollout
+    /// flown again sees the same images.
+    pub fn with_image_noise(mut self, sd: &[[f64; 6]]) -> Self {
+        let m = self.ensemble.members.len().max(1);
+        for (w, (noise, _)) in self.image_noise.iter_mut().enumerate() {
+            *noise = sd.get(w % m).or(sd.last()).copied().unwrap_or([0.0; 6]);
+        }
+        self
     }
 
     /// How many worlds the rollouts are spread over.
@@ -492,6 +512,27 @@ impl<'a> CalibratedWorld<'a> {
 struct Displaced<'a> {
     member: &'a NerfWorld<'a>,
     draw: &'a ErrorDraw,
+    /// The per-image error's standard deviation per axis and its seed.
+    noise: ([f64; 6], u64),
+}
+
+/// The error of the image `camera` takes in a world with draw `draw` and per-image error
+/// `noise` (standard deviations and seed): the draw at the view plus, where the world has one,
+/// the image's own error, seeded by the world's seed and the camera's pose bits.
+fn image_error(draw: &ErrorDraw, noise: ([f64; 6], u64), camera: &Camera) -> [f64; 6] {
+    let mut e = draw.at(&ViewPose::of_camera(camera));
+    let (sd, seed) = noise;
+    if sd.iter().any(|&s| s > 0.0) {
+        let mut bits = [0u8; 64];
+        for (b, v) in bits.chunks_exact_mut(4).zip(camera.c2w.iter()) {
+            b.copy_from_slice(&v.to_bits().to_le_bytes());
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(nerfsv_scene::seed::mix(seed, nerfsv_scene::seed::fnv1a(&bits), 0));
+        for (e, s) in e.iter_mut().zip(sd) {
+            *e += s * normal(&mut rng);
+        }
+    }
+    e
 }
 
 impl World for Displaced<'_> {
@@ -504,7 +545,7 @@ impl World for Displaced<'_> {
     }
 
     fn observe(&self, camera: &Camera, pixels: &[[u32; 2]], background: [f32; 3]) -> Vec<[f32; 3]> {
-        let e = self.draw.at(&ViewPose::of_camera(camera));
+        let e = image_error(self.draw, self.noise, camera);
         if e.iter().all(|&v| v == 0.0) {
             return self.member.observe(camera, pixels, background);
         }
@@ -529,7 +570,8 @@ impl World for CalibratedWorld<'_> {
     fn for_rollout(&self, seed: u64) -> Option<Box<dyn World + '_>> {
         // World w = seed mod (members · draws) flies member w mod members = seed mod members.
         let member = &self.ensemble.members[self.ensemble.member_of(seed)];
-        Some(Box::new(Displaced { member, draw: &self.draws[Self::world_of(seed, self.worlds())] }))
+        let w = Self::world_of(seed, self.worlds());
+        Some(Box::new(Displaced { member, draw: &self.draws[w], noise: self.image_noise[w] }))
     }
 }
 
@@ -585,6 +627,37 @@ mod tests {
         // An axis without error stays exactly zero.
         let p = model.predict(&ViewPose { position: [0.0; 3], forward: [1.0, 0.0, 0.0] });
         assert_eq!((p[4].mean, p[4].latent_sd), (0.0, 0.0));
+    }
+
+    #[test]
+    fn an_images_own_error_has_its_standard_deviation_and_is_a_function_of_the_pose_and_seed() {
+        let draw = ErrorModel::zero().draw(0);
+        let sd = [0.01, 0.02, 0.0, 0.001, 0.0, 0.003];
+        let camera = |i: usize| {
+            let mut c2w = Matrix4::<f32>::identity();
+            c2w[(0, 3)] = i as f32 * 1e-3;
+            Camera::new(nerfsv_scene::Intrinsics::from_fov_x(64, 48, 1.0), c2w)
+        };
+        // Without one, an image's error is the draw's (here none).
+        assert_eq!(image_error(&draw, ([0.0; 6], 7), &camera(1)), [0.0; 6]);
+        // The same pose and seed give the same error; another seed another.
+        let e = image_error(&draw, (sd, 7), &camera(1));
+        assert_eq!(e, image_error(&draw, (sd, 7), &camera(1)));
+        assert_ne!(e, image_error(&draw, (sd, 8), &camera(1)));
+        // Over poses, each axis' error has the standard deviation asked for (an axis without
+        // any stays zero).
+        let n = 4000;
+        let errors: Vec<[f64; 6]> = (0..n).map(|i| image_error(&draw, (sd, 7), &camera(i))).collect();
+        for a in 0..6 {
+            let mean = errors.iter().map(|e| e[a]).sum::<f64>() / n as f64;
+            let var = errors.iter().map(|e| (e[a] - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+            if sd[a] == 0.0 {
+                assert_eq!(var, 0.0);
+            } else {
+                assert!((var.sqrt() / sd[a] - 1.0).abs() < 0.05, "axis {a}: sd {} against {}", var.sqrt(), sd[a]);
+                assert!(mean.abs() < 4.0 * sd[a] / (n as f64).sqrt(), "axis {a}: mean {mean}");
+            }
+        }
     }
 
     #[test]

@@ -35,6 +35,11 @@ use crate::flight::Mission;
 use crate::{Observer, StudyError};
 
 pub mod geometry;
+mod record;
+mod scatter;
+
+pub use record::{CalibrationRecord, ViewSource};
+pub use scatter::{filter_model_error, within_view_excess, ModelError};
 
 /// The `[calibration]` table: the calibration views and the calibrated world's draws.
 #[derive(nerfsv_derive::FieldDocs, Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -80,6 +85,12 @@ pub struct CalibrationConfig {
     /// GT-sim's images above χ²₆(0.95) 2.7 → 3.2 %) and reported on the default scene:
     /// BENCHMARKS.md. It overrides `filter_model_error`.
     pub filter_bias: bool,
+    /// Add to each image of the calibrated world an error of its own, independent between
+    /// images: the scatter of one fit that the real images have beyond the member's own
+    /// ([`within_view_excess`], measured on the route capture's views). The error model's draw
+    /// is a smooth function of the view; without this, a member's images scatter from image to
+    /// image as little as the member's own fits do.
+    pub image_noise: bool,
 }
 
 impl Default for CalibrationConfig {
@@ -93,6 +104,7 @@ impl Default for CalibrationConfig {
             draws_per_member: 5,
             filter_model_error: false,
             filter_bias: true,
+            image_noise: false,
         }
     }
 }
@@ -106,21 +118,6 @@ impl CalibrationConfig {
         in_range("fits_per_view", self.fits_per_view, 1, 100)?;
         in_range("draws_per_member", self.draws_per_member, 1, 10_000)
     }
-}
-
-/// Where a calibration view comes from; its name ([`ViewSource::name`]) is the `source` of the
-/// fits' CSV and of its JSON.
-#[derive(nerfsv_derive::Choice, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum ViewSource {
-    /// The route capture rendered by the ground truth.
-    #[serde(rename = "route")]
-    Route,
-    /// The dataset's held-out split.
-    #[serde(rename = "held_out")]
-    HeldOut,
-    /// A recorded route capture (`[calibration] route_dataset`).
-    #[serde(rename = "route_dataset")]
-    RouteDataset,
 }
 
 /// What a calibration view's image is: a world rendered at the view (the ground truth) or a
@@ -187,36 +184,6 @@ pub fn route_fraction(flight: &Flight, position: &Vector3<f64>) -> f64 {
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map_or(0.0, |(f, _)| f)
-}
-
-/// One fit of one calibration view.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct CalibrationRecord {
-    pub source: ViewSource,
-    pub view: usize,
-    pub fit: usize,
-    pub route_fraction: Option<f64>,
-    pub at: ViewPose,
-    /// The fit's pose minus the true pose, [`AXES`]' order.
-    pub error: [f64; 6],
-    /// The fit's colour RMSE, variance factor and renders.
-    pub rmse: f64,
-    pub variance_factor: f64,
-    pub renders: usize,
-}
-
-impl CalibrationRecord {
-    pub fn sample(&self) -> ErrorSample {
-        ErrorSample { view: self.view, at: self.at, error: self.error }
-    }
-
-    pub fn position_error_m(&self) -> f64 {
-        Vector3::new(self.error[0], self.error[1], self.error[2]).norm()
-    }
-
-    pub fn rotation_error_deg(&self) -> f64 {
-        Vector3::new(self.error[3], self.error[4], self.error[5]).norm().to_degrees()
-    }
 }
 
 /// Fits every view `fits` times against `nerf` as the estimator `vision` fits an image in
@@ -329,70 +296,11 @@ pub struct ErrorModels {
     /// the filter would take.
     #[serde(default)]
     pub model_error_per_rmse: Option<ModelError>,
-}
-
-/// The filter's model error measured on calibration fits: the standard deviation per axis of a
-/// fit's error per unit of its colour RMSE (`sim.vision.model_error_per_rmse`'s meaning), with a
-/// 95 % interval from a bootstrap over views.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ModelError {
-    /// `[metres, degrees]` per unit of RMSE.
-    pub per_rmse: [f64; 2],
-    pub position_ci95: [f64; 2],
-    pub rotation_ci95: [f64; 2],
-    /// The fits it rests on (those the filter would take) and their views.
-    pub fits: usize,
-    pub views: usize,
-}
-
-/// Bootstrap resamples of [`filter_model_error`]'s interval.
-const MODEL_ERROR_RESAMPLES: usize = 1000;
-
-/// The filter's model error of the fits `records` (one view's fits share its `view`): per unit
-/// of each fit's colour RMSE, the root mean square of its error over the position axes (metres)
-/// and over the rotation axes (degrees), `sqrt(mean(e² / rmse²))`, the maximum-likelihood scale
-/// of an error that is normal with standard deviation `k · rmse` per axis. Fits the filter
-/// refuses as lost (variance factor above `lost_variance_factor`) and fits without a residual
-/// are left out. The interval resamples views (a view's fits share its bias), seeded by `seed`.
-/// None without a fit left.
-pub fn filter_model_error(records: &[CalibrationRecord], lost_variance_factor: f64, seed: u64) -> Option<ModelError> {
-    // Per view: the sums of e²/rmse² over its fits' position and rotation axes, and its fits.
-    let mut per_view: std::collections::BTreeMap<(&str, usize), ([f64; 2], usize)> = Default::default();
-    for r in records.iter().filter(|r| r.variance_factor <= lost_variance_factor && r.rmse > 0.0) {
-        let entry = per_view.entry((r.source.name(), r.view)).or_default();
-        let w = 1.0 / (r.rmse * r.rmse);
-        entry.0[0] += w * r.error[..3].iter().map(|e| e * e).sum::<f64>();
-        entry.0[1] += w * r.error[3..].iter().map(|e| e.to_degrees().powi(2)).sum::<f64>();
-        entry.1 += 1;
-    }
-    let views: Vec<([f64; 2], usize)> = per_view.into_values().collect();
-    let scale = |picked: &mut dyn Iterator<Item = &([f64; 2], usize)>| -> [f64; 2] {
-        let (mut sum, mut n) = ([0.0; 2], 0);
-        for (s, k) in picked {
-            sum = [sum[0] + s[0], sum[1] + s[1]];
-            n += k;
-        }
-        sum.map(|s| (s / (3 * n.max(1)) as f64).sqrt())
-    };
-    let fits: usize = views.iter().map(|v| v.1).sum();
-    if fits == 0 {
-        return None;
-    }
-    let per_rmse = scale(&mut views.iter());
-    use rand::{RngExt, SeedableRng};
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(mix(seed, 0x30de1, 0));
-    let mut draws: [Vec<f64>; 2] = Default::default();
-    for _ in 0..MODEL_ERROR_RESAMPLES {
-        let k = scale(&mut (0..views.len()).map(|_| &views[rng.random_range(0..views.len())]));
-        draws[0].push(k[0]);
-        draws[1].push(k[1]);
-    }
-    let ci = |mut v: Vec<f64>| -> [f64; 2] {
-        v.sort_by(f64::total_cmp);
-        [nerfsv_scene::stats::quantile_sorted(&v, 0.025), nerfsv_scene::stats::quantile_sorted(&v, 0.975)]
-    };
-    let [p, r] = draws;
-    Some(ModelError { per_rmse, position_ci95: ci(p), rotation_ci95: ci(r), fits, views: views.len() })
+    /// Per member, the scatter of one real fit that the member's own fits of the same views
+    /// lack ([`within_view_excess`]), per axis ([`AXES`]): what the calibrated world adds to
+    /// each image with `[calibration] image_noise`. Empty in files written before it.
+    #[serde(default)]
+    pub image_noise: Vec<[f64; 6]>,
 }
 
 /// The paired differences `real − member` of fits of the same views with the same pixels and
@@ -504,6 +412,11 @@ pub struct CalibrationFigures {
     /// ([`AXES`]): the correction the calibrated world's draws for that member are centred near.
     #[serde(default)]
     pub member_mean_difference: Vec<[f64; 6]>,
+    /// Per ensemble member, the scatter of one real fit beyond the member's own
+    /// ([`within_view_excess`], [`AXES`]): the error each image of the calibrated world adds
+    /// on its own with `[calibration] image_noise`.
+    #[serde(default)]
+    pub member_image_noise: Vec<[f64; 6]>,
     /// The filter's model error the fits measured, and the config's it replaces where
     /// `[calibration] filter_model_error` ([`filter_model_error`]).
     #[serde(default)]
@@ -552,6 +465,7 @@ impl CalibrationFigures {
             kernels: model.kernels().to_vec(),
             cross_validation: cv,
             member_mean_difference: Vec::new(),
+            member_image_noise: Vec::new(),
             model_error: None,
             model_error_by_source: Vec::new(),
             config_model_error: [f64::NAN; 2],
@@ -708,6 +622,7 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
         real: model.clone(),
         members: member_samples.iter().map(|d| ErrorModel::fit(d)).collect(),
         model_error_per_rmse: model_error,
+        image_noise: member_records.iter().map(|rs| within_view_excess(&records, rs, lost)).collect(),
     };
     let member_mean_difference = member_samples
         .iter()
@@ -730,6 +645,7 @@ pub fn calibrate(req: &CalibrationRequest, observer: &dyn Observer) -> Result<Ca
         model_seconds,
         route_geometry,
         member_mean_difference,
+        member_image_noise: models.image_noise.clone(),
         model_error,
         model_error_by_source,
         config_model_error: sim.vision.model_error_per_rmse,
@@ -763,7 +679,7 @@ fn write_route_png(
 mod tests {
     use super::*;
 
-    fn record(view: usize, fit: usize, dy: f64) -> CalibrationRecord {
+    pub(super) fn record(view: usize, fit: usize, dy: f64) -> CalibrationRecord {
         CalibrationRecord {
             source: ViewSource::Route,
             view,
@@ -790,43 +706,12 @@ mod tests {
     }
 
     /// Uniform draws in `[0, 1)` from `seed`.
-    fn uniforms(seed: u64) -> impl FnMut() -> f64 {
+    pub(super) fn uniforms(seed: u64) -> impl FnMut() -> f64 {
         let mut state = seed;
         move || {
             state = nerfsv_scene::seed::splitmix64(state);
             (state >> 11) as f64 / (1u64 << 53) as f64
         }
-    }
-
-    #[test]
-    fn the_filter_model_error_recovers_a_known_scale_and_leaves_lost_fits_out() {
-        // Errors normal per axis with sd k · rmse (k = 0.4 m and 12° per unit of RMSE), the RMSE
-        // varying from fit to fit; lost fits with errors 100 times larger are left out.
-        let mut uniform = uniforms(7);
-        let k = [0.4, 12.0_f64.to_radians()];
-        let mut records = Vec::new();
-        for view in 0..200 {
-            for fit in 0..3 {
-                let rmse = 0.02 + 0.06 * uniform();
-                let lost = fit == 2 && view % 4 == 0;
-                let error = std::array::from_fn(|a| {
-                    let z: f64 = (0..12).map(|_| uniform()).sum::<f64>() - 6.0;
-                    k[a / 3] * rmse * z * if lost { 100.0 } else { 1.0 }
-                });
-                let variance_factor = if lost { 50.0 } else { 1.0 };
-                records.push(CalibrationRecord { error, rmse, variance_factor, ..record(view, fit, 0.0) });
-            }
-        }
-        let m = filter_model_error(&records, 5.0, 3).unwrap();
-        assert_eq!((m.fits, m.views), (550, 200));
-        assert!((m.per_rmse[0] / 0.4 - 1.0).abs() < 0.05, "{m:?}");
-        assert!((m.per_rmse[1] / 12.0 - 1.0).abs() < 0.05, "{m:?}");
-        assert!(m.position_ci95[0] < 0.4 && 0.4 < m.position_ci95[1], "{m:?}");
-        assert!(m.rotation_ci95[0] < 12.0 && 12.0 < m.rotation_ci95[1], "{m:?}");
-        assert!(m.position_ci95[1] - m.position_ci95[0] < 0.05, "{m:?}");
-        // Every fit lost: nothing to measure.
-        let lost: Vec<_> = records.iter().map(|r| CalibrationRecord { variance_factor: 50.0, ..*r }).collect();
-        assert_eq!(filter_model_error(&lost, 5.0, 3), None);
     }
 
     #[test]

@@ -484,6 +484,9 @@ pub struct Calibration {
     /// has it ([`nerfsv_sim::ErrorModel::shared_bias`]), which the filter then considers in
     /// every world ([`FlightInputs::filter_sim`]); none: images independent.
     pub model_bias: Option<nerfsv_sim::ModelBias>,
+    /// Per member, the standard deviation per axis of the error each image adds on its own
+    /// ([`nerfsv_sim::CalibratedWorld::with_image_noise`]); empty: none.
+    pub image_noise: Vec<[f64; 6]>,
 }
 
 /// One member of an ensemble as a world: its NeRF and its signed field.
@@ -561,7 +564,10 @@ pub fn drone_world<'a>(
         (WorldKind::Nerf, NerfWorldSource::Calibrated) => {
             let c = inputs.calibration.as_ref().ok_or(StudyError::NoCalibration)?;
             let members = inputs.members.iter().map(|m| NerfWorld { nerf: &m.nerf, field: &m.field }).collect();
-            Ok(Box::new(nerfsv_sim::CalibratedWorld::new(members, &c.models, c.draws_per_member, c.seed)))
+            Ok(Box::new(
+                nerfsv_sim::CalibratedWorld::new(members, &c.models, c.draws_per_member, c.seed)
+                    .with_image_noise(&c.image_noise),
+            ))
         }
         (WorldKind::Nerf, NerfWorldSource::Ensemble) => Ok(Box::new(EnsembleWorld {
             members: inputs.members.iter().map(|m| NerfWorld { nerf: &m.nerf, field: &m.field }).collect(),

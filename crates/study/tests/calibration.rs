@@ -193,6 +193,7 @@ fn the_filter_takes_the_model_error_the_calibration_measured_and_the_configs_wit
             seed: 0,
             model_error_per_rmse,
             model_bias,
+            image_noise: Vec::new(),
         }),
     };
     let cfg = SimConfig::default();
@@ -211,4 +212,23 @@ fn the_filter_takes_the_model_error_the_calibration_measured_and_the_configs_wit
     assert_eq!(considered.vision.model_bias, Some(bias));
     let vision = nerfsv_sim::VisionConfig { model_bias: None, ..considered.vision.clone() };
     assert_eq!(SimConfig { vision, ..considered }, cfg, "nothing else changes");
+}
+
+#[test]
+fn each_images_own_error_is_a_function_of_the_seeds_and_none_leaves_the_world_as_it_was() {
+    let field = free_field();
+    let sim = simulator(&nerfs()[0]);
+    let zero = [ErrorModel::zero(), ErrorModel::zero()];
+    let ensemble = EnsembleWorld { members: members(&field) };
+    let none = CalibratedWorld::new(members(&field), &zero, 3, 11).with_image_noise(&[[0.0; 6]]);
+    let sd = [[0.01, 0.01, 0.01, 0.005, 0.005, 0.005]];
+    let build = || CalibratedWorld::new(members(&field), &zero, 3, 11).with_image_noise(&sd);
+    let (one, two) = (build(), build());
+    for seed in [2, 3] {
+        let plain = sim.fly(&ensemble, EstimatorKind::Vision, &kicks(), seed);
+        assert_eq!(plain, sim.fly(&none, EstimatorKind::Vision, &kicks(), seed), "seed {seed}: no error, no change");
+        let a = sim.fly(&one, EstimatorKind::Vision, &kicks(), seed);
+        assert_eq!(a, sim.fly(&two, EstimatorKind::Vision, &kicks(), seed), "seed {seed}: same seeds, same images");
+        assert_ne!(a, plain, "seed {seed}: the images' own error changes the flight");
+    }
 }

@@ -111,6 +111,23 @@ impl Report for CalibrationStage<'_> {
                 }),
             ));
         }
+        if !f.member_image_noise.is_empty() {
+            s.paragraph(
+                "A member's draw is a smooth function of the view, so its images scatter from image to image only as \
+                 much as the member's own fits do. The scatter of one real fit beyond the member's (standard deviation \
+                 per axis, mm and mrad: the square root of the real fits' variance about their view's mean less the \
+                 member's, pooled over the route capture's views, lost fits left out; zero where the member scatters \
+                 as much); with [calibration] image_noise = true each of the calibrated world's images adds an \
+                 independent error of this size:",
+            );
+            s.table(Table::new(&["member", AXES[0], AXES[1], AXES[2], AXES[3], AXES[4], AXES[5]]).rows(
+                f.member_image_noise.iter().enumerate().map(|(k, d)| {
+                    let mut row = vec![(k + 1).to_string()];
+                    row.extend(d.iter().map(|v| num(v * 1e3, 2)));
+                    row
+                }),
+            ));
+        }
         model_error(f, &mut s);
         route_geometry(f, &mut s);
         s.csv(CalibrationStage::VIEWS_CSV, "calibration_fits.csv");
